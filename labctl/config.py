@@ -1,0 +1,246 @@
+"""Campaign files (CONTRACTS §3): TOML validated by pydantic.
+
+Everything that can be checked before a device moves is checked here: unknown
+keys, value ranges, procedure kinds, and every stage position against the
+stage travel. Errors become :class:`~labctl.errors.InputError` with the field
+path (``procedure[1].stop_mm``) and what is allowed.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, ValidationError, field_validator, model_validator
+
+from labctl.errors import InputError
+from procedures import PROCEDURES, ProcedureConfig, Step
+from procedures.steps import StrictModel
+
+#: campaign ``backend`` -> simulation profile name (CONTRACTS §3)
+SIM_PROFILE_OF_BACKEND = {
+    "realsense": "d455",
+    "blaze": "blaze101",
+    "amt100": "amt100",
+    "flexx2": "flexx2",
+    "d455": "d455",
+    "blaze101": "blaze101",
+}
+#: campaign ``backend`` -> real driver name
+DRIVER_OF_BACKEND = {
+    "realsense": "realsense",
+    "blaze": "blaze",
+    "amt100": "amt100",
+    "flexx2": "flexx2",
+    "d455": "realsense",
+    "blaze101": "blaze",
+}
+
+
+class CampaignInfo(StrictModel):
+    name: str = Field(min_length=1)
+    operator: str = ""
+    description: str = ""
+
+
+class CameraConfig(StrictModel):
+    backend: Literal["realsense", "blaze", "amt100", "flexx2", "d455", "blaze101"]
+    serial: str | None = None
+    settings: dict[str, Any] = Field(default_factory=dict)
+
+    @property
+    def sim_profile(self) -> str:
+        return SIM_PROFILE_OF_BACKEND[self.backend]
+
+    @property
+    def driver(self) -> str:
+        return DRIVER_OF_BACKEND[self.backend]
+
+
+class StageConfig(StrictModel):
+    protocol: Literal["zaber", "grbl"]
+    port: str | None = None
+    baud: int | None = Field(None, gt=0)
+    travel_mm: tuple[float, float] = (0.0, 4000.0)
+    speed_mm_s: float = Field(50.0, gt=0, le=2000)
+    settle_s: float = Field(0.5, ge=0, le=60)
+    distance_at_zero_mm: float = Field(
+        0.0, description="camera-wall distance when the stage is at position 0"
+    )
+    axis_direction: Literal["away_from_wall", "towards_wall"] = "away_from_wall"
+
+    @field_validator("travel_mm")
+    @classmethod
+    def _travel_ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if value[1] <= value[0]:
+            raise ValueError(f"travel_mm must be [min, max] with min < max, got {list(value)}")
+        return value
+
+    def position_for_distance(self, distance_mm: float) -> float:
+        """Stage coordinate that puts the camera ``distance_mm`` from the wall."""
+        sign = 1.0 if self.axis_direction == "away_from_wall" else -1.0
+        return sign * (distance_mm - self.distance_at_zero_mm)
+
+
+class LaserConfig(StrictModel):
+    port: str | None = None
+    baud: int = Field(19200, gt=0)
+    readings: int = Field(5, ge=1, le=100, description="readings averaged per step")
+    offset_mm: float | None = Field(
+        None, description="known camera-laser offset, used until an offset_calibration step measures it"
+    )
+
+
+class RobotConfig(StrictModel):
+    host: str = "127.0.0.1"
+    radius_max_mm: float = Field(850.0, gt=0)
+    angle_limits_deg: tuple[float, float] = (-90.0, 90.0)
+    speed_deg_s: float = Field(10.0, gt=0, le=180)
+
+
+class DevicesConfig(StrictModel):
+    camera: CameraConfig
+    stage: StageConfig | None = None
+    laser: LaserConfig | None = None
+    robot: RobotConfig | None = None
+
+
+class FaultRates(StrictModel):
+    """Probability per step that each fault kind strikes once (simulation only)."""
+
+    serial_timeout: float = Field(0.0, ge=0, le=1)
+    serial_garbage: float = Field(0.0, ge=0, le=1)
+    camera_disconnect: float = Field(0.0, ge=0, le=1)
+    dropped_frame: float = Field(0.0, ge=0, le=1)
+    robot_protective_stop: float = Field(0.0, ge=0, le=1)
+
+
+class SimConfig(StrictModel):
+    seed: int = Field(0, ge=0)
+    faults: FaultRates = FaultRates()
+
+
+class RunnerConfig(StrictModel):
+    max_attempts: int = Field(5, ge=1, le=50, description="attempts per operation")
+    backoff_s: float = Field(0.5, ge=0, le=60, description="first retry delay, doubled each time")
+    backoff_max_s: float = Field(10.0, ge=0, le=600)
+    operator_time_s: float = Field(60.0, ge=0, description="lab time planned per operator prompt")
+
+
+ProcedureEntry = Annotated[ProcedureConfig, Field(discriminator="kind")]
+
+
+class Campaign(StrictModel):
+    campaign: CampaignInfo
+    devices: DevicesConfig
+    procedure: list[ProcedureEntry] = Field(min_length=1)
+    runner: RunnerConfig = RunnerConfig()
+    sim: SimConfig = SimConfig()
+
+    @field_validator("procedure", mode="before")
+    @classmethod
+    def _known_kinds(cls, entries: Any) -> Any:
+        if isinstance(entries, list):
+            for i, entry in enumerate(entries):
+                kind = entry.get("kind") if isinstance(entry, dict) else None
+                if kind is None:
+                    raise ValueError(f"procedure[{i}] has no 'kind'")
+                if kind not in PROCEDURES:
+                    raise ValueError(
+                        f"procedure[{i}].kind = {kind!r} is not available; "
+                        f"known kinds: {', '.join(PROCEDURES)}"
+                    )
+        return entries
+
+    @model_validator(mode="after")
+    def _devices_reach_positions(self) -> Campaign:
+        stage = self.devices.stage
+        for i, proc in enumerate(self.procedure):
+            distances = proc.stage_distances_mm()
+            if distances and stage is None:
+                raise ValueError(f"procedure[{i}] ({proc.kind}) moves the stage but [devices.stage] is missing")
+            if proc.kind == "offset_calibration" and self.devices.laser is None:
+                raise ValueError(f"procedure[{i}] (offset_calibration) needs [devices.laser]")
+            for distance in distances:
+                position = stage.position_for_distance(distance)
+                lo, hi = stage.travel_mm
+                if not lo <= position <= hi:
+                    raise ValueError(
+                        f"procedure[{i}] ({proc.kind}): distance {distance:g} mm needs stage position "
+                        f"{position:g} mm, outside devices.stage.travel_mm [{lo:g}, {hi:g}]"
+                    )
+        return self
+
+    @model_validator(mode="after")
+    def _offset_known_in_time(self) -> Campaign:
+        laser = self.devices.laser
+        if laser is None or laser.offset_mm is not None:
+            return self
+        for i, proc in enumerate(self.procedure):
+            if proc.kind == "offset_calibration":
+                break
+            if proc.needs_reference:
+                raise ValueError(
+                    f"procedure[{i}] ({proc.kind}) needs the camera-laser offset: put an offset_calibration "
+                    "before it or set devices.laser.offset_mm"
+                )
+        return self
+
+    def steps(self) -> list[Step]:
+        """The whole plan, steps numbered in execution order."""
+        steps: list[Step] = []
+        for proc in self.procedure:
+            steps.extend(proc.steps(len(steps)))
+        return steps
+
+
+def _format_location(loc: tuple[Any, ...]) -> str:
+    parts: list[str] = []
+    for i, item in enumerate(loc):
+        if isinstance(item, int):
+            parts[-1] = f"{parts[-1]}[{item}]" if parts else f"[{item}]"
+        elif i > 0 and loc[i - 1] == item:
+            continue
+        elif i > 0 and isinstance(loc[i - 1], int) and item in PROCEDURES:
+            continue  # discriminator tag inserted by pydantic
+        else:
+            parts.append(str(item))
+    return ".".join(parts)
+
+
+def _describe(error: dict[str, Any]) -> str:
+    where = _format_location(tuple(error["loc"]))
+    kind = error["type"]
+    if kind == "extra_forbidden":
+        section, _, key = where.rpartition(".")
+        return f"unknown key '{key}'" + (f" in [{section}]" if section else " at top level")
+    message = error["msg"].removeprefix("Value error, ")
+    if kind in {"value_error", "assertion_error"} and not where:
+        return message
+    got = error.get("input")
+    shown = "" if kind in {"missing", "model_type"} or isinstance(got, dict) else f" (got {got!r})"
+    return f"{where or 'campaign'}: {message}{shown}"
+
+
+def parse_campaign(text: str, source: str = "campaign") -> Campaign:
+    """Parse and validate campaign TOML text; raise InputError naming every bad field."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{source}: not valid TOML: {exc}") from None
+    try:
+        return Campaign.model_validate(data)
+    except ValidationError as exc:
+        problems = "\n  - ".join(_describe(e) for e in exc.errors())
+        raise InputError(f"{source} is not a valid campaign:\n  - {problems}") from None
+
+
+def load_campaign(path: str | Path) -> tuple[Campaign, str]:
+    """Read a campaign file; returns the validated campaign and its text (stored in the run file)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read campaign file {path}: {exc}") from None
+    return parse_campaign(text, str(path)), text

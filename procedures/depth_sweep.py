@@ -1,0 +1,60 @@
+"""Depth error on the wall over distance (thesis 4.2.1, SPEC §1).
+
+The stage moves the camera from ``start_mm`` to ``stop_mm`` (inclusive) in
+``step_mm`` increments; at each position a stack of ``frames`` frames of the
+white wall is captured.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import ClassVar, Literal
+
+from pydantic import Field, model_validator
+
+from procedures.steps import Step, StrictModel
+
+
+def sweep_positions(start_mm: float, stop_mm: float, step_mm: float) -> list[float]:
+    """Inclusive arithmetic sweep ``start, start+step, ... <= stop`` (tolerant to rounding)."""
+    count = int((stop_mm - start_mm) / step_mm + 1e-9) + 1
+    return [round(start_mm + i * step_mm, 6) for i in range(count)]
+
+
+class DepthSweep(StrictModel):
+    """Campaign entry ``kind = "depth_sweep"``."""
+
+    needs_reference: ClassVar[bool] = True
+
+    kind: Literal["depth_sweep"]
+    start_mm: float = Field(400.0, gt=0)
+    stop_mm: float = Field(4000.0, gt=0)
+    step_mm: float = Field(100.0, gt=0)
+    frames: int = Field(100, ge=1, le=10000)
+    exposure_us: float | None = Field(None, gt=0)
+    camera_settings: dict[str, object] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> DepthSweep:
+        if self.stop_mm < self.start_mm:
+            raise ValueError(
+                f"stop_mm ({self.stop_mm:g}) must not be smaller than start_mm ({self.start_mm:g})"
+            )
+        return self
+
+    def stage_distances_mm(self) -> list[float]:
+        """Nominal distances the stage must reach."""
+        return sweep_positions(self.start_mm, self.stop_mm, self.step_mm)
+
+    def steps(self, first_index: int) -> Iterator[Step]:
+        """One wall stack per position, nearest first."""
+        for i, distance in enumerate(self.stage_distances_mm()):
+            yield Step(
+                index=first_index + i,
+                procedure=self.kind,
+                target="wall",
+                frames=self.frames,
+                distance_mm=distance,
+                exposure_us=self.exposure_us,
+                camera_settings=self.camera_settings,
+            )

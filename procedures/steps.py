@@ -1,0 +1,51 @@
+"""Steps: the unit of a plan, of execution, of checkpointing and of resume.
+
+A procedure is a generator of :class:`Step` objects. Because a plan is plain
+data, ``labctl plan`` can list and time it without touching hardware, and the
+runner can skip steps that are already complete in a run file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+
+class StrictModel(BaseModel):
+    """Base of every configuration model: unknown keys are an error."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+@dataclass(frozen=True)
+class Step:
+    """One capture: where the devices go, what the camera sees, how many frames.
+
+    ``distance_mm`` is the nominal camera-to-target distance set with the stage
+    (None when the stage does not move for this step); ``robot_angle_deg`` the
+    position on the robot's measurement circle (None without robot). ``prompt``
+    is an operator action that must be confirmed before the step starts (e.g. a
+    target swap). ``role`` tells the runner about special steps: ``"offset"``
+    steps determine the camera-laser offset used for every later reference
+    distance.
+    """
+
+    index: int
+    procedure: str
+    target: str
+    frames: int
+    distance_mm: float | None = None
+    robot_angle_deg: float | None = None
+    robot_radius_mm: float | None = None
+    exposure_us: float | None = None
+    camera_settings: Mapping[str, Any] = field(default_factory=dict)
+    prompt: str | None = None
+    role: str = "capture"
+
+    @property
+    def step_id(self) -> str:
+        """``<NNNNN>_<procedure kind>`` (CONTRACTS §4)."""
+        return f"{self.index:05d}_{self.procedure}"
