@@ -1,0 +1,241 @@
+"""Simulated stage, laser, robot and camera behind the real device protocols.
+
+They run on the world's virtual clock and spend exactly the lab time that
+``labctl.planning`` plans for (motion, measurement, set-up and exposure take
+lab time without sleeping), draw their noise from per-step random streams and
+raise the same exceptions as real adapters when the fault injector says so.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+from drivers.errors import (
+    CameraDisconnected,
+    DroppedFrame,
+    LimitViolation,
+    ProtectiveStop,
+    SerialGarbage,
+    SerialTimeout,
+)
+from drivers.protocols import CameraInfo, DeviceIdentity, Frame
+from labctl.config import RobotConfig, StageConfig
+from labctl.planning import CAPTURE_SETUP_S, LASER_READING_S, ROBOT_SETTLE_S
+from sim.optics import Pinhole
+from sim.scene import render
+from sim.seeding import stream
+from sim.stereo import StereoSensor
+from sim.tof import ToFSensor
+from sim.world import SimWorld
+
+SERIAL_TIMEOUT_S = 1.0
+
+
+def _serial_exchange(world: SimWorld, device: str) -> None:
+    """One serial request/reply: may time out or return garbage per the fault schedule."""
+    if world.faults.strike("serial_timeout"):
+        world.clock.sleep(SERIAL_TIMEOUT_S)
+        raise SerialTimeout(device, f"no reply within {SERIAL_TIMEOUT_S:g} s")
+    if world.faults.strike("serial_garbage"):
+        raise SerialGarbage(device, "reply does not parse: b'\\x8fg1g+00\\x03'")
+
+
+class SimStage:
+    """Linear stage with travel limits and a constant speed."""
+
+    def __init__(self, world: SimWorld, config: StageConfig) -> None:
+        self.world = world
+        self.config = config
+        self.name = f"stage (simulated {config.protocol})"
+
+    def connect(self) -> None:
+        self.world.stage_position_mm = self.config.travel_mm[0]
+
+    def close(self) -> None:
+        pass
+
+    def safe_state(self) -> None:
+        pass
+
+    def identity(self) -> DeviceIdentity:
+        return DeviceIdentity("sim", f"simulated {self.config.protocol} stage", "SIM-STAGE", "sim")
+
+    def settings(self) -> Mapping[str, Any]:
+        return {"speed_mm_s": self.config.speed_mm_s, "travel_mm": list(self.config.travel_mm)}
+
+    def home(self) -> None:
+        self.move_to(self.config.travel_mm[0])
+
+    def move_to(self, position_mm: float) -> None:
+        lo, hi = self.config.travel_mm
+        if not lo <= position_mm <= hi:
+            raise LimitViolation(self.name, f"position {position_mm:g} mm outside travel [{lo:g}, {hi:g}] mm")
+        _serial_exchange(self.world, self.name)
+        distance = abs(position_mm - self.world.stage_position_mm)
+        self.world.clock.sleep(distance / self.config.speed_mm_s + self.config.settle_s)
+        self.world.stage_position_mm = float(position_mm)
+
+    def position_mm(self) -> float:
+        _serial_exchange(self.world, self.name)
+        return self.world.stage_position_mm
+
+    def stop(self) -> None:
+        pass
+
+
+class SimLaser:
+    """Laser distance meter: true distance + constant bias + Gaussian repeatability, 0.1 mm steps."""
+
+    name = "laser (simulated Dimetix)"
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+        self._readings = 0
+        self._step = -1
+
+    def connect(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def safe_state(self) -> None:
+        pass
+
+    def identity(self) -> DeviceIdentity:
+        return DeviceIdentity("sim", "simulated DAN-10-150", "SIM-LASER", "sim")
+
+    def settings(self) -> Mapping[str, Any]:
+        return {"resolution_mm": self.world.lab.laser_resolution_mm}
+
+    def measure_mm(self) -> float:
+        _serial_exchange(self.world, self.name)
+        if self._step != self.world.step_index:
+            self._step, self._readings = self.world.step_index, 0
+        rng = stream(self.world.seed, self._step, "laser", self._readings)
+        self._readings += 1
+        self.world.clock.sleep(LASER_READING_S)
+        lab = self.world.lab
+        value = self.world.laser_true_mm() + lab.laser_bias_mm + lab.laser_noise_mm * rng.standard_normal()
+        return round(value / lab.laser_resolution_mm) * lab.laser_resolution_mm
+
+
+class SimRobot:
+    """Robot carrying the camera on a circle; may enter a protective stop."""
+
+    name = "robot (simulated UR5e)"
+
+    def __init__(self, world: SimWorld, config: RobotConfig) -> None:
+        self.world = world
+        self.config = config
+        self.stopped = False
+
+    def connect(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def safe_state(self) -> None:
+        pass
+
+    def identity(self) -> DeviceIdentity:
+        return DeviceIdentity("sim", "simulated UR5e", "SIM-ROBOT", "sim")
+
+    def settings(self) -> Mapping[str, Any]:
+        return {"speed_deg_s": self.config.speed_deg_s}
+
+    def move_on_circle(self, angle_deg: float, radius_mm: float) -> None:
+        lo, hi = self.config.angle_limits_deg
+        if not lo <= angle_deg <= hi or not 0 < radius_mm <= self.config.radius_max_mm:
+            raise LimitViolation(self.name, f"angle {angle_deg:g} deg / radius {radius_mm:g} mm outside limits")
+        if self.stopped:
+            raise ProtectiveStop(self.name, "protective stop active")
+        if self.world.faults.strike("robot_protective_stop"):
+            self.stopped = True
+            raise ProtectiveStop(self.name, "protective stop during motion")
+        self.world.clock.sleep(abs(angle_deg - self.world.robot_angle_deg) / self.config.speed_deg_s + ROBOT_SETTLE_S)
+        self.world.robot_angle_deg, self.world.robot_radius_mm = float(angle_deg), float(radius_mm)
+
+    def angle_deg(self) -> float:
+        return self.world.robot_angle_deg
+
+    def recover(self) -> None:
+        self.stopped = False
+
+
+class SimCamera:
+    """Physical camera model: scene rendering + ToF or stereo sensor physics."""
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+        profile = world.profile
+        self.profile = profile
+        self.optics = Pinhole(profile.width, profile.height, profile.fov_h_deg, profile.fov_v_deg)
+        if profile.technology == "tof":
+            self.sensor: ToFSensor | StereoSensor = ToFSensor(profile)
+        else:
+            self.sensor = StereoSensor(profile, self.optics.fx)
+        self.name = f"camera (simulated {profile.model})"
+        self.connected = False
+        self.exposure_us = profile.exposure_us
+        self._settings: dict[str, Any] = {}
+        self._cache_key: tuple[Any, ...] | None = None
+        self._prepared: Any = None
+
+    def connect(self) -> None:
+        self.connected = True
+
+    def close(self) -> None:
+        self.connected = False
+
+    def safe_state(self) -> None:
+        pass
+
+    def identity(self) -> DeviceIdentity:
+        return DeviceIdentity("sim", f"{self.profile.vendor} {self.profile.model} (simulated)", "SIM-CAMERA", "sim")
+
+    def settings(self) -> Mapping[str, Any]:
+        return {"exposure_us": self.exposure_us, **self._settings}
+
+    def info(self) -> CameraInfo:
+        p = self.profile
+        return CameraInfo(
+            width=p.width, height=p.height, fov_deg=(p.fov_h_deg, p.fov_v_deg),
+            pixel_pitch_um=p.pixel_pitch_um, frame_rate_hz=p.frame_rate_hz,
+            wavelength_nm=p.wavelength_nm, confidence_dtype=p.confidence_dtype,
+        )
+
+    def configure(self, exposure_us: float | None, settings: Mapping[str, Any]) -> None:
+        self.exposure_us = self.profile.exposure_us if exposure_us is None else float(exposure_us)
+        self._settings = dict(settings)
+        self.world.clock.sleep(CAPTURE_SETUP_S)
+
+    def _prepare(self) -> Any:
+        pose = self.world.camera_pose()
+        key = (self.world.target, pose, self.exposure_us)
+        if key != self._cache_key:
+            rays = self.optics.unit_rays
+            hit = render(self.world.target, rays, pose)
+            self._prepared = self.sensor.prepare(hit, rays, self.exposure_us)
+            self._cache_key = key
+        return self._prepared
+
+    def capture(self, count: int, first_index: int = 0) -> Iterator[Frame]:
+        if not self.connected:
+            raise CameraDisconnected(self.name, "camera is not connected")
+        prepared = self._prepare()
+        period = 1.0 / self.profile.frame_rate_hz
+        world = self.world
+        for k in range(first_index, first_index + count):
+            if world.faults.strike("camera_disconnect"):
+                self.connected = False
+                raise CameraDisconnected(self.name, f"device lost during frame {k}")
+            if world.faults.strike("dropped_frame"):
+                world.clock.sleep(period)
+                raise DroppedFrame(self.name, f"frame {k} incomplete")
+            x, y, z, intensity, confidence = self.sensor.frame(prepared, stream(world.seed, world.step_index, "camera", k))
+            world.clock.sleep(period)
+            yield Frame(x, y, z, intensity, confidence, timestamp=world.step_start_s + k * period)
+

@@ -1,0 +1,25 @@
+"""The simulated lab's ground truth: mounting offsets and the laser's errors.
+
+These are what a real lab never knows exactly and calibrates away: the camera
+sits ``camera_mount_error_mm`` farther from the wall than the stage's nominal
+distance; the laser's zero lies ``laser_offset_mm`` behind the camera's optical
+centre; the laser has a constant bias within its +-1 mm accuracy and a
+repeatability of 0.3 mm (Dimetix DAN-10-150, taken as 2 sigma). They can be
+changed in a model file's ``[lab]`` table and are recorded only under ``/sim``.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from procedures.steps import StrictModel
+
+
+class LabGeometry(StrictModel):
+    camera_mount_error_mm: float = 6.0
+    laser_offset_mm: float = 42.0
+    laser_bias_mm: float = Field(0.4, ge=-1.0, le=1.0)
+    laser_noise_mm: float = Field(0.15, ge=0.0)
+    laser_resolution_mm: float = Field(0.1, gt=0.0)
+    tilt_x_deg: float = Field(0.0, ge=-10, le=10)
+    tilt_y_deg: float = Field(0.0, ge=-10, le=10)

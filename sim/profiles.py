@@ -1,0 +1,138 @@
+"""Built-in camera profiles: blaze101, amt100, flexx2, d455.
+
+Every number carries its source in ``SOURCES``: the thesis's Table 6-1
+(datasheet values collected there), its text, a datasheet, or ``assumption``
+when no public number exists (those are the knobs the reconcile workflow is
+meant to correct from measurements).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Literal
+
+T61 = "thesis Table 6-1 (manufacturer datasheets)"
+
+
+@dataclass(frozen=True)
+class CameraProfile:
+    """Physical description of one camera model, used by the simulator.
+
+    ``noise_mm_at_2m`` is the temporal depth noise (1 sigma) of the centre
+    pixel on the 90 % wall at 2 m with the default exposure; for ToF cameras
+    the optical power is derived from it through eq. 2-9, for stereo cameras
+    it fixes the sub-pixel matching noise.
+    """
+
+    name: str
+    vendor: str
+    model: str
+    technology: Literal["tof", "stereo"]
+    width: int
+    height: int
+    fov_h_deg: float
+    fov_v_deg: float
+    pixel_pitch_um: float
+    wavelength_nm: float
+    frame_rate_hz: float
+    exposure_us: float
+    noise_mm_at_2m: float
+    hyperfocal_mm: float
+    min_range_mm: float
+    max_range_mm: float
+    confidence_dtype: Literal["float32", "uint16"]
+    z_quantization_mm: float = 0.0
+    # ToF (eq. 2-9)
+    modulation_mhz: float = 0.0
+    modulation_contrast: float = 0.5
+    ambient_ratio: float = 0.2
+    saturation_ratio: float = 40.0
+    confidence_threshold_ratio: float = 0.01
+    # active stereo
+    baseline_mm: float = 0.0
+
+    def with_overrides(self, overrides: dict[str, Any]) -> CameraProfile:
+        """Copy with fields replaced; unknown names raise KeyError naming them."""
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(overrides) - names)
+        if unknown:
+            raise KeyError(", ".join(unknown))
+        return dataclasses.replace(self, **overrides)
+
+
+PROFILES: dict[str, CameraProfile] = {
+    "blaze101": CameraProfile(
+        name="blaze101", vendor="Basler", model="blaze-101", technology="tof",
+        width=640, height=480, fov_h_deg=67.0, fov_v_deg=51.0, pixel_pitch_um=10.0,
+        wavelength_nm=940.0, frame_rate_hz=30.0, exposure_us=1000.0,
+        noise_mm_at_2m=1.0, hyperfocal_mm=400.0, min_range_mm=300.0, max_range_mm=10000.0,
+        confidence_dtype="uint16", modulation_mhz=100.0,
+    ),
+    "amt100": CameraProfile(
+        name="amt100", vendor="Schmersal", model="AM-T100", technology="tof",
+        width=640, height=480, fov_h_deg=67.0, fov_v_deg=51.0, pixel_pitch_um=10.0,
+        wavelength_nm=850.0, frame_rate_hz=60.0, exposure_us=1000.0,
+        noise_mm_at_2m=0.8, hyperfocal_mm=600.0, min_range_mm=300.0, max_range_mm=6000.0,
+        confidence_dtype="uint16", z_quantization_mm=1.0, modulation_mhz=100.0,
+    ),
+    "flexx2": CameraProfile(
+        name="flexx2", vendor="pmd", model="flexx2 VGA", technology="tof",
+        width=224, height=172, fov_h_deg=56.0, fov_v_deg=44.0, pixel_pitch_um=17.5,
+        wavelength_nm=940.0, frame_rate_hz=30.0, exposure_us=1000.0,
+        noise_mm_at_2m=2.0, hyperfocal_mm=200.0, min_range_mm=100.0, max_range_mm=7000.0,
+        confidence_dtype="uint16", modulation_mhz=60.0,
+    ),
+    "d455": CameraProfile(
+        name="d455", vendor="Intel", model="RealSense D455", technology="stereo",
+        width=640, height=480, fov_h_deg=75.0, fov_v_deg=62.0, pixel_pitch_um=3.0,
+        wavelength_nm=850.0, frame_rate_hz=30.0, exposure_us=8500.0,
+        noise_mm_at_2m=10.0, hyperfocal_mm=500.0, min_range_mm=600.0, max_range_mm=6000.0,
+        confidence_dtype="float32", baseline_mm=95.0,
+    ),
+}
+
+SOURCES: dict[str, dict[str, str]] = {
+    "blaze101": {
+        "width/height/fov/wavelength/frame_rate": T61,
+        "min_range/max_range": T61 + ": measurement range 0.3 to 10 m",
+        "noise_mm_at_2m": T61 + ": precision < 1 mm up to 5.5 m; 1.0 mm taken as the centre value",
+        "hyperfocal_mm": "thesis 6.6: 40 cm hyperfocal distance",
+        "pixel_pitch_um": "Sony IMX556 sensor: 10 um",
+        "confidence_dtype": "pylon blaze Confidence component is Mono16",
+        "modulation_mhz/exposure_us/contrast/ambient/saturation": "assumption",
+    },
+    "amt100": {
+        "width/height/fov/wavelength/frame_rate": T61,
+        "max_range": T61 + ": 6 m",
+        "noise_mm_at_2m": "assumption: thesis 6.6 finds the lowest depth noise of the four",
+        "hyperfocal_mm": "thesis 6.6: 60 cm",
+        "z_quantization_mm": "SPEC: stores integer millimetres",
+        "pixel_pitch_um/modulation_mhz/exposure_us/contrast/ambient/saturation/min_range": "assumption",
+    },
+    "flexx2": {
+        "width/height/fov/wavelength": T61,
+        "frame_rate": T61 + ": < 60 fps; 30 fps use case assumed",
+        "min_range/max_range": T61 + ": 0.1 to 7 m",
+        "noise_mm_at_2m": "assumption: 1 % of distance at 2 m",
+        "hyperfocal_mm": "thesis 6.6: 20 cm",
+        "pixel_pitch_um/modulation_mhz/exposure_us/contrast/ambient/saturation": "assumption",
+    },
+    "d455": {
+        "width/height/fov/wavelength": T61 + " (FOV as used in the thesis)",
+        "frame_rate": T61 + ": < 90 fps; 30 fps default stream assumed",
+        "min_range/max_range": T61 + ": 0.6 to 6 m",
+        "hyperfocal_mm": "Grunnet-Jepsen et al. 2023 (thesis 6.2): 500 mm",
+        "baseline_mm": "Intel D455 datasheet: 95 mm",
+        "noise_mm_at_2m": "DESIGN: z^2 s/(f b) with s = 0.08 px gives about 10 mm at 2 m",
+        "pixel_pitch_um/exposure_us": "assumption",
+    },
+}
+
+
+def get_profile(name: str) -> CameraProfile:
+    """Built-in profile by name; KeyError lists the known names."""
+    try:
+        return PROFILES[name]
+    except KeyError:
+        raise KeyError(f"unknown camera profile {name!r}; known: {', '.join(PROFILES)}") from None

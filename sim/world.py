@@ -1,0 +1,65 @@
+"""The simulated lab's state shared by the simulated devices.
+
+The stage and robot move the camera in this world, the laser measures it, the
+camera renders it. The runner tells the world which step starts (so every
+random stream is keyed by the step, and the operator's target swaps happen).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from drivers.protocols import Clock
+from labctl.config import StageConfig
+from procedures.steps import Step
+from sim.faults import FaultInjector
+from sim.lab import LabGeometry
+from sim.profiles import CameraProfile
+from sim.scene import Pose
+
+
+@dataclass
+class SimWorld:
+    profile: CameraProfile
+    lab: LabGeometry
+    seed: int
+    faults: FaultInjector
+    clock: Clock
+    stage_config: StageConfig | None = None
+    stage_position_mm: float = 0.0
+    robot_angle_deg: float = 0.0
+    robot_radius_mm: float = 0.0
+    target: str = "wall"
+    step: Step | None = None
+    step_start_s: float = 0.0
+    _history: list[str] = field(default_factory=list)
+
+    def begin_step(self, step: Step, planned_start_s: float) -> None:
+        """A step starts: the operator has put ``step.target`` in place."""
+        self.step = step
+        self.step_start_s = planned_start_s
+        self.target = step.target
+        self.faults.begin_step(step.index, step.frames)
+
+    @property
+    def step_index(self) -> int:
+        return self.step.index if self.step is not None else -1
+
+    def nominal_distance_mm(self) -> float:
+        """Camera-wall distance the stage position stands for (campaign mapping)."""
+        cfg = self.stage_config
+        if cfg is None:
+            return 0.0
+        sign = 1.0 if cfg.axis_direction == "away_from_wall" else -1.0
+        return cfg.distance_at_zero_mm + sign * self.stage_position_mm
+
+    def camera_distance_mm(self) -> float:
+        """True perpendicular distance from the camera's optical centre to the wall."""
+        return self.nominal_distance_mm() + self.lab.camera_mount_error_mm
+
+    def laser_true_mm(self) -> float:
+        """What a perfect laser would read."""
+        return self.camera_distance_mm() + self.lab.laser_offset_mm
+
+    def camera_pose(self) -> Pose:
+        return Pose(self.camera_distance_mm(), self.lab.tilt_x_deg, self.lab.tilt_y_deg)
