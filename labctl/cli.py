@@ -1,0 +1,215 @@
+"""The ``labctl`` command line (CONTRACTS §2).
+
+Exit codes: 0 success, 2 invalid input (one paragraph naming the field or
+file, no traceback), 1 hardware/runtime failure, 130 Ctrl-C after the devices
+reached their safe state. ``--json`` prints one JSON document on stdout and
+nothing else there; progress and messages go to stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import click
+
+from labctl.config import Campaign, load_campaign, parse_campaign
+from labctl.errors import InputError, LabctlError
+from labctl.lab import Lab, build_real_lab, build_sim_lab
+from labctl.operator import Operator
+from labctl.planning import format_duration, schedule
+from labctl.progress import Reporter
+from labctl.runner import Runner, bring_to_safe_state, close_all, connect_lab
+from labctl.store import RunWriter, labctl_version
+from sim.model import default_model_text, load_model, parse_model
+
+
+def _echo_err(message: str) -> None:
+    click.echo(message, err=True)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(labctl_version(), prog_name="labctl")
+def cli() -> None:
+    """Characterize 3D cameras: run campaigns, evaluate runs, simulate the lab."""
+
+
+# ---------------------------------------------------------------------- plan
+@cli.command()
+@click.argument("campaign", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="print the plan as one JSON document")
+def plan(campaign: Path, as_json: bool) -> None:
+    """Validate CAMPAIGN and list every step with its estimated lab time (no hardware)."""
+    config, _ = load_campaign(campaign)
+    planned = schedule(config)
+    total = sum(p.duration_s for p in planned)
+    if as_json:
+        doc = {
+            "campaign": config.campaign.name,
+            "total_duration_s": round(total, 3),
+            "steps": [
+                {
+                    "step_id": p.step.step_id,
+                    "procedure": p.step.procedure,
+                    "target": p.step.target,
+                    "distance_mm": p.step.distance_mm,
+                    "stage_position_mm": p.stage_position_mm,
+                    "robot_angle_deg": p.step.robot_angle_deg,
+                    "frames": p.step.frames,
+                    "exposure_us": p.step.exposure_us,
+                    "prompt": p.step.prompt,
+                    "start_s": round(p.start_s, 3),
+                    "duration_s": round(p.duration_s, 3),
+                }
+                for p in planned
+            ],
+        }
+        click.echo(json.dumps(doc, indent=2))
+        return
+    click.echo(f"campaign {config.campaign.name}: {len(planned)} steps, estimated lab time {format_duration(total)}")
+    click.echo(f"{'step':<24} {'target':<12} {'distance':>9} {'angle':>6} {'frames':>6} {'start':>12} {'duration':>10}")
+    for p in planned:
+        s = p.step
+        dist = f"{s.distance_mm:g}" if s.distance_mm is not None else "-"
+        angle = f"{s.robot_angle_deg:g}" if s.robot_angle_deg is not None else "-"
+        click.echo(
+            f"{s.step_id:<24} {s.target:<12} {dist:>9} {angle:>6} {s.frames:>6} "
+            f"{format_duration(p.start_s):>12} {format_duration(p.duration_s):>10}"
+        )
+        if s.prompt:
+            click.echo(f"{'':<24} operator: {s.prompt}")
+
+
+# ---------------------------------------------------------------------- run
+def _sim_lab_from(campaign: Campaign, model_text: str, model_source: str, seed: int) -> Lab:
+    model = parse_model(model_text, model_source)
+    return build_sim_lab(campaign, model, seed)
+
+
+def _execute(campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter) -> None:
+    Runner(campaign, lab, writer, reporter, Operator(automatic=lab.simulated, report=reporter.message)).execute()
+    reporter.message(f"run complete: {writer.path}")
+
+
+@cli.command()
+@click.argument("campaign", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="run file to create")
+@click.option("--sim", is_flag=True, help="replace every device by its simulated fake")
+@click.option("--model", type=click.Path(dir_okay=False, path_type=Path), help="simulation model file (with --sim)")
+@click.option("--seed", type=click.IntRange(min=0), help="simulation seed (default: [sim].seed)")
+@click.option("--quiet", is_flag=True, help="no progress output")
+def run(campaign: Path, output: Path, sim: bool, model: Path | None, seed: int | None, quiet: bool) -> None:
+    """Run CAMPAIGN into the run file OUTPUT."""
+    config, text = load_campaign(campaign)
+    if output.exists():
+        raise InputError(f"{output} already exists; continue it with 'labctl resume {output}' or choose another -o")
+    if not output.parent.is_dir():
+        raise InputError(f"directory {output.parent} for -o does not exist")
+    if (model is not None or seed is not None) and not sim:
+        raise InputError("--model and --seed only apply to simulated runs (--sim)")
+    reporter = Reporter(quiet=quiet)
+    if sim:
+        if model is not None:
+            _, model_text = load_model(model)
+            source = str(model)
+        else:
+            model_text, source = default_model_text(config.devices.camera.sim_profile), "built-in profile"
+        run_seed = config.sim.seed if seed is None else seed
+        lab = _sim_lab_from(config, model_text, source, run_seed)
+        sim_record: tuple[str, int] | None = (model_text, run_seed)
+    else:
+        lab = build_real_lab(config)
+        sim_record = None
+    connect_lab(lab, reporter.message)
+    try:
+        writer = RunWriter.create(
+            output,
+            campaign_toml=text,
+            simulated=sim,
+            devices={role: (dev.identity(), dev.settings()) for role, dev in lab.devices().items()},
+            camera=lab.camera.info(),
+            sim=sim_record,
+        )
+    except BaseException:
+        bring_to_safe_state(lab, reporter.message)
+        close_all(lab, reporter.message)
+        raise
+    try:
+        _execute(config, lab, writer, reporter)
+    finally:
+        writer.close()
+
+
+@cli.command()
+@click.argument("run_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--quiet", is_flag=True, help="no progress output")
+def resume(run_file: Path, quiet: bool) -> None:
+    """Continue RUN_FILE at the first step that is not complete."""
+    if not run_file.is_file():
+        raise InputError(f"run file {run_file} does not exist")
+    writer = RunWriter(run_file)
+    reporter = Reporter(quiet=quiet)
+    try:
+        if writer.attrs.get("status") == "complete":
+            reporter.message(f"{run_file} is already complete; nothing to resume")
+            return
+        config = parse_campaign(str(writer.attrs["campaign_toml"]), f"{run_file} (stored campaign)")
+        if bool(writer.attrs.get("simulated", False)):
+            sim = writer.file["sim"].attrs
+            lab = _sim_lab_from(config, str(sim["model_toml"]), f"{run_file} (stored model)", int(sim["seed"]))
+        else:
+            lab = build_real_lab(config)
+        connect_lab(lab, reporter.message)
+        dropped = writer.discard_incomplete()
+        if dropped:
+            reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
+        writer.set_status("running")
+        _execute(config, lab, writer, reporter)
+    finally:
+        writer.close()
+
+
+# ---------------------------------------------------------------------- evaluate
+@cli.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("--quiet", is_flag=True, help="no progress output")
+def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
+    """Compute every metric RUNS allow: OUTPUT/keyfigures.json and OUTPUT/report.html."""
+    from labctl.evaluate import evaluate_runs
+    from labctl.report import write_outputs
+
+    reporter = Reporter(quiet=quiet)
+    evaluation = evaluate_runs(runs, progress=lambda what: reporter.message(f"evaluating {what}"))
+    json_path, report = write_outputs(evaluation, output)
+    reporter.message(f"key figures: {json_path}")
+    click.echo(f"report: {report}")
+
+
+# ---------------------------------------------------------------------- entry point
+def main(argv: Sequence[str] | None = None) -> None:
+    """Console entry point: maps errors to the exit codes of CONTRACTS §2."""
+    debug = bool(os.environ.get("LABCTL_DEBUG"))
+    try:
+        cli.main(args=list(argv) if argv is not None else None, prog_name="labctl", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        sys.exit(exc.exit_code)
+    except click.Abort:
+        _echo_err("labctl: aborted")
+        sys.exit(130)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except LabctlError as exc:
+        if debug:
+            raise
+        _echo_err(f"labctl: error: {exc}")
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        _echo_err("labctl: interrupted")
+        sys.exit(130)
+    sys.exit(0)
+

@@ -1,0 +1,73 @@
+"""Turning a campaign into a timed plan, without touching hardware.
+
+The lab-time model: stage moves take |delta| / speed + settle time, robot
+moves |delta angle| / speed + 1 s, each laser reading 0.3 s, a stack
+frames / frame rate + 0.5 s set-up, and every operator prompt the campaign's
+``runner.operator_time_s``. Simulated devices spend exactly these times on
+their virtual clock, so a dry run predicts the lab time of the real one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from labctl.config import Campaign
+from procedures.steps import Step
+from sim.profiles import get_profile
+
+LASER_READING_S = 0.3
+CAPTURE_SETUP_S = 0.5
+ROBOT_SETTLE_S = 1.0
+
+
+@dataclass(frozen=True)
+class PlannedStep:
+    step: Step
+    stage_position_mm: float | None
+    start_s: float
+    duration_s: float
+
+
+def nominal_frame_rate(campaign: Campaign) -> float:
+    """Frame rate used for planning: the camera profile's."""
+    return get_profile(campaign.devices.camera.sim_profile).frame_rate_hz
+
+
+def schedule(campaign: Campaign) -> list[PlannedStep]:
+    """Every step with its stage position, planned start and duration (seconds of lab time)."""
+    devices = campaign.devices
+    fps = nominal_frame_rate(campaign)
+    stage_pos = devices.stage.travel_mm[0] if devices.stage else None
+    angle = 0.0
+    t = 0.0
+    planned = []
+    for step in campaign.steps():
+        duration = 0.0
+        if step.prompt:
+            duration += campaign.runner.operator_time_s
+        position = None
+        if step.distance_mm is not None and devices.stage is not None:
+            position = devices.stage.position_for_distance(step.distance_mm)
+            duration += abs(position - stage_pos) / devices.stage.speed_mm_s + devices.stage.settle_s
+            stage_pos = position
+        if step.robot_angle_deg is not None and devices.robot is not None:
+            duration += abs(step.robot_angle_deg - angle) / devices.robot.speed_deg_s + ROBOT_SETTLE_S
+            angle = step.robot_angle_deg
+        if devices.laser is not None:
+            duration += devices.laser.readings * LASER_READING_S
+        duration += step.frames / fps + CAPTURE_SETUP_S
+        planned.append(PlannedStep(step, position, t, duration))
+        t += duration
+    return planned
+
+
+def format_duration(seconds: float) -> str:
+    """``1 h 02 min 03 s`` style."""
+    seconds = int(round(seconds))
+    h, rest = divmod(seconds, 3600)
+    m, s = divmod(rest, 60)
+    if h:
+        return f"{h} h {m:02d} min {s:02d} s"
+    if m:
+        return f"{m} min {s:02d} s"
+    return f"{s} s"
