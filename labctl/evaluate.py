@@ -1,0 +1,184 @@
+"""Evaluation: from run files to metrics and key figures.
+
+Stacks are streamed one step at a time (never a whole run in memory). Several
+run files of the same camera can be evaluated together; each key figure names
+the steps it came from.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from labctl.errors import InputError
+from labctl.keyfigures import FigureValue
+from labctl.store import RunReader, StepRecord
+from metrics.depth import DepthErrors, depth_errors
+from metrics.stack import stack_stats
+from metrics.surface import SurfaceTexture, surface_texture
+
+#: distance at which the single-position key figures are taken (CONTRACTS §7)
+KEY_DISTANCE_MM = 2000.0
+#: a step counts as "at 2000 mm" when its reference lies within this distance
+KEY_DISTANCE_TOLERANCE_MM = 150.0
+
+
+@dataclass(frozen=True)
+class DepthPosition:
+    step_id: str
+    errors: DepthErrors
+
+
+@dataclass(frozen=True)
+class SurfaceResult:
+    step_id: str
+    reference_mm: float
+    texture: SurfaceTexture
+
+
+@dataclass
+class Evaluation:
+    runs: list[str]
+    camera: dict[str, Any]
+    depth: list[DepthPosition] = field(default_factory=list)
+    surface: SurfaceResult | None = None
+    figures: dict[str, FigureValue] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def camera_description(reader: RunReader) -> dict[str, Any]:
+    """What keyfigures.json says about the camera."""
+    dev = reader.devices.get("camera", {})
+    cam = reader.camera
+    return {
+        "model": dev.get("model", "unknown"),
+        "serial": dev.get("serial", "unknown"),
+        "firmware": dev.get("firmware", "unknown"),
+        "backend": dev.get("backend", "unknown"),
+        "width": cam.width,
+        "height": cam.height,
+        "fov_deg": list(cam.fov_deg),
+        "frame_rate_hz": cam.frame_rate_hz,
+        "wavelength_nm": cam.wavelength_nm,
+        "simulated": bool(reader.attrs.get("simulated", False)),
+    }
+
+
+def _same_camera(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    keys = ("model", "serial", "width", "height")
+    return all(a[k] == b[k] for k in keys)
+
+
+def _key_step(steps: Sequence[StepRecord]) -> StepRecord | None:
+    """The step whose reference distance is nearest 2000 mm, if within tolerance."""
+    best = min(steps, key=lambda s: abs(s.attrs["reference_distance_mm"] - KEY_DISTANCE_MM), default=None)
+    if best is None or not abs(best.attrs["reference_distance_mm"] - KEY_DISTANCE_MM) <= KEY_DISTANCE_TOLERANCE_MM:
+        return None
+    return best
+
+
+def evaluate_depth_sweep(
+    steps: Sequence[StepRecord], evaluation: Evaluation, progress: Callable[[str], None]
+) -> None:
+    """SPEC §1-2 on the wall steps: curves over distance, key figures, surface at 2000 mm."""
+    usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
+    if len(usable) < len(steps):
+        evaluation.notes.append(
+            f"{len(steps) - len(usable)} depth_sweep step(s) have no reference distance and were skipped"
+        )
+    buffer = None
+    for rec in usable:
+        progress(rec.step_id)
+        buffer = rec.read("z", out=buffer)
+        stats = stack_stats(buffer)
+        errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
+        evaluation.depth.append(DepthPosition(rec.step_id, errors))
+    del buffer
+    if not evaluation.depth:
+        return
+    key = _key_step(usable)
+    figures = evaluation.figures
+    repeat = [p for p in evaluation.depth if math.isfinite(p.errors.repeatability_center_mm)]
+    if repeat:
+        worst = max(repeat, key=lambda p: p.errors.repeatability_center_mm)
+        figures["z_repeatability_center_mm"] = FigureValue(
+            worst.errors.repeatability_center_mm, [p.step_id for p in evaluation.depth]
+        )
+    if key is None:
+        evaluation.notes.append("no depth_sweep step within 150 mm of 2000 mm: single-position figures are null")
+        return
+    at_key = next(p for p in evaluation.depth if p.step_id == key.step_id).errors
+    for name, value in (
+        ("z_trueness_q90_mm", at_key.trueness_q90_mm),
+        ("z_accuracy_q90_mm", at_key.accuracy_q90_mm),
+        ("z_precision_q90_mm", at_key.precision_q90_mm),
+    ):
+        figures[name] = FigureValue(value, [key.step_id])
+    progress(f"{key.step_id} surface")
+    means = {c: stack_stats(key.read(c)) for c in ("x", "y", "z")}
+    valid = means["z"].valid & means["x"].valid & means["y"].valid
+    try:
+        texture = surface_texture(means["x"].mean, means["y"].mean, means["z"].mean, valid)
+    except ValueError as exc:
+        evaluation.notes.append(f"surface texture at {key.step_id} not evaluated: {exc}")
+        return
+    evaluation.surface = SurfaceResult(key.step_id, key.attrs["reference_distance_mm"], texture)
+    for name, value in (
+        ("surface_primary_sq_mm", texture.sq_primary_mm),
+        ("surface_waviness_sq_mm", texture.sq_waviness_mm),
+        ("surface_roughness_sq_mm", texture.sq_roughness_mm),
+    ):
+        figures[name] = FigureValue(value, [key.step_id])
+
+
+def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] = lambda _: None) -> Evaluation:
+    """Every metric the given runs allow (all runs must come from one camera)."""
+    if not paths:
+        raise InputError("no run file given")
+    readers = [RunReader(p) for p in paths]
+    try:
+        camera = camera_description(readers[0])
+        for reader in readers[1:]:
+            other = camera_description(reader)
+            if not _same_camera(camera, other):
+                raise InputError(
+                    f"{reader.path} is from camera {other['model']} {other['serial']}, "
+                    f"{readers[0].path} from {camera['model']} {camera['serial']}: evaluate one camera at a time"
+                )
+        evaluation = Evaluation(runs=[str(r.path) for r in readers], camera=camera)
+        for reader in readers:
+            if reader.attrs.get("status") != "complete":
+                evaluation.notes.append(f"{reader.path} is {reader.attrs.get('status')}: only its complete steps are used")
+        sweep = [s for r in readers for s in r.steps("depth_sweep")]
+        if sweep:
+            evaluate_depth_sweep(sweep, evaluation, progress)
+        else:
+            evaluation.notes.append("no depth_sweep steps: depth figures are null")
+        return evaluation
+    finally:
+        for reader in readers:
+            reader.close()
+
+
+def depth_table(evaluation: Evaluation) -> list[dict[str, float | str]]:
+    """Per-position depth errors as rows (for the report and JSON consumers)."""
+    rows = []
+    for p in evaluation.depth:
+        e = p.errors
+        rows.append({
+            "step": p.step_id,
+            "reference_mm": e.reference_mm,
+            "trueness_median_mm": e.trueness_median_mm,
+            "trueness_q90_mm": e.trueness_q90_mm,
+            "accuracy_median_mm": e.accuracy_median_mm,
+            "accuracy_q90_mm": e.accuracy_q90_mm,
+            "precision_median_mm": e.precision_median_mm,
+            "precision_q90_mm": e.precision_q90_mm,
+            "repeatability_center_mm": e.repeatability_center_mm,
+            "invalid_fraction": e.invalid_fraction,
+        })
+    return rows
+

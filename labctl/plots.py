@@ -1,0 +1,77 @@
+"""Report plots (matplotlib, Agg backend): one function per figure, PNG out."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from labctl.evaluate import DepthPosition, SurfaceResult  # noqa: E402
+
+
+def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
+    """Trueness, accuracy, precision (median and Q90 of |.|) and invalid fraction over distance."""
+    d = np.array([p.errors.reference_mm for p in depth])
+    order = np.argsort(d)
+    d = d[order]
+
+    def series(attr: str) -> np.ndarray:
+        return np.array([getattr(depth[i].errors, attr) for i in order])
+
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), sharex=True)
+    panels = [
+        (axes[0, 0], "Trueness |mean - reference|", ["trueness_median_mm", "trueness_q90_mm"]),
+        (axes[0, 1], "Accuracy |single frame - reference|", ["accuracy_median_mm", "accuracy_q90_mm"]),
+        (axes[1, 0], "Precision (per-pixel std)", ["precision_median_mm", "precision_q90_mm", "repeatability_center_mm"]),
+    ]
+    labels = {"median": "median", "q90": "Q90", "center": "centre pixel"}
+    for ax, title, attrs in panels:
+        for attr in attrs:
+            tag = next(k for k in labels if k in attr)
+            ax.plot(d, series(attr), marker="o", ms=3, label=labels[tag])
+        ax.set_title(title)
+        ax.set_ylabel("mm")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    ax = axes[1, 1]
+    ax.plot(d, 100 * series("invalid_fraction"), marker="o", ms=3, color="tab:red")
+    ax.set_title("Invalid pixels")
+    ax.set_ylabel("%")
+    ax.grid(alpha=0.3)
+    for ax in axes[1]:
+        ax.set_xlabel("reference distance (mm)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_surface_maps(surface: SurfaceResult, path: Path) -> Path:
+    """Primary, waviness and roughness surfaces with their Sq, symmetric colour scales."""
+    t = surface.texture
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for ax, (name, data, sq) in zip(
+        axes,
+        [("primary", t.primary, t.sq_primary_mm), ("waviness", t.waviness, t.sq_waviness_mm),
+         ("roughness", t.roughness, t.sq_roughness_mm)],
+    ):
+        finite = data[np.isfinite(data)]
+        lim = float(np.quantile(np.abs(finite), 0.995)) if finite.size else 1.0
+        lim = lim if math.isfinite(lim) and lim > 0 else 1.0
+        im = ax.imshow(data, cmap="RdBu_r", vmin=-lim, vmax=lim, interpolation="nearest")
+        ax.set_title(f"{name} surface, Sq = {sq:.3f} mm")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        fig.colorbar(im, ax=ax, label="mm", shrink=0.85)
+    fig.suptitle(
+        f"Surface texture at {surface.reference_mm:.0f} mm ({surface.step_id}), cut-off {t.cutoff_mm:g} mm"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

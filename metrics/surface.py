@@ -1,0 +1,131 @@
+"""Areal surface texture of a flat target (thesis 4.2.2, SPEC §2).
+
+* primary surface: stack-mean depth minus the form, the least-squares plane
+  z = a + b x + c y (ISO 25178-2 F-operation), so a residual tilt is not texture;
+* waviness: the primary surface low-pass filtered with the ISO 16610-61 areal
+  Gaussian filter, weighting s(x) = exp(-pi (x / (alpha lambda_c))^2),
+  alpha = sqrt(ln 2 / pi), 50 % transmission at the cut-off lambda_c; as a
+  Gaussian this is sigma = alpha lambda_c / sqrt(2 pi) = 0.18739 lambda_c;
+* roughness: primary minus waviness;
+* Sq (ISO 25178-2 eq. 4-1 of the thesis): root mean square about the mean.
+
+lambda_c is given in millimetres and converted to pixels per axis with the
+measured lateral pixel size (median spacing of neighbouring points). Invalid
+pixels are filled by normalized convolution before filtering (not zeros) and
+excluded from Sq; a lambda_c / 2 border is cropped because the filter is
+biased there.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+GAUSS_ALPHA = math.sqrt(math.log(2.0) / math.pi)
+SIGMA_PER_CUTOFF = GAUSS_ALPHA / math.sqrt(2.0 * math.pi)  # 0.18739
+
+
+def gaussian_transmission(wavelength: float, cutoff: float) -> float:
+    """Amplitude transmission of the ISO 16610-61 Gaussian low-pass at ``wavelength``."""
+    return math.exp(-math.pi * (GAUSS_ALPHA * cutoff / wavelength) ** 2)
+
+
+def lateral_pixel_size_mm(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Median spacing of horizontally (x) and vertically (y) neighbouring valid points."""
+    dx = np.abs(np.diff(x, axis=1))
+    dy = np.abs(np.diff(y, axis=0))
+    sx, sy = dx[np.isfinite(dx)], dy[np.isfinite(dy)]
+    if not sx.size or not sy.size:
+        raise ValueError("too few valid neighbouring points to measure the pixel size")
+    return float(np.median(sx)), float(np.median(sy))
+
+
+def fit_plane(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray) -> tuple[float, float, float]:
+    """Least-squares plane z = a + b x + c y over valid points; returns (a, b, c)."""
+    xs, ys, zs = x[valid], y[valid], z[valid]
+    if zs.size < 3:
+        raise ValueError("fewer than 3 valid points: cannot fit the form plane")
+    x0, y0 = xs.mean(), ys.mean()
+    design = np.column_stack([np.ones_like(xs), xs - x0, ys - y0])
+    (a, b, c), *_ = np.linalg.lstsq(design, zs, rcond=None)
+    return float(a - b * x0 - c * y0), float(b), float(c)
+
+
+def normalized_gaussian(values: np.ndarray, valid: np.ndarray, sigma_yx: tuple[float, float]) -> np.ndarray:
+    """Gaussian low-pass of ``values`` where only ``valid`` samples carry weight (normalized convolution).
+
+    Result = G * (v w) / G * w with w the validity mask; undefined (NaN) only
+    where no valid sample lies within reach of the kernel.
+    """
+    weight = valid.astype(np.float64)
+    data = np.where(valid, values, 0.0)
+    num = ndimage.gaussian_filter(data, sigma_yx, mode="constant", cval=0.0)
+    den = ndimage.gaussian_filter(weight, sigma_yx, mode="constant", cval=0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 1e-6, num / den, np.nan)
+
+
+def rms_about_mean(values: np.ndarray) -> float:
+    """Sq: sqrt(mean((v - mean v)^2)) over finite values."""
+    v = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean((v - v.mean()) ** 2))) if v.size else float("nan")
+
+
+@dataclass(frozen=True)
+class SurfaceTexture:
+    primary: np.ndarray
+    waviness: np.ndarray
+    roughness: np.ndarray
+    sq_primary_mm: float
+    sq_waviness_mm: float
+    sq_roughness_mm: float
+    cutoff_mm: float
+    cutoff_px: tuple[float, float]
+    crop_px: tuple[int, int]
+
+
+def surface_texture(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, cutoff_mm: float = 25.0
+) -> SurfaceTexture:
+    """Primary, waviness and roughness surfaces and their Sq (SPEC §2).
+
+    ``x``, ``y``, ``z`` are stack-mean maps (mm); the returned maps are NaN
+    outside the valid, cropped evaluation area.
+    """
+    valid = valid & np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    a, b, c = fit_plane(x, y, z, valid)
+    primary = np.where(valid, z - (a + b * x + c * y), np.nan)
+    px, py = lateral_pixel_size_mm(np.where(valid, x, np.nan), np.where(valid, y, np.nan))
+    cutoff_px = (cutoff_mm / px, cutoff_mm / py)
+    sigma_yx = (SIGMA_PER_CUTOFF * cutoff_px[1], SIGMA_PER_CUTOFF * cutoff_px[0])
+    waviness = normalized_gaussian(primary, valid, sigma_yx)
+    roughness = primary - waviness
+    crop_x, crop_y = math.ceil(cutoff_px[0] / 2), math.ceil(cutoff_px[1] / 2)
+    h, w = z.shape
+    if 2 * crop_x >= w or 2 * crop_y >= h:
+        raise ValueError(
+            f"cut-off {cutoff_mm:g} mm = {cutoff_px[0]:.0f} x {cutoff_px[1]:.0f} px leaves nothing after "
+            f"cropping a {w} x {h} px image"
+        )
+    keep = np.zeros_like(valid)
+    keep[crop_y : h - crop_y, crop_x : w - crop_x] = True
+    keep &= valid
+
+    def masked(m: np.ndarray) -> np.ndarray:
+        return np.where(keep, m, np.nan)
+
+    primary, waviness, roughness = masked(primary), masked(waviness), masked(roughness)
+    return SurfaceTexture(
+        primary=primary,
+        waviness=waviness,
+        roughness=roughness,
+        sq_primary_mm=rms_about_mean(primary),
+        sq_waviness_mm=rms_about_mean(waviness),
+        sq_roughness_mm=rms_about_mean(roughness),
+        cutoff_mm=cutoff_mm,
+        cutoff_px=cutoff_px,
+        crop_px=(crop_x, crop_y),
+    )
