@@ -1,0 +1,95 @@
+"""Shared fixtures: small simulated sensors and campaign files written on the fly."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+SMALL_MODEL = """\
+camera = "{camera}"
+[camera_overrides]
+width = {width}
+height = {height}
+"""
+
+
+def campaign_text(
+    *,
+    backend: str = "blaze",
+    procedures: str | None = None,
+    faults: str = "",
+    seed: int = 7,
+    extra_devices: str = "",
+) -> str:
+    """A small wall campaign: offset calibration + short depth sweep."""
+    if procedures is None:
+        procedures = """
+        [[procedure]]
+        kind = "offset_calibration"
+        frames = 8
+
+        [[procedure]]
+        kind = "depth_sweep"
+        start_mm = 1000
+        stop_mm = 3000
+        step_mm = 500
+        frames = 8
+        """
+    text = f"""
+    [campaign]
+    name = "test"
+
+    [devices.camera]
+    backend = "{backend}"
+
+    [devices.stage]
+    protocol = "zaber"
+    travel_mm = [0, 4000]
+
+    [devices.laser]
+    port = "/dev/null"
+    {extra_devices}
+    {procedures}
+
+    [sim]
+    seed = {seed}
+    {faults}
+    """
+    return textwrap.dedent(text)
+
+
+@pytest.fixture
+def write_campaign(tmp_path: Path):
+    def write(name: str = "campaign.toml", **kwargs) -> Path:
+        path = tmp_path / name
+        path.write_text(campaign_text(**kwargs))
+        return path
+
+    return write
+
+
+@pytest.fixture
+def small_model(tmp_path: Path):
+    def write(camera: str = "blaze101", width: int = 48, height: int = 36) -> Path:
+        path = tmp_path / f"model_{camera}_{width}x{height}.toml"
+        path.write_text(SMALL_MODEL.format(camera=camera, width=width, height=height))
+        return path
+
+    return write
+
+
+def run_labctl(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """Run the real command line in a subprocess."""
+    return subprocess.run(
+        [sys.executable, "-m", "labctl", *map(str, args)],
+        capture_output=True, text=True, timeout=timeout,
+    )
+
+
+@pytest.fixture
+def labctl():
+    return run_labctl

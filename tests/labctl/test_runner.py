@@ -1,0 +1,177 @@
+"""The runner: retries, identical data under faults, safe state on every failure path."""
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from drivers.errors import DroppedFrame
+from labctl.cli import main
+from labctl.config import load_campaign
+from labctl.errors import Interrupted, RunAborted
+from labctl.lab import build_sim_lab
+from labctl.operator import Operator
+from labctl.progress import Reporter
+from labctl.runner import Runner
+from labctl.store import RunWriter
+from sim.model import load_model
+
+MANY_STEPS = """
+[[procedure]]
+kind = "offset_calibration"
+frames = 6
+
+[[procedure]]
+kind = "depth_sweep"
+start_mm = 500
+stop_mm = 3500
+step_mm = 250
+frames = 6
+"""
+
+
+def invoke(*args) -> int:
+    with pytest.raises(SystemExit) as info:
+        main([str(a) for a in args])
+    return info.value.code
+
+
+def step_arrays(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    with h5py.File(path, "r") as f:
+        return {
+            sid: {name: g[name][()] for name in ("x", "y", "z", "intensity", "confidence")}
+            for sid, g in f["steps"].items()
+        }
+
+
+def test_faults_are_retried_and_data_are_identical(tmp_path, write_campaign, small_model):
+    model = small_model()
+    clean = write_campaign("clean.toml", procedures=MANY_STEPS)
+    faulty = write_campaign(
+        "faulty.toml", procedures=MANY_STEPS,
+        faults="""[sim.faults]
+serial_timeout = 0.4
+serial_garbage = 0.4
+camera_disconnect = 0.4
+dropped_frame = 0.4
+""",
+    )
+    assert invoke("run", clean, "--sim", "--model", model, "-o", tmp_path / "a.h5", "--quiet") == 0
+    assert invoke("run", faulty, "--sim", "--model", model, "-o", tmp_path / "b.h5", "--quiet") == 0
+    a, b = step_arrays(tmp_path / "a.h5"), step_arrays(tmp_path / "b.h5")
+    assert a.keys() == b.keys() and len(a) == 14
+    for sid in a:
+        for name in a[sid]:
+            np.testing.assert_array_equal(a[sid][name], b[sid][name], err_msg=f"{sid}/{name}")
+    kinds = set()
+    with h5py.File(tmp_path / "b.h5", "r") as f:
+        import json
+
+        for g in f["steps"].values():
+            faults = json.loads(g.attrs["faults_json"])
+            assert g.attrs["retries"] == len(faults)
+            kinds |= {x["kind"] for x in faults}
+        laser_a = {k: v.attrs["laser_distance_mm"] for k, v in h5py.File(tmp_path / "a.h5", "r")["steps"].items()}
+        laser_b = {k: v.attrs["laser_distance_mm"] for k, v in f["steps"].items()}
+    assert kinds == {"serial_timeout", "serial_garbage", "camera_disconnect", "dropped_frame"}
+    assert laser_a == laser_b
+
+
+class StuckCamera:
+    """Wraps a camera so that every frame after the first few is dropped."""
+
+    def __init__(self, inner, good_frames: int):
+        self.inner, self.good = inner, good_frames
+        self.safe_calls = 0
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def safe_state(self):
+        self.safe_calls += 1
+
+    def capture(self, count, first_index=0):
+        for frame in self.inner.capture(count, first_index):
+            if self.good <= 0:
+                raise DroppedFrame("camera", "no frame")
+            self.good -= 1
+            yield frame
+
+
+def build(tmp_path, write_campaign, small_model, wrap=None):
+    campaign, text = load_campaign(write_campaign(procedures=MANY_STEPS))
+    model, model_text = load_model(small_model())
+    lab = build_sim_lab(campaign, model, 1)
+    if wrap:
+        lab.camera = wrap(lab.camera)
+    for dev in lab.devices().values():
+        dev.connect()
+    run = RunWriter.create(
+        tmp_path / "r.h5", campaign_toml=text, simulated=True,
+        devices={r: (d.identity(), d.settings()) for r, d in lab.devices().items()},
+        camera=lab.camera.info(), sim=(model_text, 1),
+    )
+    reporter = Reporter(quiet=True)
+    return Runner(campaign, lab, run, reporter, Operator(True, reporter.message)), run, lab
+
+
+def test_persistent_fault_aborts_safely_and_keeps_complete_steps(tmp_path, write_campaign, small_model):
+    runner, run, lab = build(tmp_path, write_campaign, small_model, wrap=lambda cam: StuckCamera(cam, 15))
+    with pytest.raises(RunAborted, match="capture stuck at frame 3"):
+        runner.execute()
+    assert lab.camera.safe_calls == 1
+    run.close()
+    with h5py.File(tmp_path / "r.h5", "r") as f:
+        assert f.attrs["status"] == "aborted"
+        assert "capture stuck" in f.attrs["status_reason"]
+        complete = [k for k, g in f["steps"].items() if g.attrs["complete"]]
+    assert complete == ["00000_offset_calibration", "00001_depth_sweep"]
+
+
+class CtrlCStage:
+    """A stage whose third move is interrupted by Ctrl-C."""
+
+    def __init__(self, inner):
+        self.inner, self.moves, self.safe_calls = inner, 0, 0
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def safe_state(self):
+        self.safe_calls += 1
+
+    def move_to(self, position):
+        self.moves += 1
+        if self.moves == 3:
+            raise KeyboardInterrupt
+        self.inner.move_to(position)
+
+
+def test_ctrl_c_brings_devices_to_safe_state_and_resume_completes(tmp_path, write_campaign, small_model):
+    runner, run, lab = build(tmp_path, write_campaign, small_model)
+    lab.stage = stage = CtrlCStage(lab.stage)
+    with pytest.raises(Interrupted, match="labctl resume"):
+        runner.execute()
+    assert stage.safe_calls == 1
+    run.close()
+    with h5py.File(tmp_path / "r.h5", "r") as f:
+        assert f.attrs["status"] == "aborted"
+        assert len(f["steps"]) == 2
+    assert invoke("resume", tmp_path / "r.h5", "--quiet") == 0
+    campaign, model = write_campaign("ref.toml", procedures=MANY_STEPS), small_model()
+    assert invoke("run", campaign, "--sim", "--model", model, "--seed", 1, "-o", tmp_path / "ref.h5", "--quiet") == 0
+    resumed, reference = step_arrays(tmp_path / "r.h5"), step_arrays(tmp_path / "ref.h5")
+    assert sorted(resumed) == sorted(reference)
+    for sid in reference:
+        np.testing.assert_array_equal(resumed[sid]["z"], reference[sid]["z"])
+    with h5py.File(tmp_path / "r.h5", "r") as f:
+        assert f.attrs["status"] == "complete"
+
+
+def test_resume_of_complete_run_does_nothing(tmp_path, write_campaign, small_model):
+    out = tmp_path / "r.h5"
+    assert invoke("run", write_campaign(), "--sim", "--model", small_model(), "-o", out, "--quiet") == 0
+    before = step_arrays(out)
+    assert invoke("resume", out) == 0
+    assert step_arrays(out).keys() == before.keys()

@@ -1,0 +1,83 @@
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from metrics.stack import RoiMean, central_roi, stack_stats
+
+
+def test_mean_and_std_match_numpy_on_complete_stack():
+    rng = np.random.default_rng(0)
+    stack = rng.normal(1000.0, 3.0, (50, 20, 70)).astype(np.float32)
+    stats = stack_stats(stack)
+    np.testing.assert_allclose(stats.mean, stack.astype(float).mean(0), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(stats.std, stack.astype(float).std(0, ddof=1), rtol=1e-10)
+    assert stats.valid.all()
+
+
+def test_invalid_frames_are_ignored_per_pixel():
+    stack = np.full((10, 2, 2), 5.0, np.float32)
+    stack[:, 0, 0] = np.arange(10)
+    stack[:3, 0, 0] = np.nan  # valid in 7 of 10 frames
+    stack[:6, 1, 1] = np.nan  # valid in 4 of 10: fewer than half -> invalid
+    stats = stack_stats(stack)
+    assert stats.count[0, 0] == 7
+    assert stats.mean[0, 0] == pytest.approx(np.mean(np.arange(3, 10)))
+    assert stats.std[0, 0] == pytest.approx(np.std(np.arange(3, 10), ddof=1))
+    assert not stats.valid[1, 1] and math.isnan(stats.mean[1, 1])
+    assert stats.valid[0, 1]
+
+
+def test_exactly_half_valid_counts_as_valid():
+    stack = np.ones((10, 1, 1), np.float32)
+    stack[:5] = np.nan
+    assert stack_stats(stack).valid[0, 0]
+
+
+def test_sample_std_distribution_matches_chi_square():
+    """Per-pixel sample std of Gaussian noise: s^2 (n-1)/sigma^2 ~ chi2(n-1)."""
+    rng = np.random.default_rng(3)
+    n, sigma = 20, 2.0
+    stats = stack_stats(rng.normal(0, sigma, (n, 200, 200)).astype(np.float32))
+    q90 = np.quantile(stats.std, 0.9)
+    assert q90 == pytest.approx(sigma * math.sqrt(chi2.ppf(0.9, n - 1) / (n - 1)), rel=0.01)
+
+
+def test_rejects_non_stack():
+    with pytest.raises(ValueError, match="N, H, W"):
+        stack_stats(np.zeros((3, 3)))
+
+
+def test_roi_mean_streams_like_stack_mean():
+    rng = np.random.default_rng(1)
+    stack = rng.normal(2000, 1, (9, 30, 40)).astype(np.float32)
+    stack[0, 15, 20] = np.nan
+    roi = central_roi(30, 40, 0.25)
+    acc = RoiMean(roi, 9)
+    for frame in stack:
+        acc.add(frame)
+    expected = np.mean(stack_stats(stack[:, roi[0], roi[1]]).mean)
+    assert acc.value() == pytest.approx(expected, abs=1e-9)
+
+
+def test_central_roi_is_centred():
+    rows, cols = central_roi(480, 640, 0.1)
+    assert (rows.start, rows.stop, cols.start, cols.stop) == (216, 264, 288, 352)
+
+
+def test_tiny_noise_far_away_does_not_cancel():
+    """float32 input, 4 m away, 10 um noise: the one-pass kernel must keep full precision."""
+    rng = np.random.default_rng(9)
+    stack = (4000.0 + 0.01 * rng.standard_normal((100, 8, 9))).astype(np.float32)
+    stack[0, 0, 0] = np.nan  # first frame invalid: the kernel shifts by the first valid one
+    stats = stack_stats(stack)
+    ref = stack.astype(np.float64)
+    np.testing.assert_allclose(stats.std[1:], ref[:, 1:].std(0, ddof=1), rtol=1e-6)
+    np.testing.assert_allclose(stats.std[0, 0], np.nanstd(ref[:, 0, 0], ddof=1), rtol=1e-6)
+    np.testing.assert_allclose(stats.mean[0, 0], np.nanmean(ref[:, 0, 0]), rtol=1e-12)
+
+
+def test_integer_stacks_are_accepted():
+    stats = stack_stats(np.arange(24, dtype=np.uint16).reshape(4, 2, 3))
+    np.testing.assert_allclose(stats.mean, np.arange(24).reshape(4, 2, 3).mean(0))
