@@ -1,0 +1,1 @@
+"""Performance benchmarks (``python -m bench`` or ``make bench``); see docs/benchmarks.md."""

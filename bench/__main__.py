@@ -1,0 +1,24 @@
+"""Run the benchmarks: ``python -m bench [name ...]``; exit 1 if a budget is missed."""
+
+from __future__ import annotations
+
+import sys
+
+from bench import evaluation, recording
+
+BENCHMARKS = {"recording": recording.run, "evaluation": evaluation.run}
+
+
+def main(names: list[str]) -> int:
+    unknown = [n for n in names if n not in BENCHMARKS]
+    if unknown:
+        print(f"unknown benchmark(s) {', '.join(unknown)}; available: {', '.join(BENCHMARKS)}", file=sys.stderr)
+        return 2
+    results = [BENCHMARKS[name]() for name in (names or BENCHMARKS)]
+    for result in results:
+        print(result.line(), flush=True)
+    return 0 if all(r.ok for r in results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
