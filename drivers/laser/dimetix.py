@@ -1,0 +1,282 @@
+"""Dimetix laser distance sensor over a serial port (ASCII command set).
+
+Protocol: Dimetix Technical Reference Manual, chapter "Command set" (DLS-C/FLS-C
+§9, D-series DAN/DPE/DAE §6). Commands are ``sN<cmd>`` and replies ``gN<...>``, both
+terminated by CR LF, with N the device ID (0..9) set on the ID switch. Distances
+are in 0.1 mm. A failed command answers ``gN@Ezzz`` (manual, "Error codes").
+The sensor ships with 19200 baud, 7 data bits, even parity, 1 stop bit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Mapping
+from types import TracebackType
+from typing import Any
+
+import serial
+
+from drivers.errors import DeviceError, SerialGarbage, SerialTimeout, TransientDeviceError
+from drivers.protocols import DeviceIdentity
+
+ERROR_CODES: dict[int, str] = {
+    203: "wrong command syntax, forbidden parameter or invalid result",
+    210: "not in tracking mode: start tracking first",
+    211: "sampling too fast: choose a longer sampling time",
+    212: "command not possible while tracking: stop tracking with sNc first",
+    220: "serial communication error: check the interface settings",
+    230: "distance overflow caused by the user offset/gain configuration",
+    231: "wrong mode to read the digital input status",
+    232: "digital output 1 cannot be set while it is configured as an input",
+    233: "number cannot be displayed: check the output format",
+    234: "distance out of range",
+    236: "digital output manual mode not possible while configured as an input",
+    252: "temperature too high",
+    253: "temperature too low",
+    254: "bad signal from the target: measuring takes too long",
+    255: "received signal too weak (or target lost): use a better target or distance",
+    256: "received signal too strong: use a less reflective target or longer distance",
+    258: "supply voltage too high",
+    259: "supply voltage too low",
+    260: "distance cannot be calculated: ambiguous targets",
+    263: "too much light (or distance jump in moving-target mode)",
+    264: "too much light: measuring on reflective targets not possible",
+    330: "target acceleration too strong or distance jump (moving-target mode)",
+    331: "target moves too fast",
+    360: "configured measuring time too short",
+    361: "configured measuring time too long",
+}
+"""Meaning of each ``@Ezzz`` code (manual, "Error codes")."""
+
+TARGET_ERROR_CODES = frozenset({254, 255, 256, 260, 263, 264, 330, 331})
+"""Codes caused by the target or beam path at that moment (a person crossing the beam,
+a reflection): a later measurement may succeed, so they are transient."""
+
+
+class DimetixError(DeviceError):
+    """The sensor answered ``gN@Ezzz``; ``code`` and ``meaning`` tell why."""
+
+    def __init__(self, device: str, command: str, code: int) -> None:
+        self.code = code
+        self.meaning = ERROR_CODES.get(code, "undocumented error code")
+        super().__init__(device, f"'{command}' failed with error E{code}: {self.meaning}")
+
+
+class DimetixTargetError(DimetixError, TransientDeviceError):
+    """An error code caused by the target or beam path; worth retrying."""
+
+
+def _error(device: str, command: str, code: int) -> DimetixError:
+    cls = DimetixTargetError if code in TARGET_ERROR_CODES else DimetixError
+    return cls(device, command, code)
+
+
+class DimetixLaser:
+    """A Dimetix DLS/FLS/D-series sensor as a :class:`~drivers.protocols.RangeMeter`.
+
+    ``timeout_s`` bounds every reply; measuring a poor target can take seconds,
+    so keep it well above the sensor's measuring time. Use as a context manager
+    (connect on entry, safe state and close on exit) or call :meth:`connect`.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baud: int = 19200,
+        *,
+        device_id: int = 0,
+        bytesize: int = 7,
+        parity: str = "E",
+        stopbits: int = 1,
+        timeout_s: float = 3.0,
+    ) -> None:
+        if not 0 <= device_id <= 9:
+            raise ValueError(f"Dimetix device ID must be 0..9, got {device_id}")
+        self.port = port
+        self.baud = baud
+        self.device_id = device_id
+        self.bytesize = bytesize
+        self.parity = parity
+        self.stopbits = stopbits
+        self.timeout_s = timeout_s
+        self.name = f"Dimetix laser on {port}"
+        self._serial: serial.Serial | None = None
+        self._lock = threading.RLock()  # safe_state() may come from another thread
+        self._identity: DeviceIdentity | None = None
+
+    # -- RangeMeter -----------------------------------------------------------------
+
+    def connect(self) -> None:
+        """Open the port, stop anything running (``sNc``) and read serial number and version.
+
+        Manual: "STOP/CLEAR command (sNc)", "Get serial number (sNsn)",
+        "Get software version (sNsv)".
+        """
+        if self._serial is not None:
+            return
+        try:
+            self._serial = serial.Serial(
+                self.port,
+                self.baud,
+                bytesize=self.bytesize,
+                parity=self.parity,
+                stopbits=self.stopbits,
+                timeout=0.02,
+                write_timeout=self.timeout_s,
+            )
+        except (OSError, ValueError) as exc:
+            raise DeviceError(self.name, f"cannot open the port at {self.baud} baud: {exc}") from exc
+        try:
+            self._request("c", "?")
+            serial_number = self._request("sn", "sn+")
+            version = self._request("sv", "sv+")
+        except Exception:
+            self.close()
+            raise
+        self._identity = DeviceIdentity(
+            backend="dimetix",
+            model="Dimetix laser distance sensor",
+            serial=serial_number,
+            firmware=version,
+        )
+
+    def close(self) -> None:
+        """Close the port (idempotent)."""
+        port, self._serial = self._serial, None
+        if port is not None:
+            with contextlib.suppress(OSError):
+                port.close()
+
+    def safe_state(self) -> None:
+        """Stop tracking (``sNc``) and switch the laser off (``sNp``); never raises.
+
+        Manual: "STOP/CLEAR command (sNc)", "Laser OFF (sNp)".
+        """
+        for command in ("c", "p"):
+            with contextlib.suppress(Exception):  # a dead or missing port must not stop the safe-state sweep
+                self._request(command, "?")
+
+    def identity(self) -> DeviceIdentity:
+        """Serial number and software version read at :meth:`connect`."""
+        if self._identity is None:
+            raise DeviceError(self.name, "not connected: call connect() first")
+        return self._identity
+
+    def settings(self) -> Mapping[str, Any]:
+        """Serial line settings and device ID."""
+        return {
+            "port": self.port,
+            "baud": self.baud,
+            "format": f"{self.bytesize}{self.parity}{self.stopbits}",
+            "device_id": self.device_id,
+            "timeout_s": self.timeout_s,
+        }
+
+    def measure_mm(self) -> float:
+        """One distance measurement in mm (manual, "Distance measurement (sNg)": ``gNg+xxxxxxxx`` in 0.1 mm)."""
+        return self._distance(self._request("g", "g"), "g")
+
+    # -- further commands -------------------------------------------------------------
+
+    def laser_on(self) -> None:
+        """Switch the laser beam on, e.g. for aiming (manual, "Laser ON (sNo)")."""
+        self._request("o", "?")
+
+    def laser_off(self) -> None:
+        """Switch the laser beam off (manual, "Laser OFF (sNp)")."""
+        self._request("p", "?")
+
+    def start_tracking(self, sample_time_s: float = 0.0) -> None:
+        """Measure continuously into the sensor's one-value buffer every ``sample_time_s``
+        (0 = as fast as possible); manual, "Tracking with buffering - Start (sNf)"."""
+        ticks = round(sample_time_s / 0.01)
+        if not 0 <= ticks <= 99_999_999:
+            raise ValueError(f"sample time must be 0..999999.99 s, got {sample_time_s}")
+        self._request(f"f+{ticks:08d}", "f?")
+
+    def read_tracking(self) -> float | None:
+        """Latest buffered distance in mm, or None if nothing new was measured since the last read.
+
+        Manual, "Read out - Tracking with buffering (sNq)": ``gNq+xxxxxxxx+c``, c = 0 no new
+        value, 1 new value, 2 new value and older ones overwritten.
+        """
+        payload = self._request("q", "q")
+        distance, sep, fresh = payload.rpartition("+")
+        if not sep or fresh not in ("0", "1", "2"):
+            raise SerialGarbage(self.name, f"reply to {self._describe('q')} lacks the '+c' status: {payload!r}")
+        return None if fresh == "0" else self._distance(distance, "q")
+
+    def stop_tracking(self) -> None:
+        """Stop tracking (manual, "STOP/CLEAR command (sNc)")."""
+        self._request("c", "?")
+
+    def __enter__(self) -> DimetixLaser:
+        self.connect()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.safe_state()
+        self.close()
+
+    # -- serial exchange ----------------------------------------------------------------
+
+    def _describe(self, command: str) -> str:
+        return f"'s{self.device_id}{command}'"
+
+    def _request(self, command: str, expect: str) -> str:
+        """Send ``sN<command>`` and return what follows ``gN<expect>`` in the reply."""
+        port = self._serial
+        if port is None:
+            raise DeviceError(self.name, "not connected: call connect() first")
+        request = f"s{self.device_id}{command}"
+        prefix = f"g{self.device_id}"
+        try:
+            with self._lock:
+                if stale := port.in_waiting:  # a reply that arrived after an earlier timeout
+                    port.read(stale)
+                port.write(f"{request}\r\n".encode("ascii"))
+                line = self._read_line(port, f"'{prefix}{expect}...' in reply to '{request}'")
+        except serial.SerialTimeoutException as exc:
+            raise SerialTimeout(self.name, f"writing '{request}' timed out after {self.timeout_s} s") from exc
+        except OSError as exc:  # pyserial's SerialException is an OSError
+            raise DeviceError(self.name, f"port failed or disconnected during '{request}': {exc}") from exc
+        if line.startswith(f"{prefix}@E") and line[4:7].isdigit():
+            raise _error(self.name, request, int(line[4:7]))
+        if not line.startswith(prefix + expect):
+            raise SerialGarbage(self.name, f"expected '{prefix}{expect}...' in reply to '{request}', got {line!r}")
+        return line[len(prefix + expect) :]
+
+    def _read_line(self, port: serial.Serial, expected: str) -> str:
+        deadline = time.monotonic() + self.timeout_s
+        buffer = bytearray()
+        while (end := buffer.find(b"\r\n")) < 0:
+            if time.monotonic() > deadline:
+                got = bytes(buffer)
+                raise SerialTimeout(
+                    self.name, f"no complete reply within {self.timeout_s} s (expected {expected}; got {got!r})"
+                )
+            buffer += port.read(port.in_waiting or 1)
+        try:
+            return buffer[:end].decode("ascii")
+        except UnicodeDecodeError as exc:
+            raise SerialGarbage(self.name, f"non-ASCII reply {bytes(buffer[:end])!r} (expected {expected})") from exc
+
+    def _distance(self, field: str, command: str) -> float:
+        if len(field) != 9 or field[0] not in "+-" or not field[1:].isdigit():
+            raise SerialGarbage(
+                self.name, f"distance {field!r} in reply to {self._describe(command)} is not ±xxxxxxxx (0.1 mm)"
+            )
+        return int(field) / 10.0
+
+
+def read_distances(port: str, baud: int = 19200, count: int = 1) -> list[float]:
+    """Take ``count`` single measurements (mm) and leave the laser off (manual, "sNg", "sNp")."""
+    with DimetixLaser(port, baud) as laser:
+        return [laser.measure_mm() for _ in range(count)]

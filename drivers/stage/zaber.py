@@ -1,0 +1,375 @@
+"""Zaber linear stage over the Zaber ASCII protocol (firmware 6.06 and later).
+
+Protocol: Zaber ASCII Protocol Manual, "Message Format". A command is
+``/device axis id command`` (LF); its reply ``@device axis id OK|RJ IDLE|BUSY flag data``
+(CR LF). The message ID (0..99) ties a reply to its command, so a reply that
+arrives after a timeout is recognised and dropped. ``flag`` is the active warning
+flag of highest precedence (``--``: none); ``data`` of a rejected (``RJ``) command is
+the reason. Positions are in microsteps; ``mm_per_microstep`` is the stage's
+microstep size from its datasheet (manual, "Physical Units").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import re
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+import serial
+
+from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout
+from drivers.protocols import DeviceIdentity
+
+log = logging.getLogger(__name__)
+
+WARNING_FLAGS: dict[str, str] = {
+    "FD": "driver disabled: the motor driver switched itself off (e.g. overheating)",
+    "FQ": "encoder error: the encoder-measured position may be unreliable",
+    "FS": "stalled and stopped: the axis detected a stall and stopped itself",
+    "FT": "excessive twist: a lockstep group twisted beyond its limit and stopped",
+    "FB": "stream bounds error: a streamed motion failed a precondition",
+    "FP": "interpolated path deviation: streamed motion stopped because an axis slipped",
+    "FE": "limit error: the limit sensor cannot be reached or is faulty",
+    "WL": "unexpected limit trigger: a move did not finish because a limit sensor triggered",
+    "WV": "supply voltage outside the recommended range",
+    "WT": "controller temperature above the recommended limit",
+    "WS": "stalled with recovery: the axis stalled and recovered",
+    "WM": "displaced when stationary: the axis was pushed out of position while at rest",
+    "WP": "unsupported calibration data type",
+    "WR": "no reference position: the axis must be homed",
+    "WH": "not homed: the axis has a reference position but was not homed",
+    "NC": "manual control: the axis is being moved with the knob or joystick",
+    "NI": "movement interrupted by another command or manual control",
+    "ND": "stream discontinuity: streamed motion ran out of queued moves",
+    "NU": "a setting update or reset is pending",
+    "NJ": "joystick calibration in progress",
+}
+"""Warning flags (manual, "Warning Flags"): F* faults, W* warnings, N* notices."""
+
+REJECTION_REASONS: dict[str, str] = {
+    "AGAIN": "the command cannot be processed right now; send it again",
+    "BADAXIS": "the axis number exceeds the number of axes of the device",
+    "BADCOMMAND": "the command or setting is wrong or not valid now",
+    "BADDATA": "the command's data is wrong or out of range",
+    "BADMESSAGEID": "the message ID is not -- or a number from 0 to 99",
+    "DEVICEONLY": "an axis number was given for a device-only command",
+    "FULL": "the device has run out of permanent storage",
+    "LOCKSTEP": "the axis is in a lockstep group and cannot be moved on its own",
+    "NOACCESS": "the command or setting needs a higher access level",
+    "PARKED": "the device is parked and cannot move until unparked",
+    "STATUSBUSY": "the device is busy and cannot do this now",
+}
+"""Reasons of an ``RJ`` reply (manual, "Replies": rejection reasons)."""
+
+MOTION_FAILURES = frozenset({"WL", "WS", "WM", "WR", "WH"})
+"""Warnings that mean a move did not end where it was sent, or may not have."""
+
+MAXSPEED_PER_MICROSTEP_S = 1.6384
+"""``maxspeed`` data per (microstep/s) (manual, "Physical Units": velocity)."""
+
+_REPLY = re.compile(r"@(\d{2}) (\d+) (?:(\d{1,2}) )?(OK|RJ) (IDLE|BUSY) (--|[A-Z]{2}) ?(.*)")
+
+
+@dataclass(frozen=True)
+class Reply:
+    """A decoded ``@`` reply."""
+
+    accepted: bool
+    busy: bool
+    flag: str
+    data: str
+
+
+class ZaberRejection(DeviceError):
+    """The device answered ``RJ``: it did not execute the command."""
+
+    def __init__(self, device: str, command: str, reason: str, flag: str) -> None:
+        self.reason = reason
+        self.meaning = REJECTION_REASONS.get(reason, "undocumented rejection reason")
+        active = "" if flag == "--" else f" (active flag {flag}: {WARNING_FLAGS.get(flag, 'undocumented flag')})"
+        super().__init__(device, f"rejected '{command}': {reason}: {self.meaning}{active}")
+
+
+class ZaberFlagError(DeviceError):
+    """A fault flag, or a warning flag that means motion failed, was raised."""
+
+    def __init__(self, device: str, context: str, flag: str) -> None:
+        self.flag = flag
+        self.meaning = WARNING_FLAGS.get(flag, "undocumented flag")
+        super().__init__(device, f"{context}: warning flag {flag}: {self.meaning}")
+
+
+class ZaberStage:
+    """One axis of a Zaber device as a :class:`~drivers.protocols.LinearStage`.
+
+    ``travel_mm`` are the soft limits checked before every move; ``mm_per_microstep``
+    converts the device's microsteps to mm. Every reply is awaited at most
+    ``timeout_s``; a move or homing cycle may take ``move_timeout_s``.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baud: int = 115200,
+        *,
+        travel_mm: tuple[float, float],
+        mm_per_microstep: float,
+        device: int = 1,
+        axis: int = 1,
+        timeout_s: float = 1.0,
+        move_timeout_s: float = 120.0,
+        poll_interval_s: float = 0.02,
+    ) -> None:
+        low, high = travel_mm
+        if not low < high:
+            raise ValueError(f"travel_mm must be (min, max) with min < max, got {travel_mm}")
+        if mm_per_microstep <= 0:
+            raise ValueError(f"mm_per_microstep must be positive, got {mm_per_microstep}")
+        self.port = port
+        self.baud = baud
+        self.travel_mm = (float(low), float(high))
+        self.mm_per_microstep = mm_per_microstep
+        self.device = device
+        self.axis = axis
+        self.timeout_s = timeout_s
+        self.move_timeout_s = move_timeout_s
+        self.poll_interval_s = poll_interval_s
+        self.name = f"Zaber stage {device}/{axis} on {port}"
+        self._serial: serial.Serial | None = None
+        self._lock = threading.RLock()
+        self._message_id = 0
+        self._identity: DeviceIdentity | None = None
+        self._device_settings: dict[str, Any] = {}
+
+    # -- LinearStage ----------------------------------------------------------------
+
+    def connect(self) -> None:
+        """Open the port, read identity and travel range, and check ``travel_mm`` lies within it.
+
+        Manual, "Command Reference": ``get deviceid``, ``get version``, ``get system.serial``,
+        ``get limit.min``, ``get limit.max``, ``get maxspeed``.
+        """
+        if self._serial is not None:
+            return
+        try:
+            self._serial = serial.Serial(self.port, self.baud, timeout=0.02, write_timeout=self.timeout_s)
+        except (OSError, ValueError) as exc:
+            raise DeviceError(self.name, f"cannot open the port at {self.baud} baud: {exc}") from exc
+        try:
+            self._read_device()
+        except Exception:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Close the port (idempotent)."""
+        port, self._serial = self._serial, None
+        if port is not None:
+            with contextlib.suppress(OSError):
+                port.close()
+
+    def safe_state(self) -> None:
+        """Stop motion (``stop``); never raises."""
+        with contextlib.suppress(Exception):  # a dead or missing port must not stop the safe-state sweep
+            self.stop()
+
+    def identity(self) -> DeviceIdentity:
+        """Device ID, serial number and firmware version read at :meth:`connect`."""
+        if self._identity is None:
+            raise DeviceError(self.name, "not connected: call connect() first")
+        return self._identity
+
+    def settings(self) -> Mapping[str, Any]:
+        """Configuration and the device's own travel range and speed limit."""
+        return {
+            "port": self.port,
+            "baud": self.baud,
+            "device": self.device,
+            "axis": self.axis,
+            "mm_per_microstep": self.mm_per_microstep,
+            "travel_mm": list(self.travel_mm),
+            **self._device_settings,
+        }
+
+    def home(self) -> None:
+        """Home the axis and wait until it is idle with a reference position (manual, ``home``)."""
+        self._clear_warnings("home", refuse=frozenset())
+        self._send("home")
+        self._wait_idle("home")
+        self._check_after_motion("home")
+
+    def move_to(self, position_mm: float) -> None:
+        """Absolute move (manual, ``move abs``); returns when idle at the target.
+
+        Raises :class:`~drivers.errors.LimitViolation` before any I/O if the target lies
+        outside ``travel_mm``, and :class:`ZaberFlagError` without moving if a fault is
+        active or the axis has no reference position.
+        """
+        low, high = self.travel_mm
+        if not low <= position_mm <= high:
+            raise LimitViolation(
+                self.name, f"target {position_mm} mm lies outside the soft limits [{low}, {high}] mm; nothing moved"
+            )
+        target = round(position_mm / self.mm_per_microstep)
+        command = f"move abs {target}"
+        self._clear_warnings(command, refuse=frozenset({"WR", "WH"}))
+        self._send(command)
+        reached = self._wait_idle(command)
+        self._check_after_motion(command)
+        if abs(reached - target) > 1:
+            raise DeviceError(
+                self.name,
+                f"'{command}' stopped at {reached * self.mm_per_microstep:.4f} mm instead of {position_mm} mm",
+            )
+
+    def position_mm(self) -> float:
+        """Current position in mm (manual, ``get pos``)."""
+        return self._integer("get pos") * self.mm_per_microstep
+
+    def stop(self) -> None:
+        """Decelerate to a stop and wait until idle (manual, ``stop``)."""
+        self._send("stop", check_faults=False)
+        self._wait_idle("stop", check_faults=False)
+
+    def __enter__(self) -> ZaberStage:
+        self.connect()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.safe_state()
+        self.close()
+
+    # -- motion helpers -------------------------------------------------------------
+
+    def _read_device(self) -> None:
+        device_id = self._send("get deviceid", axis=0).data
+        version = self._send("get version", axis=0).data
+        try:
+            serial_number = self._send("get system.serial", axis=0).data
+        except ZaberRejection:  # a firmware without this setting rejects it
+            serial_number = ""
+        limit_min = self._integer("get limit.min") * self.mm_per_microstep
+        limit_max = self._integer("get limit.max") * self.mm_per_microstep
+        maxspeed = self._integer("get maxspeed")
+        low, high = self.travel_mm
+        if low < limit_min - self.mm_per_microstep or high > limit_max + self.mm_per_microstep:
+            raise DeviceError(
+                self.name,
+                f"configured travel [{low}, {high}] mm exceeds the device range [{limit_min}, {limit_max}] mm "
+                f"(limit.min/limit.max at {self.mm_per_microstep} mm per microstep)",
+            )
+        self._identity = DeviceIdentity("zaber", f"Zaber device ID {device_id}", serial_number, version)
+        self._device_settings = {
+            "device_range_mm": [limit_min, limit_max],
+            "max_speed_mm_s": maxspeed / MAXSPEED_PER_MICROSTEP_S * self.mm_per_microstep,
+        }
+
+    def _clear_warnings(self, context: str, *, refuse: frozenset[str]) -> None:
+        """Read and clear the warning flags (manual, ``warnings clear``); refuse to move on a
+        fault or on a flag in ``refuse``, log left-over warnings."""
+        flags = self._send("warnings clear", check_faults=False).data.split()[1:]
+        for flag in flags:
+            if flag.startswith("F") or flag in refuse:
+                raise ZaberFlagError(self.name, f"'{context}' not sent, nothing moved", flag)
+        for flag in flags:
+            if flag.startswith("W") and flag not in ("WR", "WH"):
+                log.warning("%s: cleared %s (%s) before '%s'", self.name, flag, WARNING_FLAGS.get(flag, "?"), context)
+
+    def _check_after_motion(self, context: str) -> None:
+        flags = self._send("warnings", check_faults=False).data.split()[1:]
+        for flag in flags:
+            if flag.startswith("F") or flag in MOTION_FAILURES:
+                raise ZaberFlagError(self.name, f"'{context}' failed", flag)
+        for flag in flags:
+            if flag.startswith("W"):
+                log.warning("%s: after '%s': %s: %s", self.name, context, flag, WARNING_FLAGS.get(flag, "?"))
+
+    def _wait_idle(self, context: str, *, check_faults: bool = True) -> int:
+        """Poll ``get pos`` until the axis is idle; return the position in microsteps."""
+        deadline = time.monotonic() + self.move_timeout_s
+        while True:
+            reply = self._send("get pos", check_faults=False)
+            if check_faults and reply.flag.startswith("F"):
+                raise ZaberFlagError(self.name, f"'{context}' failed", reply.flag)
+            if not reply.busy:
+                return self._integer("get pos", reply)
+            if time.monotonic() > deadline:
+                self._send("stop", check_faults=False)
+                raise DeviceError(self.name, f"'{context}' still moving after {self.move_timeout_s} s; sent stop")
+            time.sleep(self.poll_interval_s)
+
+    # -- serial exchange ----------------------------------------------------------------
+
+    def _integer(self, command: str, reply: Reply | None = None) -> int:
+        """The integer data of ``reply`` (sent now if None) to ``command``."""
+        reply = self._send(command) if reply is None else reply
+        try:
+            return int(reply.data)
+        except ValueError as exc:
+            raise SerialGarbage(self.name, f"reply data {reply.data!r} to '{command}' is not an integer") from exc
+
+    def _send(self, command: str, *, axis: int | None = None, check_faults: bool = True) -> Reply:
+        """Send one command and return its reply; ``RJ`` raises :class:`ZaberRejection`,
+        an active fault flag :class:`ZaberFlagError` (unless ``check_faults`` is False)."""
+        axis = self.axis if axis is None else axis
+        with self._lock:
+            port = self._serial
+            if port is None:
+                raise DeviceError(self.name, "not connected: call connect() first")
+            self._message_id = (self._message_id + 1) % 100
+            message_id = self._message_id
+            try:
+                if stale := port.in_waiting:
+                    port.read(stale)
+                port.write(f"/{self.device} {axis} {message_id} {command}\n".encode("ascii"))
+                reply = self._read_reply(port, command, axis, message_id)
+            except serial.SerialTimeoutException as exc:
+                raise SerialTimeout(self.name, f"writing '{command}' timed out after {self.timeout_s} s") from exc
+            except OSError as exc:  # pyserial's SerialException is an OSError
+                raise DeviceError(self.name, f"port failed or disconnected during '{command}': {exc}") from exc
+        if not reply.accepted:
+            raise ZaberRejection(self.name, command, reply.data, reply.flag)
+        if check_faults and reply.flag.startswith("F"):
+            raise ZaberFlagError(self.name, f"during '{command}'", reply.flag)
+        return reply
+
+    def _read_reply(self, port: serial.Serial, command: str, axis: int, message_id: int) -> Reply:
+        expected = f"'@{self.device:02d} {axis} {message_id:02d} ...' in reply to '{command}'"
+        deadline = time.monotonic() + self.timeout_s
+        buffer = bytearray()
+        while True:
+            end = buffer.find(b"\r\n")
+            if end < 0:
+                if time.monotonic() > deadline:
+                    got = bytes(buffer)
+                    raise SerialTimeout(
+                        self.name, f"no complete reply within {self.timeout_s} s (expected {expected}; got {got!r})"
+                    )
+                buffer += port.read(port.in_waiting or 1)
+                continue
+            raw = bytes(buffer[:end])
+            del buffer[: end + 2]
+            try:
+                line = raw.decode("ascii")
+            except UnicodeDecodeError as exc:
+                raise SerialGarbage(self.name, f"non-ASCII reply {raw!r} (expected {expected})") from exc
+            if line[:1] in ("#", "!"):  # info and alert messages are not replies
+                continue
+            match = _REPLY.fullmatch(line)
+            if match is None:
+                raise SerialGarbage(self.name, f"reply {line!r} is not a Zaber ASCII reply (expected {expected})")
+            device, reply_axis, reply_id, flag, status, warning, data = match.groups()
+            if (int(device), int(reply_axis)) != (self.device, axis) or reply_id is None or int(reply_id) != message_id:
+                continue  # a late reply to an earlier command
+            return Reply(flag == "OK", status == "BUSY", warning, data)
