@@ -146,6 +146,9 @@ class Runner:
                 f"run aborted: {exc}. Devices are in their safe state; {self.run.path} keeps every complete "
                 f"step. Continue with: labctl resume {self.run.path}"
             ) from None
+        except BaseException as exc:  # a bug: devices still go to their safe state, the traceback stays
+            self._abort(f"internal error: {type(exc).__name__}: {exc}")
+            raise
         finally:
             self.reporter.stop()
             close_all(self.lab, self.reporter.message)

@@ -175,3 +175,41 @@ def test_resume_of_complete_run_does_nothing(tmp_path, write_campaign, small_mod
     before = step_arrays(out)
     assert invoke("resume", out) == 0
     assert step_arrays(out).keys() == before.keys()
+
+
+def test_few_percent_faults_give_identical_key_figures(tmp_path, write_campaign, small_model):
+    """The issue's case: [sim.faults] of a few percent, same key figures, retries in the run file."""
+    import json
+
+    model = small_model(width=96, height=72)
+    long_sweep = MANY_STEPS.replace("step_mm = 250", "step_mm = 100")  # 31 sweep positions
+    rates = "\n".join(f"{kind} = 0.04" for kind in ("serial_timeout", "serial_garbage", "camera_disconnect", "dropped_frame"))
+    clean = write_campaign("clean.toml", procedures=long_sweep)
+    faulty = write_campaign("faulty.toml", procedures=long_sweep, faults=f"[sim.faults]\n{rates}\n")
+    for campaign, name in ((clean, "clean"), (faulty, "faulty")):
+        assert invoke("run", campaign, "--sim", "--model", model, "-o", tmp_path / f"{name}.h5", "--quiet") == 0
+        assert invoke("evaluate", tmp_path / f"{name}.h5", "-o", tmp_path / name, "--quiet") == 0
+    docs = {name: json.loads((tmp_path / name / "keyfigures.json").read_text()) for name in ("clean", "faulty")}
+    assert docs["clean"]["figures"] == docs["faulty"]["figures"]
+    assert docs["clean"]["figures"]["z_precision_q90_mm"]["value"] is not None
+    with h5py.File(tmp_path / "faulty.h5", "r") as f:
+        retries = sum(int(g.attrs["retries"]) for g in f["steps"].values())
+    with h5py.File(tmp_path / "clean.h5", "r") as f:
+        assert sum(int(g.attrs["retries"]) for g in f["steps"].values()) == 0
+    assert retries >= 3
+
+
+class BuggyCamera(StuckCamera):
+    def capture(self, count, first_index=0):
+        raise ValueError("unexpected frame format")
+
+
+def test_unexpected_error_still_reaches_safe_state(tmp_path, write_campaign, small_model):
+    runner, run, lab = build(tmp_path, write_campaign, small_model, wrap=lambda cam: BuggyCamera(cam, 0))
+    with pytest.raises(ValueError, match="unexpected frame format"):
+        runner.execute()
+    assert lab.camera.safe_calls == 1
+    run.close()
+    with h5py.File(tmp_path / "r.h5", "r") as f:
+        assert f.attrs["status"] == "aborted"
+        assert "internal error: ValueError" in f.attrs["status_reason"]
