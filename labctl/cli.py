@@ -16,6 +16,7 @@ from pathlib import Path
 
 import click
 
+from labctl import cli_sim
 from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
@@ -187,6 +188,9 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     json_path, report = write_outputs(evaluation, output)
     reporter.message(f"key figures: {json_path}")
     click.echo(f"report: {report}")
+
+
+cli.add_command(cli_sim.sim_group)
 
 
 # ---------------------------------------------------------------------- entry point

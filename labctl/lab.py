@@ -47,6 +47,7 @@ def build_sim_lab(campaign: Campaign, model: SimModel, seed: int) -> Lab:
     devices = campaign.devices
     world = SimWorld(
         profile=model.profile(),
+        effects=model.effect_params(),
         lab=model.lab,
         seed=seed,
         faults=FaultInjector(campaign.sim.faults.model_dump(), seed),

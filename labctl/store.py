@@ -216,6 +216,7 @@ class RunWriter:
             procedure=step.procedure,
             index=step.index,
             target=step.target,
+            target_json=json.dumps(dict(step.target_params)),
             frames=step.frames,
             distance_mm=_nan_if_none(step.distance_mm),
             stage_position_mm=_nan_if_none(stage_position_mm),

@@ -26,7 +26,9 @@ class Step:
 
     ``distance_mm`` is the nominal camera-to-target distance set with the stage
     (None when the stage does not move for this step); ``robot_angle_deg`` the
-    position on the robot's measurement circle (None without robot). ``prompt``
+    position on the robot's measurement circle (None without robot).
+    ``target_params`` describe the target (e.g. a Boehler star's segments and
+    gap to the wall) and are recorded with the step. ``prompt``
     is an operator action that must be confirmed before the step starts (e.g. a
     target swap). ``role`` tells the runner about special steps: ``"offset"``
     steps determine the camera-laser offset used for every later reference
@@ -37,6 +39,7 @@ class Step:
     procedure: str
     target: str
     frames: int
+    target_params: Mapping[str, Any] = field(default_factory=dict)
     distance_mm: float | None = None
     robot_angle_deg: float | None = None
     robot_radius_mm: float | None = None

@@ -22,8 +22,6 @@ from drivers.errors import (
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.config import RobotConfig, StageConfig
 from labctl.planning import CAPTURE_SETUP_S, LASER_READING_S, ROBOT_SETTLE_S
-from sim.optics import Pinhole
-from sim.scene import render
 from sim.seeding import stream
 from sim.stereo import StereoSensor
 from sim.tof import ToFSensor
@@ -166,17 +164,16 @@ class SimRobot:
 
 
 class SimCamera:
-    """Physical camera model: scene rendering + ToF or stereo sensor physics."""
+    """Physical camera model: the world's scene seen through ToF or stereo sensor physics."""
 
     def __init__(self, world: SimWorld) -> None:
         self.world = world
         profile = world.profile
         self.profile = profile
-        self.optics = Pinhole(profile.width, profile.height, profile.fov_h_deg, profile.fov_v_deg)
         if profile.technology == "tof":
-            self.sensor: ToFSensor | StereoSensor = ToFSensor(profile)
+            self.sensor: ToFSensor | StereoSensor = ToFSensor(profile, world.effects)
         else:
-            self.sensor = StereoSensor(profile, self.optics.fx)
+            self.sensor = StereoSensor(profile, world.effects)
         self.name = f"camera (simulated {profile.model})"
         self.connected = False
         self.exposure_us = profile.exposure_us
@@ -212,13 +209,22 @@ class SimCamera:
         self._settings = dict(settings)
         self.world.clock.sleep(CAPTURE_SETUP_S)
 
+    @property
+    def projector(self) -> bool:
+        """Stereo dot projector (``projector`` or ``emitter`` setting, default on)."""
+        return bool(self._settings.get("projector", self._settings.get("emitter", True)))
+
     def _prepare(self) -> Any:
-        pose = self.world.camera_pose()
-        key = (self.world.target, pose, self.exposure_us)
+        world = self.world
+        scene, pose = world.scene_and_pose()
+        key = (world.step_index, world.target, repr(sorted(world.target_params.items())), pose.key(),
+               world.camera_distance_mm(), self.exposure_us, self.projector)
         if key != self._cache_key:
-            rays = self.optics.unit_rays
-            hit = render(self.world.target, rays, pose)
-            self._prepared = self.sensor.prepare(hit, rays, self.exposure_us)
+            args = (scene, pose, self.exposure_us, world.seed, world.step_index)
+            if isinstance(self.sensor, StereoSensor):
+                self._prepared = self.sensor.prepare(*args, projector=self.projector)
+            else:
+                self._prepared = self.sensor.prepare(*args)
             self._cache_key = key
         return self._prepared
 
@@ -235,7 +241,7 @@ class SimCamera:
             if world.faults.strike("dropped_frame"):
                 world.clock.sleep(period)
                 raise DroppedFrame(self.name, f"frame {k} incomplete")
-            x, y, z, intensity, confidence = self.sensor.frame(prepared, stream(world.seed, world.step_index, "camera", k))
+            timestamp = world.step_start_s + k * period
+            x, y, z, intensity, confidence = self.sensor.frame(prepared, k, timestamp)
             world.clock.sleep(period)
-            yield Frame(x, y, z, intensity, confidence, timestamp=world.step_start_s + k * period)
-
+            yield Frame(x, y, z, intensity, confidence, timestamp=timestamp)

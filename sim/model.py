@@ -9,6 +9,9 @@ camera_mount_error_mm = 6.0
 [effects.wiggling]               # an effect present is on, absent is off
 amplitude_mm = 4.0
 ```
+
+Without ``--model`` a run uses the profile's built-in model
+(``default_model_text``): the camera with the effects it has by nature.
 """
 
 from __future__ import annotations
@@ -17,21 +20,14 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError, field_validator
+import tomli_w
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from labctl.errors import InputError
 from procedures.steps import StrictModel
+from sim.effects import EffectParams, parse_effects
 from sim.lab import LabGeometry
-from sim.profiles import PROFILES, CameraProfile, get_profile
-
-#: the fixed effect vocabulary of CONTRACTS §5
-EFFECT_NAMES = (
-    "range_offset", "range_scale", "wiggling", "temperature_drift", "intensity_related_error",
-    "vignetting", "radial_distortion", "fov_error", "defocus", "quantization", "flying_pixels",
-    "multipath", "material_bias", "target_misalignment", "camera_axis_offset",
-)
-#: effects this version of the simulator implements
-IMPLEMENTED_EFFECTS: tuple[str, ...] = ()
+from sim.profiles import PROFILES, CameraProfile, default_effects, get_profile
 
 
 class SimModel(StrictModel):
@@ -47,15 +43,10 @@ class SimModel(StrictModel):
             raise ValueError(f"unknown camera profile {name!r}; known: {', '.join(PROFILES)}")
         return name
 
-    @field_validator("effects")
-    @classmethod
-    def _known_effects(cls, effects: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-        for name in effects:
-            if name not in EFFECT_NAMES:
-                raise ValueError(f"unknown effect {name!r}; the vocabulary is: {', '.join(EFFECT_NAMES)}")
-            if name not in IMPLEMENTED_EFFECTS:
-                raise ValueError(f"effect {name!r} is not implemented by this simulator version")
-        return effects
+    @model_validator(mode="after")
+    def _valid_effects(self) -> SimModel:
+        parse_effects(self.effects, PROFILES[self.camera].technology)
+        return self
 
     def profile(self) -> CameraProfile:
         """The built-in profile with ``[camera_overrides]`` applied."""
@@ -65,6 +56,10 @@ class SimModel(StrictModel):
             raise InputError(f"model camera_overrides: unknown profile field(s): {exc.args[0]}") from None
         except TypeError as exc:
             raise InputError(f"model camera_overrides: {exc}") from None
+
+    def effect_params(self) -> dict[str, EffectParams]:
+        """Validated parameters of every effect that is on."""
+        return parse_effects(self.effects, self.profile().technology)
 
 
 def parse_model(text: str, source: str = "model") -> SimModel:
@@ -96,5 +91,5 @@ def load_model(path: str | Path) -> tuple[SimModel, str]:
 
 
 def default_model_text(profile: str) -> str:
-    """Model text for a built-in profile with no effects."""
-    return f'camera = "{profile}"\n'
+    """The built-in model of a profile: the camera plus the effects it has by nature (defocus, quantization)."""
+    return tomli_w.dumps({"camera": profile, "effects": default_effects(get_profile(profile))})

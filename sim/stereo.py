@@ -1,65 +1,144 @@
-"""Active-stereo depth physics (first model; DESIGN "Simulation physics").
+"""Active-stereo depth physics (DESIGN "Simulation physics", thesis 2.3.2).
 
-Disparity d = f_px b / z carries Gaussian matching noise of s pixels, so the
-depth noise grows as sigma_z = z^2 s / (f_px b). The profile's
-``noise_mm_at_2m`` fixes s. Depth outside [min_range, max_range] is invalid.
-The intensity image is the left IR camera: reflectance * cos(theta) / r^2
-scaled to 1000 at 2 m on the wall, with 1 % noise.
+Per step (noise-free, once):
+
+* left IR image = lamps' ambient light on the scene (reflectance cos^m; the
+  thesis lights the targets of the stereo camera) plus, with the projector
+  on, its random dot pattern (~ 1/r^2), blurred by the lens PSF (and
+  ``defocus``), times ``vignetting``;
+* matching needs texture: where the local IR contrast (std / mean over the
+  matching window) is below ``texture_threshold`` the pixel is invalid — with
+  the projector off, textureless targets (wall, PTFE, the inside of tiles) fail;
+* occlusion: a point the right camera (baseline b to the right) cannot see is
+  invalid, as are points outside its view (the left band of D4xx depth maps);
+* disparity d = f b / z with noise s (1 + g theta^2 / (pi/2 - theta)^2) pixels,
+  s fixed by ``noise_mm_at_2m`` (so sigma_z = z^2 s / (f b)), the angle term
+  adapted from Nguyen, Izadi & Lovell 2012;
+* per frame: disparity noise, quantization to ``disparity_step_px``, depth
+  effects (offset, scale, drift), x, y along the reported rays, ``quantization``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
+from sim.effects import EffectParams, range_offset, range_scale, temperature_drift, vignetting
+from sim.geometry import Pose
+from sim.kernels import stereo_frame
+from sim.noise import NoiseBank, make_bank
 from sim.profiles import CameraProfile
-from sim.scene import WALL_REFLECTANCE, SceneHit
+from sim.render import centre_distance_mm, render
+from sim.scenes.base import Scene
+from sim.sensor import SensorOptics
+from sim.tof import IRRADIANCE_REF, REFERENCE_RANGE_MM, surface_properties
 
-REFERENCE_RANGE_MM = 2000.0
+MATCHING_WINDOW_PX = 7
+DOT_DENSITY = 0.15
+IR_NOISE = 0.01
+AMBIENT_LEVEL = 1000.0
+PROJECTOR_LEVEL = 2000.0
 
 
 @dataclass(frozen=True)
 class StereoPrepared:
-    z_mm: np.ndarray
-    disparity_px: np.ndarray
-    slopes: tuple[np.ndarray, np.ndarray]
+    disparity: np.ndarray
+    sigma_disp: np.ndarray
+    valid: np.ndarray
     ir: np.ndarray
-    in_range: np.ndarray
+    bank: NoiseBank
+    seed: int
+    step_index: int
+
+
+def dot_pattern(height: int, width: int) -> np.ndarray:
+    """The projector's fixed pseudo-random dot pattern on the pixel grid (1 on a dot, 0 off)."""
+    rng = np.random.default_rng(455)
+    return (rng.random((height, width)) < DOT_DENSITY).astype(float)
+
+
+def local_contrast(image: np.ndarray, window: int = MATCHING_WINDOW_PX) -> np.ndarray:
+    """std / mean of ``image`` over a square window (texture available for matching)."""
+    mean = ndimage.uniform_filter(image, window)
+    sq = ndimage.uniform_filter(image**2, window)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(mean > 0, np.sqrt(np.maximum(sq - mean**2, 0.0)) / mean, 0.0)
 
 
 class StereoSensor:
-    """Per-pixel active-stereo measurement model for one camera profile."""
+    """Per-pixel active-stereo measurement model for one camera profile and set of effects."""
 
-    def __init__(self, profile: CameraProfile, fx: float) -> None:
+    technology = "stereo"
+
+    def __init__(self, profile: CameraProfile, effects: dict[str, EffectParams]) -> None:
         self.profile = profile
-        self.focal_baseline = fx * profile.baseline_mm
+        self.effects = effects
+        self.geometry = SensorOptics(profile, effects)
+        self.focal_baseline = self.geometry.optics.pinhole.fx * profile.baseline_mm
         self.subpixel_noise_px = profile.noise_mm_at_2m * self.focal_baseline / REFERENCE_RANGE_MM**2
+        self.dots = dot_pattern(profile.height, profile.width)
 
-    def prepare(self, hit: SceneHit, rays: np.ndarray, exposure_us: float) -> StereoPrepared:
-        p = self.profile
-        z = hit.range_mm * rays[2]
-        ir = (
-            1000.0 * (exposure_us / p.exposure_us) * (hit.reflectance / WALL_REFLECTANCE)
-            * hit.cos_incidence * (REFERENCE_RANGE_MM / hit.range_mm) ** 2
-        )
+    def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int,
+                projector: bool = True) -> StereoPrepared:
+        p, fx, geo = self.profile, self.effects, self.geometry
+        left = render(scene, pose, geo.optics, surface_properties(scene, {}))
+        focus_distance_mm = centre_distance_mm(left)
+        gain = exposure_us / p.exposure_us
+        light = AMBIENT_LEVEL * left.passive
+        if projector:
+            light = light + PROJECTOR_LEVEL * left.irradiance / IRRADIANCE_REF * self.dots
+        ir = geo.blur(light * gain, focus_distance_mm)
+        if "vignetting" in fx:
+            ir = ir * vignetting.factor(geo.cos_alpha, fx["vignetting"])
+        ir = np.maximum(ir, 0.0)
+        z = left.z_dom
+        if "range_scale" in fx:
+            z = range_scale.apply(z, fx["range_scale"])
+        if "range_offset" in fx:
+            z = range_offset.apply(z, fx["range_offset"])
+        textured = local_contrast(ir) >= p.texture_threshold
+        visible = self._visible_from_right(scene, pose, left.z_dom)
+        in_range = (left.hit_fraction > 0) & (z >= p.min_range_mm) & (z <= p.max_range_mm)
+        valid = in_range & textured & visible & np.isfinite(z)
+        safe_z = np.where(valid, z, 1.0)
+        theta = np.arccos(np.clip(left.cos_dom, 1e-6, 1.0))
+        angle_term = 1.0 + p.angle_noise_gain * theta**2 / np.maximum(math.pi / 2 - theta, 1e-3) ** 2
         return StereoPrepared(
-            z_mm=z,
-            disparity_px=self.focal_baseline / z,
-            slopes=(rays[0] / rays[2], rays[1] / rays[2]),
-            ir=ir,
-            in_range=(z >= p.min_range_mm) & (z <= p.max_range_mm),
+            disparity=(self.focal_baseline / safe_z).astype(np.float32),
+            sigma_disp=(self.subpixel_noise_px * angle_term).astype(np.float32),
+            valid=valid,
+            ir=ir.astype(np.float32),
+            bank=make_bank(seed, p.width * p.height, 2),
+            seed=seed,
+            step_index=step_index,
         )
 
-    def frame(self, prep: StereoPrepared, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
-        """One noisy frame: (x, y, z, intensity, confidence)."""
-        noise = rng.standard_normal((2, *prep.z_mm.shape), dtype=np.float32)
-        disparity = prep.disparity_px + self.subpixel_noise_px * noise[0]
-        with np.errstate(divide="ignore"):
-            z = self.focal_baseline / disparity
-        valid = prep.in_range & (disparity > 0)
-        z = np.where(valid, z, np.nan).astype(np.float32)
-        x = (z * prep.slopes[0]).astype(np.float32)
-        y = (z * prep.slopes[1]).astype(np.float32)
-        intensity = (prep.ir * (1.0 + 0.01 * noise[1])).astype(np.float32)
-        return x, y, z, intensity, valid.astype(np.float32)
+    def _visible_from_right(self, scene: Scene, pose: Pose, z_left: np.ndarray) -> np.ndarray:
+        """False where the right camera (baseline to the right) cannot see the left pixel's point."""
+        geo, p = self.geometry, self.profile
+        right_pose = Pose(pose.rotation, pose.position + pose.rotation @ np.array([p.baseline_mm, 0.0, 0.0]))
+        right = render(scene, right_pose, geo.optics, surface_properties(scene, {}), supersample=1)
+        u, v = geo.optics.pixel_grid()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            u_right = np.round(u - self.focal_baseline / z_left)
+        inside = np.isfinite(u_right) & (u_right >= 0) & (u_right <= p.width - 1)
+        cols = np.clip(np.nan_to_num(u_right), 0, p.width - 1).astype(int)
+        z_seen = right.z_dom[v.astype(int), cols]
+        tolerance = np.maximum(20.0, 0.02 * np.nan_to_num(z_left))
+        return inside & ~(z_seen < z_left - tolerance)
+
+    def frame(self, prep: StereoPrepared, k: int, t_s: float) -> tuple[np.ndarray, ...]:
+        """Frame ``k`` at device time ``t_s``: (x, y, z, intensity, confidence)."""
+        p, fx = self.profile, self.effects
+        h, w = p.height, p.width
+        drift = temperature_drift.offset_mm(t_s, fx["temperature_drift"]) if "temperature_drift" in fx else 0.0
+        step = fx["quantization"].step_mm if "quantization" in fx else 0.0
+        off_disp, off_ir = prep.bank.offsets(prep.seed, prep.step_index, k)
+        x, y, z, intensity, confidence = (np.empty((h, w), np.float32) for _ in range(5))
+        stereo_frame(prep.disparity, prep.sigma_disp, prep.valid, self.geometry.tx, self.geometry.ty, prep.ir,
+                     IR_NOISE, prep.bank.samples, off_disp, off_ir, drift, p.disparity_step_px,
+                     self.focal_baseline, step, x, y, z, intensity, confidence)
+        return x, y, z, intensity, confidence

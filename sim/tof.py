@@ -1,16 +1,25 @@
 """Continuous-wave Time-of-Flight sensor physics (thesis 2.3.1).
 
-Amplitude: A = A_ref * (rho / 0.9) * cos(theta) * (2000 mm / r)^2 * (t_exp / t_exp,default),
-where A_ref (photo-electrons) is fixed by the profile's noise at 2 m through
-eq. 2-9 (Li 2014):
+Per step (noise-free, once):
 
-    sigma_r = c / (4 sqrt(2) pi f_mod) * sqrt(A + B) / (c_d A)
+1. render the scene (sim/render.py): per pixel the returned light
+   rho cos^m / r^2 and the correlation phasor sum of its sub-samples;
+2. amplitude A = A_ref (t_exp / t_default) irradiance / irradiance(90 % wall at 2 m),
+   blurred by the lens PSF (and the ``defocus`` disc), times ``vignetting``;
+   A_ref is fixed by the profile's ``noise_mm_at_2m`` through eq. 2-9;
+3. range: the dominant surface's range, or with ``flying_pixels`` (or
+   ``multipath``) the phase of the blurred phasor sum (plus the multipath
+   return), then the range effects: ``wiggling``, ``range_scale``,
+   ``range_offset``, ``intensity_related_error``; ``material_bias`` lengthens
+   ranges on translucent materials;
+4. noise (eq. 2-9, Li 2014): sigma_r = c / (4 sqrt2 pi f_mod) sqrt(A + B) / (c_d A)
+   with B = A + B_ambient, B_ambient = ambient_ratio A_ref t_exp / t_default;
+   the amplitude itself scatters by sqrt(B / 2).
 
-with offset B = A + B_ambient (the signal's own DC part plus ambient light,
-B_ambient = ambient_ratio * A_ref * t_exp/t_exp,default). Pixels whose
-amplitude lies below the confidence threshold or above saturation are invalid
-(NaN). Range noise acts along the ray; x, y, z follow from the noisy range.
-Phase unwrapping is assumed perfect (multi-frequency cameras).
+Per frame (sim/kernels.py): noise from the step's bank, ``temperature_drift``,
+x, y, z along the reported rays, ``quantization``, validity (confidence
+threshold, saturation, measurement range). Phase unwrapping is taken as
+perfect (multi-frequency cameras).
 """
 
 from __future__ import annotations
@@ -20,11 +29,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.effects import EffectParams, range_offset, range_scale, temperature_drift, vignetting, wiggling
+from sim.effects import intensity_related_error as ire
+from sim.geometry import Pose
+from sim.kernels import tof_frame
+from sim.materials import get_material
+from sim.noise import NoiseBank, make_bank
 from sim.profiles import CameraProfile
-from sim.scene import WALL_REFLECTANCE, SceneHit
+from sim.render import C_MM_PER_S, SurfaceProperties, centre_distance_mm, render
+from sim.scenes.base import Scene
+from sim.sensor import SensorOptics
 
-C_MM_PER_S = 299_792_458_000.0
 REFERENCE_RANGE_MM = 2000.0
+REFERENCE_REFLECTANCE = 0.90
+IRRADIANCE_REF = REFERENCE_REFLECTANCE / (REFERENCE_RANGE_MM / 1000.0) ** 2
 
 
 def noise_constant_mm(modulation_mhz: float) -> float:
@@ -35,7 +53,8 @@ def noise_constant_mm(modulation_mhz: float) -> float:
 def range_noise_mm(profile: CameraProfile, amplitude: np.ndarray, ambient: float) -> np.ndarray:
     """Eq. 2-9: sigma = k sqrt(A + B) / (c_d A) with B = A + ambient."""
     k = noise_constant_mm(profile.modulation_mhz)
-    return k * np.sqrt(2.0 * amplitude + ambient) / (profile.modulation_contrast * amplitude)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return k * np.sqrt(2.0 * amplitude + ambient) / (profile.modulation_contrast * amplitude)
 
 
 def reference_amplitude(profile: CameraProfile) -> float:
@@ -47,66 +66,107 @@ def reference_amplitude(profile: CameraProfile) -> float:
     return (k * math.sqrt(2.0 + profile.ambient_ratio) / (profile.modulation_contrast * profile.noise_mm_at_2m)) ** 2
 
 
+def surface_properties(scene: Scene, effects: dict[str, EffectParams]) -> SurfaceProperties:
+    """Per-surface sub-surface bias (with ``material_bias``) and Lambertian exponent."""
+    materials = [get_material(name) for name in scene.materials()] or [get_material("wall")]
+    scale = effects["material_bias"].scale if "material_bias" in effects else 0.0
+    return SurfaceProperties(
+        bias_mm=np.array([scale * m.subsurface_bias_mm for m in materials]),
+        lambert=np.array([m.lambertian_exponent for m in materials]),
+    )
+
+
 @dataclass(frozen=True)
 class ToFPrepared:
-    """Noise-free quantities of one pose, reused for every frame of a stack."""
+    """Noise-free per-pixel maps of one step, reused for every frame of its stack."""
 
     range_mm: np.ndarray
-    rays: np.ndarray
     amplitude: np.ndarray
-    amplitude_sigma: np.ndarray
-    range_sigma: np.ndarray
-    in_range: np.ndarray
-    threshold: float
-    saturation: float
+    ambient: float
+    bank: NoiseBank
+    seed: int
+    step_index: int
 
 
 class ToFSensor:
-    """Per-pixel CW-ToF measurement model for one camera profile."""
+    """Per-pixel CW-ToF measurement model for one camera profile and set of effects."""
 
-    def __init__(self, profile: CameraProfile) -> None:
+    technology = "tof"
+
+    def __init__(self, profile: CameraProfile, effects: dict[str, EffectParams]) -> None:
         self.profile = profile
+        self.effects = effects
+        self.geometry = SensorOptics(profile, effects)
         self.a_ref = reference_amplitude(profile)
+        self.wavenumber = 4.0 * math.pi * profile.modulation_mhz * 1e6 / C_MM_PER_S
 
-    def prepare(self, hit: SceneHit, rays: np.ndarray, exposure_us: float) -> ToFPrepared:
-        """Amplitude and noise maps for a scene seen with ``exposure_us``."""
-        p = self.profile
+    def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int) -> ToFPrepared:
+        p, fx = self.profile, self.effects
+        mixing = "flying_pixels" in fx or "multipath" in fx
+        r = render(scene, pose, self.geometry.optics, surface_properties(scene, fx),
+                   modulation_mhz=p.modulation_mhz if mixing else None)
+        focus_distance_mm = centre_distance_mm(r)
         gain = exposure_us / p.exposure_us
-        with np.errstate(divide="ignore", invalid="ignore"):
-            amplitude = (
-                self.a_ref * gain * (hit.reflectance / WALL_REFLECTANCE) * hit.cos_incidence
-                * (REFERENCE_RANGE_MM / hit.range_mm) ** 2
-            )
-        amplitude = np.nan_to_num(amplitude, nan=0.0, posinf=0.0)
+        scale = self.a_ref * gain / IRRADIANCE_REF
+        light = self.geometry.blur(r.irradiance, focus_distance_mm) * scale
+        shading = vignetting.factor(self.geometry.cos_alpha, fx["vignetting"]) if "vignetting" in fx else 1.0
+        amplitude = np.maximum(light * shading, 0.0)
+        phasor = None
+        if r.phasor is not None:
+            if "flying_pixels" in fx:  # every return reaching the pixel, through the optical PSF
+                phasor = self.geometry.blur(r.phasor, focus_distance_mm) * scale * shading
+            else:  # the dominant surface alone
+                phasor = amplitude * np.exp(1j * self.wavenumber * np.nan_to_num(r.range_dom))
+        range_mm = self._measured_range(r.range_dom, phasor, light)
         ambient = p.ambient_ratio * self.a_ref * gain
-        safe = np.maximum(amplitude, 1e-9)
+        in_range = (r.hit_fraction > 0) & (range_mm >= p.min_range_mm) & (range_mm <= p.max_range_mm)
+        amplitude = np.where(in_range & np.isfinite(range_mm), amplitude, 0.0)
         return ToFPrepared(
-            range_mm=hit.range_mm,
-            rays=rays,
-            amplitude=amplitude,
-            amplitude_sigma=np.sqrt((2.0 * amplitude + ambient) / 2.0),
-            range_sigma=range_noise_mm(p, safe, ambient),
-            in_range=(hit.range_mm >= p.min_range_mm) & (hit.range_mm <= p.max_range_mm),
-            threshold=p.confidence_threshold_ratio * self.a_ref,
-            saturation=p.saturation_ratio * self.a_ref,
+            range_mm=np.nan_to_num(range_mm, nan=0.0).astype(np.float32),
+            amplitude=amplitude.astype(np.float32),
+            ambient=ambient,
+            bank=make_bank(seed, p.width * p.height, 2),
+            seed=seed,
+            step_index=step_index,
         )
 
-    def frame(self, prep: ToFPrepared, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
-        """One noisy frame: (x, y, z, intensity, confidence)."""
-        p = self.profile
-        shape = prep.range_mm.shape
-        noise = rng.standard_normal((2, *shape), dtype=np.float32)
-        amplitude = prep.amplitude + prep.amplitude_sigma * noise[0]
-        valid = prep.in_range & (amplitude >= prep.threshold) & (amplitude <= prep.saturation)
-        rng_mm = prep.range_mm + prep.range_sigma * noise[1]
-        xyz = (rng_mm * prep.rays).astype(np.float32)
-        if p.z_quantization_mm > 0:
-            xyz = np.round(xyz / p.z_quantization_mm) * p.z_quantization_mm
-        xyz[:, ~valid] = np.nan
-        intensity = np.maximum(amplitude, 0.0).astype(np.float32)
-        conf = np.clip(amplitude / prep.saturation, 0.0, 1.0)
-        if p.confidence_dtype == "uint16":
-            confidence = np.round(conf * 65535).astype(np.uint16)
-        else:
-            confidence = conf.astype(np.float32)
-        return xyz[0], xyz[1], xyz[2], intensity, confidence
+    def _measured_range(self, range_dom: np.ndarray, phasor: np.ndarray | None, light: np.ndarray) -> np.ndarray:
+        """Range per pixel before temporal noise: dominant or mixed return, then the range effects.
+
+        ``phasor`` (with ``flying_pixels`` or ``multipath``) is the pixel's correlation
+        phasor; ``light`` the returned light before vignetting (for the intensity-related error).
+        """
+        fx = self.effects
+        range_mm = range_dom
+        if phasor is not None:
+            if "multipath" in fx:
+                m = fx["multipath"]
+                phasor = phasor + m.strength * phasor.mean() * np.exp(1j * self.wavenumber * m.extra_path_mm)
+            ref = np.nan_to_num(range_dom)
+            residual = np.angle(phasor * np.exp(-1j * self.wavenumber * ref))
+            range_mm = np.where(np.isfinite(range_dom), ref + residual / self.wavenumber, np.nan)
+        if "wiggling" in fx:
+            range_mm = wiggling.apply(range_mm, fx["wiggling"])
+        if "range_scale" in fx:
+            range_mm = range_scale.apply(range_mm, fx["range_scale"])
+        if "range_offset" in fx:
+            range_mm = range_offset.apply(range_mm, fx["range_offset"])
+        if "intensity_related_error" in fx:
+            range_mm = range_mm + ire.error_mm(light, self.a_ref, fx["intensity_related_error"])
+        return range_mm
+
+    def frame(self, prep: ToFPrepared, k: int, t_s: float) -> tuple[np.ndarray, ...]:
+        """Frame ``k`` of the stack, taken at device time ``t_s``: (x, y, z, intensity, confidence)."""
+        p, fx = self.profile, self.effects
+        h, w = p.height, p.width
+        drift = temperature_drift.offset_mm(t_s, fx["temperature_drift"]) if "temperature_drift" in fx else 0.0
+        step = fx["quantization"].step_mm if "quantization" in fx else 0.0
+        off_amp, off_range = prep.bank.offsets(prep.seed, prep.step_index, k)
+        x, y, z, intensity = (np.empty((h, w), np.float32) for _ in range(4))
+        confidence = np.empty((h, w), np.dtype(p.confidence_dtype))
+        conf_scale = 65535.0 if p.confidence_dtype == "uint16" else 1.0
+        tof_frame(prep.range_mm, prep.amplitude, self.geometry.tx, self.geometry.ty, prep.bank.samples,
+                  off_amp, off_range, noise_constant_mm(p.modulation_mhz), p.modulation_contrast, prep.ambient,
+                  drift, step, p.confidence_threshold_ratio * self.a_ref, p.saturation_ratio * self.a_ref,
+                  conf_scale, x, y, z, intensity, confidence)
+        return x, y, z, intensity, confidence

@@ -8,19 +8,24 @@ random stream is keyed by the step, and the operator's target swaps happen).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from drivers.protocols import Clock
 from labctl.config import StageConfig
 from procedures.steps import Step
+from sim.effects import EffectParams
 from sim.faults import FaultInjector
+from sim.geometry import Pose
 from sim.lab import LabGeometry
 from sim.profiles import CameraProfile
-from sim.scene import Pose
+from sim.scenes.base import Scene
+from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
 
 
 @dataclass
 class SimWorld:
     profile: CameraProfile
+    effects: dict[str, EffectParams]
     lab: LabGeometry
     seed: int
     faults: FaultInjector
@@ -30,15 +35,16 @@ class SimWorld:
     robot_angle_deg: float = 0.0
     robot_radius_mm: float = 0.0
     target: str = "wall"
+    target_params: dict[str, Any] = field(default_factory=dict)
     step: Step | None = None
     step_start_s: float = 0.0
-    _history: list[str] = field(default_factory=list)
 
     def begin_step(self, step: Step, planned_start_s: float) -> None:
         """A step starts: the operator has put ``step.target`` in place."""
         self.step = step
         self.step_start_s = planned_start_s
         self.target = step.target
+        self.target_params = dict(step.target_params)
         self.faults.begin_step(step.index, step.frames)
 
     @property
@@ -61,5 +67,15 @@ class SimWorld:
         """What a perfect laser would read."""
         return self.camera_distance_mm() + self.lab.laser_offset_mm
 
-    def camera_pose(self) -> Pose:
-        return Pose(self.camera_distance_mm(), self.lab.tilt_x_deg, self.lab.tilt_y_deg)
+    def scene_and_pose(self) -> tuple[Scene, Pose]:
+        """What the camera sees now: the target's scene and the camera's pose in it."""
+        wavelength = self.profile.wavelength_nm
+        if self.target in PLATE_MATERIALS:
+            axis = self.effects.get("camera_axis_offset")
+            misaligned = self.effects.get("target_misalignment")
+            pose = Pose.on_circle(self.robot_angle_deg, self.robot_radius_mm, axis.offset_mm if axis else 0.0)
+            scene = plate_scene(self.target, wavelength, offset_mm=misaligned.offset_mm if misaligned else 0.0,
+                                **self.target_params)
+            return scene, pose
+        pose = Pose.at_origin(self.lab.tilt_x_deg, self.lab.tilt_y_deg)
+        return build_scene(self.target, self.target_params, wavelength, self.camera_distance_mm()), pose

@@ -14,9 +14,10 @@ from labctl.progress import Reporter
 from labctl.runner import Runner
 from labctl.store import RunWriter
 from procedures.steps import Step
-from sim.model import parse_model
+from sim.geometry import Pose
+from sim.model import default_model_text, parse_model
 from sim.optics import Pinhole
-from sim.scene import Pose, render_wall
+from sim.scenes.targets import wall_scene
 from tests.conftest import campaign_text
 
 MODEL = 'camera = "blaze101"\n[camera_overrides]\nwidth = 40\nheight = 30\n'
@@ -41,10 +42,12 @@ def test_pinhole_focal_length_from_fov():
 
 def test_wall_is_flat_at_the_distance_and_tilt_changes_range():
     rays = Pinhole(64, 48, 67.0, 51.0).unit_rays
-    hit = render_wall(rays, Pose(1500.0))
-    np.testing.assert_allclose(hit.range_mm * rays[2], 1500.0)
-    tilted = render_wall(rays, Pose(1500.0, tilt_y_deg=2.0))
-    z = tilted.range_mm * rays[2]
+    scene = wall_scene(1500.0, 940.0)
+    hit = scene.cast(*Pose.at_origin().rays(rays))
+    np.testing.assert_allclose(hit.t * rays[2], 1500.0)
+    np.testing.assert_allclose(hit.reflectance, 0.90)
+    tilted = scene.cast(*Pose.at_origin(tilt_y_deg=2.0).rays(rays))
+    z = tilted.t * rays[2]
     assert z[:, 0].mean() != pytest.approx(z[:, -1].mean(), abs=1.0)
 
 
@@ -99,7 +102,7 @@ def test_dry_run_spends_planned_lab_time_on_virtual_clock(tmp_path):
 
 
 def test_amt100_stores_integer_millimetres():
-    _, lab = sim_lab(model='camera = "amt100"\n[camera_overrides]\nwidth = 32\nheight = 24\n')
+    _, lab = sim_lab(model=default_model_text("amt100") + "[camera_overrides]\nwidth = 32\nheight = 24\n")
     lab.camera.world.begin_step(Step(0, "depth_sweep", "wall", 1), 0.0)
     lab.stage.move_to(1234.0)
     frame = next(lab.camera.capture(1))

@@ -1,0 +1,35 @@
+"""defocus: thin-lens blur of a lens focused at infinity (thesis 2.2, eq. 2-5, Fig. 2-5).
+
+For a lens focused at infinity the circle of confusion of an object at
+distance s is c(s) = f^2 / (F s), so with the hyperfocal distance H (where c
+equals the acceptable circle c_H) the blur disc diameter in pixels is
+
+    b(s) = coc_px * H / s.
+
+The blur is a uniform disc (pillbox) convolved with the lens's in-focus PSF;
+it acts on the light, i.e. on the intensity image and on the ToF phasor (so
+depth edges blur too when ``flying_pixels`` is on). ``coc_px`` is the blur at
+H; by default it is the disc that costs 10 % of the SFR area (the same
+criterion labctl uses to find the hyperfocal distance, SPEC §3), computed for
+the profile's lens PSF. s is the depth at the image centre.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from sim.effects.base import EffectParams
+
+NAME = "defocus"
+TECHNOLOGIES = ("tof", "stereo")
+SOURCE = "thesis 2.2, eq. 2-5 (Lange 2023); Hecht 2017"
+
+
+class Params(EffectParams):
+    hyperfocal_mm: float = Field(ge=10.0, le=20000.0, description="hyperfocal distance, mm")
+    coc_px: float | None = Field(None, gt=0.0, le=20.0, description="blur disc diameter at H, px")
+
+
+def blur_diameter_px(distance_mm: float, coc_px: float, p: Params) -> float:
+    """Disc diameter (pixels) at ``distance_mm``."""
+    return coc_px * p.hyperfocal_mm / max(distance_mm, 1.0)

@@ -1,0 +1,29 @@
+"""fov_error: the camera's true field of view differs from its datasheet.
+
+The scene is imaged with the true FOV ``fov_deg`` = [h, v] while the run file
+reports the datasheet FOV, so evaluations that rely on the datasheet see a
+linear scale error. The camera's own calibration knows the true optics, so the
+point cloud stays correct. Source: thesis 6.4.1 (blaze-101: 65 x 51 deg
+instead of 67 x 51; D455: 78 x 62 instead of 75 x 62).
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, field_validator
+
+from sim.effects.base import EffectParams
+
+NAME = "fov_error"
+TECHNOLOGIES = ("tof", "stereo")
+SOURCE = "thesis 6.4.1, Table 6-2"
+
+
+class Params(EffectParams):
+    fov_deg: tuple[float, float] = Field(description="true [horizontal, vertical] FOV, deg")
+
+    @field_validator("fov_deg")
+    @classmethod
+    def _range(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not all(10.0 <= v <= 170.0 for v in value):
+            raise ValueError(f"fov_deg must lie in [10, 170] deg, got {list(value)}")
+        return value

@@ -1,0 +1,21 @@
+"""material_bias: sub-surface scattering lengthens the measured range.
+
+Light entering translucent materials (PTFE, skin, gelatine, silicone) leaves
+them displaced and late, so a ToF camera measures r + scale * b(material),
+b from the material table (sim/materials.py). Source: the material table's
+references; thesis 5.4 / 6.5.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from sim.effects.base import EffectParams
+
+NAME = "material_bias"
+TECHNOLOGIES = ("tof",)
+SOURCE = "sim/materials.py references; thesis 6.5"
+
+
+class Params(EffectParams):
+    scale: float = Field(1.0, ge=0.0, le=10.0, description="multiplies every material's sub-surface bias")

@@ -1,0 +1,24 @@
+"""radial_distortion: Brown radial lens distortion (thesis eq. 5-5, ISO 17850).
+
+A point whose undistorted image lies at r_u pixels from the principal point
+appears at r_d = r_u (1 + k1 (r_u / R)^2), R = half the image diagonal in
+pixels; k1 < 0 is barrel, k1 > 0 pincushion distortion. It moves features in
+the intensity image; with ``cloud = true`` the camera does not correct it in
+the point cloud either (x, y are computed from the distorted pixel position),
+with ``cloud = false`` the point cloud is corrected.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from sim.effects.base import EffectParams
+
+NAME = "radial_distortion"
+TECHNOLOGIES = ("tof", "stereo")
+SOURCE = "Brown 1966; Jaehne 2012 p. 97 (thesis eq. 5-5); ISO 17850:2015"
+
+
+class Params(EffectParams):
+    k1: float = Field(0.0, ge=-0.5, le=0.5, description="relative radial coefficient at the image corner")
+    cloud: bool = Field(True, description="the point cloud carries the distortion too")

@@ -1,0 +1,45 @@
+"""wiggling: systematic range error periodic in distance (CW-ToF).
+
+Delta r = a sin(2 pi r / P + phi) + sum_k a_k sin(2 pi r / P_k + phi_k).
+
+With 4-tap sampling, the harmonics of a non-sinusoidal modulation alias to
+a period of c / (8 f_mod): 375 mm at 100 MHz, 2.5 m at 15 MHz. Source: Lindner
+& Kolb 2006; Giancola et al. 2018; thesis 4.2.2 (the circular patterns of Fig. 4-4).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydantic import Field
+
+from sim.effects.base import EffectParams
+
+NAME = "wiggling"
+TECHNOLOGIES = ("tof",)
+SOURCE = "Lindner & Kolb 2006; Giancola et al. 2018; thesis 4.2.2"
+
+
+class Harmonic(EffectParams):
+    amplitude_mm: float = Field(ge=0.0, le=100.0)
+    period_mm: float = Field(gt=10.0, le=20000.0)
+    phase_rad: float = Field(0.0, ge=-2 * math.pi, le=2 * math.pi)
+
+
+class Params(EffectParams):
+    amplitude_mm: float = Field(4.0, ge=0.0, le=100.0, description="mm")
+    period_mm: float = Field(1500.0, gt=10.0, le=20000.0, description="mm of range per cycle")
+    phase_rad: float = Field(0.0, ge=-2 * math.pi, le=2 * math.pi)
+    harmonics: list[Harmonic] = Field(default_factory=list, description="further terms")
+
+
+def error_mm(range_mm: np.ndarray, p: Params) -> np.ndarray:
+    """The range error at ``range_mm``."""
+    terms = [(p.amplitude_mm, p.period_mm, p.phase_rad)]
+    terms += [(h.amplitude_mm, h.period_mm, h.phase_rad) for h in p.harmonics]
+    return sum(a * np.sin(2 * math.pi * range_mm / period + phase) for a, period, phase in terms)
+
+
+def apply(range_mm: np.ndarray, p: Params) -> np.ndarray:
+    return range_mm + error_mm(range_mm, p)

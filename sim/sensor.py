@@ -1,0 +1,100 @@
+"""What ToF and stereo sensors share: true optics, reported rays, optical blur.
+
+* True optics: pinhole of the true FOV (``fov_error``) with radial distortion
+  (``radial_distortion``) decide which ray each pixel sees.
+* Reported rays: the camera turns a range or depth into x, y, z with its own
+  calibration, the true FOV; it corrects the distortion in the cloud unless
+  ``radial_distortion.cloud`` is true. Their slopes x/z, y/z are kept as a
+  (1, W) row and an (H, 1) column, or (H, W) maps when a corrected distortion
+  makes them non-separable.
+* Optical blur: the in-focus lens PSF (a Gaussian of the profile's
+  ``lens_sigma_px``) and, with ``defocus``, a uniform disc of diameter
+  b(s) = coc_px H / s, applied in the Fourier domain with their exact OTFs
+  exp(-2 pi^2 sigma^2 f^2) and 2 J1(pi b f) / (pi b f) (edges reflected).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+from scipy import optimize, special
+
+from sim.effects import EffectParams
+from sim.effects import defocus as defocus_effect
+from sim.optics import CameraOptics, Pinhole
+from sim.profiles import CameraProfile
+
+#: SFR area lost at the hyperfocal distance by the default circle of confusion (SPEC §3's 90 % plateau rule)
+HYPERFOCAL_SFR_AREA_RATIO = 0.9
+
+
+def disc_otf(freq: np.ndarray, diameter_px: float) -> np.ndarray:
+    """OTF of a uniform disc of ``diameter_px``: 2 J1(pi b f) / (pi b f)."""
+    x = np.pi * diameter_px * np.asarray(freq, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(x > 1e-8, 2.0 * special.j1(x) / np.where(x > 1e-8, x, 1.0), 1.0)
+
+
+def gaussian_otf(freq: np.ndarray, sigma_px: float) -> np.ndarray:
+    """OTF of a Gaussian PSF: exp(-2 pi^2 sigma^2 f^2)."""
+    return np.exp(-2.0 * math.pi**2 * sigma_px**2 * np.asarray(freq, float) ** 2)
+
+
+def edge_sfr(freq: np.ndarray, lens_sigma_px: float, disc_px: float = 0.0) -> np.ndarray:
+    """Expected edge SFR of the camera: |sinc f| (pixel) x lens OTF x |defocus OTF|."""
+    return np.abs(np.sinc(freq)) * gaussian_otf(freq, lens_sigma_px) * np.abs(disc_otf(freq, disc_px))
+
+
+@lru_cache(maxsize=64)
+def default_coc_px(lens_sigma_px: float) -> float:
+    """Disc diameter whose blur leaves ``HYPERFOCAL_SFR_AREA_RATIO`` of the in-focus SFR area (0..1 cy/px)."""
+    freq = np.linspace(0.0, 1.0, 2001)
+    focused = np.trapezoid(edge_sfr(freq, lens_sigma_px), freq)
+
+    def loss(b: float) -> float:
+        return np.trapezoid(edge_sfr(freq, lens_sigma_px, b), freq) / focused - HYPERFOCAL_SFR_AREA_RATIO
+
+    return float(optimize.brentq(loss, 1e-3, 20.0))
+
+
+class SensorOptics:
+    """True and reported geometry of a camera under its model's effects, and its blur."""
+
+    def __init__(self, profile: CameraProfile, effects: dict[str, EffectParams]) -> None:
+        self.profile = profile
+        self.effects = effects
+        fov = effects["fov_error"].fov_deg if "fov_error" in effects else (profile.fov_h_deg, profile.fov_v_deg)
+        distortion = effects.get("radial_distortion")
+        self.optics = CameraOptics(Pinhole(profile.width, profile.height, *fov), distortion.k1 if distortion else 0.0)
+        pin = self.optics.pinhole
+        if distortion is not None and distortion.k1 != 0.0 and not distortion.cloud:
+            u, v = self.optics.undistort(*self.optics.pixel_grid())
+            self.tx = ((u - pin.cx) / pin.fx).astype(np.float32)
+            self.ty = ((v - pin.cy) / pin.fy).astype(np.float32)
+        else:  # separable: one (1, W) row and one (H, 1) column
+            tx, ty = pin.slopes
+            self.tx, self.ty = tx.astype(np.float32), ty.astype(np.float32)
+        self.cos_alpha = self.optics.directions(*self.optics.pixel_grid())[2]
+        d = effects.get("defocus")
+        self.coc_px = (d.coc_px or default_coc_px(profile.lens_sigma_px)) if d is not None else 0.0
+
+    def blur_diameter_px(self, distance_mm: float) -> float:
+        """Defocus disc at ``distance_mm`` (0 without the defocus effect)."""
+        d = self.effects.get("defocus")
+        return defocus_effect.blur_diameter_px(distance_mm, self.coc_px, d) if d is not None else 0.0
+
+    def blur(self, field: np.ndarray, distance_mm: float) -> np.ndarray:
+        """Lens PSF (and defocus disc) applied to a real or complex (H, W) field."""
+        sigma, disc = self.profile.lens_sigma_px, self.blur_diameter_px(distance_mm)
+        if sigma <= 0 and disc <= 0:
+            return field
+        pad = int(math.ceil(4 * sigma + disc)) + 2
+        padded = np.pad(field, pad, mode="reflect")
+        fy = np.fft.fftfreq(padded.shape[0])[:, None]
+        fx = np.fft.fftfreq(padded.shape[1])[None, :]
+        freq = np.hypot(fx, fy)
+        otf = gaussian_otf(freq, sigma) * disc_otf(freq, disc)
+        out = np.fft.ifft2(np.fft.fft2(padded) * otf)[pad:-pad, pad:-pad]
+        return out if np.iscomplexobj(field) else out.real

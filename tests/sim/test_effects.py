@@ -1,0 +1,248 @@
+"""Each effect, switched on, changes exactly what its formula says (and nothing when off).
+
+Sensors with and without an effect share seed and step, so their frames carry
+the same noise and differences isolate the effect.
+"""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from metrics.sfr import edge_sfr
+from sim.effects import EFFECTS
+from sim.geometry import Pose
+from sim.materials import get_material
+from sim.model import default_model_text, parse_model
+from sim.scenes.targets import build_scene, plate_scene
+from sim.sensor import default_coc_px
+from sim.sensor import edge_sfr as analytic_sfr
+from sim.stereo import StereoSensor
+from sim.tof import ToFSensor
+
+SMALL = "[camera_overrides]\nwidth = 160\nheight = 120\n"
+
+
+def make(camera="blaze101", effects="", overrides=SMALL, base=True):
+    text = (default_model_text(camera) if base else f'camera = "{camera}"\n') + effects + overrides
+    model = parse_model(text)
+    profile = model.profile()
+    cls = ToFSensor if profile.technology == "tof" else StereoSensor
+    return cls(profile, model.effect_params())
+
+
+def prep(sensor, target="wall", distance=1500.0, params=None, pose=None, **kw):
+    scene = build_scene(target, params or {}, sensor.profile.wavelength_nm, distance)
+    return sensor.prepare(scene, pose or Pose.at_origin(), sensor.profile.exposure_us, 3, 7, **kw)
+
+
+def test_vocabulary_is_the_contract():
+    assert set(EFFECTS) == {
+        "range_offset", "range_scale", "wiggling", "temperature_drift", "intensity_related_error", "vignetting",
+        "radial_distortion", "fov_error", "defocus", "quantization", "flying_pixels", "multipath",
+        "material_bias", "target_misalignment", "camera_axis_offset",
+    }
+
+
+def test_effect_parameters_are_validated_with_ranges():
+    with pytest.raises(Exception, match="wiggling.*amplitude_mm"):
+        parse_model('camera = "blaze101"\n[effects.wiggling]\namplitude_mm = -3\n')
+    with pytest.raises(Exception, match="applies to tof cameras, not stereo"):
+        parse_model('camera = "d455"\n[effects.multipath]\nstrength = 0.1\n')
+    with pytest.raises(Exception, match="unknown parameter 'wavelength'"):
+        parse_model('camera = "blaze101"\n[effects.wiggling]\nwavelength = 3\n')
+
+
+def test_range_offset_and_scale():
+    base = prep(make())
+    off = prep(make(effects="[effects.range_offset]\noffset_mm = 7.5\n"))
+    scl = prep(make(effects="[effects.range_scale]\nscale = 0.01\n"))
+    np.testing.assert_allclose(off.range_mm - base.range_mm, 7.5, atol=1e-3)
+    np.testing.assert_allclose(scl.range_mm, base.range_mm * 1.01, rtol=1e-6)
+    np.testing.assert_array_equal(off.amplitude, base.amplitude)
+
+
+def test_wiggling_formula_on_the_range():
+    wig = prep(make(effects="[effects.wiggling]\namplitude_mm = 4\nperiod_mm = 375\nphase_rad = 0.3\n"))
+    base = prep(make())
+    r = base.range_mm.astype(float)
+    expected = 4 * np.sin(2 * math.pi * r / 375 + 0.3)
+    np.testing.assert_allclose(wig.range_mm - base.range_mm, expected, atol=2e-3)
+
+
+def test_temperature_drift_decays_with_time():
+    cam_on = make(effects="[effects.temperature_drift]\ndelta_mm = 6\ntau_s = 300\n")
+    cam_off = make()
+    p_on, p_off = prep(cam_on), prep(cam_off)
+    for t in (0.0, 300.0, 900.0):
+        z_on = cam_on.frame(p_on, 4, t)[2]
+        z_off = cam_off.frame(p_off, 4, t)[2]
+        dz = cam_on.geometry.cos_alpha  # range shift projected on z
+        np.testing.assert_allclose(z_on - z_off, 6 * math.exp(-t / 300) * dz, atol=2e-3)
+
+
+def test_intensity_related_error_grows_as_light_falls():
+    on = make(effects="[effects.intensity_related_error]\nerror_at_reference_mm = 2.0\n")
+    p_on, p_off = prep(on, distance=3000.0), prep(make(), distance=3000.0)
+    expected = 2.0 * on.a_ref / p_off.amplitude
+    np.testing.assert_allclose(p_on.range_mm - p_off.range_mm, expected, rtol=1e-3, atol=1e-3)
+    assert expected.min() > 2.0 * (3000 / 2000) ** 2 * 0.99  # less light than the 2 m reference
+
+
+def test_vignetting_multiplies_amplitude_by_cos_power():
+    on = make(effects="[effects.vignetting]\nexponent = 4\n")
+    ratio = prep(on).amplitude / prep(make()).amplitude
+    np.testing.assert_allclose(ratio, on.geometry.cos_alpha**4, rtol=1e-5)
+
+
+def test_quantization_rounds_coordinates():
+    cam = make(effects="[effects.quantization]\nstep_mm = 2.0\n")
+    x, y, z = cam.frame(prep(cam), 0, 0.0)[:3]
+    for c in (x, y, z):
+        v = c[np.isfinite(c)]
+        np.testing.assert_array_equal(v / 2.0, np.round(v / 2.0))
+
+
+def corner_positions(image):
+    """Sub-pixel inner corners of a checkerboard image (OpenCV)."""
+    img = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    found, corners = cv2.findChessboardCornersSB(img, (9, 7), flags=cv2.CALIB_CB_EXHAUSTIVE)
+    assert found
+    return corners.reshape(-1, 2)
+
+
+@pytest.mark.parametrize("k1", [-0.08, 0.06])
+def test_radial_distortion_moves_image_points_by_the_formula(k1):
+    """Corners of a checkerboard appear at r_d = r_u (1 + k1 (r_u / R)^2) of where a pinhole puts them."""
+    over = "[camera_overrides]\nwidth = 320\nheight = 240\n"
+    cam = make(effects=f"[effects.radial_distortion]\nk1 = {k1}\n", overrides=over)
+    plain = make(overrides=over)
+    params = {"tile_mm": 60.0, "board_mm": (600.0, 480.0)}  # 10 x 8 tiles: 9 x 7 inner corners
+    found = corner_positions(prep(cam, "checkerboard", 650.0, params).amplitude)
+    undistorted = corner_positions(prep(plain, "checkerboard", 650.0, params).amplitude)
+    u, v = cam.geometry.optics.distort(undistorted[:, 0], undistorted[:, 1])
+    predicted = np.column_stack([u, v])
+    # match each predicted corner to the nearest found one
+    d = np.linalg.norm(found[:, None, :] - predicted[None, :, :], axis=2).min(axis=0)
+    shift = np.linalg.norm(predicted - undistorted, axis=1)
+    assert shift.max() > 2.0
+    assert np.median(d) < 0.1 and d.max() < 0.3  # agreement an order of magnitude below the effect
+
+
+def test_radial_distortion_cloud_flag():
+    """cloud = false: the point cloud of a flat wall stays flat; cloud = true: it bends with k1."""
+    corrected = make(effects="[effects.radial_distortion]\nk1 = 0.1\ncloud = false\n")
+    bent = make(effects="[effects.radial_distortion]\nk1 = 0.1\ncloud = true\n")
+    z_c = corrected.frame(prep(corrected), 0, 0.0)[2]
+    z_b = bent.frame(prep(bent), 0, 0.0)[2]
+    assert abs(np.nanmedian(z_c[:10, :10]) - 1500.0) < 3.0  # the wall stands at 1500 mm
+    assert np.nanmedian(z_b[:10, :10]) < 1480.0  # corner rays reported too steep: z too small
+
+
+def test_fov_error_changes_the_visible_tile_count():
+    cam = make(effects="[effects.fov_error]\nfov_deg = [65.0, 51.0]\n", overrides="")
+    image = prep(cam, "checkerboard", 500.0).amplitude
+    row = image[240] > np.median(image[240])
+    crossings = np.count_nonzero(np.diff(row))
+    assert 2 * 500 * math.tan(math.radians(32.5)) / 19 == pytest.approx(33.5, abs=0.05)
+    assert crossings in (33, 34)
+    assert cam.geometry.optics.pinhole.fov_h_deg == 65.0
+
+
+def test_defocus_blur_follows_the_thin_lens_law():
+    """Edge SFR of the simulated chart at s = 0.8 H and 2 H matches sinc x Gauss x disc(coc H / s)."""
+    over = "[camera_overrides]\nwidth = 320\nheight = 240\n"
+    cam = make(overrides=over)
+    p = cam.profile
+    coc = default_coc_px(p.lens_sigma_px)
+    for s in (0.8 * p.hyperfocal_mm, 2 * p.hyperfocal_mm):
+        chart = prep(cam, "slanted_edge", s).amplitude
+        white = prep(cam, "white_sheet", s).amplitude
+        img = chart / white
+        roi = img[130:230, 110:210]  # the near-vertical edge leaves the centre downwards, leaning left
+        result = edge_sfr(roi)
+        f = np.linspace(0, 1, 4001)
+        truth = analytic_sfr(f, p.lens_sigma_px, coc * p.hyperfocal_mm / s)
+        sfr50 = f[np.argmax(truth < 0.5)]
+        assert result.sfr50 == pytest.approx(sfr50, rel=0.04), s
+
+
+def test_flying_pixels_mix_depths_at_edges():
+    params = {"segments": 24, "gap_mm": 400.0}
+    on = make(effects="[effects.flying_pixels]\n")
+    p_on, p_off = prep(on, "boehler_star", 1800.0, params), prep(make(), "boehler_star", 1800.0, params)
+    star, wall = 1400.0, 1800.0
+
+    def between(p):
+        z = p.range_mm[p.amplitude > 0]
+        return np.mean((z > star + 50) & (z < wall - 50))
+
+    assert between(p_off) == 0.0
+    assert between(p_on) > 0.002
+
+
+def test_multipath_shifts_range_by_the_phasor_sum():
+    on = make(effects="[effects.multipath]\nstrength = 0.1\nextra_path_mm = 600\n")
+    p_on, p_off = prep(on), prep(make())
+    k = on.wavenumber
+    # for a uniform wall the direct phasor is A exp(j k r); the indirect one 0.1 mean(P) exp(j k 600)
+    amp = p_off.amplitude.astype(float)
+    direct = amp * np.exp(1j * k * p_off.range_mm)
+    shift = np.angle(1 + 0.1 * direct.mean() * np.exp(1j * k * 600) / direct) / k
+    np.testing.assert_allclose(p_on.range_mm - p_off.range_mm, shift, atol=0.02)
+    assert np.abs(shift).max() > 1.0
+
+
+def test_material_bias_on_ptfe():
+    on = make(effects="[effects.material_bias]\nscale = 1.0\n")
+    off = make()
+    pose = Pose.on_circle(0.0, 850.0)
+    scene = plate_scene("ptfe", 940.0)
+    r_on = on.prepare(scene, pose, 1000.0, 3, 7).range_mm
+    r_off = off.prepare(scene, pose, 1000.0, 3, 7).range_mm
+    centre = (slice(55, 65), slice(75, 85))
+    np.testing.assert_allclose(r_on[centre] - r_off[centre], get_material("ptfe").subsurface_bias_mm, atol=1e-3)
+
+
+# -------------------------------------------------------------------------------------- stereo
+def test_stereo_disparity_is_quantized():
+    cam = make("d455", overrides=SMALL)
+    z = cam.frame(prep(cam, distance=2000.0), 0, 0.0)[2]
+    disparity = cam.focal_baseline / z[np.isfinite(z)]
+    # z is rounded to 1 mm after the disparity step: the disparity sits on the 1/32 px grid up to that
+    steps = disparity * 32
+    tolerance = 32 * cam.focal_baseline / 2000.0**2 * 0.5
+    assert np.all(np.abs(steps - np.round(steps)) <= tolerance + 1e-6)
+
+
+def test_projector_off_fails_on_textureless_wall():
+    cam = make("d455", overrides=SMALL)
+    with_dots = cam.frame(prep(cam, distance=2000.0, projector=True), 0, 0.0)
+    without = cam.frame(prep(cam, distance=2000.0, projector=False), 0, 0.0)
+    assert np.isfinite(with_dots[2]).mean() > 0.9
+    assert np.isfinite(without[2]).mean() < 0.01
+    # the left IR image shows the dot pattern only with the projector on
+    assert np.std(with_dots[3]) > 3 * np.std(without[3])
+
+
+def test_projector_off_keeps_textured_edges():
+    cam = make("d455", overrides="[camera_overrides]\nwidth = 320\nheight = 240\n")
+    z = cam.frame(prep(cam, "checkerboard", 1000.0, projector=False), 0, 0.0)[2]
+    valid = np.isfinite(z).mean()
+    assert 0.05 < valid < 0.95  # matched near tile edges, failed inside tiles
+
+
+def test_stereo_occlusion_beside_the_star():
+    """The right camera cannot see the wall just left of the star's left edges: invalid band there."""
+    cam = make("d455", overrides="[camera_overrides]\nwidth = 320\nheight = 240\n")
+    p = prep(cam, "boehler_star", 1600.0, {"segments": 24, "gap_mm": 500.0})
+    z = cam.frame(p, 0, 0.0)[2]
+    row = z[110]  # off the segment boundary on the centre row
+    star = np.where(np.nan_to_num(row, nan=1e9) < 1300)[0]
+    left_edge = star.min()
+    band = np.isnan(row[left_edge - 15 : left_edge])
+    expected_width = cam.focal_baseline / 1100.0 - cam.focal_baseline / 1600.0  # disparity jump, px
+    assert expected_width == pytest.approx(5.6, abs=0.1)
+    assert abs(band.sum() - expected_width) <= 1.5
+    assert not np.isnan(row[left_edge - 25 : left_edge - 15]).any()  # the wall further left is seen
