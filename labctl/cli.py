@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from labctl import cli_sim
+from labctl import cli_analyze, cli_sim
 from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
@@ -191,6 +191,7 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
 
 
 cli.add_command(cli_sim.sim_group)
+cli.add_command(cli_analyze.analyze_group)
 
 
 # ---------------------------------------------------------------------- entry point

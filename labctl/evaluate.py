@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from labctl.errors import InputError
+from labctl.eval_sharpness import SharpnessResult, evaluate_slanted_edge
 from labctl.keyfigures import FigureValue
 from labctl.store import RunReader, StepRecord
 from metrics.depth import DepthErrors, depth_errors
@@ -45,6 +46,7 @@ class Evaluation:
     camera: dict[str, Any]
     depth: list[DepthPosition] = field(default_factory=list)
     surface: SurfaceResult | None = None
+    sharpness: SharpnessResult | None = None
     figures: dict[str, FigureValue] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
@@ -134,6 +136,27 @@ def evaluate_depth_sweep(
         figures[name] = FigureValue(value, [key.step_id])
 
 
+def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation,
+                       progress: Callable[[str], None]) -> None:
+    """SPEC §3 figures from the slanted-edge steps."""
+    result = evaluate_slanted_edge(steps, reader.camera, progress)
+    if result is None:
+        evaluation.notes.append("slanted_edge steps without white references: sharpness figures are null")
+        return
+    evaluation.sharpness = result
+    evaluation.notes.extend(result.notes)
+    ids = [p.chart_step for p in result.positions] + [p.white_step for p in result.positions]
+    best = [p.chart_step for p in result.positions if p.distance_mm == result.best_focus_mm]
+    for name, value, source in (
+        ("hyperfocal_distance_mm", result.hyperfocal_mm, ids),
+        ("best_focus_distance_mm", result.best_focus_mm, ids),
+        ("intensity_resolution_h_deg", result.resolution_deg[0], best),
+        ("intensity_resolution_v_deg", result.resolution_deg[1], best),
+        ("ied_pixels_at_hyperfocal", result.ied_px, ids),
+    ):
+        evaluation.figures[name] = FigureValue(value, source)
+
+
 def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] = lambda _: None) -> Evaluation:
     """Every metric the given runs allow (all runs must come from one camera)."""
     if not paths:
@@ -157,6 +180,9 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
             evaluate_depth_sweep(sweep, evaluation, progress)
         else:
             evaluation.notes.append("no depth_sweep steps: depth figures are null")
+        edges = [s for r in readers for s in r.steps("slanted_edge")]
+        if edges:
+            evaluate_sharpness(edges, readers[0], evaluation, progress)
         return evaluation
     finally:
         for reader in readers:

@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from labctl.eval_sharpness import SharpnessResult  # noqa: E402
 from labctl.evaluate import DepthPosition, SurfaceResult  # noqa: E402
 
 
@@ -71,6 +72,60 @@ def plot_surface_maps(surface: SurfaceResult, path: Path) -> Path:
     fig.suptitle(
         f"Surface texture at {surface.reference_mm:.0f} mm ({surface.step_id}), cut-off {t.cutoff_mm:g} mm"
     )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _valid_and_dashed(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: str, color: str) -> None:
+    """Solid line through valid points, dashed through every finite point (invalid ones hollow)."""
+    finite = np.isfinite(v)
+    ax.plot(d[finite], v[finite], linestyle="--", color=color, alpha=0.6, linewidth=1)
+    solid = np.where(ok, v, np.nan)
+    ax.plot(d, solid, marker="o", ms=3, color=color, label=label)
+    bad = finite & ~ok
+    ax.plot(d[bad], v[bad], linestyle="none", marker="o", ms=4, mfc="none", color=color)
+
+
+def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
+    """SFR10, SFR50 and SFR area over distance, horizontal and vertical (thesis Fig. 6-3)."""
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), sharex=True)
+    for ax, attr, title in zip(axes, ("sfr10", "sfr50", "sfr_area"), ("SFR10", "SFR50", "SFR area")):
+        for orientation, color in (("horizontal", "tab:blue"), ("vertical", "tab:orange")):
+            d, v, ok = result.series(orientation, attr)
+            _valid_and_dashed(ax, d, v, ok, orientation, color)
+        ax.set_title(title)
+        ax.set_xlabel("distance (mm)")
+        ax.set_ylabel("cy/px" if attr != "sfr_area" else "")
+        ax.grid(alpha=0.3)
+        for x, name in ((result.hyperfocal_mm, "hyperfocal"), (result.best_focus_mm, "best focus")):
+            if math.isfinite(x):
+                ax.axvline(x, color="gray", linestyle=":" if name == "hyperfocal" else "-.", linewidth=1)
+    axes[0].legend(title="dashed / hollow: invalid")
+    fig.suptitle(f"Slanted-edge sharpness over distance: hyperfocal {result.hyperfocal_mm:.0f} mm, "
+                 f"best focus {result.best_focus_mm:.0f} mm")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_resolution(result: SharpnessResult, path: Path) -> Path:
+    """Angular imagery resolution of the intensity image over distance vs the sensor resolution (Fig. 6-4)."""
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for orientation, sensor, color in (("horizontal", result.sensor_resolution_deg[0], "tab:blue"),
+                                       ("vertical", result.sensor_resolution_deg[1], "tab:orange")):
+        d, sfr10, ok = result.series(orientation, "sfr10")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            res = np.where(sfr10 > 0, sensor / sfr10, np.nan)
+        _valid_and_dashed(ax, d, res, ok, f"imagery, {orientation}", color)
+        ax.axhline(sensor, color=color, linestyle=":", label=f"sensor, {orientation} ({sensor:.3f} deg)")
+    ax.set_xlabel("distance (mm)")
+    ax.set_ylabel("angular resolution (deg)")
+    ax.set_title("Resolution of the intensity image (sensor resolution / SFR10)")
+    ax.grid(alpha=0.3)
+    ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

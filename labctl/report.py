@@ -8,9 +8,10 @@ import math
 from pathlib import Path
 from typing import Any
 
+from labctl.eval_sharpness import resolution_table
 from labctl.evaluate import Evaluation, depth_table
 from labctl.keyfigures import FIGURE_BY_NAME, clean, keyfigures_document
-from labctl.plots import plot_depth_curves, plot_surface_maps
+from labctl.plots import plot_depth_curves, plot_resolution, plot_sharpness, plot_surface_maps
 from labctl.store import labctl_version, now_iso
 
 SUITABILITY_PENDING = {
@@ -44,9 +45,9 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     doc = keyfigures_document(evaluation.camera, evaluation.figures, SUITABILITY_PENDING)
     doc["runs"] = evaluation.runs
     doc["notes"] = evaluation.notes
-    doc["depth_sweep"] = [
-        {k: clean(v) if isinstance(v, float) else v for k, v in row.items()} for row in depth_table(evaluation)
-    ]
+    doc["depth_sweep"] = _clean_rows(depth_table(evaluation))
+    if evaluation.sharpness is not None:
+        doc["slanted_edge"] = _clean_rows(resolution_table(evaluation.sharpness))
     json_path = outdir / "keyfigures.json"
     json_path.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
@@ -57,9 +58,31 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     if evaluation.surface is not None:
         img = plot_surface_maps(evaluation.surface, plots / "surface_texture.png")
         sections.append(_section("Surface texture (SPEC 2, ISO 25178-2)", img, outdir, ""))
+    if evaluation.sharpness is not None:
+        img = plot_sharpness(evaluation.sharpness, plots / "sharpness.png")
+        sections.append(_section("Sharpness over distance (SPEC 3, ISO 12233)", img, outdir, ""))
+        img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
+        table = _rows_table(resolution_table(evaluation.sharpness), "step")
+        sections.append(_section("Resolution of the intensity image (thesis 6.3.1)", img, outdir, table))
     report = outdir / "report.html"
     report.write_text(_page(evaluation, doc, sections))
     return json_path, report
+
+
+def _clean_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [{k: clean(v) if isinstance(v, float) else v for k, v in row.items()} for row in rows]
+
+
+def _rows_table(rows: list[dict[str, Any]], key: str) -> str:
+    if not rows:
+        return ""
+    cols = [c for c in rows[0] if c != key]
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    body = "".join(
+        f'<tr><td class="l">{html.escape(str(r[key]))}</td>' + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
+        for r in rows
+    )
+    return f'<table><tr><th class="l">{html.escape(key)}</th>{head}</tr>{body}</table>'
 
 
 def _section(title: str, image: Path, outdir: Path, table: str) -> str:
@@ -68,17 +91,7 @@ def _section(title: str, image: Path, outdir: Path, table: str) -> str:
 
 
 def _depth_rows(evaluation: Evaluation) -> str:
-    rows = depth_table(evaluation)
-    if not rows:
-        return ""
-    cols = [c for c in rows[0] if c != "step"]
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
-    body = "".join(
-        f'<tr><td class="l">{html.escape(str(r["step"]))}</td>'
-        + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
-        for r in rows
-    )
-    return f'<table><tr><th class="l">step</th>{head}</tr>{body}</table>'
+    return _rows_table(depth_table(evaluation), "step")
 
 
 def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> str:

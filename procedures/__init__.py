@@ -8,13 +8,15 @@ from __future__ import annotations
 
 from procedures.depth_sweep import DepthSweep
 from procedures.offset_calibration import OffsetCalibration
+from procedures.slanted_edge import SlantedEdge
 from procedures.steps import Step
 
 PROCEDURES = {
     "offset_calibration": OffsetCalibration,
     "depth_sweep": DepthSweep,
+    "slanted_edge": SlantedEdge,
 }
 
-ProcedureConfig = OffsetCalibration | DepthSweep
+ProcedureConfig = OffsetCalibration | DepthSweep | SlantedEdge
 
 __all__ = ["PROCEDURES", "ProcedureConfig", "Step"]
