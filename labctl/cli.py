@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from labctl import cli_analyze, cli_sim
+from labctl import cli_analyze, cli_devices, cli_sim
 from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
@@ -190,6 +190,9 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     click.echo(f"report: {report}")
 
 
+# ---------------------------------------------------------------------- device, devices
+cli.add_command(cli_devices.device)
+cli.add_command(cli_devices.devices)
 cli.add_command(cli_sim.sim_group)
 cli.add_command(cli_analyze.analyze_group)
 

@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from labctl.errors import InputError
 from procedures import PROCEDURES, ProcedureConfig, Step
 from procedures.steps import StrictModel
+
+if TYPE_CHECKING:
+    from drivers.robot.circle import MeasurementCircle
 
 #: campaign ``backend`` -> simulation profile name (CONTRACTS §3)
 SIM_PROFILE_OF_BACKEND = {
@@ -48,6 +51,21 @@ class CameraConfig(StrictModel):
     backend: Literal["realsense", "blaze", "amt100", "flexx2", "d455", "blaze101"]
     serial: str | None = None
     settings: dict[str, Any] = Field(default_factory=dict)
+    playback: str | None = Field(None, description="recording played instead of the live camera (.bag, .rrf)")
+    producer: str | None = Field(None, description="GenTL producer .cti (blaze with sdk = harvesters, amt100)")
+    sdk: Literal["pypylon", "harvesters"] = Field("pypylon", description="blaze: pypylon or harvesters")
+    frame_timeout_s: float = Field(5.0, gt=0, le=120, description="longest wait for one frame")
+
+    @model_validator(mode="after")
+    def _real_options_fit_backend(self) -> CameraConfig:
+        driver = self.driver
+        if self.playback is not None and driver not in ("realsense", "flexx2"):
+            raise ValueError(f"playback: backend {self.backend!r} cannot play recordings (realsense and flexx2 can)")
+        if self.producer is not None and not (driver == "amt100" or (driver == "blaze" and self.sdk == "harvesters")):
+            raise ValueError("producer applies to amt100 and to blaze with sdk = \"harvesters\"")
+        if self.sdk != "pypylon" and driver != "blaze":
+            raise ValueError(f"sdk applies to the blaze backend only, not to {self.backend!r}")
+        return self
 
     @property
     def sim_profile(self) -> str:
@@ -69,6 +87,21 @@ class StageConfig(StrictModel):
         0.0, description="camera-wall distance when the stage is at position 0"
     )
     axis_direction: Literal["away_from_wall", "towards_wall"] = "away_from_wall"
+    home_on_connect: bool = Field(False, description="home the stage when a real run connects")
+    mm_per_microstep: float | None = Field(None, gt=0, description="Zaber: microstep size (stage datasheet)")
+    device: int = Field(1, ge=1, le=99, description="Zaber: device number on the daisy chain")
+    axis: int | str | None = Field(None, description="Zaber: axis number (default 1); Grbl: axis letter (default X)")
+
+    @model_validator(mode="after")
+    def _protocol_options(self) -> StageConfig:
+        if self.protocol == "zaber" and self.axis is not None and not isinstance(self.axis, int):
+            raise ValueError(f"axis: a Zaber axis is a number, got {self.axis!r}")
+        if self.protocol == "grbl":
+            if self.axis is not None and (not isinstance(self.axis, str) or self.axis.upper() not in "XYZABC"):
+                raise ValueError(f"axis: a Grbl axis is one of X, Y, Z, A, B, C, got {self.axis!r}")
+            if self.mm_per_microstep is not None or self.device != 1:
+                raise ValueError("mm_per_microstep and device apply to Zaber stages only")
+        return self
 
     @field_validator("travel_mm")
     @classmethod
@@ -86,6 +119,7 @@ class StageConfig(StrictModel):
 class LaserConfig(StrictModel):
     port: str | None = None
     baud: int = Field(19200, gt=0)
+    device_id: int = Field(0, ge=0, le=9, description="Dimetix device ID (ID switch)")
     readings: int = Field(5, ge=1, le=100, description="readings averaged per step")
     offset_mm: float | None = Field(
         None, description="known camera-laser offset, used until an offset_calibration step measures it"
@@ -97,6 +131,30 @@ class RobotConfig(StrictModel):
     radius_max_mm: float = Field(850.0, gt=0)
     angle_limits_deg: tuple[float, float] = (-90.0, 90.0)
     speed_deg_s: float = Field(10.0, gt=0, le=180)
+    acceleration_deg_s2: float = Field(20.0, gt=0, le=720)
+    settle_s: float = Field(0.5, ge=0, le=60)
+    circle_center_mm: tuple[float, float, float] | None = Field(None, description="target point, robot base frame")
+    rotation_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    zero_pose: tuple[float, float, float, float, float, float] | None = Field(
+        None, description="camera TCP pose at 0 deg: x, y, z in mm, rx, ry, rz rotation vector in rad"
+    )
+    tcp_box_mm: tuple[tuple[float, float], tuple[float, float], tuple[float, float]] | None = None
+    joint_limits_deg: list[tuple[float, float]] | None = Field(None, min_length=6, max_length=6)
+
+    @model_validator(mode="after")
+    def _circle_consistent(self) -> RobotConfig:
+        if (self.circle_center_mm is None) != (self.zero_pose is None):
+            raise ValueError("circle_center_mm and zero_pose go together")
+        if self.circle_center_mm is not None:
+            self.circle()  # raises ValueError naming what does not fit
+        return self
+
+    def circle(self) -> MeasurementCircle:
+        """The measurement circle of ``circle_center_mm``, ``rotation_axis`` and ``zero_pose``
+        (imported here: scipy's rotations are slow to import and only real robots need them)."""
+        from drivers.robot.circle import MeasurementCircle
+
+        return MeasurementCircle(self.circle_center_mm, self.rotation_axis, self.zero_pose)
 
 
 class DevicesConfig(StrictModel):

@@ -8,7 +8,6 @@ from typing import Any
 
 from drivers.protocols import Clock, DepthCamera, LinearStage, RangeMeter, RealClock, Robot
 from labctl.config import Campaign
-from labctl.errors import RunAborted
 from procedures.steps import Step
 from sim.devices import SimCamera, SimLaser, SimRobot, SimStage
 from sim.faults import FaultInjector
@@ -66,8 +65,7 @@ def build_sim_lab(campaign: Campaign, model: SimModel, seed: int) -> Lab:
 
 
 def build_real_lab(campaign: Campaign) -> Lab:
-    """Real adapters for every device of the campaign."""
-    raise RunAborted(
-        f"no hardware driver for camera backend {campaign.devices.camera.backend!r} is available in this "
-        "labctl version; run the campaign with --sim to dry-run it on simulated devices"
-    )
+    """Real adapters for every device of the campaign (:func:`labctl.hardware.real_devices`)."""
+    from labctl.hardware import real_devices  # the real drivers load only for real runs
+
+    return Lab(**real_devices(campaign.devices))

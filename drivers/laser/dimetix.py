@@ -11,15 +11,13 @@ from __future__ import annotations
 
 import contextlib
 import threading
-import time
 from collections.abc import Mapping
 from types import TracebackType
 from typing import Any
 
-import serial
-
-from drivers.errors import DeviceError, SerialGarbage, SerialTimeout, TransientDeviceError
+from drivers.errors import DeviceError, SerialGarbage, TransientDeviceError
 from drivers.protocols import DeviceIdentity
+from drivers.serial_line import SerialLine
 
 ERROR_CODES: dict[int, str] = {
     203: "wrong command syntax, forbidden parameter or invalid result",
@@ -102,7 +100,16 @@ class DimetixLaser:
         self.stopbits = stopbits
         self.timeout_s = timeout_s
         self.name = f"Dimetix laser on {port}"
-        self._serial: serial.Serial | None = None
+        self._line = SerialLine(
+            self.name,
+            port,
+            baud,
+            terminator=b"\r\n",
+            timeout_s=timeout_s,
+            bytesize=bytesize,
+            parity=parity,
+            stopbits=stopbits,
+        )
         self._lock = threading.RLock()  # safe_state() may come from another thread
         self._identity: DeviceIdentity | None = None
 
@@ -114,20 +121,9 @@ class DimetixLaser:
         Manual: "STOP/CLEAR command (sNc)", "Get serial number (sNsn)",
         "Get software version (sNsv)".
         """
-        if self._serial is not None:
+        if self._line.is_open:
             return
-        try:
-            self._serial = serial.Serial(
-                self.port,
-                self.baud,
-                bytesize=self.bytesize,
-                parity=self.parity,
-                stopbits=self.stopbits,
-                timeout=0.02,
-                write_timeout=self.timeout_s,
-            )
-        except (OSError, ValueError) as exc:
-            raise DeviceError(self.name, f"cannot open the port at {self.baud} baud: {exc}") from exc
+        self._line.open()
         try:
             self._request("c", "?")
             serial_number = self._request("sn", "sn+")
@@ -144,10 +140,7 @@ class DimetixLaser:
 
     def close(self) -> None:
         """Close the port (idempotent)."""
-        port, self._serial = self._serial, None
-        if port is not None:
-            with contextlib.suppress(OSError):
-                port.close()
+        self._line.close()
 
     def safe_state(self) -> None:
         """Stop tracking (``sNc``) and switch the laser off (``sNp``); never raises.
@@ -232,41 +225,17 @@ class DimetixLaser:
 
     def _request(self, command: str, expect: str) -> str:
         """Send ``sN<command>`` and return what follows ``gN<expect>`` in the reply."""
-        port = self._serial
-        if port is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
         request = f"s{self.device_id}{command}"
         prefix = f"g{self.device_id}"
-        try:
-            with self._lock:
-                if stale := port.in_waiting:  # a reply that arrived after an earlier timeout
-                    port.read(stale)
-                port.write(f"{request}\r\n".encode("ascii"))
-                line = self._read_line(port, f"'{prefix}{expect}...' in reply to '{request}'")
-        except serial.SerialTimeoutException as exc:
-            raise SerialTimeout(self.name, f"writing '{request}' timed out after {self.timeout_s} s") from exc
-        except OSError as exc:  # pyserial's SerialException is an OSError
-            raise DeviceError(self.name, f"port failed or disconnected during '{request}': {exc}") from exc
+        with self._lock:
+            self._line.discard_input()  # a reply that arrived after an earlier timeout
+            self._line.write(f"{request}\r\n".encode("ascii"), request)
+            line = self._line.read_line(f"'{prefix}{expect}...' in reply to '{request}'")
         if line.startswith(f"{prefix}@E") and line[4:7].isdigit():
             raise _error(self.name, request, int(line[4:7]))
         if not line.startswith(prefix + expect):
             raise SerialGarbage(self.name, f"expected '{prefix}{expect}...' in reply to '{request}', got {line!r}")
         return line[len(prefix + expect) :]
-
-    def _read_line(self, port: serial.Serial, expected: str) -> str:
-        deadline = time.monotonic() + self.timeout_s
-        buffer = bytearray()
-        while (end := buffer.find(b"\r\n")) < 0:
-            if time.monotonic() > deadline:
-                got = bytes(buffer)
-                raise SerialTimeout(
-                    self.name, f"no complete reply within {self.timeout_s} s (expected {expected}; got {got!r})"
-                )
-            buffer += port.read(port.in_waiting or 1)
-        try:
-            return buffer[:end].decode("ascii")
-        except UnicodeDecodeError as exc:
-            raise SerialGarbage(self.name, f"non-ASCII reply {bytes(buffer[:end])!r} (expected {expected})") from exc
 
     def _distance(self, field: str, command: str) -> float:
         if len(field) != 9 or field[0] not in "+-" or not field[1:].isdigit():

@@ -21,10 +21,9 @@ from collections.abc import Mapping
 from types import TracebackType
 from typing import Any
 
-import serial
-
 from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout
 from drivers.protocols import DeviceIdentity
+from drivers.serial_line import SerialLine
 
 log = logging.getLogger(__name__)
 
@@ -135,6 +134,7 @@ class GrblStage:
         home_timeout_s: float = 120.0,
         move_timeout_s: float = 120.0,
         poll_interval_s: float = 0.02,
+        home_on_connect: bool = False,
     ) -> None:
         low, high = travel_mm
         if not low < high:
@@ -152,44 +152,40 @@ class GrblStage:
         self.home_timeout_s = home_timeout_s
         self.move_timeout_s = move_timeout_s
         self.poll_interval_s = poll_interval_s
+        self.home_on_connect = home_on_connect
         self.name = f"Grbl stage ({self.axis} axis) on {port}"
-        self._serial: serial.Serial | None = None
+        self._line = SerialLine(self.name, port, baud, terminator=b"\n", timeout_s=timeout_s)
         self._lock = threading.RLock()
         self._identity: DeviceIdentity | None = None
         self._grbl_settings: dict[str, str] = {}
         self._alarm: int | None = None
         self._reset_required = False
-        self._rx = bytearray()
 
     # -- LinearStage ----------------------------------------------------------------
 
     def connect(self) -> None:
         """Open the port, check the link with an empty line (``ok``), read build info (``$I``)
-        and settings (``$$``) (interface.md, "Grbl Response Messages", "Feedback Messages")."""
-        if self._serial is not None:
+        and settings (``$$``) (interface.md, "Grbl Response Messages", "Feedback Messages").
+        With ``home_on_connect`` it runs the homing cycle too."""
+        if self._line.is_open:
             return
-        try:
-            self._serial = serial.Serial(self.port, self.baud, timeout=0.02, write_timeout=self.timeout_s)
-        except (OSError, ValueError) as exc:
-            raise DeviceError(self.name, f"cannot open the port at {self.baud} baud: {exc}") from exc
+        self._line.open()
         try:
             self._synchronise()
             info = self._command("$I")
             self._grbl_settings = dict(line.split("=", 1) for line in self._command("$$") if "=" in line)
+            version = next((line[5:-1] for line in info if line.startswith("[VER:")), "")
+            build, _, user_string = version.partition(":")
+            self._identity = DeviceIdentity("grbl", "Grbl controller", user_string, build)
+            if self.home_on_connect:
+                self.home()
         except Exception:
             self.close()
             raise
-        version = next((line[5:-1] for line in info if line.startswith("[VER:")), "")
-        build, _, user_string = version.partition(":")
-        self._identity = DeviceIdentity("grbl", "Grbl controller", user_string, build)
 
     def close(self) -> None:
         """Close the port (idempotent)."""
-        port, self._serial = self._serial, None
-        self._rx.clear()
-        if port is not None:
-            with contextlib.suppress(OSError):
-                port.close()
+        self._line.close()
 
     def safe_state(self) -> None:
         """Stop motion with a feed hold (``!``); never raises."""
@@ -254,7 +250,7 @@ class GrblStage:
         """Feed hold (``!``; jogging.md: a feed hold cancels jogs); waits until motion has stopped."""
         with self._lock:
             self._drain()
-            self._write(b"!", "!")
+            self._line.write(b"!", "!")
         if self._reset_required:  # halted by a limit alarm; status reports resume only after a reset
             return
         deadline = time.monotonic() + self.move_timeout_s
@@ -308,7 +304,7 @@ class GrblStage:
     def _soft_reset(self) -> None:
         """Soft reset, Ctrl-X (interface.md: the welcome banner "also prints after a reset")."""
         with self._lock:
-            self._write(b"\x18", "Ctrl-X")
+            self._line.write(b"\x18", "Ctrl-X")
             deadline = time.monotonic() + self.timeout_s
             while not self._read_line(deadline, "the 'Grbl X.Xx' banner after a reset").startswith("Grbl "):
                 pass
@@ -320,7 +316,7 @@ class GrblStage:
         """Send a line; return the lines before its ``ok``. ``error:N`` raises :class:`GrblError`."""
         with self._lock:
             self._drain()
-            self._write(line.encode("ascii") + b"\n", line)
+            self._line.write(line.encode("ascii") + b"\n", line)
             deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
             collected: list[str] = []
             while True:
@@ -341,7 +337,7 @@ class GrblStage:
             self._drain()
             if self._reset_required:
                 raise GrblAlarm(self.name, "no status report until a soft reset", self._alarm)
-            self._write(b"?", "?")
+            self._line.write(b"?", "?")
             deadline = time.monotonic() + self.timeout_s
             while True:
                 reply = self._read_line(deadline, "a status report '<State|MPos:...>' for '?'")
@@ -359,30 +355,11 @@ class GrblStage:
                     raise SerialGarbage(self.name, f"status report {reply!r} has no {self.axis} position") from exc
         raise DeviceError(self.name, f"status report {reply!r} has no MPos field: set $10=1 to report machine position")
 
-    def _port(self) -> serial.Serial:
-        if self._serial is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._serial
-
     def _drain(self) -> None:
         """Drop late answers to earlier lines, but keep the alarm state from ``ALARM:N`` among them."""
-        port = self._port()
-        try:
-            stale = bytes(self._rx) + port.read(port.in_waiting)
-        except OSError as exc:  # pyserial's SerialException is an OSError
-            raise DeviceError(self.name, f"port failed or disconnected: {exc}") from exc
-        self._rx.clear()
-        for line in stale.decode("ascii", "replace").splitlines():
+        for line in self._line.discard_input().decode("ascii", "replace").splitlines():
             if line.startswith("ALARM:") and line[6:].isdigit():
                 self._record_alarm(int(line[6:]))
-
-    def _write(self, data: bytes, what: str) -> None:
-        try:
-            self._port().write(data)
-        except serial.SerialTimeoutException as exc:
-            raise SerialTimeout(self.name, f"writing '{what}' timed out after {self.timeout_s} s") from exc
-        except OSError as exc:
-            raise DeviceError(self.name, f"port failed or disconnected during '{what}': {exc}") from exc
 
     def _record_alarm(self, code: int) -> None:
         self._alarm = code
@@ -397,26 +374,8 @@ class GrblStage:
 
     def _read_line(self, deadline: float, expected: str) -> str:
         """Next non-empty line; ``ALARM:N`` raises :class:`GrblAlarm`."""
-        port = self._port()
-        buffer = self._rx  # lines after the one returned stay for the next read
         while True:
-            end = buffer.find(b"\n")
-            if end < 0:
-                if time.monotonic() > deadline:
-                    raise SerialTimeout(
-                        self.name, f"no complete reply in time (expected {expected}; got {bytes(buffer)!r})"
-                    )
-                try:
-                    buffer += port.read(port.in_waiting or 1)
-                except OSError as exc:
-                    raise DeviceError(self.name, f"port failed or disconnected waiting for {expected}: {exc}") from exc
-                continue
-            raw = bytes(buffer[:end]).rstrip(b"\r")
-            del buffer[: end + 1]
-            try:
-                line = raw.decode("ascii")
-            except UnicodeDecodeError as exc:
-                raise SerialGarbage(self.name, f"non-ASCII reply {raw!r} (expected {expected})") from exc
+            line = self._line.read_line(expected, deadline)
             if line.startswith("ALARM:") and line[6:].isdigit():
                 self._record_alarm(int(line[6:]))
                 raise GrblAlarm(self.name, f"while waiting for {expected}", self._alarm)

@@ -21,10 +21,9 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
-import serial
-
-from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout
+from drivers.errors import DeviceError, LimitViolation, SerialGarbage
 from drivers.protocols import DeviceIdentity
+from drivers.serial_line import SerialLine
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +124,7 @@ class ZaberStage:
         timeout_s: float = 1.0,
         move_timeout_s: float = 120.0,
         poll_interval_s: float = 0.02,
+        home_on_connect: bool = False,
     ) -> None:
         low, high = travel_mm
         if not low < high:
@@ -140,8 +140,9 @@ class ZaberStage:
         self.timeout_s = timeout_s
         self.move_timeout_s = move_timeout_s
         self.poll_interval_s = poll_interval_s
+        self.home_on_connect = home_on_connect
         self.name = f"Zaber stage {device}/{axis} on {port}"
-        self._serial: serial.Serial | None = None
+        self._line = SerialLine(self.name, port, baud, terminator=b"\r\n", timeout_s=timeout_s)
         self._lock = threading.RLock()
         self._message_id = 0
         self._identity: DeviceIdentity | None = None
@@ -153,26 +154,22 @@ class ZaberStage:
         """Open the port, read identity and travel range, and check ``travel_mm`` lies within it.
 
         Manual, "Command Reference": ``get deviceid``, ``get version``, ``get system.serial``,
-        ``get limit.min``, ``get limit.max``, ``get maxspeed``.
+        ``get limit.min``, ``get limit.max``, ``get maxspeed``. With ``home_on_connect`` it homes too.
         """
-        if self._serial is not None:
+        if self._line.is_open:
             return
-        try:
-            self._serial = serial.Serial(self.port, self.baud, timeout=0.02, write_timeout=self.timeout_s)
-        except (OSError, ValueError) as exc:
-            raise DeviceError(self.name, f"cannot open the port at {self.baud} baud: {exc}") from exc
+        self._line.open()
         try:
             self._read_device()
+            if self.home_on_connect:
+                self.home()
         except Exception:
             self.close()
             raise
 
     def close(self) -> None:
         """Close the port (idempotent)."""
-        port, self._serial = self._serial, None
-        if port is not None:
-            with contextlib.suppress(OSError):
-                port.close()
+        self._line.close()
 
     def safe_state(self) -> None:
         """Stop motion (``stop``); never raises."""
@@ -324,46 +321,22 @@ class ZaberStage:
         an active fault flag :class:`ZaberFlagError` (unless ``check_faults`` is False)."""
         axis = self.axis if axis is None else axis
         with self._lock:
-            port = self._serial
-            if port is None:
-                raise DeviceError(self.name, "not connected: call connect() first")
             self._message_id = (self._message_id + 1) % 100
             message_id = self._message_id
-            try:
-                if stale := port.in_waiting:
-                    port.read(stale)
-                port.write(f"/{self.device} {axis} {message_id} {command}\n".encode("ascii"))
-                reply = self._read_reply(port, command, axis, message_id)
-            except serial.SerialTimeoutException as exc:
-                raise SerialTimeout(self.name, f"writing '{command}' timed out after {self.timeout_s} s") from exc
-            except OSError as exc:  # pyserial's SerialException is an OSError
-                raise DeviceError(self.name, f"port failed or disconnected during '{command}': {exc}") from exc
+            self._line.discard_input()  # late replies to earlier commands
+            self._line.write(f"/{self.device} {axis} {message_id} {command}\n".encode("ascii"), command)
+            reply = self._read_reply(command, axis, message_id)
         if not reply.accepted:
             raise ZaberRejection(self.name, command, reply.data, reply.flag)
         if check_faults and reply.flag.startswith("F"):
             raise ZaberFlagError(self.name, f"during '{command}'", reply.flag)
         return reply
 
-    def _read_reply(self, port: serial.Serial, command: str, axis: int, message_id: int) -> Reply:
+    def _read_reply(self, command: str, axis: int, message_id: int) -> Reply:
         expected = f"'@{self.device:02d} {axis} {message_id:02d} ...' in reply to '{command}'"
         deadline = time.monotonic() + self.timeout_s
-        buffer = bytearray()
         while True:
-            end = buffer.find(b"\r\n")
-            if end < 0:
-                if time.monotonic() > deadline:
-                    got = bytes(buffer)
-                    raise SerialTimeout(
-                        self.name, f"no complete reply within {self.timeout_s} s (expected {expected}; got {got!r})"
-                    )
-                buffer += port.read(port.in_waiting or 1)
-                continue
-            raw = bytes(buffer[:end])
-            del buffer[: end + 2]
-            try:
-                line = raw.decode("ascii")
-            except UnicodeDecodeError as exc:
-                raise SerialGarbage(self.name, f"non-ASCII reply {raw!r} (expected {expected})") from exc
+            line = self._line.read_line(expected, deadline)
             if line[:1] in ("#", "!"):  # info and alert messages are not replies
                 continue
             match = _REPLY.fullmatch(line)
