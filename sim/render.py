@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.aggregate import aggregate
 from sim.geometry import Pose
 from sim.optics import CameraOptics
 from sim.scenes.base import Hit, Scene
@@ -55,29 +56,24 @@ class SurfaceProperties:
 
 def _aggregate(hit: Hit, z_cam: np.ndarray, props: SurfaceProperties, wavenumber: float | None,
                n_surfaces: int) -> dict[str, np.ndarray]:
-    """Aggregate samples along the last axis into per-pixel quantities."""
-    ok = hit.surface >= 0
-    sid = np.where(ok, hit.surface, 0)
-    lam = props.lambert[sid]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        shading = np.where(ok, hit.reflectance * np.power(np.clip(hit.cos, 0.0, 1.0), lam), 0.0)
-        irr = np.where(ok, shading / (hit.t / 1000.0) ** 2, 0.0)
-    rng = np.where(ok, hit.t + props.bias_mm[sid], 0.0)
-    out = {"irradiance": irr.mean(-1), "passive": shading.mean(-1), "hit_fraction": ok.mean(-1)}
-    if wavenumber is not None:
-        out["phasor"] = (irr * np.exp(1j * wavenumber * rng)).mean(-1)
-    # dominant surface: most returned light (or most samples where none returns light)
-    score = np.stack([np.where(sid == s, irr + 1e-12 * ok, 0.0).sum(-1) for s in range(n_surfaces)])
-    dom = score.argmax(0)
-    on_dom = ok & (sid == dom[..., None])
-    weight = np.where(on_dom, irr + 1e-12, 0.0)
-    wsum = weight.sum(-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out["range_dom"] = np.where(wsum > 0, (weight * rng).sum(-1) / wsum, np.nan)
-        out["z_dom"] = np.where(wsum > 0, (weight * np.where(ok, z_cam, 0.0)).sum(-1) / wsum, np.nan)
-        out["cos_dom"] = np.where(wsum > 0, (weight * hit.cos).sum(-1) / wsum, 0.0)
-    out["surface_dom"] = np.where(ok.any(-1), dom, -1)
-    return out
+    """Aggregate samples along the last axis into per-pixel quantities (sim/aggregate.py)."""
+    shape = hit.t.shape[:-1]
+    s = hit.t.shape[-1]
+
+    def rows(a: np.ndarray, dtype: type = float) -> np.ndarray:
+        return np.ascontiguousarray(a.reshape(-1, s), dtype=dtype)
+
+    n = int(np.prod(shape))
+    out = {name: np.empty(n) for name in ("irradiance", "passive", "hit_fraction", "range_dom", "z_dom", "cos_dom")}
+    out["phasor"] = np.empty(n, dtype=complex)
+    out["surface_dom"] = np.empty(n, dtype=np.int64)
+    aggregate(rows(hit.t), rows(hit.cos), rows(hit.reflectance), rows(hit.surface, np.int64), rows(z_cam),
+              np.asarray(props.bias_mm, float), np.asarray(props.lambert, float), wavenumber or 0.0, n_surfaces,
+              out["irradiance"], out["passive"], out["hit_fraction"], out["phasor"], out["range_dom"],
+              out["z_dom"], out["cos_dom"], out["surface_dom"])
+    if wavenumber is None:
+        del out["phasor"]
+    return {name: values.reshape(shape) for name, values in out.items()}
 
 
 def _edges(hit: Hit) -> np.ndarray:
