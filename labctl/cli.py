@@ -190,7 +190,7 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     click.echo(f"report: {report}")
 
 
-# ---------------------------------------------------------------------- device, devices
+# ---------------------------------------------------------------------- device, devices, sim, analyze
 cli.add_command(cli_devices.device)
 cli.add_command(cli_devices.devices)
 cli.add_command(cli_sim.sim_group)
