@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pyrealsense2 as rs
@@ -13,8 +12,9 @@ import pytest
 from drivers.camera.realsense import RealSenseCamera, depth_filters, frame_from_frameset
 from drivers.errors import DeviceError
 from drivers.protocols import DepthCamera
+from tests.shared_data import shared_data
 
-BAG = Path(__file__).resolve().parents[3] / "shared" / "data" / "realsense_d4xx_640x480.bag"
+BAG = shared_data("realsense_d4xx_640x480.bag")
 W, H, FPS = 64, 48, 30
 FX, FY, PPX, PPY = 50.0, 51.0, 31.5, 23.25
 

@@ -19,8 +19,9 @@ from pypylon import pylon
 from drivers.camera.blaze import DEVICE_CLASS, pylon_transport_layers
 from labctl.cli import main
 from sim.emulators import DimetixEmulator, GrblEmulator, ZaberEmulator
+from tests.shared_data import shared_data
 
-BAG = Path(__file__).resolve().parents[3] / "shared" / "data" / "realsense_d4xx_640x480.bag"
+BAG = shared_data("realsense_d4xx_640x480.bag")
 F, CX, CY = 390.431, 331.388, 242.187  # depth intrinsics of the recording (data/README.md)
 
 

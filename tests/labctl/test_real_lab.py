@@ -20,8 +20,9 @@ from labctl.config import parse_campaign
 from labctl.errors import InputError
 from labctl.lab import build_real_lab
 from sim.emulators import DimetixEmulator, GrblEmulator, ZaberEmulator
+from tests.shared_data import shared_data
 
-BAG = Path(__file__).resolve().parents[3] / "shared" / "data" / "realsense_d4xx_640x480.bag"
+BAG = shared_data("realsense_d4xx_640x480.bag")
 STEP = 0.000125  # Zaber mm per microstep
 
 

@@ -10,8 +10,9 @@ from labctl.config import parse_campaign
 from labctl.evaluate import evaluate_runs
 from sim.profiles import PROFILES
 from tests.conftest import campaign_text
+from tests.shared_data import shared_data
 
-DATA = "/work/shared/data"
+DATA = shared_data("sfrmat3_h_edge_mono.tif").parent
 
 
 def invoke(*args) -> int:

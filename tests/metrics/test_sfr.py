@@ -20,8 +20,6 @@ response") and against sfrmat5's own numbers.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
@@ -37,8 +35,9 @@ from metrics.sfr import (
     load_image,
     normalize_by_white,
 )
+from tests.shared_data import shared_data
 
-DATA = Path("/work/shared/data")
+DATA = shared_data("sfrmat3_h_edge_mono.tif").parent
 DARK, BRIGHT = 0.1, 0.9
 
 
