@@ -1,0 +1,556 @@
+"""Geometric distortion and pixel aspect ratio from a checkerboard (thesis 5.2, 6.4; SPEC §5).
+
+Distortion is the displacement of a flat target's features from where an ideal
+pinhole camera would image them (ISO 17850:2015, EBU Tech 3249-E). The target
+is a checkerboard parallel to the sensor; its inner corners are the features.
+
+* Pixel aspect ratio: angular pixel height / angular pixel width (thesis
+  eq. 5-1, Table 6-2) and the distortion it causes, in % of the width (Table
+  6-5 row 1).
+* Corners: OpenCV's classic detector when the board's size is given (a board
+  wholly in view); otherwise, or when it fails, the sector-based detector
+  (NORMALIZE_IMAGE, EXHAUSTIVE, ACCURACY, LARGER). Its grid may skip rows or
+  be sheared, so only a 2 x 2 block of single-tile steps near the image centre
+  is taken from it. Every corner is refined by ``cornerSubPix`` with a
+  half-window of 0.4 tile (below half a tile), and the grid is grown corner by
+  corner to the image border: each new corner is predicted from its row or
+  column, refined, and kept only as a saddle of the right colour parity. So a
+  board cut by the image border or smaller than the view gives its largest
+  grid, and blurred border corners are not lost (thesis 6.4.2). Indices
+  (i, j) count from the corner nearest the image centre.
+* Expected grid (thesis 5.2.1): centred on the corner nearest the image
+  centre, spacing tile · f / distance with f_x = (W/2) / tan(FOV_h/2) and
+  f_y = (H/2) / tan(FOV_v/2), the lateral pixel size at the image centre. The
+  angular pixel size FOV/W would overstate the spacing by 13 % at 67 deg over
+  640 px and report distortion for a perfect pinhole camera.
+* Raw distortion (EBU Tech 3249-E, ISO 17850, thesis Table 6-5): max
+  |found - expected| in % of the image width (x) and height (y), with the
+  median so that noise at the border does not dominate.
+* Linear and radial distortion separated (thesis 6.4.2's open point): a least
+  squares fit of board position, in-plane rotation, scale per axis (the
+  effective FOV, cf. eq. 6-1) and k1 of eq. 5-5,
+  r_d = r_u (1 + k1 (r_u / R)^2) about the image centre, R = half the image
+  diagonal. The radial distortion is what remains of found - fitted linear
+  grid.
+* Point cloud (thesis 5.2.1): the same corners' x, y read bilinearly at their
+  sub-pixel positions against a grid of the tile size in mm centred on the
+  centre corner, in % of the lateral extent of the view at the centre corner's
+  depth, 2 z tan(FOV/2) with the given FOV: one pixel of displacement at the
+  image centre is then the same percentage in the image and in the cloud, and
+  the normalization depends neither on the cloud's own distortion nor on its
+  outliers.
+
+Signs follow EBU Tech 3249-E: a maximum displacement outwards (away from the
+expected grid's centre corner; for the radial part, from the image centre) is
+positive, pincushion; inwards negative, barrel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import optimize
+
+from sim.optics import Pinhole, pixel_aspect_distortion_pct, sensor_angular_resolution_deg
+
+__all__ = [
+    "CloudDistortion", "Corners", "DistortionResult", "cloud_distortion", "detect_corners", "distortion",
+    "pixel_aspect_distortion_pct", "pixel_aspect_ratio", "sample_cloud",
+]
+
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+_SB_FLAGS = (cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+             | cv2.CALIB_CB_LARGER)
+_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+#: a grown corner must refine to within this many tiles of its prediction
+_GROW_TOLERANCE_TILES = 0.25
+#: tile-centre samples of a grown corner: bright pair minus dark pair, relative to the image's range
+_MIN_SADDLE_CONTRAST = 0.05
+#: detector corners (nearest the image centre first) tried as the seed of the grid
+_SEED_TRIES = 10
+#: fewer corners than this (or fewer than 3 per row / column) is no board
+MIN_CORNERS = 9
+
+Grid = dict[tuple[int, int], np.ndarray]
+
+
+def pixel_aspect_ratio(fov_h_deg: float, fov_v_deg: float, width: int, height: int) -> float:
+    """Angular pixel height / angular pixel width (thesis eq. 5-1, Table 6-2 "1 : ratio")."""
+    return sensor_angular_resolution_deg(fov_v_deg, height) / sensor_angular_resolution_deg(fov_h_deg, width)
+
+
+# ------------------------------------------------------------------------------------------ corners
+@dataclass(frozen=True)
+class Corners:
+    """Inner corners of a checkerboard in an image.
+
+    ``uv`` (N, 2): sub-pixel (u, v), pixel centres at integers (OpenCV).
+    ``ij`` (N, 2): integer grid index, (0, 0) the corner nearest the image
+    centre ((W-1)/2, (H-1)/2), i growing with u and j with v.
+    ``tile_px``: median spacing of neighbouring corners along (u, v).
+    """
+
+    uv: np.ndarray
+    ij: np.ndarray
+    image_shape: tuple[int, int]
+    detector: str
+    tile_px: tuple[float, float]
+
+    @property
+    def centre_uv(self) -> np.ndarray:
+        return self.uv[np.flatnonzero((self.ij == 0).all(axis=1))[0]]
+
+
+def _normalized(image: np.ndarray) -> np.ndarray:
+    """The image scaled to 0..255 between its 0.5 % and 99.5 % quantiles (float32, clipped)."""
+    lo, hi = np.percentile(image, [0.5, 99.5])
+    return np.clip(255 * (image - lo) / (hi - lo if hi > lo else 1.0), 0, 255).astype(np.float32)
+
+
+def _oriented(grid: np.ndarray) -> Grid:
+    """(rows, cols, 2) corner array as {(i, j): uv} with i growing with u and j with v."""
+    step_cols = np.nanmean(np.diff(grid, axis=1), axis=(0, 1))
+    if abs(step_cols[0]) < abs(step_cols[1]):
+        grid = grid.transpose(1, 0, 2)
+    if np.nanmean(np.diff(grid, axis=1)[..., 0]) < 0:
+        grid = grid[:, ::-1]
+    if np.nanmean(np.diff(grid, axis=0)[..., 1]) < 0:
+        grid = grid[::-1]
+    return {(i, j): grid[j, i].astype(float) for j in range(grid.shape[0]) for i in range(grid.shape[1])}
+
+
+def _classic(img8: np.ndarray, pattern: tuple[int, int]) -> Grid | None:
+    found, corners = cv2.findChessboardCorners(img8, pattern, flags=_CLASSIC_FLAGS)
+    if not found:
+        return None
+    return _oriented(corners.reshape(pattern[1], pattern[0], 2))
+
+
+def _sector_based(img8: np.ndarray) -> Grid | None:
+    found, corners, meta = cv2.findChessboardCornersSBWithMeta(img8, (3, 3), _SB_FLAGS)
+    if not found:
+        return None
+    return _oriented(corners.reshape(meta.shape[0], meta.shape[1], 2))
+
+
+def _half_window(tile_px: float) -> int:
+    """cornerSubPix half-window: 0.4 tile, below half a tile, so no neighbouring corner or edge enters it."""
+    return max(1, int(0.4 * tile_px))
+
+
+def _inside(uv: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray:
+    u, v = np.asarray(uv, float).reshape(-1, 2).T
+    return (u >= margin) & (v >= margin) & (u <= shape[1] - 1 - margin) & (v <= shape[0] - 1 - margin)
+
+
+def _refine(image: np.ndarray, uv: np.ndarray, half: int) -> np.ndarray:
+    pts = np.ascontiguousarray(uv, dtype=np.float32).reshape(-1, 1, 2)
+    return cv2.cornerSubPix(image, pts, (half, half), (-1, -1), _SUBPIX_CRITERIA).reshape(-1, 2).astype(float)
+
+
+def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a 2-D float32 image at (N, 2) positions inside it."""
+    uv = np.asarray(uv, np.float32).reshape(1, -1, 2)
+    return cv2.remap(image, uv[..., 0], uv[..., 1], cv2.INTER_LINEAR).ravel()
+
+
+def _saddle(image: np.ndarray, p: np.ndarray, a: np.ndarray, b: np.ndarray, min_contrast: float) -> int:
+    """+1 if the tiles towards p ± (a+b) are brighter than those towards p ± (a-b), -1 if darker, 0 if neither.
+
+    ``a``, ``b``: the local steps to the next corner along i and j. Samples
+    lie 0.4 of the way to the tile centres, clear of blurred edges. Across a
+    checkerboard the sign alternates with i + j.
+    """
+    q = np.array([p + 0.4 * (a + b), p - 0.4 * (a + b), p + 0.4 * (a - b), p - 0.4 * (a - b)])
+    if not _inside(q, image.shape, 0.0).all():
+        return 0
+    s = _bilinear(image, q)
+    if s[:2].min() - s[2:].max() > min_contrast:
+        return 1
+    if s[2:].min() - s[:2].max() > min_contrast:
+        return -1
+    return 0
+
+
+def _is_x_corner(image: np.ndarray, p: np.ndarray, radius: float, min_contrast: float) -> bool:
+    """A checkerboard corner seen on a ring: four alternating sectors, opposite sectors alike."""
+    angles = np.arange(16) * (2 * math.pi / 16)
+    ring = p + radius * np.column_stack([np.cos(angles), np.sin(angles)])
+    if not _inside(ring, image.shape, 0.0).all():
+        return False
+    s = _bilinear(image, ring)
+    span = s.max() - s.min()
+    above = s > (s.max() + s.min()) / 2
+    changes = np.count_nonzero(above != np.roll(above, 1))
+    return span > min_contrast and changes == 4 and np.mean(np.abs(s - np.roll(s, 8))) < 0.3 * span
+
+
+def _step(grid: Grid, k: tuple[int, int], axis: int) -> np.ndarray | None:
+    """Local step to the next corner along ``axis`` (0: i, 1: j) at node ``k``."""
+    e = (1, 0) if axis == 0 else (0, 1)
+    for lo, hi in ((k, (k[0] + e[0], k[1] + e[1])), ((k[0] - e[0], k[1] - e[1]), k)):
+        if lo in grid and hi in grid:
+            return grid[hi] - grid[lo]
+    return None
+
+
+def _parities(image: np.ndarray, grid: Grid, min_contrast: float) -> list[int]:
+    """Saddle sign times (-1)^(i+j) of every node with both steps: all equal on a true grid."""
+    out = []
+    for k, p in grid.items():
+        a, b = _step(grid, k, 0), _step(grid, k, 1)
+        if a is not None and b is not None:
+            out.append(_saddle(image, p, a, b, min_contrast) * (-1) ** (k[0] + k[1]))
+    return out
+
+
+def _unit_steps(image: np.ndarray, grid: Grid, k0: tuple[int, int],
+                min_contrast: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Single-tile steps (along u, along v) at node ``k0``: the shortest of the grid's steps there, their sum,
+    difference and fractions that land on a corner."""
+    p0 = grid[k0]
+    a, b = _step(grid, k0, 0), _step(grid, k0, 1)
+    if a is None or b is None:
+        return None
+    found = []
+    for v in (a, b, a + b, a - b):
+        for k in range(1, 5):
+            step = v / k
+            unit = float(np.linalg.norm(step))
+            half = _half_window(unit)
+            if unit < 3 or not _inside(p0 + step, image.shape, half + 1)[0]:
+                continue
+            p = _refine(image, p0 + step, half)[0]
+            if np.linalg.norm(p - p0 - step) < _GROW_TOLERANCE_TILES * unit and _is_x_corner(
+                    image, p, 0.35 * unit, min_contrast):
+                found.append(p - p0)
+    if not found:
+        return None
+    found.sort(key=lambda v: float(np.linalg.norm(v)))
+    first = found[0]
+    second = next((v for v in found if abs(float(v @ first)) < 0.5 * np.linalg.norm(v) * np.linalg.norm(first)),
+                  None)
+    if second is None:
+        return None
+    a, b = (first, second) if abs(first[0]) > abs(first[1]) else (second, first)
+    return a * np.sign(a[0]), b * np.sign(b[1])
+
+
+def _seed(image: np.ndarray, grid: Grid, min_contrast: float) -> Grid | None:
+    """A 2 x 2 block of corners with single-tile steps, at the detector's corner nearest the image centre
+    that gives one.
+
+    The sector-based detector's grid may skip rows or columns, be sheared
+    (steps of (2, 1) tiles) or end in points on the board's edge; every
+    corner of the block is therefore checked on a ring and for alternating
+    colour parity.
+    """
+    centre = np.array([(image.shape[1] - 1) / 2, (image.shape[0] - 1) / 2])
+    for k0 in sorted(grid, key=lambda k: float(np.linalg.norm(grid[k] - centre)))[:_SEED_TRIES]:
+        steps = _unit_steps(image, grid, k0, min_contrast)
+        if steps is None:
+            continue
+        a, b = steps
+        unit = float(min(np.linalg.norm(a), np.linalg.norm(b)))
+        half = _half_window(unit)
+        p0 = grid[k0]
+        block = {(0, 0): p0, (1, 0): p0 + a, (0, 1): p0 + b, (1, 1): p0 + a + b}
+        if not _inside(np.array(list(block.values())), image.shape, half + 1).all():
+            continue
+        block = dict(zip(block, _refine(image, np.array(list(block.values())), half)))
+        parities = _parities(image, block, min_contrast)
+        if (all(_is_x_corner(image, p, 0.35 * unit, min_contrast) for p in block.values())
+                and len(set(parities)) == 1 and parities[0] != 0):
+            return block
+    return None
+
+
+def _grow(image: np.ndarray, grid: Grid, half: int, min_contrast: float) -> Grid:
+    """Add corners beyond the grid's edges until none passes the checks (see module docstring)."""
+    votes = [s for s in _parities(image, grid, min_contrast) if s]
+    if not votes:
+        return grid
+    sign = 1 if sum(votes) > 0 else -1
+    grid = dict(grid)
+    fresh = set(grid)
+    directions = ((1, 0), (-1, 0), (0, 1), (0, -1))
+    while fresh:
+        near = fresh | {(i + d[0], j + d[1]) for i, j in fresh for d in directions}
+        candidates: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        for i, j in near & grid.keys():
+            p0 = grid[(i, j)]
+            for d in directions:
+                new, back1, back2 = (i + d[0], j + d[1]), (i - d[0], j - d[1]), (i - 2 * d[0], j - 2 * d[1])
+                across = _step(grid, (i, j), 1 if d[0] else 0)
+                if new in grid or new in candidates or back1 not in grid or across is None:
+                    continue
+                p1 = grid[back1]
+                pred = 3 * p0 - 3 * p1 + grid[back2] if back2 in grid else 2 * p0 - p1
+                along = (p0 - p1) * (d[0] + d[1])
+                candidates[new] = (pred, *((along, across) if d[0] else (across, along)))
+        keys = [k for k, c in candidates.items() if _inside(c[0], image.shape, half + 1)[0]]
+        fresh = set()
+        if not keys:
+            break
+        for k, p in zip(keys, _refine(image, np.array([candidates[k][0] for k in keys]), half)):
+            pred, a, b = candidates[k]
+            tile = min(np.linalg.norm(a), np.linalg.norm(b))
+            if (np.linalg.norm(p - pred) < _GROW_TOLERANCE_TILES * tile and _inside(p, image.shape, half + 1)[0]
+                    and _saddle(image, p, a, b, min_contrast) == sign * (-1) ** (k[0] + k[1])):
+                grid[k] = p
+                fresh.add(k)
+    return grid
+
+
+def _median_spacing(uv: np.ndarray, ij: np.ndarray) -> tuple[float, float]:
+    """Median spacing of neighbouring corners along i (in u) and along j (in v)."""
+    index = {tuple(k): n for n, k in enumerate(ij.tolist())}
+    du = [uv[n, 0] - uv[index[(i - 1, j)], 0] for (i, j), n in index.items() if (i - 1, j) in index]
+    dv = [uv[n, 1] - uv[index[(i, j - 1)], 1] for (i, j), n in index.items() if (i, j - 1) in index]
+    return float(np.median(du)), float(np.median(dv))
+
+
+def detect_corners(image: np.ndarray, pattern: tuple[int, int] | None = None) -> Corners:
+    """Inner checkerboard corners of an intensity image (thesis 5.2.1, improved per 6.4.2).
+
+    ``pattern`` = (columns, rows) of inner corners of a board wholly in view
+    selects OpenCV's classic detector first; otherwise, or when it fails, the
+    sector-based detector (NORMALIZE_IMAGE, EXHAUSTIVE, ACCURACY, LARGER)
+    seeds the grid. Corners are refined with ``cornerSubPix`` (half-window
+    below half a tile) and the grid is grown to the image border. NaN pixels
+    count as dark. Raises ValueError when no board of at least
+    ``MIN_CORNERS`` corners (three per row and column) is found.
+    """
+    image = np.asarray(image, dtype=float)
+    if image.ndim != 2:
+        raise ValueError(f"intensity image must be 2-D, got shape {image.shape}")
+    finite = np.isfinite(image)
+    if not finite.any():
+        raise ValueError("intensity image has no finite pixels")
+    work = _normalized(np.where(finite, image, np.min(image[finite])))
+    img8 = np.round(work).astype(np.uint8)
+    min_contrast = _MIN_SADDLE_CONTRAST * 255
+    grid, detector = (_classic(img8, pattern), "classic") if pattern else (None, "")
+    if grid is None:
+        grid, detector = _sector_based(img8), "sector-based"
+        grid = _seed(work, grid, min_contrast) if grid is not None else None
+    if grid is None:
+        raise ValueError("no checkerboard found in the intensity image")
+    ij = np.array(list(grid), dtype=int)
+    half = _half_window(min(np.abs(_median_spacing(np.array(list(grid.values())), ij))))
+    keys = [k for k in grid if _inside(grid[k], image.shape, half + 1)[0]]
+    if keys:
+        grid = dict(zip(keys, _refine(work, np.array([grid[k] for k in keys]), half)))
+        grid = _grow(work, grid, half, min_contrast)
+    ij = np.array(list(grid), dtype=int).reshape(-1, 2)
+    uv = np.array(list(grid.values())).reshape(-1, 2)
+    if len(uv) < MIN_CORNERS or min(np.ptp(ij[:, 0]), np.ptp(ij[:, 1])) < 2:
+        raise ValueError("no checkerboard found in the intensity image")
+    centre = np.array([(image.shape[1] - 1) / 2, (image.shape[0] - 1) / 2])
+    ij = ij - ij[np.argmin(np.linalg.norm(uv - centre, axis=1))]
+    return Corners(uv, ij, (image.shape[0], image.shape[1]), detector, _median_spacing(uv, ij))
+
+
+# --------------------------------------------------------------------------------------- distortion
+@dataclass(frozen=True)
+class DistortionResult:
+    """Distortion of the intensity image (percentages of the image width w and height h).
+
+    ``raw_*``: found - expected grid of the given FOV (EBU Tech 3249-E, thesis
+    Table 6-5), signed max and median of |.|; ``radial_*``: found - fitted
+    linear grid, the radial part; ``fov_estimate_deg``: effective [h, v] FOV
+    from the fitted scale (cf. eq. 6-1); ``linear_scale``: fitted / expected
+    corner spacing per axis; ``k1``: eq. 5-5 with R = half the image diagonal.
+    Arrays (N, 2) in pixels, row n for corner ``ij[n]``.
+    """
+
+    raw_distortion_w_pct: float
+    raw_distortion_h_pct: float
+    raw_median_w_pct: float
+    raw_median_h_pct: float
+    radial_distortion_w_pct: float
+    radial_distortion_h_pct: float
+    radial_median_w_pct: float
+    radial_median_h_pct: float
+    fov_estimate_deg: tuple[float, float]
+    k1: float
+    linear_scale: tuple[float, float]
+    rotation_deg: float
+    fit_rms_px: float
+    n_corners: int
+    ij: np.ndarray
+    found: np.ndarray
+    expected: np.ndarray
+    fitted_linear: np.ndarray
+    warnings: tuple[str, ...]
+
+
+def _signed_max_pct(dev: np.ndarray, outward: np.ndarray, length: float) -> tuple[float, float]:
+    """(signed max, median) of |dev| in % of ``length``; positive when the largest lies outwards."""
+    k = int(np.argmax(np.abs(dev)))
+    sign = 1.0 if dev[k] * outward[k] >= 0 else -1.0
+    return sign * 100.0 * abs(float(dev[k])) / length, 100.0 * float(np.median(np.abs(dev))) / length
+
+
+def _model(params: np.ndarray, ij: np.ndarray, centre: np.ndarray, big_r: float,
+           radial: bool = True) -> np.ndarray:
+    """Corner positions of a board at offset (a, b), scale (sx, sy) px per tile, rotation t, radial k1."""
+    a, b, sx, sy, t, k1 = params
+    c, s = math.cos(t), math.sin(t)
+    du = a + sx * (c * ij[:, 0] - s * ij[:, 1])
+    dv = b + sy * (s * ij[:, 0] + c * ij[:, 1])
+    scale = 1.0 + k1 * (du**2 + dv**2) / big_r**2 if radial else 1.0
+    return centre + np.column_stack([du * scale, dv * scale])
+
+
+def _fit(found: np.ndarray, ij: np.ndarray, centre: np.ndarray, big_r: float,
+         spacing: tuple[float, float]) -> np.ndarray:
+    """Least squares (soft-L1 beyond 1 px, so a few bad corners do not pull the fit)."""
+    origin = found[np.flatnonzero((ij == 0).all(axis=1))[0]] - centre
+    start = np.array([origin[0], origin[1], spacing[0], spacing[1], 0.0, 0.0])
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        return (_model(p, ij, centre, big_r) - found).ravel()
+
+    return optimize.least_squares(residual, start, loss="soft_l1", f_scale=1.0, x_scale="jac").x
+
+
+def distortion(corners: Corners, tile_mm: float, distance_mm: float,
+               fov_deg: tuple[float, float]) -> DistortionResult:
+    """Distortion of the intensity image from its checkerboard corners (SPEC §5, thesis 5.2.1, 6.4).
+
+    ``distance_mm``: camera - board distance; ``fov_deg``: the given
+    (datasheet) [h, v] field of view. The principal point and the centre of
+    radial distortion are taken at the image centre ((W-1)/2, (H-1)/2).
+    """
+    if tile_mm <= 0 or distance_mm <= 0:
+        raise ValueError("tile size and distance must be positive")
+    if not all(0 < f < 180 for f in fov_deg):
+        raise ValueError(f"FOV must lie in (0, 180) deg, got {list(fov_deg)}")
+    height, width = corners.image_shape
+    pin = Pinhole(width, height, *fov_deg)
+    spacing = (tile_mm * pin.fx / distance_mm, tile_mm * pin.fy / distance_mm)
+    centre = np.array([pin.cx, pin.cy])
+    big_r = math.hypot(width, height) / 2
+    found, ij = corners.uv, corners.ij
+    origin = corners.centre_uv
+    expected = origin + ij * np.array(spacing)
+    raw = found - expected
+    raw_w = _signed_max_pct(raw[:, 0], expected[:, 0] - origin[0], width)
+    raw_h = _signed_max_pct(raw[:, 1], expected[:, 1] - origin[1], height)
+
+    params = _fit(found, ij, centre, big_r, spacing)
+    linear = _model(params, ij, centre, big_r, radial=False)
+    radial = found - linear
+    rad_w = _signed_max_pct(radial[:, 0], linear[:, 0] - centre[0], width)
+    rad_h = _signed_max_pct(radial[:, 1], linear[:, 1] - centre[1], height)
+    rms = float(np.sqrt(np.mean(np.sum((_model(params, ij, centre, big_r) - found) ** 2, axis=1))))
+    sx, sy = abs(params[2]), abs(params[3])
+    fov = (2 * math.degrees(math.atan(width / 2 / (sx * distance_mm / tile_mm))),
+           2 * math.degrees(math.atan(height / 2 / (sy * distance_mm / tile_mm))))
+
+    warnings = []
+    extent = (np.ptp(found[:, 0]) / width, np.ptp(found[:, 1]) / height)
+    if min(extent) < 0.8:
+        warnings.append(f"corners cover only {100 * extent[0]:.0f} % x {100 * extent[1]:.0f} % of the image; "
+                        "the distortion at its border is not measured")
+    if rms > 0.5:
+        warnings.append(f"residual of the radial model is {rms:.2f} px rms: tilted board, tangential "
+                        "distortion or misplaced corners")
+    if max(abs(fov[0] - fov_deg[0]), abs(fov[1] - fov_deg[1])) > 1.0:
+        warnings.append(f"the corners imply a FOV of {fov[0]:.1f} x {fov[1]:.1f} deg, not the given "
+                        f"{fov_deg[0]:g} x {fov_deg[1]:g} deg (or the distance is off)")
+    return DistortionResult(
+        raw_distortion_w_pct=raw_w[0], raw_distortion_h_pct=raw_h[0],
+        raw_median_w_pct=raw_w[1], raw_median_h_pct=raw_h[1],
+        radial_distortion_w_pct=rad_w[0], radial_distortion_h_pct=rad_h[0],
+        radial_median_w_pct=rad_w[1], radial_median_h_pct=rad_h[1],
+        fov_estimate_deg=fov, k1=float(params[5]), linear_scale=(sx / spacing[0], sy / spacing[1]),
+        rotation_deg=math.degrees(params[4]), fit_rms_px=rms, n_corners=len(found), ij=ij,
+        found=found, expected=expected, fitted_linear=linear, warnings=tuple(warnings),
+    )
+
+
+# -------------------------------------------------------------------------------------- point cloud
+def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear (N, 3) samples of an organized (H, W, 3) cloud at sub-pixel (u, v) (not rounded, cf.
+    thesis 5.2.2); NaN where one of the four neighbouring points is invalid (any NaN) or outside."""
+    cloud = np.asarray(cloud, dtype=float)
+    cloud = np.where(np.isfinite(cloud).all(axis=2, keepdims=True), cloud, np.nan)
+    uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+    h, w = cloud.shape[:2]
+    u0, v0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+    u0, v0 = np.where(u0 == w - 1, w - 2, u0), np.where(v0 == h - 1, h - 2, v0)  # the last row / column
+    ok = (u0 >= 0) & (v0 >= 0) & (u0 + 1 <= w - 1) & (v0 + 1 <= h - 1) & np.isfinite(uv).all(axis=1)
+    ok &= (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
+    u0, v0 = np.where(ok, u0, 0), np.where(ok, v0, 0)
+    fu, fv = (uv[:, 0] - u0)[:, None], (uv[:, 1] - v0)[:, None]
+    out = ((1 - fu) * (1 - fv) * cloud[v0, u0] + fu * (1 - fv) * cloud[v0, u0 + 1]
+           + (1 - fu) * fv * cloud[v0 + 1, u0] + fu * fv * cloud[v0 + 1, u0 + 1])
+    out[~ok] = np.nan
+    return out
+
+
+@dataclass(frozen=True)
+class CloudDistortion:
+    """Distortion of the point cloud at the checkerboard corners (thesis 5.2.1, Table 6-5 row 3).
+
+    ``distortion_*_pct``: signed max |found - expected| in % of ``extent_mm``
+    (the lateral extent of the view at the centre corner's depth,
+    2 z tan(FOV/2)); ``median_*_pct`` the median of |.|. Arrays (M, 2) in mm
+    for the M corners valid in the cloud, row n for corner ``ij[n]``.
+    """
+
+    distortion_w_pct: float
+    distortion_h_pct: float
+    median_w_pct: float
+    median_h_pct: float
+    extent_mm: tuple[float, float]
+    centre_z_mm: float
+    n_corners: int
+    ij: np.ndarray
+    found: np.ndarray
+    expected: np.ndarray
+    warnings: tuple[str, ...]
+
+
+def cloud_distortion(cloud: np.ndarray, corners: Corners, tile_mm: float,
+                     fov_deg: tuple[float, float]) -> CloudDistortion:
+    """Distortion of an organized (H, W, 3) cloud in mm (NaN invalid) at the image's corners.
+
+    The expected grid has the tile size in mm and is centred on the valid
+    corner nearest the image centre; its axes follow the cloud's (x along i,
+    y along j, each with the sign the cloud shows).
+    """
+    cloud = np.asarray(cloud, dtype=float)
+    if cloud.ndim != 3 or cloud.shape[2] != 3 or cloud.shape[:2] != corners.image_shape:
+        raise ValueError(f"cloud must be H x W x 3 = {corners.image_shape[0]} x {corners.image_shape[1]} x 3, "
+                         f"got shape {cloud.shape}")
+    xyz = sample_cloud(cloud, corners.uv)
+    ok = np.isfinite(xyz).all(axis=1)
+    if np.count_nonzero(ok) < MIN_CORNERS:
+        raise ValueError(f"only {np.count_nonzero(ok)} corners have valid cloud points")
+    xyz, ij, uv = xyz[ok], corners.ij[ok], corners.uv[ok]
+    centre = np.array([(corners.image_shape[1] - 1) / 2, (corners.image_shape[0] - 1) / 2])
+    o = int(np.argmin(np.linalg.norm(uv - centre, axis=1)))
+    rel = ij - ij[o]
+    signs = np.array([_axis_sign(xyz[:, 0], rel[:, 0]), _axis_sign(xyz[:, 1], rel[:, 1])])
+    expected = xyz[o, :2] + rel * signs * tile_mm
+    dev = xyz[:, :2] - expected
+    z = float(xyz[o, 2])
+    extent = (2 * z * math.tan(math.radians(fov_deg[0]) / 2), 2 * z * math.tan(math.radians(fov_deg[1]) / 2))
+    w = _signed_max_pct(dev[:, 0], expected[:, 0] - xyz[o, 0], extent[0])
+    h = _signed_max_pct(dev[:, 1], expected[:, 1] - xyz[o, 1], extent[1])
+    warnings = []
+    if not ok.all():
+        warnings.append(f"{np.count_nonzero(~ok)} of {len(ok)} corners have no valid cloud point")
+    return CloudDistortion(w[0], h[0], w[1], h[1], extent, z, len(xyz), ij, xyz[:, :2], expected, tuple(warnings))
+
+
+def _axis_sign(coord: np.ndarray, index: np.ndarray) -> float:
+    """+1 if the cloud coordinate grows with the grid index, -1 if it falls."""
+    slope = np.polyfit(index, coord, 1)[0] if np.ptp(index) > 0 else 1.0
+    return 1.0 if slope >= 0 else -1.0

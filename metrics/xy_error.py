@@ -1,0 +1,100 @@
+"""Measurement error in x and y (thesis 5.3, 6.4 Table 6-6; SPEC §6; ISO 5725-2 terms).
+
+Systematic error on the checkerboard (the distortion target, thesis 5.3):
+the corners found in the intensity image are read bilinearly at their
+sub-pixel positions from the cloud, and the spacing of neighbouring corners is
+compared to the tile size,
+
+    e_x = |x(i+1, j) - x(i, j)| - tile,   e_y = |y(i, j+1) - y(i, j)| - tile,
+
+so a scale error of the cloud shows directly, and the board's position does
+not matter. Trueness uses the cloud of the stack mean, accuracy a single
+frame; each reports the 90 % quantile of |e| and the signed median (thesis
+Table 6-6).
+
+Statistical error on the white wall (thesis 5.3, Fig. 5-12): the per-pixel
+standard deviation of x and y over a stack; repeatability is the centre
+pixel's (the caller takes the maximum over the distance sweep), precision the
+90 % quantile over the valid pixels (reported at 2000 mm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from metrics.depth import center_pixel, median_q90_abs
+from metrics.distortion import Corners, sample_cloud
+from metrics.stack import stack_stats
+
+
+@dataclass(frozen=True)
+class SpacingErrors:
+    """Neighbour-spacing errors e_x, e_y in mm (see module docstring) and their summary."""
+
+    x_q90_mm: float
+    x_median_mm: float
+    y_q90_mm: float
+    y_median_mm: float
+    x_errors: np.ndarray
+    y_errors: np.ndarray
+
+
+@dataclass(frozen=True)
+class XYErrors:
+    """Trueness (stack mean) and accuracy (one frame) of x and y on the checkerboard."""
+
+    trueness: SpacingErrors
+    accuracy: SpacingErrors
+
+
+@dataclass(frozen=True)
+class XYPrecision:
+    """Per-pixel std of x and y over a wall stack: centre pixel, median and Q90 over valid pixels."""
+
+    repeatability_center_x_mm: float
+    repeatability_center_y_mm: float
+    precision_median_x_mm: float
+    precision_median_y_mm: float
+    precision_q90_x_mm: float
+    precision_q90_y_mm: float
+    invalid_fraction: float
+
+
+def _summary(errors: np.ndarray) -> tuple[float, float]:
+    q90 = median_q90_abs(errors, (0.9,))[0]
+    return q90, float(np.median(errors)) if errors.size else float("nan")
+
+
+def spacing_errors(cloud: np.ndarray, corners: Corners, tile_mm: float) -> SpacingErrors:
+    """e_x, e_y of every pair of neighbouring corners valid in an organized (H, W, 3) cloud (mm, NaN invalid)."""
+    cloud = np.asarray(cloud, dtype=float)
+    if cloud.ndim != 3 or cloud.shape[2] != 3 or cloud.shape[:2] != corners.image_shape:
+        raise ValueError(f"cloud must be H x W x 3 = {corners.image_shape[0]} x {corners.image_shape[1]} x 3, "
+                         f"got shape {cloud.shape}")
+    xyz = sample_cloud(cloud, corners.uv)
+    index = {(int(i), int(j)): n for n, (i, j) in enumerate(corners.ij)}
+    pairs_x = np.array([(n, index[(i + 1, j)]) for (i, j), n in index.items() if (i + 1, j) in index]).reshape(-1, 2)
+    pairs_y = np.array([(n, index[(i, j + 1)]) for (i, j), n in index.items() if (i, j + 1) in index]).reshape(-1, 2)
+    ex = np.abs(xyz[pairs_x[:, 1], 0] - xyz[pairs_x[:, 0], 0]) - tile_mm
+    ey = np.abs(xyz[pairs_y[:, 1], 1] - xyz[pairs_y[:, 0], 1]) - tile_mm
+    ex, ey = ex[np.isfinite(ex)], ey[np.isfinite(ey)]
+    (xq, xm), (yq, ym) = _summary(ex), _summary(ey)
+    return SpacingErrors(xq, xm, yq, ym, ex, ey)
+
+
+def xy_errors(mean_cloud: np.ndarray, frame_cloud: np.ndarray, corners: Corners, tile_mm: float) -> XYErrors:
+    """Trueness from the stack-mean cloud, accuracy from one frame's cloud, at the same corners
+    (found in the stack-mean intensity image)."""
+    return XYErrors(spacing_errors(mean_cloud, corners, tile_mm), spacing_errors(frame_cloud, corners, tile_mm))
+
+
+def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray) -> XYPrecision:
+    """Repeatability (centre pixel) and precision (median, Q90) of x and y over an (N, H, W) wall stack."""
+    sx, sy = stack_stats(np.asarray(x_stack)), stack_stats(np.asarray(y_stack))
+    centre = center_pixel(sx.std.shape)
+    mx, qx = median_q90_abs(sx.std)
+    my, qy = median_q90_abs(sy.std)
+    invalid = float(np.mean(~(sx.valid & sy.valid)))
+    return XYPrecision(float(sx.std[centre]), float(sy.std[centre]), mx, my, qx, qy, invalid)
