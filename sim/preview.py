@@ -57,8 +57,7 @@ def _show(ax: Any, image: np.ndarray, title: str, cmap: str) -> None:
     finite = image[np.isfinite(image)]
     lo, hi = (np.quantile(finite, [0.01, 0.99]) if finite.size else (0.0, 1.0))
     masked = np.ma.masked_invalid(image)
-    colormap = matplotlib.colormaps[cmap].copy()
-    colormap.set_bad("white")
+    colormap = matplotlib.colormaps[cmap].with_extremes(bad="white")
     im = ax.imshow(masked, cmap=colormap, vmin=lo, vmax=hi if hi > lo else lo + 1, interpolation="nearest")
     ax.set_title(title, fontsize=9)
     ax.set_xticks([])

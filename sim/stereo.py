@@ -31,7 +31,7 @@ from sim.geometry import Pose
 from sim.kernels import stereo_frame
 from sim.noise import NoiseBank, make_bank
 from sim.profiles import CameraProfile
-from sim.render import centre_distance_mm, render
+from sim.render import Rendered, centre_distance_mm, render
 from sim.scenes.base import Scene
 from sim.sensor import SensorOptics
 from sim.tof import IRRADIANCE_REF, REFERENCE_RANGE_MM, surface_properties
@@ -81,10 +81,16 @@ class StereoSensor:
         self.subpixel_noise_px = profile.noise_mm_at_2m * self.focal_baseline / REFERENCE_RANGE_MM**2
         self.dots = dot_pattern(profile.height, profile.width)
 
-    def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int,
-                projector: bool = True) -> StereoPrepared:
+    def render_scene(self, scene: Scene, pose: Pose) -> tuple[Rendered, np.ndarray]:
+        """The left camera's render and where the right camera sees the same points (the geometric part)."""
+        left = render(scene, pose, self.geometry.optics, surface_properties(scene, {}))
+        return left, self._visible_from_right(scene, pose, left.z_dom)
+
+    def expected(self, rendered: tuple[Rendered, np.ndarray], exposure_us: float,
+                 projector: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Noise-free depth (mm, NaN where matching fails), validity, left IR image and disparity noise (px)."""
         p, fx, geo = self.profile, self.effects, self.geometry
-        left = render(scene, pose, geo.optics, surface_properties(scene, {}))
+        left, visible = rendered
         focus_distance_mm = centre_distance_mm(left)
         gain = exposure_us / p.exposure_us
         light = AMBIENT_LEVEL * left.passive
@@ -100,18 +106,21 @@ class StereoSensor:
         if "range_offset" in fx:
             z = range_offset.apply(z, fx["range_offset"])
         textured = local_contrast(ir) >= p.texture_threshold
-        visible = self._visible_from_right(scene, pose, left.z_dom)
         in_range = (left.hit_fraction > 0) & (z >= p.min_range_mm) & (z <= p.max_range_mm)
         valid = in_range & textured & visible & np.isfinite(z)
-        safe_z = np.where(valid, z, 1.0)
         theta = np.arccos(np.clip(left.cos_dom, 1e-6, 1.0))
         angle_term = 1.0 + p.angle_noise_gain * theta**2 / np.maximum(math.pi / 2 - theta, 1e-3) ** 2
+        return np.where(valid, z, np.nan), valid, ir, self.subpixel_noise_px * angle_term
+
+    def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int,
+                projector: bool = True) -> StereoPrepared:
+        z, valid, ir, sigma_disp = self.expected(self.render_scene(scene, pose), exposure_us, projector)
         return StereoPrepared(
-            disparity=(self.focal_baseline / safe_z).astype(np.float32),
-            sigma_disp=(self.subpixel_noise_px * angle_term).astype(np.float32),
+            disparity=(self.focal_baseline / np.where(valid, z, 1.0)).astype(np.float32),
+            sigma_disp=sigma_disp.astype(np.float32),
             valid=valid,
             ir=ir.astype(np.float32),
-            bank=make_bank(seed, p.width * p.height, 2),
+            bank=make_bank(seed, self.profile.width * self.profile.height, 2),
             seed=seed,
             step_index=step_index,
         )

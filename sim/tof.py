@@ -36,7 +36,7 @@ from sim.kernels import tof_frame
 from sim.materials import get_material
 from sim.noise import NoiseBank, make_bank
 from sim.profiles import CameraProfile
-from sim.render import C_MM_PER_S, SurfaceProperties, centre_distance_mm, render
+from sim.render import C_MM_PER_S, Rendered, SurfaceProperties, centre_distance_mm, render
 from sim.scenes.base import Scene
 from sim.sensor import SensorOptics
 
@@ -100,11 +100,16 @@ class ToFSensor:
         self.a_ref = reference_amplitude(profile)
         self.wavenumber = 4.0 * math.pi * profile.modulation_mhz * 1e6 / C_MM_PER_S
 
-    def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int) -> ToFPrepared:
-        p, fx = self.profile, self.effects
+    def render_scene(self, scene: Scene, pose: Pose) -> Rendered:
+        """The ray-cast light of a scene through this camera's optics (the expensive, geometric part)."""
+        fx = self.effects
         mixing = "flying_pixels" in fx or "multipath" in fx
-        r = render(scene, pose, self.geometry.optics, surface_properties(scene, fx),
-                   modulation_mhz=p.modulation_mhz if mixing else None)
+        return render(scene, pose, self.geometry.optics, surface_properties(scene, fx),
+                      modulation_mhz=self.profile.modulation_mhz if mixing else None)
+
+    def expected(self, r: Rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render."""
+        p, fx = self.profile, self.effects
         focus_distance_mm = centre_distance_mm(r)
         gain = exposure_us / p.exposure_us
         scale = self.a_ref * gain / IRRADIANCE_REF
@@ -118,14 +123,17 @@ class ToFSensor:
             else:  # the dominant surface alone
                 phasor = amplitude * np.exp(1j * self.wavenumber * np.nan_to_num(r.range_dom))
         range_mm = self._measured_range(r.range_dom, phasor, light)
-        ambient = p.ambient_ratio * self.a_ref * gain
         in_range = (r.hit_fraction > 0) & (range_mm >= p.min_range_mm) & (range_mm <= p.max_range_mm)
-        amplitude = np.where(in_range & np.isfinite(range_mm), amplitude, 0.0)
+        valid = in_range & np.isfinite(range_mm)
+        return np.where(valid, range_mm, np.nan), np.where(valid, amplitude, 0.0), p.ambient_ratio * self.a_ref * gain
+
+    def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int) -> ToFPrepared:
+        range_mm, amplitude, ambient = self.expected(self.render_scene(scene, pose), exposure_us)
         return ToFPrepared(
             range_mm=np.nan_to_num(range_mm, nan=0.0).astype(np.float32),
             amplitude=amplitude.astype(np.float32),
             ambient=ambient,
-            bank=make_bank(seed, p.width * p.height, 2),
+            bank=make_bank(seed, self.profile.width * self.profile.height, 2),
             seed=seed,
             step_index=step_index,
         )
