@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from labctl import cli_analyze, cli_devices, cli_sim
+from labctl import cli_analyze, cli_devices, cli_export, cli_sim
 from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
@@ -57,6 +57,7 @@ def plan(campaign: Path, as_json: bool) -> None:
                     "procedure": p.step.procedure,
                     "target": p.step.target,
                     "distance_mm": p.step.distance_mm,
+                    "distance_from": p.step.distance_from,
                     "stage_position_mm": p.stage_position_mm,
                     "robot_angle_deg": p.step.robot_angle_deg,
                     "frames": p.step.frames,
@@ -74,7 +75,7 @@ def plan(campaign: Path, as_json: bool) -> None:
     click.echo(f"{'step':<24} {'target':<12} {'distance':>9} {'angle':>6} {'frames':>6} {'start':>12} {'duration':>10}")
     for p in planned:
         s = p.step
-        dist = f"{s.distance_mm:g}" if s.distance_mm is not None else "-"
+        dist = f"{s.distance_mm:g}" if s.distance_mm is not None else ("focus" if s.distance_from else "-")
         angle = f"{s.robot_angle_deg:g}" if s.robot_angle_deg is not None else "-"
         click.echo(
             f"{s.step_id:<24} {s.target:<12} {dist:>9} {angle:>6} {s.frames:>6} "
@@ -190,11 +191,22 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     click.echo(f"report: {report}")
 
 
+@cli.command()
+@click.argument("evaluations", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+def compare(evaluations: Sequence[Path], output: Path) -> None:
+    """Compare cameras side by side from EVALUATIONS (output directories of 'labctl evaluate')."""
+    from labctl.compare import compare as write_comparison
+
+    click.echo(f"comparison: {write_comparison(list(evaluations), output)}")
+
+
 # ---------------------------------------------------------------------- device, devices, sim, analyze
 cli.add_command(cli_devices.device)
 cli.add_command(cli_devices.devices)
 cli.add_command(cli_sim.sim_group)
 cli.add_command(cli_analyze.analyze_group)
+cli.add_command(cli_export.export)
 
 
 # ---------------------------------------------------------------------- entry point

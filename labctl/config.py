@@ -245,6 +245,36 @@ class Campaign(StrictModel):
                 )
         return self
 
+    @model_validator(mode="after")
+    def _robot_reaches_poses(self) -> Campaign:
+        """Every planned robot pose inside the robot's angle and radius limits, before anything moves."""
+        robot = self.devices.robot
+        for i, proc in enumerate(self.procedure):
+            poses = proc.robot_positions() if hasattr(proc, "robot_positions") else []
+            if poses and robot is None:
+                raise ValueError(f"procedure[{i}] ({proc.kind}) moves the robot but [devices.robot] is missing")
+            for angle, radius in poses:
+                lo, hi = robot.angle_limits_deg
+                if not lo <= angle <= hi:
+                    raise ValueError(f"procedure[{i}] ({proc.kind}): angle {angle:g} deg outside "
+                                     f"devices.robot.angle_limits_deg [{lo:g}, {hi:g}]")
+                if radius > robot.radius_max_mm:
+                    raise ValueError(f"procedure[{i}] ({proc.kind}): radius {radius:g} mm beyond "
+                                     f"devices.robot.radius_max_mm {robot.radius_max_mm:g}")
+        return self
+
+    @model_validator(mode="after")
+    def _best_focus_after_slanted_edge(self) -> Campaign:
+        seen = False
+        for i, proc in enumerate(self.procedure):
+            seen = seen or proc.kind == "slanted_edge"
+            if getattr(proc, "distance_mm", None) == "best_focus" and not seen:
+                raise ValueError(
+                    f"procedure[{i}] ({proc.kind}) takes distance_mm = \"best_focus\" from an earlier slanted_edge: "
+                    "put a slanted_edge before it or give distance_mm in mm"
+                )
+        return self
+
     def steps(self) -> list[Step]:
         """The whole plan, steps numbered in execution order."""
         steps: list[Step] = []

@@ -27,6 +27,7 @@ from metrics.sharpness import (
     ied_pixels,
     imagery_resolution_deg,
     lateral_mm,
+    nearest_sharp_distance,
 )
 from metrics.stack import stack_stats
 from sim.optics import sensor_angular_resolution_deg
@@ -151,6 +152,14 @@ def _summarize(result: SharpnessResult) -> None:
     )
     if math.isfinite(result.hyperfocal_mm):
         result.ied_px = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
+
+
+def target_distance(result: SharpnessResult) -> float:
+    """Where a sharp target goes: the nearest distance within 5 % of the best SFR area (thesis 5.2.1)."""
+    d, area_h, ok_h = result.series("horizontal", "sfr_area")
+    _, area_v, ok_v = result.series("vertical", "sfr_area")
+    both = ok_h & ok_v
+    return nearest_sharp_distance(d, np.where(both, (area_h + area_v) / 2, np.nan), both)
 
 
 def resolution_table(result: SharpnessResult) -> list[dict[str, float | str]]:

@@ -14,12 +14,18 @@ from pathlib import Path
 from typing import Any
 
 from labctl.errors import InputError
+from labctl.eval_geometry import GeometryResult, evaluate_geometry
+from labctl.eval_geometry import figure_values as geometry_figures
+from labctl.eval_remission import RemissionResult, evaluate_remission
+from labctl.eval_remission import figure_values as remission_figures
+from labctl.eval_scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
 from labctl.eval_sharpness import SharpnessResult, evaluate_slanted_edge
 from labctl.keyfigures import FigureValue
 from labctl.store import RunReader, StepRecord
 from metrics.depth import DepthErrors, depth_errors
 from metrics.stack import stack_stats
 from metrics.surface import SurfaceTexture, surface_texture
+from sim.optics import pixel_aspect_distortion_pct
 
 #: distance at which the single-position key figures are taken (CONTRACTS §7)
 KEY_DISTANCE_MM = 2000.0
@@ -47,6 +53,10 @@ class Evaluation:
     depth: list[DepthPosition] = field(default_factory=list)
     surface: SurfaceResult | None = None
     sharpness: SharpnessResult | None = None
+    geometry: GeometryResult | None = None
+    remission: RemissionResult | None = None
+    face: FaceMaskResult | None = None
+    alignment: AlignmentRecord | None = None
     figures: dict[str, FigureValue] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
@@ -172,6 +182,10 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
                     f"{readers[0].path} from {camera['model']} {camera['serial']}: evaluate one camera at a time"
                 )
         evaluation = Evaluation(runs=[str(r.path) for r in readers], camera=camera)
+        cam = readers[0].camera
+        evaluation.figures["pixel_aspect_distortion_pct"] = FigureValue(
+            pixel_aspect_distortion_pct(cam.fov_deg[0], cam.fov_deg[1], cam.width, cam.height), []
+        )
         for reader in readers:
             if reader.attrs.get("status") != "complete":
                 evaluation.notes.append(f"{reader.path} is {reader.attrs.get('status')}: only its complete steps are used")
@@ -183,6 +197,25 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         edges = [s for r in readers for s in r.steps("slanted_edge")]
         if edges:
             evaluate_sharpness(edges, readers[0], evaluation, progress)
+        geometric = [s for r in readers for s in r.steps()
+                     if s.attrs.get("procedure") in ("checkerboard", "boehler_star", "xy_sweep", "depth_sweep")]
+        if geometric:
+            evaluation.geometry = evaluate_geometry(geometric, readers[0].camera, progress)
+            evaluation.notes.extend(evaluation.geometry.notes)
+            for name, (value, source) in geometry_figures(evaluation.geometry).items():
+                evaluation.figures[name] = FigureValue(value, source)
+        plates = [s for r in readers for s in r.steps("remission_angle")]
+        if plates:
+            evaluation.remission = evaluate_remission(plates, readers[0].camera, progress)
+            if evaluation.remission is not None:
+                evaluation.notes.extend(evaluation.remission.notes)
+                evaluation.figures.update(remission_figures(evaluation.remission))
+        masks = [s for r in readers for s in r.steps("face_mask")]
+        if masks:
+            progress(f"{masks[-1].step_id} face mask")
+            evaluation.face = face_mask(masks[-1])
+        aligned = [a for a in (alignment(s) for r in readers for s in r.steps("alignment")) if a is not None]
+        evaluation.alignment = aligned[-1] if aligned else None
         return evaluation
     finally:
         for reader in readers:

@@ -25,3 +25,18 @@ class Operator:
             raise RuntimeError(f"operator action needed but no terminal to ask: {message}")
         self.report(f"OPERATOR: {message}")
         input("Press Enter when done (Ctrl-C aborts safely) ")
+
+    def choose(self, question: str, options: list[str]) -> str:
+        """Ask the operator to pick one of ``options`` (a simulated operator takes the first)."""
+        if self.automatic:
+            self.report(f"operator (simulated): {question} -- {options[0]}")
+            return options[0]
+        if not sys.stdin.isatty():
+            raise RuntimeError(f"operator decision needed but no terminal to ask: {question}")
+        menu = ", ".join(f"{i + 1} = {o}" for i, o in enumerate(options))
+        while True:
+            answer = input(f"OPERATOR: {question} [{menu}] ").strip()
+            if answer in {str(i + 1) for i in range(len(options))}:
+                return options[int(answer) - 1]
+            if answer in options:
+                return answer

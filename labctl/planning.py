@@ -22,10 +22,20 @@ ROBOT_SETTLE_S = 1.0
 
 @dataclass(frozen=True)
 class PlannedStep:
+    """A step with its lab-time slot. Steps whose distance is resolved at run time
+    (``step.distance_from``) are timed at an estimate and have no stage position yet."""
+
     step: Step
     stage_position_mm: float | None
     start_s: float
     duration_s: float
+
+
+def estimated_distance_mm(campaign: Campaign, step: Step) -> float | None:
+    """The step's camera-wall distance, or for ``best_focus`` the profile's hyperfocal distance as an estimate."""
+    if step.distance_from is None:
+        return step.distance_mm
+    return get_profile(campaign.devices.camera.sim_profile).hyperfocal_mm + step.distance_offset_mm
 
 
 def nominal_frame_rate(campaign: Campaign) -> float:
@@ -46,10 +56,12 @@ def schedule(campaign: Campaign) -> list[PlannedStep]:
         if step.prompt:
             duration += campaign.runner.operator_time_s
         position = None
-        if step.distance_mm is not None and devices.stage is not None:
-            position = devices.stage.position_for_distance(step.distance_mm)
-            duration += abs(position - stage_pos) / devices.stage.speed_mm_s + devices.stage.settle_s
-            stage_pos = position
+        distance = estimated_distance_mm(campaign, step)
+        if distance is not None and devices.stage is not None:
+            estimate = devices.stage.position_for_distance(distance)
+            duration += abs(estimate - stage_pos) / devices.stage.speed_mm_s + devices.stage.settle_s
+            stage_pos = estimate
+            position = estimate if step.distance_from is None else None
         if step.robot_angle_deg is not None and devices.robot is not None:
             duration += abs(step.robot_angle_deg - angle) / devices.robot.speed_deg_s + ROBOT_SETTLE_S
             angle = step.robot_angle_deg

@@ -130,3 +130,43 @@ def plot_resolution(result: SharpnessResult, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def shaded_relief(cloud: np.ndarray) -> np.ndarray:
+    """Lambert shading (0..1) of an organized cloud from its grid normals, light from the upper left."""
+    dx = np.gradient(cloud, axis=1)
+    dy = np.gradient(cloud, axis=0)
+    normal = np.cross(dx, dy)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    normal *= -np.sign(normal[..., 2:3])  # towards the camera
+    light = np.array([-0.5, -0.5, -0.7])
+    light /= np.linalg.norm(light)
+    return np.clip(normal @ light, 0.0, 1.0)
+
+
+def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, title: str, path: Path) -> Path:
+    """The face mask as the camera sees it: shaded relief of the point cloud, depth and intensity (thesis 6.7)."""
+    z = cloud[..., 2]
+    finite = z[np.isfinite(z)]
+    if finite.size == 0:
+        raise ValueError("the face mask cloud has no valid point")
+    near = np.quantile(finite, 0.02)
+    mask = np.isfinite(z) & (z < near + 150.0)  # the mask and its surroundings, not the wall behind
+    rows, cols = np.where(mask)
+    crop = (slice(max(rows.min() - 10, 0), rows.max() + 11), slice(max(cols.min() - 10, 0), cols.max() + 11))
+    fig, axes = plt.subplots(1, 3, figsize=(13, 5))
+    axes[0].imshow(np.where(mask, shaded_relief(cloud), np.nan)[crop], cmap="gray", vmin=0, vmax=1)
+    axes[0].set_title("shaded point cloud")
+    im = axes[1].imshow(np.where(mask, z, np.nan)[crop], cmap="viridis_r")
+    axes[1].set_title("depth z (mm)")
+    fig.colorbar(im, ax=axes[1], shrink=0.8)
+    axes[2].imshow(intensity[crop], cmap="gray")
+    axes[2].set_title("intensity")
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -8,17 +8,17 @@ import math
 from pathlib import Path
 from typing import Any
 
+from labctl.eval_remission import misalignment_summary, remission_table
 from labctl.eval_sharpness import resolution_table
 from labctl.evaluate import Evaluation, depth_table
 from labctl.keyfigures import FIGURE_BY_NAME, clean, keyfigures_document
-from labctl.plots import plot_depth_curves, plot_resolution, plot_sharpness, plot_surface_maps
+from labctl.plot_boehler import plot_boehler
+from labctl.plot_distortion import plot_distortion
+from labctl.plot_remission import plot_misalignment_fit, plot_remission
+from labctl.plots import plot_depth_curves, plot_face_mask, plot_resolution, plot_sharpness, plot_surface_maps
+from labctl.pointcloud_io import write_pcd
 from labctl.store import labctl_version, now_iso
-
-SUITABILITY_PENDING = {
-    "evaluated": False,
-    "reason": "the suitability checks (SPEC 9) need radial distortion, imagery resolution and the hyperfocal "
-    "distance, which these runs do not provide",
-}
+from labctl.suitability import suitability
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1150px;color:#222}
@@ -42,16 +42,15 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     outdir.mkdir(parents=True, exist_ok=True)
     plots = outdir / "plots"
     plots.mkdir(exist_ok=True)
-    doc = keyfigures_document(evaluation.camera, evaluation.figures, SUITABILITY_PENDING)
+    values = {name: clean(f.value) for name, f in evaluation.figures.items()}
+    doc = keyfigures_document(evaluation.camera, evaluation.figures, suitability(values))
     doc["runs"] = evaluation.runs
     doc["notes"] = evaluation.notes
     doc["depth_sweep"] = _clean_rows(depth_table(evaluation))
     if evaluation.sharpness is not None:
         doc["slanted_edge"] = _clean_rows(resolution_table(evaluation.sharpness))
-    json_path = outdir / "keyfigures.json"
-    json_path.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
-    sections: list[str] = []
+    sections: list[str] = _alignment_section(evaluation)
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
         sections.append(_section("Depth error over distance (SPEC 1)", img, outdir, _depth_rows(evaluation)))
@@ -64,9 +63,107 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
         table = _rows_table(resolution_table(evaluation.sharpness), "step")
         sections.append(_section("Resolution of the intensity image (thesis 6.3.1)", img, outdir, table))
+    sections.extend(_geometry_sections(evaluation, outdir, plots, doc))
+    sections.extend(_remission_sections(evaluation, outdir, plots, doc))
+    if evaluation.face is not None:
+        face = evaluation.face
+        pcd = outdir / f"face_mask_{face.step_id}.pcd"
+        write_pcd(pcd, face.cloud, face.intensity)
+        img = plot_face_mask(face.cloud, face.intensity, f"Face mask at {face.distance_mm:.0f} mm ({face.step_id})",
+                             plots / "face_mask.png")
+        link = f'<p>Organized point cloud for CloudCompare / Open3D: <a href="{pcd.name}">{pcd.name}</a> ' \
+               f"({face.invalid_fraction:.1%} invalid points).</p>"
+        sections.append(_section("Face mask (SPEC 8, thesis 6.7)", img, outdir, link))
+        doc["face_mask"] = {"step": face.step_id, "pcd": pcd.name, "invalid_fraction": face.invalid_fraction}
+    json_path = outdir / "keyfigures.json"
+    json_path.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
     report = outdir / "report.html"
     report.write_text(_page(evaluation, doc, sections))
     return json_path, report
+
+
+def _alignment_section(evaluation: Evaluation) -> list[str]:
+    a = evaluation.alignment
+    if a is None:
+        return []
+    fields = ", ".join(f"{name.replace('_', ' ')} {xyz[2]:.1f} mm" for name, xyz in a.fields_mm.items())
+    return [f"<h2>Alignment (thesis 4.1.2)</h2><p>Accepted in {html.escape(a.step_id)}: corner fields {fields}; "
+            f"residual tilt {a.tilt_x_deg:+.3f} deg about x (up), {a.tilt_y_deg:+.3f} deg about y (right).</p>"]
+
+
+def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+    """Checkerboard distortion, Boehler star and x/y noise sections (SPEC 4-6)."""
+    geo = evaluation.geometry
+    sections: list[str] = []
+    if geo is None:
+        return sections
+    board = geo.checkerboard
+    if board is not None:
+        r = board.intensity
+        img = plot_distortion(board.image, r, plots / "distortion.png", cloud=board.cloud_distortion,
+                              title=f"Checkerboard at {board.distance_mm:.0f} mm ({board.step_id})")
+        rows = [
+            {"image": "intensity", "raw_w_pct": r.raw_distortion_w_pct, "raw_h_pct": r.raw_distortion_h_pct,
+             "radial_w_pct": r.radial_distortion_w_pct, "radial_h_pct": r.radial_distortion_h_pct,
+             "median_w_pct": r.radial_median_w_pct, "median_h_pct": r.radial_median_h_pct,
+             "fov_estimate_h_deg": r.fov_estimate_deg[0], "fov_estimate_v_deg": r.fov_estimate_deg[1], "k1": r.k1,
+             "corners": r.n_corners},
+        ]
+        if board.cloud_distortion is not None:
+            c = board.cloud_distortion
+            rows.append({"image": "point cloud", "raw_w_pct": c.distortion_w_pct, "raw_h_pct": c.distortion_h_pct,
+                         "radial_w_pct": c.distortion_w_pct, "radial_h_pct": c.distortion_h_pct,
+                         "median_w_pct": c.median_w_pct, "median_h_pct": c.median_h_pct,
+                         "fov_estimate_h_deg": math.nan, "fov_estimate_v_deg": math.nan, "k1": math.nan,
+                         "corners": c.n_corners})
+        doc["checkerboard"] = _clean_rows(rows)
+        sections.append(_section("Distortion (SPEC 5, EBU Tech 3249 / ISO 17850)", img, outdir, _rows_table(rows, "image")))
+    if geo.chosen_star is not None:
+        star = geo.chosen_star
+        img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
+        rows = [{"star": f"{s.segments} segments ({s.step_id})", "resolution_h_mm": s.result.resolution_h_mm,
+                 "resolution_v_mm": s.result.resolution_v_mm, "angular_h_deg": s.result.angular_h_deg,
+                 "angular_v_deg": s.result.angular_v_deg, "distance_mm": s.result.distance_mm} for s in geo.stars]
+        doc["boehler_star"] = _clean_rows(rows)
+        sections.append(_section("Resolution of the point cloud: Boehler star (SPEC 4)", img, outdir,
+                                 _rows_table(rows, "star")))
+    if geo.precision:
+        rows = [{"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
+                 "repeatability_center_y_mm": p.repeatability_center_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
+                 "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
+        doc["xy_noise"] = _clean_rows(rows)
+        sections.append(f"<h2>x/y noise on the wall (SPEC 6)</h2>{_rows_table(rows, 'step')}")
+    return sections
+
+
+def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+    """Repeatability and trueness over angle per material, and the misalignment fit (SPEC 7)."""
+    result = evaluation.remission
+    if result is None:
+        return []
+    rows = remission_table(result)
+    doc["remission_angle"] = _clean_rows(rows)
+    angles = sorted({r["angle_deg"] for r in rows})
+    pivots = []
+    for key, title in (("repeatability_mm", "repeatability (mm)"), ("trueness_geometric_mm", "trueness vs geometry (mm)")):
+        table = [{"material": m, **{f"{a:g} deg": next((r[key] for r in rows if r["material"] == m and r["angle_deg"] == a
+                                                         and r["on_target"]), math.nan) for a in angles}}
+                 for m in sorted({r["material"] for r in rows})]
+        pivots.append(f"<h3>{html.escape(title)}</h3>{_rows_table(table, 'material')}")
+    img = plot_remission(result, plots / "remission_angle.png")
+    sections = [_section("Remission and angle of incidence (SPEC 7, thesis Fig. 6-11)", img, outdir, "".join(pivots))]
+    summary = misalignment_summary(result)
+    if summary is not None:
+        doc["misalignment"] = {k: clean(v) if isinstance(v, float) else v for k, v in summary.items()}
+        img = plot_misalignment_fit(result, plots / "misalignment_fit.png")
+        text = (f"<p>Fitted to {html.escape(str(summary['material']))} over {summary['angles']} angles: target "
+                f"offset delta = {_fmt(summary['target_offset_mm'])} &plusmn; {_fmt(summary['target_offset_se_mm'], 2)} mm, "
+                f"camera axis offset e = {_fmt(summary['camera_axis_offset_mm'])} &plusmn; "
+                f"{_fmt(summary['camera_axis_offset_se_mm'], 2)} mm, level b = {_fmt(summary['bias_mm'])} mm, residual "
+                f"RMS {_fmt(summary['residual_rms_mm'], 2)} mm. The geometric reference R + delta / cos(theta) - "
+                "e tan(theta) removes the set-up from the trueness above.</p>")
+        sections.append(_section("Target and camera misalignment (thesis 5.4.2)", img, outdir, text))
+    return sections
 
 
 def _clean_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -94,6 +191,25 @@ def _depth_rows(evaluation: Evaluation) -> str:
     return _rows_table(depth_table(evaluation), "step")
 
 
+VERDICT_COLOUR = {"pass": "#1a7f37", "fail": "#cf222e", "not_evaluated": "#9a6700", "no_numeric_requirement": "#57606a"}
+
+
+def _suitability_html(suit: dict[str, Any]) -> str:
+    rows = []
+    for story in suit["stories"].values():
+        colour = VERDICT_COLOUR[story["verdict"]]
+        checks = "<br>".join(
+            f'{html.escape(c["requirement"])}: <b>{c["status"].replace("_", " ")}</b> ('
+            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c["values"].items()) + ")"
+            for c in story["checks"]
+        ) or "; ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in story["figures"].items())
+        rows.append(f'<tr><td class="l">{html.escape(story["description"])}</td>'
+                    f'<td class="l" style="color:{colour}"><b>{story["verdict"].replace("_", " ")}</b></td>'
+                    f'<td class="l">{checks}</td></tr>')
+    return (f'<p>{html.escape(suit["standard"])}</p><table><tr><th class="l">user story</th><th class="l">verdict</th>'
+            f'<th class="l">checks (values)</th></tr>{"".join(rows)}</table>')
+
+
 def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> str:
     cam = evaluation.camera
     fig_rows = "".join(
@@ -105,10 +221,7 @@ def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> s
     notes = "".join(f'<li class="note">{html.escape(n)}</li>' for n in evaluation.notes)
     runs = "".join(f"<li>{html.escape(r)}</li>" for r in evaluation.runs)
     simulated = " (simulated)" if cam.get("simulated") else ""
-    suit = doc["suitability"]
-    suit_html = (
-        f'<p class="note">Not evaluated: {html.escape(suit["reason"])}</p>' if not suit.get("evaluated") else ""
-    )
+    suit_html = _suitability_html(doc["suitability"])
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>labctl report: {html.escape(cam['model'])}</title>
 <style>{CSS}</style></head><body>

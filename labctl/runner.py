@@ -16,6 +16,7 @@ It is the only place that handles faults, retries and checkpoints:
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import signal
@@ -23,7 +24,13 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-from drivers.errors import CameraDisconnected, DeviceError, OperatorActionRequired, TransientDeviceError
+from drivers.errors import (
+    CameraDisconnected,
+    DeviceError,
+    LimitViolation,
+    OperatorActionRequired,
+    TransientDeviceError,
+)
 from labctl.config import Campaign
 from labctl.errors import Interrupted, RunAborted
 from labctl.lab import Lab
@@ -114,6 +121,7 @@ class Runner:
         laser = campaign.devices.laser
         self.offset_mm: float | None = laser.offset_mm if laser else None
         self.stop = StopRequests()
+        self._focus_mm: float | None = None
 
     # ------------------------------------------------------------------ driver
     def execute(self) -> None:
@@ -153,6 +161,29 @@ class Runner:
             self.reporter.stop()
             close_all(self.lab, self.reporter.message)
 
+    def _resolved_distance(self, step: Any) -> float:
+        """Camera-wall distance of a ``distance_from`` step: the sharp distance of the run's slanted-edge steps."""
+        if self._focus_mm is None:
+            from labctl.eval_sharpness import evaluate_slanted_edge, target_distance
+
+            result = evaluate_slanted_edge(self.run.steps("slanted_edge"), self.run.camera_info(), lambda _: None)
+            focus = target_distance(result) if result is not None else math.nan
+            if not math.isfinite(focus):
+                raise DeviceError("runner", "cannot resolve distance_mm = best_focus: the run's slanted-edge steps "
+                                  "have no valid sharpness (see labctl evaluate)")
+            self._focus_mm = focus
+            self.reporter.message(f"best focus for sharp targets: {focus:g} mm (from the slanted-edge steps)")
+        return self._focus_mm + step.distance_offset_mm
+
+    def _stage_position(self, distance_mm: float) -> float:
+        stage = self.campaign.devices.stage
+        position = stage.position_for_distance(distance_mm)
+        lo, hi = stage.travel_mm
+        if not lo <= position <= hi:
+            raise LimitViolation("stage", f"resolved distance {distance_mm:g} mm needs stage position {position:g} mm, "
+                                          f"outside devices.stage.travel_mm [{lo:g}, {hi:g}]")
+        return position
+
     def _abort(self, reason: str) -> None:
         bring_to_safe_state(self.lab, self.reporter.message)
         try:
@@ -163,14 +194,17 @@ class Runner:
     # ------------------------------------------------------------------ a step
     def _execute_step(self, planned: PlannedStep) -> None:
         step, lab = planned.step, self.lab
+        position = planned.stage_position_mm
         self.stop.check()
+        if step.distance_from is not None:
+            step = dataclasses.replace(step, distance_mm=self._resolved_distance(step))
+            position = self._stage_position(step.distance_mm)
         lab.begin_step(step, planned.start_s)
         self.reporter.step(step.step_id)
         faults: list[dict[str, Any]] = []
         if step.prompt:
             self.operator.confirm(step.prompt)
-        if planned.stage_position_mm is not None and lab.stage is not None:
-            position = planned.stage_position_mm
+        if position is not None and lab.stage is not None:
             self._retry("stage move", lambda: lab.stage.move_to(position), faults)
         if step.robot_angle_deg is not None and lab.robot is not None:
             angle, radius = step.robot_angle_deg, step.robot_radius_mm or 0.0
@@ -182,13 +216,36 @@ class Runner:
             readings = [self._retry("laser reading", laser.measure_mm, faults) for _ in range(n)]
         settings = {**self.campaign.devices.camera.settings, **step.camera_settings}
         self._retry("camera configure", lambda: lab.camera.configure(step.exposure_us, settings), faults)
-        writer = self.run.begin_step(step, planned.stage_position_mm)
         info = lab.camera.info()
-        roi = RoiMean(central_roi(info.height, info.width), step.frames) if step.role == "offset" else None
-        self._capture(writer, faults, roi, settings)
-        writer.commit(self._step_attrs(step, readings, roi, faults))
+        while True:
+            writer = self.run.begin_step(step, position)
+            roi = RoiMean(central_roi(info.height, info.width), step.frames) if step.role == "offset" else None
+            self._capture(writer, faults, roi, settings)
+            attrs = self._step_attrs(step, readings, roi, faults)
+            if step.role != "alignment" or self._alignment_accepted(writer, step, attrs):
+                break
+        writer.commit(attrs)
         retries = f" ({len(faults)} fault(s) recovered)" if faults else ""
         self.reporter.message(f"{step.step_id} complete{retries}")
+
+    def _alignment_accepted(self, writer: StepWriter, step: Any, attrs: dict[str, Any]) -> bool:
+        """Show the four corner fields and the implied tilt; the operator accepts or measures again."""
+        from metrics.alignment import alignment_fields
+        from metrics.stack import stack_stats
+
+        x, y, z = (stack_stats(writer.group[c][()]).mean for c in ("x", "y", "z"))
+        fields = alignment_fields(x, y, z, int(step.target_params.get("field_px", 10)))
+        depths = ", ".join(f"{name.replace('_', ' ')} {value:.1f}" for name, value in fields.depths().items())
+        self.reporter.message(f"alignment fields (mm): {depths}; implied tilt about x {fields.tilt_x_deg:+.3f} deg, "
+                              f"about y {fields.tilt_y_deg:+.3f} deg")
+        choice = self.operator.choose("accept this alignment, or adjust the tilt stage and measure again",
+                                      ["accept", "measure again"])
+        if choice != "accept":
+            return False
+        attrs["alignment_fields_json"] = json.dumps(fields.fields)
+        attrs["tilt_x_deg"] = fields.tilt_x_deg
+        attrs["tilt_y_deg"] = fields.tilt_y_deg
+        return True
 
     def _step_attrs(
         self, step: Any, readings: list[float], roi: RoiMean | None, faults: list[dict[str, Any]]
@@ -200,6 +257,7 @@ class Runner:
             "faults_json": json.dumps(faults),
             "retries": len(faults),
             "prompt": step.prompt or "",
+            "distance_source": step.distance_from or "campaign",
         }
         if readings:
             laser_mm = sum(readings) / len(readings)

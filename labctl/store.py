@@ -180,6 +180,10 @@ class RunWriter:
         """Attributes of every complete step, by step id."""
         return {rec.step_id: rec.attrs for rec in _complete_steps(self.file)}
 
+    def steps(self, procedure: str | None = None) -> list[StepRecord]:
+        """Complete steps so far, optionally of one procedure kind."""
+        return [s for s in _complete_steps(self.file) if procedure is None or s.attrs.get("procedure") == procedure]
+
     def discard_incomplete(self) -> list[str]:
         """Delete every step that is not complete (or unreadable); returns their ids."""
         steps = self.file["steps"]
@@ -221,6 +225,7 @@ class RunWriter:
             distance_mm=_nan_if_none(step.distance_mm),
             stage_position_mm=_nan_if_none(stage_position_mm),
             robot_angle_deg=_nan_if_none(step.robot_angle_deg),
+            robot_radius_mm=_nan_if_none(step.robot_radius_mm),
             started=now_iso(),
         )
         n, h, w = step.frames, camera.height, camera.width

@@ -63,6 +63,22 @@ def best_focus_distance(distances: Sequence[float], sfr_area: Sequence[float], v
     return float(d[tied[np.argmax(v[tied])]])  # ties (common with medians) go to the higher raw value
 
 
+def nearest_sharp_distance(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool],
+                           tolerance: float = 0.05) -> float:
+    """Nearest distance whose 3-point-median SFR area is within ``tolerance`` of the best.
+
+    Where to put a target that must be sharp and large in the image: "if there
+    are multiple distances with high focus, the smallest distance is chosen"
+    (thesis 5.2.1).
+    """
+    d, v = _sorted_valid(distances, sfr_area, valid)
+    if not d.size:
+        return math.nan
+    padded = np.concatenate([v[:1], v, v[-1:]])
+    smoothed = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+    return float(d[np.argmax(smoothed >= (1.0 - tolerance) * smoothed.max())])
+
+
 def imagery_resolution_deg(sensor_resolution_deg: float, sfr10_cy_px: float) -> float:
     """Angular imagery resolution: sensor angular resolution divided by SFR10 (thesis 6.3.1)."""
     if not sfr10_cy_px > 0:

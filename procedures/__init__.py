@@ -6,17 +6,29 @@ campaign validates ``[[procedure]]`` entries against the union of these.
 
 from __future__ import annotations
 
-from procedures.depth_sweep import DepthSweep
+from procedures.alignment import Alignment, FaceMask
+from procedures.depth_sweep import DepthSweep, XYSweep
 from procedures.offset_calibration import OffsetCalibration
+from procedures.remission_angle import RemissionAngle
 from procedures.slanted_edge import SlantedEdge
 from procedures.steps import Step
+from procedures.targets_at_focus import BoehlerStar, Checkerboard
 
 PROCEDURES = {
+    "alignment": Alignment,
     "offset_calibration": OffsetCalibration,
     "depth_sweep": DepthSweep,
+    "xy_sweep": XYSweep,
     "slanted_edge": SlantedEdge,
+    "checkerboard": Checkerboard,
+    "boehler_star": BoehlerStar,
+    "remission_angle": RemissionAngle,
+    "face_mask": FaceMask,
 }
 
-ProcedureConfig = OffsetCalibration | DepthSweep | SlantedEdge
+ProcedureConfig = (
+    Alignment | OffsetCalibration | DepthSweep | XYSweep | SlantedEdge | Checkerboard | BoehlerStar
+    | RemissionAngle | FaceMask
+)
 
 __all__ = ["PROCEDURES", "ProcedureConfig", "Step"]

@@ -58,3 +58,11 @@ class DepthSweep(StrictModel):
                 exposure_us=self.exposure_us,
                 camera_settings=self.camera_settings,
             )
+
+
+class XYSweep(DepthSweep):
+    """Campaign entry ``kind = "xy_sweep"``: the same wall sweep, evaluated for x/y noise (SPEC §6)."""
+
+    needs_reference: ClassVar[bool] = False
+
+    kind: Literal["xy_sweep"]  # type: ignore[assignment]

@@ -24,8 +24,11 @@ class StrictModel(BaseModel):
 class Step:
     """One capture: where the devices go, what the camera sees, how many frames.
 
-    ``distance_mm`` is the nominal camera-to-target distance set with the stage
-    (None when the stage does not move for this step); ``robot_angle_deg`` the
+    ``distance_mm`` is the nominal camera-to-wall distance set with the stage
+    (None when the stage does not move for this step). ``distance_from``
+    names a distance the runner resolves at run time (``"best_focus"``: from
+    the run's slanted-edge steps), to which ``distance_offset_mm`` is added
+    (e.g. a star's gap to the wall). ``robot_angle_deg`` is the
     position on the robot's measurement circle (None without robot).
     ``target_params`` describe the target (e.g. a Boehler star's segments and
     gap to the wall) and are recorded with the step. ``prompt``
@@ -41,6 +44,8 @@ class Step:
     frames: int
     target_params: Mapping[str, Any] = field(default_factory=dict)
     distance_mm: float | None = None
+    distance_from: str | None = None
+    distance_offset_mm: float = 0.0
     robot_angle_deg: float | None = None
     robot_radius_mm: float | None = None
     exposure_us: float | None = None

@@ -22,7 +22,9 @@ CONTRACT_NAMES = {
     "ied_pixels_at_hyperfocal",
 }
 DEPTH = {"z_trueness_q90_mm", "z_accuracy_q90_mm", "z_precision_q90_mm", "z_repeatability_center_mm",
-         "surface_primary_sq_mm", "surface_waviness_sq_mm", "surface_roughness_sq_mm"}
+         "surface_primary_sq_mm", "surface_waviness_sq_mm", "surface_roughness_sq_mm",
+         # the wall stacks of a depth sweep also give the x/y noise when the run has no xy_sweep
+         "x_precision_q90_mm", "y_precision_q90_mm", "x_repeatability_center_mm", "y_repeatability_center_mm"}
 
 
 def invoke(*args) -> int:
@@ -56,8 +58,12 @@ def test_depth_run_gives_depth_figures_and_nulls_elsewhere(sim_run, tmp_path):
         if name in DEPTH:
             assert f["value"] is not None and f["value"] > 0, name
             assert f["unit"] == "mm"
+        elif name == "pixel_aspect_distortion_pct":  # needs only the camera's FOV and pixels
+            assert f["value"] == pytest.approx(100 * ((51 / 90) / (67 / 120) - 1))
         else:
             assert f["value"] is None, name
+    stories = doc["suitability"]["stories"]
+    assert stories["3d_face_recognition_1_to_n"]["verdict"] == "not_evaluated"
     assert figures["z_precision_q90_mm"]["source"] == "00003_depth_sweep"  # the 2000 mm position
     assert len(figures["z_repeatability_center_mm"]["source"].split(",")) == 5
     assert doc["camera"]["model"].startswith("Basler blaze-101") and doc["camera"]["width"] == 120
