@@ -44,6 +44,7 @@ from metrics.remission import (
     measure_roi,
     target_window,
     trueness_vs_zero,
+    with_ring,
 )
 from procedures.remission_angle import MATERIALS, SKIN_LIKE
 
@@ -128,12 +129,14 @@ class _Measured(NamedTuple):
     roi: RoiMeasurement
 
 
-def _measure(step: StepRecord, roi: tuple[slice, slice], radius: float) -> _Measured:
-    index = (slice(None), *roi)
+def _measure(step: StepRecord, roi: tuple[slice, slice], radius: float, camera: CameraInfo) -> _Measured:
+    """The ROI with a ring of one pixel around it: its pixels next to one off the target are left out."""
+    grown, inner = with_ring(roi, camera.height, camera.width)
+    index = (slice(None), *grown)
     x, y, z = (step.group[c][index] for c in ("x", "y", "z"))
     angle = float(step.attrs["robot_angle_deg"])
     return _Measured(step, str(step.attrs["target"]), angle, radius,
-                     measure_roi(x, y, z, target_window(angle, radius)))
+                     measure_roi(x, y, z, target_window(angle, radius), inner=inner))
 
 
 def _fit(measured: list[_Measured], material: str, notes: list[str]) -> MisalignmentFit | None:
@@ -164,7 +167,7 @@ def evaluate_remission(steps: Sequence[StepRecord], camera: CameraInfo, progress
     measured = []
     for s in steps:
         progress(f"{s.step_id} remission")
-        m = _measure(s, roi, radii[s.step_id])
+        m = _measure(s, roi, radii[s.step_id], camera)
         if not m.roi.on_target:
             notes.append(f"{s.step_id} ({m.material}, {m.angle_deg:g} deg): ROI {100 * m.roi.invalid_fraction:.0f} % "
                          f"invalid, {100 * m.roi.off_target_fraction:.0f} % off target: not evaluated")

@@ -31,9 +31,13 @@ valid (stack half-valid rule), lies in the window where the target can be
 (:func:`target_window`), lies within ``off_target_fraction`` (20 %) of the
 ROI's median depth (the plate itself spans d u_max tan(theta) either side of
 it: 12 % at 80 deg for a 6 px ROI on 160 px over 67 deg, 3 % on 640 px; the
-background lies more than twice as far), and is not an outlier of the plane
-fit (more than ``outlier_sigmas`` robust standard deviations, MAD-based: mixed
-pixels at the plate's edge). A step is evaluated only when more than half of
+background lies more than twice as far), is not next to a ROI pixel that
+fails these tests or is invalid, inside the ROI or in the ring of pixels
+around it (a pixel straddling the plate's edge sees only part of the plate,
+whose depth is not the plane's on the pixel's ray: on a steep plate a few mm
+off, too few pixels to be told apart as outliers), and is not an outlier of
+the plane fit (more than ``outlier_sigmas`` robust standard deviations,
+MAD-based). A step is evaluated only when more than half of
 the ROI is on target: a straight plate edge crossing the ROI then leaves the
 ROI's centre, the optical axis, on the plate (the thesis drops positions whose
 centre pixel is off the target, 6.5.1); with exactly half, the axis may lie up
@@ -99,6 +103,16 @@ def axis_roi(height: int, width: int, size: int = ROI_SIZE_PX) -> tuple[slice, s
     return span(height), span(width)
 
 
+Window = tuple[slice, slice]
+
+
+def with_ring(roi: Window, height: int, width: int, ring: int = 1) -> tuple[Window, Window]:
+    """The ROI grown by ``ring`` pixels on each side (within the image) and where the ROI lies inside it."""
+    grown = tuple(slice(max(0, s.start - ring), min(n, s.stop + ring)) for s, n in zip(roi, (height, width)))
+    inner = tuple(slice(s.start - g.start, s.stop - g.start) for s, g in zip(roi, grown))
+    return grown, inner  # type: ignore[return-value]
+
+
 def target_window(angle_deg: float, radius_mm: float, max_offset_mm: float = MAX_OFFSET_MM) -> tuple[float, float]:
     """Axis distances at which the target can be: R +- m (1 + 1/cos theta + |tan theta|).
 
@@ -143,29 +157,46 @@ def _fit_inverse_depth(u: np.ndarray, v: np.ndarray, z: np.ndarray) -> tuple[np.
     return coef, se_a
 
 
+def _next_to(mask: np.ndarray) -> np.ndarray:
+    """Pixels with a 4-neighbour in ``mask`` (inside the array; its border is no neighbour)."""
+    out = np.zeros_like(mask)
+    out[1:] |= mask[:-1]
+    out[:-1] |= mask[1:]
+    out[:, 1:] |= mask[:, :-1]
+    out[:, :-1] |= mask[:, 1:]
+    return out
+
+
 def measure_roi(x: np.ndarray, y: np.ndarray, z: np.ndarray,
                 window_mm: tuple[float, float] = (0.0, math.inf), *,
+                inner: tuple[slice, slice] | None = None,
                 off_target_fraction: float = 0.2, min_on_target: float = 0.5,
                 outlier_sigmas: float = 4.0) -> RoiMeasurement:
     """Axis distance, pooled repeatability and invalid/off-target fractions of (N, h, w) ROI stacks.
 
     See the module docstring for the rules; ``window_mm`` is where the target
-    can be (:func:`target_window`). The step is on target when more than
-    ``min_on_target`` of the ROI is, and at least 4 pixels are (the plane fit
-    needs a degree of freedom for its standard error).
+    can be (:func:`target_window`). ``inner``: where the ROI lies in the given
+    stacks when they hold a ring of pixels around it (:func:`with_ring`), whose
+    only use is to tell which ROI pixels lie next to one that does not see the
+    target; by default the stacks are the ROI. The step is on target when more
+    than ``min_on_target`` of the ROI is, and at least 4 pixels are (the plane
+    fit needs a degree of freedom for its standard error).
     """
     zs = stack_stats(z)
     xm, ym = stack_stats(x).mean, stack_stats(y).mean
-    n_pixels = zs.mean.size
     with np.errstate(invalid="ignore", divide="ignore"):
         valid = zs.valid & np.isfinite(xm) & np.isfinite(ym) & (zs.mean > 0)
         zm = np.where(valid, zs.mean, np.nan)
         u, v = xm / zm, ym / zm
+    inner = inner or (slice(None), slice(None))
     lo, hi = window_mm
     keep = valid & (zm >= lo) & (zm <= hi)
-    if keep.any():
-        median = float(np.median(zm[keep]))
+    if keep[inner].any():
+        median = float(np.median(zm[inner][keep[inner]]))
         keep &= np.abs(zm - median) <= off_target_fraction * median
+    keep &= ~_next_to(~keep)
+    std, zm, u, v, valid, keep = (a[inner] for a in (zs.std, zm, u, v, valid, keep))
+    n_pixels = zm.size
     fit = None
     while keep.sum() > min_on_target * n_pixels:
         fit = _fit_inverse_depth(u[keep], v[keep], zm[keep])
@@ -189,7 +220,7 @@ def measure_roi(x: np.ndarray, y: np.ndarray, z: np.ndarray,
     return RoiMeasurement(
         distance_mm=distance,
         distance_se_mm=se_a * distance**2,
-        repeatability_mm=float(np.sqrt(np.mean(zs.std[keep] ** 2))),
+        repeatability_mm=float(np.sqrt(np.mean(std[keep] ** 2))),
         plane_rms_mm=float(np.sqrt(np.mean(residual[keep] ** 2))),
         invalid_fraction=invalid,
         off_target_fraction=off,

@@ -98,16 +98,22 @@ def axis_hit_mm(angle_deg: float, delta: float, e: float) -> float:
     return e / math.cos(t) - delta * math.tan(t)
 
 
+def roi_reach_mm(angle_deg: float) -> float:
+    """How far along the plate the 6 x 6 ROI and its one-pixel ring reach from the axis: 4 pixels of
+    RADIUS tan(33.5 deg) / 80 mm, stretched by 1 / cos(theta) on the tilted plate."""
+    return 4 * RADIUS * math.tan(math.radians(33.5)) / 80 / math.cos(math.radians(angle_deg))
+
+
 def check_plate_coverage(result, delta: float, e: float) -> list:
-    """Steps whose axis misses the plate are reported, not averaged; steps whose axis is well inside it are
-    evaluated. Returns the evaluated steps whose ROI runs partly off the plate."""
+    """Steps whose axis misses the plate are reported, not averaged; steps whose ROI and ring lie on it
+    are evaluated. Returns the evaluated steps whose ROI runs partly off the plate."""
     for r in result.rows:
         hit = abs(axis_hit_mm(r.angle_deg, delta, e))
         if hit > PLATE_HALF_MM:
             assert not r.roi.on_target and math.isnan(r.roi.repeatability_mm) and math.isnan(r.trueness_geometric_mm)
             assert r.roi.pixels <= 18  # at most half of the 6 x 6 ROI on the plate
             assert any(r.step_id in note for note in result.notes)
-        elif hit < PLATE_HALF_MM / 2:
+        elif hit + roi_reach_mm(r.angle_deg) < PLATE_HALF_MM:
             assert r.roi.on_target, r
     return [r for r in result.rows if r.roi.on_target and r.roi.off_target_fraction > 0]
 

@@ -12,6 +12,7 @@ from metrics.remission import (
     measure_roi,
     target_window,
     trueness_vs_zero,
+    with_ring,
 )
 
 H, W = 120, 160
@@ -94,23 +95,39 @@ def test_noise_gives_pooled_repeatability_and_a_consistent_standard_error():
 
 
 def test_off_target_pixels_are_dropped_and_counted():
-    """Two columns on the curtains 2 m behind, one invalid column, one mixed pixel: with half of the ROI
-    left the step is not on target (the plane fit, which finds the mixed pixel, does not run); with the
-    invalid column back, the rest gives the exact distance. Fractions add up."""
+    """One column on the curtains 2 m behind, one invalid column, the columns next to them (which may
+    straddle the plate's edge) and one mixed pixel: with a third of the ROI left the step is not on target
+    (the plane fit, which finds the mixed pixel, does not run); with the invalid column back, the rest
+    gives the exact distance. Fractions add up."""
     roi = axis_roi(H, W)
     x, y, z = plate_stacks(70.0, 900.0, roi=roi)
-    z[:, :, 4:] = 900.0 + 2000.0 / math.cos(math.radians(70))  # far beyond the plate
+    z[:, :, 5:] = 900.0 + 2000.0 / math.cos(math.radians(70))  # far beyond the plate
     z[:, 2, 1] += 60.0  # a mixed pixel, within 20 % of the median but off the plane
     plate_column = z[:, :, 0].copy()
     z[:, :, 0] = np.nan  # invalid column
     m = measure_roi(x, y, z, target_window(70.0, RADIUS))
-    assert m.invalid_fraction == pytest.approx(6 / 36) and m.off_target_fraction == pytest.approx(12 / 36)
-    assert m.pixels == 18 and not m.on_target and math.isnan(m.distance_mm)
+    assert m.invalid_fraction == pytest.approx(6 / 36) and m.off_target_fraction == pytest.approx(18 / 36)
+    assert m.pixels == 12 and not m.on_target and math.isnan(m.distance_mm)
     z[:, :, 0] = plate_column
     m = measure_roi(x, y, z, target_window(70.0, RADIUS))
     assert m.invalid_fraction == 0 and m.off_target_fraction == pytest.approx(13 / 36)
     assert m.on_target and m.pixels == 23
     assert m.distance_mm == pytest.approx(900.0, abs=1e-6)
+
+
+def test_roi_pixels_next_to_the_background_in_the_ring_are_left_out():
+    """The plate ends between the ROI's last column and the ring beyond it: that column may straddle the
+    edge, so it is left out (off target), the rest gives the exact distance; the ring itself never counts."""
+    grown, inner = with_ring(axis_roi(H, W), H, W)
+    assert grown == (slice(56, 64), slice(76, 84)) and inner == (slice(1, 7), slice(1, 7))
+    assert with_ring((slice(0, 6), slice(154, 160)), H, W) == ((slice(0, 7), slice(153, 160)),
+                                                             (slice(0, 6), slice(1, 7)))
+    x, y, z = plate_stacks(60.0, 900.0, roi=grown)
+    z[:, :, 7] = 900.0 + 2000.0 / math.cos(math.radians(60))  # the ring column beyond the ROI: curtains
+    z[:, 0, :] = np.nan  # the ring row above the ROI: invalid
+    whole = measure_roi(x, y, z, target_window(60.0, RADIUS), inner=inner)
+    assert whole.pixels == 25 and whole.off_target_fraction == pytest.approx(11 / 36) and whole.invalid_fraction == 0
+    assert whole.on_target and whole.distance_mm == pytest.approx(900.0, abs=1e-6)
 
 
 def test_roi_entirely_on_the_background_is_not_on_target():
