@@ -106,7 +106,7 @@ def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str,
     try:
         corners = detect_corners(pixels)
         result = distortion(corners, tile_mm, distance_mm, fov)
-        in_cloud = cloud_distortion(points, corners, tile_mm, fov) if points is not None else None
+        in_cloud = cloud_distortion(points, result.corners, tile_mm, fov) if points is not None else None
     except ValueError as exc:
         raise InputError(f"{image}: {exc}") from None
     height, width = pixels.shape

@@ -80,10 +80,10 @@ def evaluate_checkerboard(step: StepRecord, camera: CameraInfo) -> CheckerboardR
     corners = detect_corners(np.nan_to_num(image, nan=0.0))
     distance = _distance(step)
     intensity = distortion(corners, tile, distance, camera.fov_deg)
-    cloud_result = cloud_distortion(cloud, corners, tile, camera.fov_deg)
+    cloud_result = cloud_distortion(cloud, intensity.corners, tile, camera.fov_deg)
     first = np.stack([step.frame(c, 0) for c in ("x", "y", "z")], axis=-1)
-    return CheckerboardResult(step.step_id, distance, tile, image, cloud, corners, intensity, cloud_result,
-                              xy_errors(cloud, first, corners, tile))
+    return CheckerboardResult(step.step_id, distance, tile, image, cloud, intensity.corners, intensity, cloud_result,
+                              xy_errors(cloud, first, intensity.corners, tile))
 
 
 def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
@@ -94,7 +94,9 @@ def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
     for step in boards[-1:]:  # the last board of the runs (a repeat after re-mounting replaces it)
         progress(f"{step.step_id} checkerboard")
         try:
-            out.checkerboard = evaluate_checkerboard(step, camera)
+            out.checkerboard = board = evaluate_checkerboard(step, camera)
+            warnings = board.intensity.warnings + (board.cloud_distortion.warnings if board.cloud_distortion else ())
+            out.notes.extend(f"{step.step_id}: {w}" for w in warnings)
         except ValueError as exc:
             out.notes.append(f"{step.step_id}: checkerboard not evaluated: {exc}")
     for step in (s for s in steps if s.attrs.get("procedure") == "boehler_star"):

@@ -50,6 +50,10 @@ def plot_distortion(image: np.ndarray, result: DistortionResult, path: Path,
     ax.imshow(np.ma.masked_invalid(image), cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1)
     height, width = image.shape
     m = _panel(ax, result.found, result.expected, result.ij, width, "|found - expected| (% of the image width)")
+    if len(result.rejected_uv):
+        ax.plot(result.rejected_uv[:, 0], result.rejected_uv[:, 1], "x", color="tab:orange", ms=6,
+                label=f"left out ({len(result.rejected_uv)})")
+        ax.legend(loc="upper right", fontsize=7)
     ax.set_title(f"intensity (vectors x{m}): raw {result.raw_distortion_w_pct:+.2f} / "
                  f"{result.raw_distortion_h_pct:+.2f} %, radial {result.radial_distortion_w_pct:+.2f} / "
                  f"{result.radial_distortion_h_pct:+.2f} %\nFOV estimate {result.fov_estimate_deg[0]:.1f} x "

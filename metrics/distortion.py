@@ -23,6 +23,12 @@ is a checkerboard parallel to the sensor; its inner corners are the features.
   f_y = (H/2) / tan(FOV_v/2), the lateral pixel size at the image centre. The
   angular pixel size FOV/W would overstate the spacing by 13 % at 67 deg over
   640 px and report distortion for a perfect pinhole camera.
+* Misplaced corners: a corner further from the fitted board (below) than
+  6 robust standard deviations of all corners' misfit, and at least 1 px, is
+  left out of every statistic and the fit is repeated (a corner next to a tile
+  cut by the board's edge, refined off its true place; the EBU maximum would
+  otherwise report it as distortion). The radial model absorbs smooth
+  distortion, so real distortion is not left out.
 * Raw distortion (EBU Tech 3249-E, ISO 17850, thesis Table 6-5): max
   |found - expected| in % of the image width (x) and height (y), with the
   median so that noise at the border does not dominate.
@@ -71,6 +77,9 @@ _GROW_TOLERANCE_TILES = 0.25
 _MIN_SADDLE_CONTRAST = 0.05
 #: detector corners (nearest the image centre first) tried as the seed of the grid
 _SEED_TRIES = 10
+#: a corner further than this many robust sigmas (and OUTLIER_MIN_PX) from the fitted board is misplaced
+OUTLIER_SIGMAS = 6.0
+OUTLIER_MIN_PX = 1.0
 #: fewer corners than this (or fewer than 3 per row / column) is no board
 MIN_CORNERS = 9
 
@@ -102,6 +111,10 @@ class Corners:
     @property
     def centre_uv(self) -> np.ndarray:
         return self.uv[np.flatnonzero((self.ij == 0).all(axis=1))[0]]
+
+    def subset(self, keep: np.ndarray) -> Corners:
+        """The corners where ``keep`` is true."""
+        return Corners(self.uv[keep], self.ij[keep], self.image_shape, self.detector, self.tile_px)
 
 
 def _normalized(image: np.ndarray) -> np.ndarray:
@@ -209,14 +222,16 @@ def _parities(image: np.ndarray, grid: Grid, min_contrast: float) -> list[int]:
 
 def _unit_steps(image: np.ndarray, grid: Grid, k0: tuple[int, int],
                 min_contrast: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Single-tile steps (along u, along v) at node ``k0``: the shortest of the grid's steps there, their sum,
-    difference and fractions that land on a corner."""
+    """Single-tile steps (along u, along v) at node ``k0``: the shortest of the integer combinations
+    m a + n b (|m|, |n| <= 2) of the grid's steps there, and their fractions 1/2 ... 1/4, that land on a
+    corner (a sheared grid, a = 2 tiles along u and b = 2 down and 1 left, has the vertical step (a + 2 b) / 4)."""
     p0 = grid[k0]
     a, b = _step(grid, k0, 0), _step(grid, k0, 1)
     if a is None or b is None:
         return None
     found = []
-    for v in (a, b, a + b, a - b):
+    combinations = [m * a + n * b for m in range(0, 3) for n in range(-2, 3) if (m, n) > (0, 0)]
+    for v in combinations:
         for k in range(1, 5):
             step = v / k
             unit = float(np.linalg.norm(step))
@@ -364,7 +379,8 @@ class DistortionResult:
     linear grid, the radial part; ``fov_estimate_deg``: effective [h, v] FOV
     from the fitted scale (cf. eq. 6-1); ``linear_scale``: fitted / expected
     corner spacing per axis; ``k1``: eq. 5-5 with R = half the image diagonal.
-    Arrays (N, 2) in pixels, row n for corner ``ij[n]``.
+    Arrays (N, 2) in pixels, row n for corner ``ij[n]``, over the corners
+    used (``corners``); ``rejected_uv`` (M, 2): corners left out as misplaced.
     """
 
     raw_distortion_w_pct: float
@@ -385,6 +401,8 @@ class DistortionResult:
     found: np.ndarray
     expected: np.ndarray
     fitted_linear: np.ndarray
+    corners: Corners
+    rejected_uv: np.ndarray
     warnings: tuple[str, ...]
 
 
@@ -435,6 +453,13 @@ def distortion(corners: Corners, tile_mm: float, distance_mm: float,
     spacing = (tile_mm * pin.fx / distance_mm, tile_mm * pin.fy / distance_mm)
     centre = np.array([pin.cx, pin.cy])
     big_r = math.hypot(width, height) / 2
+    params = _fit(corners.uv, corners.ij, centre, big_r, spacing)
+    miss = np.linalg.norm(_model(params, corners.ij, centre, big_r) - corners.uv, axis=1)
+    keep = (miss <= max(OUTLIER_MIN_PX, OUTLIER_SIGMAS * 1.4826 * float(np.median(miss)))) | (corners.ij == 0).all(axis=1)
+    rejected = corners.uv[~keep]
+    if not keep.all():
+        corners = corners.subset(keep)
+        params = _fit(corners.uv, corners.ij, centre, big_r, spacing)
     found, ij = corners.uv, corners.ij
     origin = corners.centre_uv
     expected = origin + ij * np.array(spacing)
@@ -442,7 +467,6 @@ def distortion(corners: Corners, tile_mm: float, distance_mm: float,
     raw_w = _signed_max_pct(raw[:, 0], expected[:, 0] - origin[0], width)
     raw_h = _signed_max_pct(raw[:, 1], expected[:, 1] - origin[1], height)
 
-    params = _fit(found, ij, centre, big_r, spacing)
     linear = _model(params, ij, centre, big_r, radial=False)
     radial = found - linear
     rad_w = _signed_max_pct(radial[:, 0], linear[:, 0] - centre[0], width)
@@ -453,6 +477,10 @@ def distortion(corners: Corners, tile_mm: float, distance_mm: float,
            2 * math.degrees(math.atan(height / 2 / (sy * distance_mm / tile_mm))))
 
     warnings = []
+    if len(rejected):
+        warnings.append(f"{len(rejected)} corner(s) left out as misplaced: more than "
+                        f"{max(OUTLIER_MIN_PX, OUTLIER_SIGMAS * 1.4826 * float(np.median(miss))):.2f} px off the fitted "
+                        "board (a partial tile next to them, or a false corner)")
     extent = (np.ptp(found[:, 0]) / width, np.ptp(found[:, 1]) / height)
     if min(extent) < 0.8:
         warnings.append(f"corners cover only {100 * extent[0]:.0f} % x {100 * extent[1]:.0f} % of the image; "
@@ -470,7 +498,8 @@ def distortion(corners: Corners, tile_mm: float, distance_mm: float,
         radial_median_w_pct=rad_w[1], radial_median_h_pct=rad_h[1],
         fov_estimate_deg=fov, k1=float(params[5]), linear_scale=(sx / spacing[0], sy / spacing[1]),
         rotation_deg=math.degrees(params[4]), fit_rms_px=rms, n_corners=len(found), ij=ij,
-        found=found, expected=expected, fitted_linear=linear, warnings=tuple(warnings),
+        found=found, expected=expected, fitted_linear=linear, corners=corners, rejected_uv=rejected,
+        warnings=tuple(warnings),
     )
 
 

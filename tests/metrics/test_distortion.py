@@ -19,6 +19,7 @@ border; the effects tested are 1.5-4.5 %, ten times the tolerance.
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -240,6 +241,40 @@ def test_fit_separates_rotation_scale_and_k1_on_exact_corners():
     assert result.k1 == pytest.approx(0.04, abs=1e-8) and result.rotation_deg == pytest.approx(2.0, abs=1e-6)
     assert (result.radial_distortion_w_pct, result.radial_distortion_h_pct) == pytest.approx(board.radial_pct())
     assert result.linear_scale[0] == pytest.approx(math.tan(math.radians(33.5)) / math.tan(math.radians(32)))
+
+
+def test_the_grid_does_not_depend_on_the_sector_detectors_random_start():
+    """OpenCV's sector-based detector starts from random samples: on the flexx2's 6.7 px tiles one start in
+    twelve returned a grid sheared by two tiles along u and one down, whose unit steps are only integer
+    combinations of its own ((a + 2 b) / 4); the grown grid then skipped every other row. Every start now
+    gives the same full board."""
+    _, (*_, intensity, _) = render("flexx2")
+    found = set()
+    for seed in range(12):
+        cv2.setRNGSeed(seed)
+        corners = detect_corners(intensity)
+        found.add((len(corners.uv), tuple(np.round(corners.tile_px, 1))))
+    assert len(found) == 1
+    (count, tile), = found
+    assert tile == pytest.approx((6.7, 6.7), abs=0.15) and count > 800
+
+
+def test_a_misplaced_corner_is_left_out_and_strong_distortion_is_not():
+    """Exact corners of a strongly barrel-distorted board (k1 = -0.12: 8 px at the image corners) with
+    0.05 px of noise, one border corner refined 2.5 px off its place: that corner alone is left out, and
+    the distortion is the board's own."""
+    i, j = np.meshgrid(np.arange(-15, 16), np.arange(-11, 12))
+    ij = np.column_stack([i.ravel(), j.ravel()])
+    board = Board(640, 480, (67, 51), -0.12, 700.0, ij)
+    uv = np.column_stack([board.ud, board.vd]) + np.random.default_rng(4).normal(0, 0.05, (len(ij), 2))
+    bad = int(np.flatnonzero((ij == (15, 3)).all(axis=1))[0])
+    uv[bad, 0] += 2.5
+    result = distortion(Corners(uv, ij, (480, 640), "exact", (0.0, 0.0)), TILE, 700.0, (67, 51))
+    assert result.rejected_uv.tolist() == [uv[bad].tolist()] and len(result.found) == len(ij) - 1
+    assert any("1 corner(s) left out" in w for w in result.warnings)
+    assert result.k1 == pytest.approx(-0.12, abs=2e-3)
+    assert (result.radial_distortion_w_pct, result.radial_distortion_h_pct) == pytest.approx(
+        board.radial_pct(), abs=0.03)
 
 
 @pytest.mark.parametrize("image", [np.full((120, 160), 500.0), np.random.default_rng(1).random((120, 160)),
