@@ -1,9 +1,15 @@
 """Rendering a scene into per-pixel light quantities, with supersampling at edges.
 
-Every pixel's centre ray is cast first. Pixels whose centre hit differs from a
-neighbour's (another surface, or another reflectance) are edge pixels: they are
-re-cast with ``supersample`` x ``supersample`` sub-pixel rays, so that a pixel
-straddling an edge integrates both sides over its 100 % fill-factor area.
+Every pixel is first sampled at the centres of its 2 x 2 sub-pixels. Pixels
+holding a sub-pixel whose hit differs from a neighbour's (another surface, or
+another reflectance) are edge pixels: they are re-cast with ``supersample`` x ``supersample`` sub-pixel rays, so that a pixel
+straddling an edge integrates both sides over its 100 % fill-factor area. The
+sub-pixel positions are the canonical multi-jittered pattern (Chiu, Shirley and
+Wang 1994): one sample per cell of the s x s grid and, at the same time, s^2
+distinct offsets along each axis, so a near-vertical or near-horizontal edge
+covers a pixel in steps of 1/s^2, not 1/s (a regular grid's coarse steps put a
+staircase into the edge-spread function and lift a slanted edge's SFR near
+Nyquist).
 
 Per pixel the renderer returns, averaged over its samples i:
 
@@ -16,6 +22,9 @@ Per pixel the renderer returns, averaged over its samples i:
   incidence cosine of the dominant surface (the one returning most light into
   the pixel);
 * ``passive`` = mean(rho_i cos_i^m) — reflectance seen under ambient light.
+
+The light quantities are also returned per sub-pixel (``*_fine``), for the
+lens blur to act before the pixel integrates.
 """
 
 from __future__ import annotations
@@ -25,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.aggregate import aggregate
+from sim.aggregate import aggregate, sample_light
 from sim.geometry import Pose
 from sim.optics import CameraOptics
 from sim.scenes.base import Hit, Scene
@@ -44,6 +53,11 @@ class Rendered:
     passive: np.ndarray
     hit_fraction: np.ndarray
     edge: np.ndarray
+    #: sub-pixels per pixel side of the ``*_fine`` light maps ((H k, W k); their k x k means are the maps above)
+    oversample: int
+    irradiance_fine: np.ndarray
+    passive_fine: np.ndarray
+    phasor_fine: np.ndarray | None
 
 
 @dataclass(frozen=True)
@@ -76,13 +90,27 @@ def _aggregate(hit: Hit, z_cam: np.ndarray, props: SurfaceProperties, wavenumber
     return {name: values.reshape(shape) for name, values in out.items()}
 
 
-def _edges(hit: Hit) -> np.ndarray:
-    """Pixels whose centre sample differs from a 4-neighbour's (surface or reflectance).
+def _sample_light(hit: Hit, props: SurfaceProperties, wavenumber: float | None) -> dict[str, np.ndarray]:
+    """Irradiance, shading (``passive``) and phasor of every single sample (sim/aggregate.py)."""
+    shape = hit.t.shape
+    flat = lambda a, dtype=float: np.ascontiguousarray(a, dtype=dtype).ravel()  # noqa: E731
+    out = {"irradiance": np.empty(hit.t.size), "passive": np.empty(hit.t.size), "phasor": np.empty(hit.t.size, complex)}
+    sample_light(flat(hit.t), flat(hit.cos), flat(hit.reflectance), flat(hit.surface, np.int64),
+                 np.asarray(props.bias_mm, float), np.asarray(props.lambert, float), wavenumber or 0.0,
+                 out["irradiance"], out["passive"], out["phasor"])
+    if wavenumber is None:
+        del out["phasor"]
+    return {name: values.reshape(shape) for name, values in out.items()}
 
-    An edge crossing a pixel's footprint separates its centre from the centre
-    of the neighbour beyond it, so both are marked; no dilation is needed.
+
+def _edges(surface: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
+    """Samples whose hit differs from a 4-neighbour's on the sample grid (surface or reflectance).
+
+    An edge crossing a pixel's footprint separates one of its samples from the
+    nearest sample beyond the edge, so the pixels holding both are marked; no
+    dilation is needed.
     """
-    s, r = hit.surface, hit.reflectance
+    s, r = surface, reflectance
     edge = np.zeros(s.shape, dtype=bool)
     for axis in (0, 1):
         ds = np.diff(s, axis=axis) != 0
@@ -96,32 +124,82 @@ def _edges(hit: Hit) -> np.ndarray:
     return edge
 
 
+def multi_jittered_offsets(s: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel offsets (px, within +-0.5) of the canonical multi-jittered pattern of s x s samples.
+
+    Sample (i, j) sits in cell (i, j) of the s x s grid at x = (i + (j + 1/2) / s) / s,
+    y = (j + (i + 1/2) / s) / s: every x and every y offset is distinct.
+    """
+    i, j = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
+    du = (i + (j + 0.5) / s) / s - 0.5
+    dv = (j + (i + 0.5) / s) / s - 0.5
+    return du.ravel(), dv.ravel()
+
+
+def _to_fine(a: np.ndarray, k: int) -> np.ndarray:
+    """(H, W, k*k) samples ordered (row-in-pixel, column-in-pixel) -> (H k, W k) image."""
+    h, w = a.shape[:2]
+    return a.reshape(h, w, k, k).transpose(0, 2, 1, 3).reshape(h * k, w * k)
+
+
+def _quadrant_order(s: int, k: int) -> np.ndarray:
+    """Indices that sort the s x s multi-jittered samples into the k x k sub-pixels (row-major), s^2/k^2 each."""
+    i, j = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")  # i: column cell (u), j: row cell (v)
+    quadrant = (j // (s // k)) * k + i // (s // k)
+    return np.argsort(quadrant.ravel(), kind="stable")
+
+
 def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfaceProperties,
-           modulation_mhz: float | None = None, supersample: int = 4) -> Rendered:
-    """Per-pixel light quantities of ``scene`` seen by a camera at ``pose`` through ``optics``."""
+           modulation_mhz: float | None = None, supersample: int = 4, oversample: int = 2) -> Rendered:
+    """Per-pixel light quantities of ``scene`` seen by a camera at ``pose`` through ``optics``.
+
+    Every pixel is sampled at the centres of its ``oversample`` x ``oversample``
+    sub-pixels; pixels with an edge among those samples or next to them are
+    re-cast with the ``supersample`` x ``supersample`` multi-jittered pattern.
+    Besides the per-pixel maps, the light (irradiance, passive, phasor) is
+    returned per sub-pixel, so that the lens blur can act before the pixel
+    integrates (``SensorOptics.blur``): blurring pixel values instead would
+    fold the scene's detail above Nyquist back into the image.
+    """
+    if supersample > 1 and supersample % oversample:
+        raise ValueError(f"supersample {supersample} must be a multiple of oversample {oversample}")
+    k = oversample
     wavenumber = 4 * math.pi * modulation_mhz * 1e6 / C_MM_PER_S if modulation_mhz else None
     n_surf = max(len(scene.surfaces), 1)
     u, v = optics.pixel_grid()
-    d_cam = optics.directions(u, v)
+    centres = (np.arange(k) + 0.5) / k - 0.5
+    dv0, du0 = (a.ravel() for a in np.meshgrid(centres, centres, indexing="ij"))  # row-major sub-pixels
+    su, sv = u[..., None] + du0, v[..., None] + dv0
+    d_cam = optics.directions(su, sv)
     origin, d_world = pose.rays(d_cam)
-    centre = scene.cast(origin, d_world)
-    centre_z = np.where(np.isfinite(centre.t), centre.t * d_cam[2], 0.0)
-    expand = lambda a: a[..., None]  # noqa: E731 - a sample axis of length 1
-    maps = _aggregate(Hit(*(expand(getattr(centre, f)) for f in ("t", "cos", "reflectance", "surface"))),
-                      expand(centre_z), props, wavenumber, n_surf)
-    edge = _edges(centre) if supersample > 1 else np.zeros(u.shape, dtype=bool)
+    hit = scene.cast(origin, d_world)
+    hit_z = np.where(np.isfinite(hit.t), hit.t * d_cam[2], 0.0)
+    maps = _aggregate(hit, hit_z, props, wavenumber, n_surf)
+    light = {key: _to_fine(values, k) for key, values in _sample_light(hit, props, wavenumber).items()}
+    h, w = u.shape
+    if supersample > 1:
+        edge = _edges(_to_fine(hit.surface, k), _to_fine(hit.reflectance, k)).reshape(h, k, w, k).any(axis=(1, 3))
+    else:
+        edge = np.zeros(u.shape, dtype=bool)
     if edge.any():
-        offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
-        du, dv = np.meshgrid(offsets, offsets)
-        eu = u[edge][:, None] + du.ravel()[None, :]
-        ev = v[edge][:, None] + dv.ravel()[None, :]
+        du, dv = multi_jittered_offsets(supersample)
+        order = _quadrant_order(supersample, k)
+        du, dv = du[order], dv[order]
+        eu = u[edge][:, None] + du[None, :]
+        ev = v[edge][:, None] + dv[None, :]
         sub_d = optics.directions(eu, ev)
         sub_o, sub_w = pose.rays(sub_d)
         sub = scene.cast(sub_o, sub_w)
         sub_z = np.where(np.isfinite(sub.t), sub.t * sub_d[2], 0.0)
-        fine = _aggregate(sub, sub_z, props, wavenumber, n_surf)
-        for key, values in fine.items():
+        for key, values in _aggregate(sub, sub_z, props, wavenumber, n_surf).items():
             maps[key][edge] = values
+        n, per = len(eu), (supersample // k) ** 2
+        quads = _aggregate(Hit(*(getattr(sub, f).reshape(n, k * k, per) for f in ("t", "cos", "reflectance", "surface"))),
+                           sub_z.reshape(n, k * k, per), props, wavenumber, n_surf)
+        rows, cols = np.nonzero(edge)
+        for key in light:
+            block = light[key].reshape(h, k, w, k).transpose(0, 2, 1, 3)  # a view: (H, W, k, k)
+            block[rows, cols] = quads[key].reshape(n, k, k)
     return Rendered(
         irradiance=maps["irradiance"],
         phasor=maps.get("phasor"),
@@ -132,6 +210,10 @@ def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfacePropert
         passive=maps["passive"],
         hit_fraction=maps["hit_fraction"],
         edge=edge,
+        oversample=k,
+        irradiance_fine=light["irradiance"],
+        passive_fine=light["passive"],
+        phasor_fine=light.get("phasor"),
     )
 
 

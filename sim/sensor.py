@@ -10,7 +10,9 @@
 * Optical blur: the in-focus lens PSF (a Gaussian of the profile's
   ``lens_sigma_px``) and, with ``defocus``, a uniform disc of diameter
   b(s) = coc_px H / s, applied in the Fourier domain with their exact OTFs
-  exp(-2 pi^2 sigma^2 f^2) and 2 J1(pi b f) / (pi b f) (edges reflected).
+  exp(-2 pi^2 sigma^2 f^2) and 2 J1(pi b f) / (pi b f) (edges reflected), on
+  2 x 2 sub-pixels before each pixel integrates its four: the image's SFR is
+  then |sinc f| x lens OTF x defocus OTF also above Nyquist (``edge_sfr``).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import math
 from functools import lru_cache
 
 import numpy as np
+from scipy import fft as sfft
 from scipy import optimize, special
 
 from sim.effects import EffectParams
@@ -59,6 +62,23 @@ def default_coc_px(lens_sigma_px: float) -> float:
     return float(optimize.brentq(loss, 1e-3, 20.0))
 
 
+def _filter(field: np.ndarray, sigma_px: float, disc_px: float) -> np.ndarray:
+    """Gaussian and disc OTFs applied in the Fourier domain; edges reflected, padded to a fast FFT size."""
+    pad = int(math.ceil(4 * sigma_px + disc_px)) + 2
+    padded = np.pad(field, pad, mode="reflect")
+    real = not np.iscomplexobj(field)
+    shape = tuple(sfft.next_fast_len(n, real=real) for n in padded.shape)
+    fy = np.fft.fftfreq(shape[0])[:, None]
+    fx = (np.fft.rfftfreq if real else np.fft.fftfreq)(shape[1])[None, :]
+    freq = np.hypot(fx, fy)
+    otf = gaussian_otf(freq, sigma_px) * disc_otf(freq, disc_px)
+    if real:
+        out = sfft.irfft2(sfft.rfft2(padded, shape, workers=-1) * otf, shape, workers=-1)
+    else:
+        out = sfft.ifft2(sfft.fft2(padded, shape, workers=-1) * otf, workers=-1)
+    return out[pad : pad + field.shape[0], pad : pad + field.shape[1]]
+
+
 class SensorOptics:
     """True and reported geometry of a camera under its model's effects, and its blur."""
 
@@ -85,16 +105,21 @@ class SensorOptics:
         d = self.effects.get("defocus")
         return defocus_effect.blur_diameter_px(distance_mm, self.coc_px, d) if d is not None else 0.0
 
-    def blur(self, field: np.ndarray, distance_mm: float) -> np.ndarray:
-        """Lens PSF (and defocus disc) applied to a real or complex (H, W) field."""
-        sigma, disc = self.profile.lens_sigma_px, self.blur_diameter_px(distance_mm)
-        if sigma <= 0 and disc <= 0:
-            return field
-        pad = int(math.ceil(4 * sigma + disc)) + 2
-        padded = np.pad(field, pad, mode="reflect")
-        fy = np.fft.fftfreq(padded.shape[0])[:, None]
-        fx = np.fft.fftfreq(padded.shape[1])[None, :]
-        freq = np.hypot(fx, fy)
-        otf = gaussian_otf(freq, sigma) * disc_otf(freq, disc)
-        out = np.fft.ifft2(np.fft.fft2(padded) * otf)[pad:-pad, pad:-pad]
-        return out if np.iscomplexobj(field) else out.real
+    def blur(self, field: np.ndarray, distance_mm: float, oversample: int = 1) -> np.ndarray:
+        """Lens PSF (and defocus disc) applied to a real or complex field, then integrated over each pixel.
+
+        ``field`` holds ``oversample`` x ``oversample`` samples per pixel
+        ((H k, W k), e.g. ``Rendered.irradiance_fine``): the blur acts on that
+        grid, before the pixel integrates (the k x k mean), so detail above the
+        pixel's Nyquist frequency is blurred as the lens does it, not folded
+        back first. Returns (H, W).
+        """
+        k = oversample
+        sigma, disc = self.profile.lens_sigma_px * k, self.blur_diameter_px(distance_mm) * k
+        out = field
+        if sigma > 0 or disc > 0:
+            out = _filter(field, sigma, disc)
+        if k > 1:
+            h, w = out.shape[0] // k, out.shape[1] // k
+            out = out.reshape(h, k, w, k).mean(axis=(1, 3))
+        return out

@@ -93,10 +93,12 @@ class StereoSensor:
         left, visible = rendered
         focus_distance_mm = centre_distance_mm(left)
         gain = exposure_us / p.exposure_us
-        light = AMBIENT_LEVEL * left.passive
-        if projector:
-            light = light + PROJECTOR_LEVEL * left.irradiance / IRRADIANCE_REF * self.dots
-        ir = geo.blur(light * gain, focus_distance_mm)
+        k = left.oversample
+        light = AMBIENT_LEVEL * left.passive_fine
+        if projector:  # each dot covers whole pixels
+            dots = np.repeat(np.repeat(self.dots, k, axis=0), k, axis=1)
+            light = light + PROJECTOR_LEVEL * left.irradiance_fine / IRRADIANCE_REF * dots
+        ir = geo.blur(light * gain, focus_distance_mm, k)
         if "vignetting" in fx:
             ir = ir * vignetting.factor(geo.cos_alpha, fx["vignetting"])
         ir = np.maximum(ir, 0.0)
@@ -129,7 +131,7 @@ class StereoSensor:
         """False where the right camera (baseline to the right) cannot see the left pixel's point."""
         geo, p = self.geometry, self.profile
         right_pose = Pose(pose.rotation, pose.position + pose.rotation @ np.array([p.baseline_mm, 0.0, 0.0]))
-        right = render(scene, right_pose, geo.optics, surface_properties(scene, {}), supersample=1)
+        right = render(scene, right_pose, geo.optics, surface_properties(scene, {}), supersample=1, oversample=1)
         u, v = geo.optics.pixel_grid()
         with np.errstate(invalid="ignore", divide="ignore"):
             u_right = np.round(u - self.focal_baseline / z_left)

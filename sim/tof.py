@@ -113,13 +113,13 @@ class ToFSensor:
         focus_distance_mm = centre_distance_mm(r)
         gain = exposure_us / p.exposure_us
         scale = self.a_ref * gain / IRRADIANCE_REF
-        light = self.geometry.blur(r.irradiance, focus_distance_mm) * scale
+        light = self.geometry.blur(r.irradiance_fine, focus_distance_mm, r.oversample) * scale
         shading = vignetting.factor(self.geometry.cos_alpha, fx["vignetting"]) if "vignetting" in fx else 1.0
         amplitude = np.maximum(light * shading, 0.0)
         phasor = None
         if r.phasor is not None:
             if "flying_pixels" in fx:  # every return reaching the pixel, through the optical PSF
-                phasor = self.geometry.blur(r.phasor, focus_distance_mm) * scale * shading
+                phasor = self.geometry.blur(r.phasor_fine, focus_distance_mm, r.oversample) * scale * shading
             else:  # the dominant surface alone
                 phasor = amplitude * np.exp(1j * self.wavenumber * np.nan_to_num(r.range_dom))
         range_mm = self._measured_range(r.range_dom, phasor, light)
