@@ -1,5 +1,5 @@
 # labctl: the two commands of the README's Quick start.
-#   make demo  - simulated characterization campaign, evaluation and HTML report
+#   make demo  - simulated characterization of the four cameras, their reports and their comparison
 #   make test  - the whole test suite
 # Both create (or refresh, when pyproject.toml changed) the virtual environment .venv.
 
@@ -10,6 +10,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_DIR ?= demo-output
+DEMO_CAMERAS ?= blaze101 amt100 flexx2 d455
 PYTEST_WORKERS ?= 2
 
 .PHONY: demo test bench clean
@@ -22,14 +23,18 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS)
+	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadgroup
 
 demo: $(STAMP)
 	@rm -rf $(DEMO_DIR) && mkdir -p $(DEMO_DIR)
-	$(BIN)/labctl plan examples/demo_blaze101.toml
-	$(BIN)/labctl run examples/demo_blaze101.toml --sim -o $(DEMO_DIR)/blaze101.h5
-	$(BIN)/labctl evaluate $(DEMO_DIR)/blaze101.h5 -o $(DEMO_DIR)/blaze101
-	@echo "Open the report: $(abspath $(DEMO_DIR))/blaze101/report.html"
+	@for camera in $(DEMO_CAMERAS); do \
+	  echo "== $$camera: simulated characterization (examples/demo/$$camera.toml)"; \
+	  $(BIN)/labctl plan examples/demo/$$camera.toml | grep "^campaign" && \
+	  $(BIN)/labctl run examples/demo/$$camera.toml --sim -o $(DEMO_DIR)/$$camera.h5 && \
+	  $(BIN)/labctl evaluate $(DEMO_DIR)/$$camera.h5 -o $(DEMO_DIR)/$$camera || exit 1; \
+	done
+	$(BIN)/labctl compare $(addprefix $(DEMO_DIR)/,$(DEMO_CAMERAS)) -o $(DEMO_DIR)/comparison
+	@echo "Open the reports: $(abspath $(DEMO_DIR))/<camera>/report.html and $(abspath $(DEMO_DIR))/comparison/compare.html"
 
 bench: $(STAMP)
 	$(BIN)/python -m bench

@@ -22,7 +22,7 @@ from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
 from labctl.operator import Operator
 from labctl.planning import format_duration, schedule
-from labctl.progress import Reporter
+from labctl.progress import EvaluationProgress, Reporter
 from labctl.runner import Runner, bring_to_safe_state, close_all, connect_lab
 from labctl.store import RunWriter, labctl_version
 from sim.model import default_model_text, load_model, parse_model
@@ -181,11 +181,12 @@ def resume(run_file: Path, quiet: bool) -> None:
 @click.option("--quiet", is_flag=True, help="no progress output")
 def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     """Compute every metric RUNS allow: OUTPUT/keyfigures.json and OUTPUT/report.html."""
-    from labctl.evaluate import evaluate_runs
+    from labctl.evaluate import count_complete_steps, evaluate_runs
     from labctl.report import write_outputs
 
     reporter = Reporter(quiet=quiet)
-    evaluation = evaluate_runs(runs, progress=lambda what: reporter.message(f"evaluating {what}"))
+    with EvaluationProgress(count_complete_steps(runs), quiet=quiet) as progress:
+        evaluation = evaluate_runs(runs, progress=progress)
     json_path, report = write_outputs(evaluation, output)
     reporter.message(f"key figures: {json_path}")
     click.echo(f"report: {report}")

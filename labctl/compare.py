@@ -99,9 +99,9 @@ def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: P
     ax.set_xticklabels([n + (" x10" if n in TIMES_TEN else "") for n in names], rotation=70, ha="right", fontsize=8)
     ax.set_yscale("log")
     ax.set_ylabel("value (mm, %, deg x10); lower is better")
-    ax.set_title("Key figures of the cameras (thesis Fig. 6-12); missing bars: not measured")
+    ax.set_title("Key figures of the cameras (thesis Fig. 6-12); missing bars: not measured, or 0", pad=28)
     ax.grid(axis="y", alpha=0.3, which="both")
-    ax.legend()
+    ax.legend(ncol=max(len(labels), 1), loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=9, frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -115,7 +115,7 @@ def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> P
     ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
     ax.set_ylabel("px across 62.5 mm at the hyperfocal distance")
     ax.set_title("Inter-eye distance coverage (thesis eq. 6-2)")
-    ax.legend()
+    ax.legend(loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -125,7 +125,9 @@ def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> P
 def _fmt(value: Any) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return '<span style="color:#999">n/a</span>'
-    return f"{value:.3g}" if isinstance(value, float) else html.escape(str(value))
+    if isinstance(value, float):
+        return f"{value:.0f}" if abs(value) >= 100 else f"{value:.3g}"
+    return html.escape(str(value))
 
 
 def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:

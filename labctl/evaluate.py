@@ -167,6 +167,15 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
         evaluation.figures[name] = FigureValue(value, source)
 
 
+def count_complete_steps(paths: Sequence[str | Path]) -> int:
+    """Complete steps over the run files (the evaluation's unit of progress)."""
+    total = 0
+    for path in paths:
+        with RunReader(path) as reader:
+            total += len(reader.steps())
+    return total
+
+
 def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] = lambda _: None) -> Evaluation:
     """Every metric the given runs allow (all runs must come from one camera)."""
     if not paths:

@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 
 from labctl.eval_sharpness import SharpnessResult  # noqa: E402
 from labctl.evaluate import DepthPosition, SurfaceResult  # noqa: E402
+from metrics.xy_error import XYPrecision  # noqa: E402
 
 
 def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
@@ -46,6 +47,26 @@ def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
     ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("reference distance (mm)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -> Path:
+    """x and y precision (Q90 of the per-pixel std) and the centre pixel's repeatability over distance (SPEC 6)."""
+    rows = sorted(precision, key=lambda item: item[1])
+    d = np.array([distance for _, distance, _ in rows])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
+    for ax, axis in zip(axes, "xy"):
+        ax.plot(d, [getattr(p, f"precision_q90_{axis}_mm") for *_, p in rows], marker="o", ms=3, label="Q90 over pixels")
+        ax.plot(d, [getattr(p, f"repeatability_center_{axis}_mm") for *_, p in rows], marker="o", ms=3,
+                label="centre pixel")
+        ax.set_title(f"{axis} noise (per-pixel std over the stack)")
+        ax.set_xlabel("distance (mm)")
+        ax.set_ylabel("mm")
+        ax.grid(alpha=0.3)
+        ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -15,7 +15,14 @@ from labctl.keyfigures import FIGURE_BY_NAME, clean, keyfigures_document
 from labctl.plot_boehler import plot_boehler
 from labctl.plot_distortion import plot_distortion
 from labctl.plot_remission import plot_misalignment_fit, plot_remission
-from labctl.plots import plot_depth_curves, plot_face_mask, plot_resolution, plot_sharpness, plot_surface_maps
+from labctl.plots import (
+    plot_depth_curves,
+    plot_face_mask,
+    plot_resolution,
+    plot_sharpness,
+    plot_surface_maps,
+    plot_xy_noise,
+)
 from labctl.pointcloud_io import write_pcd
 from labctl.store import labctl_version, now_iso
 from labctl.suitability import suitability
@@ -25,7 +32,7 @@ body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em a
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ddd;padding:.3em .6em;text-align:right}
 th{background:#f4f4f4}td.l,th.l{text-align:left}.null{color:#999}.note{color:#a15c00}
-img{max-width:100%;border:1px solid #eee}
+img{max-width:100%;border:1px solid #eee}td.src{font-size:.85em;color:#555}
 """
 
 
@@ -33,8 +40,22 @@ def _fmt(value: Any, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return '<span class="null">n/a</span>'
     if isinstance(value, float):
-        return f"{value:.{digits}g}" if abs(value) < 1e4 else f"{value:.0f}"
+        return f"{value:.0f}" if abs(value) >= 10 ** (digits - 1) else f"{value:.{digits}g}"
     return html.escape(str(value))
+
+
+def _sources(source: str) -> str:
+    """Source steps, runs of one procedure shortened to 'first ... last procedure (n steps)'."""
+    ids = [s for s in (source or "").split(",") if s]
+    groups: list[list[str]] = []
+    for step in ids:
+        kind = step.split("_", 1)[-1]
+        if groups and groups[-1][-1].split("_", 1)[-1] == kind:
+            groups[-1].append(step)
+        else:
+            groups.append([step])
+    parts = [", ".join(g) if len(g) < 3 else f"{g[0].split('_', 1)[0]} ... {g[-1]} ({len(g)} steps)" for g in groups]
+    return html.escape(", ".join(parts))
 
 
 def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
@@ -132,7 +153,8 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                  "repeatability_center_y_mm": p.repeatability_center_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
                  "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
         doc["xy_noise"] = _clean_rows(rows)
-        sections.append(f"<h2>x/y noise on the wall (SPEC 6)</h2>{_rows_table(rows, 'step')}")
+        img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
+        sections.append(_section("x/y noise on the wall (SPEC 6)", img, outdir, _rows_table(rows, "step")))
     return sections
 
 
@@ -215,12 +237,12 @@ def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> s
     fig_rows = "".join(
         f'<tr><td class="l">{html.escape(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td>'
-        f'<td class="l">{html.escape(f["source"] or "")}</td></tr>'
+        f'<td class="l src">{_sources(f["source"])}</td></tr>'
         for name, f in doc["figures"].items()
     )
     notes = "".join(f'<li class="note">{html.escape(n)}</li>' for n in evaluation.notes)
     runs = "".join(f"<li>{html.escape(r)}</li>" for r in evaluation.runs)
-    simulated = " (simulated)" if cam.get("simulated") else ""
+    simulated = " (simulated)" if cam.get("simulated") and "simulated" not in cam["model"] else ""
     suit_html = _suitability_html(doc["suitability"])
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>labctl report: {html.escape(cam['model'])}</title>

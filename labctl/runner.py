@@ -234,7 +234,11 @@ class Runner:
         from metrics.stack import stack_stats
 
         x, y, z = (stack_stats(writer.group[c][()]).mean for c in ("x", "y", "z"))
-        fields = alignment_fields(x, y, z, int(step.target_params.get("field_px", 10)))
+        try:
+            fields = alignment_fields(x, y, z, int(step.target_params.get("field_px", 10)),
+                                      step.target_params.get("margin_px"))
+        except ValueError as exc:
+            raise DeviceError("camera", f"alignment: {exc}; move the fields with margin_px / field_px") from None
         depths = ", ".join(f"{name.replace('_', ' ')} {value:.1f}" for name, value in fields.depths().items())
         self.reporter.message(f"alignment fields (mm): {depths}; implied tilt about x {fields.tilt_x_deg:+.3f} deg, "
                               f"about y {fields.tilt_y_deg:+.3f} deg")

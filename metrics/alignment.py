@@ -32,12 +32,19 @@ class AlignmentFields:
 
 
 def field_slices(height: int, width: int, field_px: int = 10, margin_px: int | None = None) -> dict[str, tuple[slice, slice]]:
-    """The four corner fields, ``margin_px`` (default: one field size) in from the image border."""
-    m = field_px if margin_px is None else margin_px
-    if 2 * (m + field_px) > min(height, width):
-        raise ValueError(f"fields of {field_px} px with {m} px margin do not fit a {width} x {height} image")
-    rows = {"top": slice(m, m + field_px), "bottom": slice(height - m - field_px, height - m)}
-    cols = {"left": slice(m, m + field_px), "right": slice(width - m - field_px, width - m)}
+    """The four corner fields, ``margin_px`` in from the image border.
+
+    By default the margin is 10 % of the image side (at least one field size):
+    clear of the dark corners of a ToF image and of an active-stereo camera's
+    invalid band along the left border (the D455's is f B / z, about 20 px at
+    2 m on 640 px).
+    """
+    mr, mc = ((max(field_px, round(0.1 * height)), max(field_px, round(0.1 * width))) if margin_px is None
+              else (margin_px, margin_px))
+    if 2 * (mr + field_px) > height or 2 * (mc + field_px) > width:
+        raise ValueError(f"fields of {field_px} px with {mr} / {mc} px margins do not fit a {width} x {height} image")
+    rows = {"top": slice(mr, mr + field_px), "bottom": slice(height - mr - field_px, height - mr)}
+    cols = {"left": slice(mc, mc + field_px), "right": slice(width - mc - field_px, width - mc)}
     return {f"{r}_{c}": (rows[r], cols[c]) for r in ("top", "bottom") for c in ("left", "right")}
 
 
@@ -49,7 +56,8 @@ def alignment_fields(x: np.ndarray, y: np.ndarray, z: np.ndarray, field_px: int 
         part = [a[rows, cols] for a in (x, y, z)]
         ok = np.isfinite(part[0]) & np.isfinite(part[1]) & np.isfinite(part[2])
         if not ok.any():
-            raise ValueError(f"the {name.replace('_', ' ')} alignment field has no valid pixel")
+            raise ValueError(f"the {name.replace('_', ' ')} alignment field (rows {rows.start}-{rows.stop - 1}, "
+                             f"columns {cols.start}-{cols.stop - 1}) has no valid pixel")
         means[name] = tuple(float(a[ok].mean()) for a in part)  # type: ignore[assignment]
 
     def pair(a: str, b: str, axis: int) -> tuple[float, float]:

@@ -31,6 +31,7 @@ class Alignment(StrictModel):
     distance_mm: float = Field(2000.0, gt=0)
     frames: int = Field(10, ge=1, le=1000)
     field_px: int = Field(10, ge=1, le=100)
+    margin_px: int | None = Field(None, ge=0, description="fields' distance from the image border (10 % of it)")
     camera_settings: dict[str, object] = Field(default_factory=dict)
 
     def stage_distances_mm(self) -> list[float]:
@@ -41,7 +42,7 @@ class Alignment(StrictModel):
             index=first_index,
             procedure=self.kind,
             target="wall",
-            target_params={"field_px": self.field_px},
+            target_params={"field_px": self.field_px, "margin_px": self.margin_px},
             frames=self.frames,
             distance_mm=self.distance_mm,
             camera_settings=self.camera_settings,

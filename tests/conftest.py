@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
 import pytest
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # one pytest-xdist worker per core: the compiled kernels run single-threaded in each, instead of
+    # every worker starting a thread per core (oversubscribed, the suite ran twice as long)
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 SMALL_MODEL = """\
 camera = "{camera}"

@@ -1,5 +1,6 @@
 """The runner: retries, identical data under faults, safe state on every failure path."""
 
+import json
 from pathlib import Path
 
 import h5py
@@ -96,6 +97,18 @@ class StuckCamera:
             if self.good <= 0:
                 raise DroppedFrame("camera", "no frame")
             self.good -= 1
+            yield frame
+
+
+class DarkCorner(StuckCamera):
+    """Wraps a camera so that its top left pixel is never valid."""
+
+    def __init__(self, inner):
+        super().__init__(inner, 10**9)
+
+    def capture(self, count, first_index=0):
+        for frame in self.inner.capture(count, first_index):
+            frame.z[0, 0] = np.nan
             yield frame
 
 
@@ -213,3 +226,73 @@ def test_unexpected_error_still_reaches_safe_state(tmp_path, write_campaign, sma
     with h5py.File(tmp_path / "r.h5", "r") as f:
         assert f.attrs["status"] == "aborted"
         assert "internal error: ValueError" in f.attrs["status_reason"]
+
+
+ALIGNMENT = """
+[[procedure]]
+kind = "alignment"
+frames = 3
+{extra}
+"""
+
+
+class ScriptedOperator(Operator):
+    """An operator who answers the alignment question from a script (and confirms every prompt)."""
+
+    def __init__(self, answers: list[str], report) -> None:
+        super().__init__(True, report)
+        self.answers = answers
+        self.questions: list[str] = []
+
+    def choose(self, question: str, options: list[str]) -> str:
+        self.questions.append(question)
+        return self.answers.pop(0)
+
+
+def alignment_runner(tmp_path, write_campaign, small_model, operator_answers, extra=""):
+    campaign, text = load_campaign(write_campaign(procedures=ALIGNMENT.format(extra=extra)))
+    model, model_text = load_model(small_model())
+    lab = build_sim_lab(campaign, model, 1)
+    for dev in lab.devices().values():
+        dev.connect()
+    run = RunWriter.create(
+        tmp_path / "a.h5", campaign_toml=text, simulated=True,
+        devices={r: (d.identity(), d.settings()) for r, d in lab.devices().items()},
+        camera=lab.camera.info(), sim=(model_text, 1),
+    )
+    messages: list[str] = []
+    operator = ScriptedOperator(list(operator_answers), messages.append)
+    reporter = Reporter(quiet=True)
+    reporter.message = messages.append  # type: ignore[method-assign]
+    return Runner(campaign, lab, run, reporter, operator), run, lab, operator, messages
+
+
+def test_alignment_is_measured_again_until_the_operator_accepts(tmp_path, write_campaign, small_model):
+    """Each stack shows the four field depths and the tilt; 'measure again' replaces the stack, the
+    accepted one is recorded once with its fields and tilt."""
+    runner, run, lab, operator, messages = alignment_runner(
+        tmp_path, write_campaign, small_model, ["measure again", "measure again", "accept"], extra="field_px = 4")
+    runner.execute()
+    run.close()
+    assert len(operator.questions) == 3 and not operator.answers
+    shown = [m for m in messages if m.startswith("alignment fields (mm): top left")]
+    assert len(shown) == 3 and all("implied tilt about x" in m for m in shown)
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        steps = list(f["steps"])
+        assert steps == ["00000_alignment"]
+        attrs = f["steps/00000_alignment"].attrs
+        assert attrs["complete"] and set(json.loads(attrs["alignment_fields_json"])) == {
+            "top_left", "top_right", "bottom_left", "bottom_right"}
+        assert abs(attrs["tilt_x_deg"]) < 0.5 and abs(attrs["tilt_y_deg"]) < 0.5
+
+
+def test_alignment_field_without_valid_pixels_aborts_with_a_clear_message(tmp_path, write_campaign, small_model):
+    """Fields pushed to the very corner of a camera whose corners are dark: the run stops, says which field
+    and what to change, and the devices go to their safe state."""
+    runner, run, lab, operator, _ = alignment_runner(tmp_path, write_campaign, small_model, ["accept"],
+                                                     extra="margin_px = 0\nfield_px = 1")
+    lab.camera = DarkCorner(lab.camera)
+    with pytest.raises(RunAborted, match=r"alignment: the top left alignment field \(rows 0-0, columns 0-0\) has no "
+                                         r"valid pixel; move the fields with margin_px / field_px"):
+        runner.execute()
+    assert lab.camera.safe_calls == 1 and not operator.questions

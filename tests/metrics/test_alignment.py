@@ -35,9 +35,12 @@ def test_fields_must_fit_and_be_valid():
     with pytest.raises(ValueError, match="do not fit"):
         field_slices(20, 30, field_px=10)
     x, y, z = wall_cloud(0, 0)
-    z[10:20, 10:20] = np.nan
-    with pytest.raises(ValueError, match="top left alignment field has no valid pixel"):
+    h, w = z.shape
+    top, left = max(10, round(0.1 * h)), max(10, round(0.1 * w))
+    z[top : top + 10, left : left + 10] = np.nan
+    with pytest.raises(ValueError, match="top left alignment field .* has no valid pixel"):
         alignment_fields(x, y, z)
+    assert alignment_fields(x, y, z, margin_px=0).fields["top_left"][2] > 0
 
 
 def test_simulated_tilt_is_recovered_through_the_camera():
