@@ -89,30 +89,41 @@ class StereoSensor:
     def expected(self, rendered: tuple[Rendered, np.ndarray], exposure_us: float,
                  projector: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Noise-free depth (mm, NaN where matching fails), validity, left IR image and disparity noise (px)."""
-        p, fx, geo = self.profile, self.effects, self.geometry
+        p = self.profile
         left, visible = rendered
-        focus_distance_mm = centre_distance_mm(left)
-        gain = exposure_us / p.exposure_us
-        k = left.oversample
-        light = AMBIENT_LEVEL * left.passive_fine
-        if projector:  # each dot covers whole pixels
-            dots = np.repeat(np.repeat(self.dots, k, axis=0), k, axis=1)
-            light = light + PROJECTOR_LEVEL * left.irradiance_fine / IRRADIANCE_REF * dots
-        ir = geo.blur(light * gain, focus_distance_mm, k)
-        if "vignetting" in fx:
-            ir = ir * vignetting.factor(geo.cos_alpha, fx["vignetting"])
-        ir = np.maximum(ir, 0.0)
-        z = left.z_dom
-        if "range_scale" in fx:
-            z = range_scale.apply(z, fx["range_scale"])
-        if "range_offset" in fx:
-            z = range_offset.apply(z, fx["range_offset"])
+        ir = self.ir_image(left, exposure_us, projector)
+        z = self.depth(left)
         textured = local_contrast(ir) >= p.texture_threshold
         in_range = (left.hit_fraction > 0) & (z >= p.min_range_mm) & (z <= p.max_range_mm)
         valid = in_range & textured & visible & np.isfinite(z)
         theta = np.arccos(np.clip(left.cos_dom, 1e-6, 1.0))
         angle_term = 1.0 + p.angle_noise_gain * theta**2 / np.maximum(math.pi / 2 - theta, 1e-3) ** 2
         return np.where(valid, z, np.nan), valid, ir, self.subpixel_noise_px * angle_term
+
+    def ir_image(self, left: Rendered, exposure_us: float, projector: bool = True) -> np.ndarray:
+        """Noise-free left IR image: lamps plus (with ``projector``) the dots, blurred, times ``vignetting``.
+
+        ``self.dots`` holds each pixel's dot coverage (1 or 0, or a fraction for a binned sensor).
+        """
+        geo = self.geometry
+        k = left.oversample
+        light = AMBIENT_LEVEL * left.passive_fine
+        if projector:  # each dot covers whole pixels
+            dots = np.repeat(np.repeat(self.dots, k, axis=0), k, axis=1)
+            light = light + PROJECTOR_LEVEL * left.irradiance_fine / IRRADIANCE_REF * dots
+        ir = geo.blur(light * (exposure_us / self.profile.exposure_us), centre_distance_mm(left), k)
+        if "vignetting" in self.effects:
+            ir = ir * vignetting.factor(geo.cos_alpha, self.effects["vignetting"])
+        return np.maximum(ir, 0.0)
+
+    def depth(self, left: Rendered) -> np.ndarray:
+        """Noise-free depth of the left camera's dominant surface after ``range_scale`` and ``range_offset``."""
+        z, fx = left.z_dom, self.effects
+        if "range_scale" in fx:
+            z = range_scale.apply(z, fx["range_scale"])
+        if "range_offset" in fx:
+            z = range_offset.apply(z, fx["range_offset"])
+        return z
 
     def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int,
                 projector: bool = True) -> StereoPrepared:
