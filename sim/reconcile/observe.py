@@ -1,0 +1,155 @@
+"""What a measured run shows, reduced to what the reconcile workflow compares.
+
+Every complete step that the simulator can re-create (a wall, chart, board,
+star, mask or material plate) becomes a :class:`StepScene` (where the camera
+was, what it saw, with which exposure and when) and an :class:`Observation`:
+the stack mean of z and intensity averaged over ``bin_px`` x ``bin_px`` pixel
+bins, the variance of each bin's mean estimated from the stack itself, and the
+bin's valid fraction. At most ``max_frames`` frames per step are read: a
+reconcile needs the means, not every frame. ``/sim`` of the file is never read.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from labctl.store import RunReader, StepRecord
+from metrics.stack import stack_stats
+from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
+
+MAX_FRAMES = 10
+
+
+@dataclass(frozen=True)
+class StepScene:
+    """What the simulator needs to re-create one measured step."""
+
+    step_id: str
+    procedure: str
+    target: str
+    target_params: dict[str, Any]
+    wall_distance_mm: float | None  # stage lab: camera-wall distance (the measurement's reference)
+    reference: str  # "laser", "stage" or "robot": which nuisance offset group the step belongs to
+    robot_angle_deg: float | None
+    robot_radius_mm: float | None
+    exposure_us: float | None
+    projector: bool
+
+
+@dataclass(frozen=True)
+class Observation:
+    scene: StepScene
+    z: np.ndarray  # (h, w) binned stack-mean z, NaN where the bin has too few valid pixels
+    z_var: np.ndarray  # variance of the binned mean
+    intensity: np.ndarray  # binned stack-mean intensity
+    intensity_var: np.ndarray  # variance of the binned mean intensity
+    valid_fraction: np.ndarray
+    times_s: np.ndarray  # device time of the frames used, s
+
+
+def _finite(value: Any) -> float | None:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def step_scene(step: StepRecord) -> StepScene | None:
+    """The step's scene, or None when the simulator has no scene for its target."""
+    a = step.attrs
+    target = str(a.get("target", ""))
+    if target not in STAGE_TARGETS and target not in PLATE_MATERIALS:
+        return None
+    params = json.loads(a.get("target_json", "{}") or "{}")
+    settings = json.loads(a.get("settings_json", "{}") or "{}")
+    reference = _finite(a.get("reference_distance_mm"))
+    nominal = _finite(a.get("distance_mm"))
+    if target in PLATE_MATERIALS:
+        group, wall = "robot", None
+    elif reference is not None and a.get("reference_source") == "laser":
+        group, wall = "laser", reference
+    else:
+        group, wall = "stage", reference if reference is not None else nominal
+    if target in STAGE_TARGETS and wall is None:
+        return None
+    return StepScene(
+        step_id=step.step_id,
+        procedure=str(a.get("procedure", "")),
+        target=target,
+        target_params=params,
+        wall_distance_mm=wall,
+        reference=group,
+        robot_angle_deg=_finite(a.get("robot_angle_deg")),
+        robot_radius_mm=_finite(a.get("robot_radius_mm")) or _finite(params.get("radius_mm")),
+        exposure_us=_finite(a.get("exposure_us")),
+        projector=bool(settings.get("projector", settings.get("emitter", True))),
+    )
+
+
+def bin_mean(values: np.ndarray, bin_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of the finite values in each bin_px x bin_px bin, and their count (image cropped to whole bins)."""
+    h, w = values.shape[0] // bin_px * bin_px, values.shape[1] // bin_px * bin_px
+    v = values[:h, :w].reshape(h // bin_px, bin_px, w // bin_px, bin_px)
+    ok = np.isfinite(v)
+    count = ok.sum(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, np.where(ok, v, 0.0).sum(axis=(1, 3)) / count, np.nan)
+    return mean, count
+
+
+def observe(step: StepRecord, scene: StepScene, bin_px: int, max_frames: int = MAX_FRAMES) -> Observation:
+    """Binned stack statistics of one step from its first ``max_frames`` frames."""
+    n = min(int(step.group["z"].shape[0]), max_frames)
+    z_stats = stack_stats(step.group["z"][:n])
+    i_stats = stack_stats(step.group["intensity"][:n].astype(np.float32))
+    z_mean, count = bin_mean(z_stats.mean, bin_px)
+    per_pixel_var = np.where(z_stats.valid, z_stats.std**2 / np.maximum(z_stats.count, 1), np.nan)
+    var_sum, _ = bin_mean(per_pixel_var, bin_px)
+    valid_fraction = count / float(bin_px * bin_px)
+    keep = valid_fraction >= 0.5
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z_var = np.where(keep, var_sum / np.maximum(count, 1), np.nan)
+    i_mean, i_count = bin_mean(np.where(i_stats.valid, i_stats.mean, np.nan), bin_px)
+    i_var_sum, _ = bin_mean(np.where(i_stats.valid, i_stats.std**2 / np.maximum(i_stats.count, 1), np.nan), bin_px)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        i_var = i_var_sum / np.maximum(i_count, 1)
+    times = np.asarray(step.group["timestamp"][:n], float) if "timestamp" in step.group else np.zeros(0)
+    return Observation(scene, np.where(keep, z_mean, np.nan), z_var, i_mean, i_var, valid_fraction, times)
+
+
+def choose_bin(width: int, height: int, target_width: int = 48) -> int:
+    """The divisor of both sensor sides closest to ``width / target_width`` (so bins tile the sensor)."""
+    common = math.gcd(width, height)
+    divisors = [d for d in range(1, common + 1) if common % d == 0]
+    goal = max(1.0, width / target_width)
+    return min(divisors, key=lambda d: (abs(math.log(d / goal)), d))
+
+
+def observe_run(path: str | Path, bin_px: int | None = None,
+                max_frames: int = MAX_FRAMES) -> tuple[list[Observation], dict[str, Any], list[str]]:
+    """Observations of every re-creatable step, the camera description, and notes on skipped steps."""
+    notes: list[str] = []
+    with RunReader(path) as run:
+        camera = run.camera
+        bin_px = bin_px or choose_bin(camera.width, camera.height)
+        observations = []
+        for step in run.steps():
+            scene = step_scene(step)
+            if scene is None:
+                notes.append(f"{step.step_id}: target {step.attrs.get('target')!r} has no simulated scene; skipped")
+                continue
+            observations.append(observe(step, scene, bin_px, max_frames))
+        info = {
+            "width": camera.width, "height": camera.height, "fov_deg": list(camera.fov_deg),
+            "bin_px": bin_px, "backend": run.devices.get("camera", {}).get("backend", ""),
+            "model": run.devices.get("camera", {}).get("model", ""),
+            "campaign_toml": run.attrs.get("campaign_toml", ""),
+        }
+    return observations, info, notes

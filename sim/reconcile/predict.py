@@ -1,0 +1,169 @@
+"""The simulation's noise-free prediction of a measured step, on the binned grid.
+
+The reconcile workflow compares bin means, so the simulator runs the camera
+at the bin grid: ``bin_px`` x ``bin_px`` pixels become one pixel (width,
+height, lens PSF and defocus disc divided by ``bin_px``). The bin's centre
+ray is then exactly the binned pixel's ray (``Pinhole``: c = (W - 1) / 2,
+f = (W / 2) / tan(FOV / 2)), and a smooth surface's bin mean equals the
+value at that ray to second order. Bins that straddle a depth or reflectance
+edge are flagged (``edge``) and left out of the comparison.
+
+Per step the prediction holds what the candidate effects' signatures are
+built from: the range and the z / range ratio of the reported rays (ToF), the
+light before vignetting, the pixel's dominant-return phasor mean (multipath),
+and the frames' mean drift factor. Renders are cached per step and per
+geometric effect setting, so that effects acting after the render re-simulate
+a whole run in milliseconds per step.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from sim.effects import EffectParams, temperature_drift
+from sim.geometry import Pose
+from sim.model import SimModel
+from sim.profiles import CameraProfile
+from sim.reconcile.observe import StepScene, bin_mean
+from sim.render import centre_distance_mm, render
+from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
+from sim.sensor import default_coc_px
+from sim.stereo import StereoSensor, dot_pattern
+from sim.tof import ToFSensor, surface_properties
+
+#: effects that change what the render sees (re-rendered when their parameters change)
+GEOMETRIC = ("radial_distortion", "fov_error", "target_misalignment", "camera_axis_offset", "material_bias",
+             "flying_pixels", "multipath")
+STAGE_GEOMETRIC = tuple(k for k in GEOMETRIC if k not in ("target_misalignment", "camera_axis_offset"))
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Noise-free binned prediction of one step."""
+
+    z: np.ndarray  # mm, NaN where the camera reports nothing
+    intensity: np.ndarray
+    range_mm: np.ndarray  # ToF: range along the ray; stereo: z
+    range_dom: np.ndarray  # range of the dominant surface as rendered (before any range effect)
+    z_per_range: np.ndarray  # z / range of the reported ray (1 for stereo)
+    light: np.ndarray  # returned light before vignetting (ToF amplitude units)
+    phasor_mean: complex  # mean dominant-return phasor over the image (ToF)
+    cos_alpha: np.ndarray  # cosine of each bin's ray to the optical axis
+    edge: np.ndarray  # bins next to a depth or reflectance edge
+
+
+def binned_profile(profile: CameraProfile, width: int, height: int, bin_px: int) -> CameraProfile:
+    """The measured camera (``width`` x ``height``) with ``bin_px`` x ``bin_px`` pixels merged into one.
+
+    The binned camera has no optical blur: blur only moves light across edges, and bins within the blur's
+    reach of an edge are left out of the comparison (``Predictor.blur_reach_bins``).
+    """
+    return profile.with_overrides({"width": width // bin_px, "height": height // bin_px, "lens_sigma_px": 0.0})
+
+
+def binned_effects(model: SimModel) -> dict[str, EffectParams]:
+    """The model's effects for the binned camera: all but the blur (``defocus``)."""
+    return {k: v for k, v in model.effect_params().items() if k != "defocus"}
+
+
+def scene_and_pose(step: StepScene, model: SimModel, effects: dict[str, EffectParams], wavelength_nm: float):
+    """The scene and camera pose of a measured step, as the simulated lab (sim/world.py) builds them."""
+    if step.target in PLATE_MATERIALS:
+        axis, misaligned = effects.get("camera_axis_offset"), effects.get("target_misalignment")
+        pose = Pose.on_circle(step.robot_angle_deg or 0.0, step.robot_radius_mm or 0.0,
+                              axis.offset_mm if axis else 0.0)
+        params = {k: v for k, v in step.target_params.items() if k != "offset_mm"}
+        scene = plate_scene(step.target, wavelength_nm, offset_mm=misaligned.offset_mm if misaligned else 0.0,
+                            **params)
+        return scene, pose
+    pose = Pose.at_origin(model.lab.tilt_x_deg, model.lab.tilt_y_deg)
+    return build_scene(step.target, step.target_params, wavelength_nm, float(step.wall_distance_mm)), pose
+
+
+class Predictor:
+    """Binned noise-free simulation of measured steps under one model."""
+
+    def __init__(self, model: SimModel, width: int, height: int, bin_px: int,
+                 render_cache: dict[tuple[str, str], Any] | None = None) -> None:
+        self.model = model
+        full = model.profile().with_overrides({"width": width, "height": height})
+        self.full = full
+        self.bin_px = bin_px
+        self.profile = binned_profile(full, width, height, bin_px)
+        self.effects = binned_effects(model)
+        defocus = model.effect_params().get("defocus")
+        self._coc_hyperfocal = ((defocus.coc_px or default_coc_px(full.lens_sigma_px)) * defocus.hyperfocal_mm
+                                if defocus is not None else 0.0)
+        self.technology = self.profile.technology
+        if self.technology == "tof":
+            self.sensor: ToFSensor | StereoSensor = ToFSensor(self.profile, self.effects)
+        else:
+            self.sensor = StereoSensor(self.profile, self.effects)
+            # each binned pixel's share of the dots' light after the in-focus lens PSF
+            spread = ndimage.gaussian_filter(dot_pattern(height, width), full.lens_sigma_px, mode="reflect")
+            self.sensor.dots, _ = bin_mean(spread, bin_px)
+        geo = self.sensor.geometry
+        tx, ty = np.broadcast_arrays(geo.tx.astype(float), geo.ty.astype(float))
+        self.z_per_range = 1.0 / np.sqrt(1.0 + tx**2 + ty**2) if self.technology == "tof" else np.ones_like(tx)
+        self.cos_alpha = np.broadcast_to(geo.cos_alpha, tx.shape)
+        self.cache = render_cache if render_cache is not None else {}
+
+    def geometry_key(self, step: StepScene) -> str:
+        """The effect settings that change what this step's render sees."""
+        names = GEOMETRIC if step.target in PLATE_MATERIALS else STAGE_GEOMETRIC
+        return json.dumps({k: self.effects[k].model_dump(mode="json") for k in names if k in self.effects},
+                          sort_keys=True)
+
+    def _render(self, step: StepScene):
+        key = (step.step_id, self.geometry_key(step))
+        if key not in self.cache:
+            scene, pose = scene_and_pose(step, self.model, self.effects, self.profile.wavelength_nm)
+            if self.technology == "tof":
+                self.cache[key] = self.sensor.render_scene(scene, pose)
+            else:
+                self.cache[key] = render(scene, pose, self.sensor.geometry.optics, surface_properties(scene, {}))
+        return self.cache[key]
+
+    def blur_reach_bins(self, distance_mm: float) -> int:
+        """How many bins the measured camera's blur (3 sigma of the lens PSF plus the defocus disc radius,
+        thesis eq. 2-5) reaches at ``distance_mm``."""
+        reach_px = 3.0 * self.full.lens_sigma_px + 0.5 * self._coc_hyperfocal / max(distance_mm, 1.0)
+        return 1 + int(math.ceil(reach_px / self.bin_px))
+
+    def drift_mm(self, times_s: np.ndarray) -> float:
+        """Mean ``temperature_drift`` over the frames taken at ``times_s`` (0 without the effect)."""
+        fx = self.effects.get("temperature_drift")
+        if fx is None or not len(times_s):
+            return 0.0
+        return float(np.mean([temperature_drift.offset_mm(float(t), fx) for t in times_s]))
+
+    def predict(self, step: StepScene, times_s: np.ndarray) -> Prediction:
+        """The step's binned noise-free z, intensity and the maps the candidate signatures need."""
+        rendered = self._render(step)
+        exposure = step.exposure_us or self.profile.exposure_us
+        drift = self.drift_mm(times_s)
+        reach = self.blur_reach_bins(centre_distance_mm(rendered))
+        edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
+        if isinstance(self.sensor, ToFSensor):
+            range_mm, amplitude, _ = self.sensor.expected(rendered, exposure)
+            range_mm = range_mm + drift
+            fx = self.effects
+            shading = (np.power(self.sensor.geometry.cos_alpha, fx["vignetting"].exponent)
+                       if "vignetting" in fx else 1.0)
+            light = amplitude / shading
+            dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
+            z = range_mm * self.z_per_range
+            return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
+                              complex(dominant.mean()),
+                              self.cos_alpha, edge)
+        z = self.sensor.depth(rendered) + drift
+        z = np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
+        ir = self.sensor.ir_image(rendered, exposure, step.projector)
+        return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge)
+
