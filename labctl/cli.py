@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from labctl import cli_analyze, cli_devices, cli_export, cli_sim
+from labctl import cli_analyze, cli_devices, cli_export, cli_reconcile, cli_sim
 from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
@@ -208,6 +208,7 @@ cli.add_command(cli_devices.devices)
 cli.add_command(cli_sim.sim_group)
 cli.add_command(cli_analyze.analyze_group)
 cli.add_command(cli_export.export)
+cli.add_command(cli_reconcile.reconcile)
 
 
 # ---------------------------------------------------------------------- entry point

@@ -1,0 +1,214 @@
+"""OUTDIR/reconcile.json, OUTDIR/model.toml and the report OUTDIR/reconcile.html with its plots."""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from labctl.store import labctl_version, now_iso  # noqa: E402
+from sim.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1150px;color:#222}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
+table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ddd;padding:.3em .6em;text-align:right}
+th{background:#f4f4f4}td.l,th.l{text-align:left}.note{color:#a15c00}img{max-width:100%;border:1px solid #eee}
+.verdict{font-size:1.3em;font-weight:600}
+"""
+
+
+def _step_means(maps: list[np.ndarray]) -> np.ndarray:
+    return np.array([float(np.nanmean(m)) if np.isfinite(m).any() else math.nan for m in maps])
+
+
+def _step_rms(maps: list[np.ndarray]) -> np.ndarray:
+    return np.array([float(np.sqrt(np.nanmean(m**2))) if np.isfinite(m).any() else math.nan for m in maps])
+
+
+def _radius(shape: tuple[int, int]) -> np.ndarray:
+    h, w = shape
+    y, x = np.mgrid[0:h, 0:w]
+    return np.hypot(x - (w - 1) / 2, y - (h - 1) / 2) / math.hypot(w / 2, h / 2)
+
+
+def plot_residuals(result: ReconcileResult, path: Path) -> Path:
+    """Per-step mean depth residual before/after vs distance, robot angle and time; bin residual vs radius."""
+    before, after = result.iterations[0].residual_z, result.residual_after
+    scenes = [o.scene for o in result.observations]
+    times = np.array([float(np.mean(o.times_s)) if len(o.times_s) else math.nan for o in result.observations])
+    times = times - np.nanmin(times) if np.isfinite(times).any() else times
+    mb, ma = _step_means(before), _step_means(after)
+    stage = np.array([s.wall_distance_mm is not None for s in scenes])
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
+    for ax, x, mask, label in ((axes[0, 0], [s.wall_distance_mm or math.nan for s in scenes], stage,
+                                "camera-target distance (mm)"),
+                               (axes[0, 1], [s.robot_angle_deg if s.robot_angle_deg is not None else math.nan
+                                             for s in scenes], ~stage, "robot angle (deg)"),
+                               (axes[1, 1], times, np.ones(len(scenes), bool), "time since the first frame (s)")):
+        x = np.asarray(x, float)
+        ax.plot(x[mask], mb[mask], "o", color="tab:red", label="before", ms=4)
+        ax.plot(x[mask], ma[mask], "s", color="tab:blue", label="after", ms=4, mfc="none")
+        ax.axhline(0, color="0.6", lw=0.8)
+        ax.set_xlabel(label)
+        ax.set_ylabel("mean depth residual (mm)")
+        ax.legend(fontsize=8)
+        if not mask.any():
+            ax.text(0.5, 0.5, "no such steps in the run", transform=ax.transAxes, ha="center", color="0.5")
+    ax = axes[1, 0]
+    edges = np.linspace(0, 1, 21)
+    for maps, style, label in ((before, "o-", "before"), (after, "s--", "after")):
+        r = np.concatenate([_radius(m.shape)[np.isfinite(m)] for m in maps])
+        v = np.concatenate([m[np.isfinite(m)] for m in maps])
+        idx = np.clip(np.digitize(r, edges) - 1, 0, len(edges) - 2)
+        count = np.bincount(idx, minlength=len(edges) - 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rms = np.sqrt(np.bincount(idx, v * v, len(edges) - 1) / count)
+        ax.plot((edges[:-1] + edges[1:]) / 2, rms, style, label=label, ms=4)
+    ax.set_xlabel("pixel radius (fraction of the half diagonal)")
+    ax.set_ylabel("RMS depth residual (mm)")
+    ax.legend(fontsize=8)
+    fig.suptitle("measurement - simulation (lab nuisance removed): before and after reconcile")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _bin_mean(maps: list[np.ndarray]) -> np.ndarray:
+    """Mean over steps per bin (NaN where no step compared that bin)."""
+    stack = np.stack(maps)
+    count = np.isfinite(stack).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, np.nansum(stack, axis=0) / count, np.nan)
+
+
+def plot_residual_map(result: ReconcileResult, path: Path) -> Path:
+    """Where on the sensor the disagreement sits: mean depth residual per bin over all steps, before/after."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    before, after = _bin_mean(result.iterations[0].residual_z), _bin_mean(result.residual_after)
+    lim = float(np.nanpercentile(np.abs(before), 98)) if np.isfinite(before).any() else 1.0
+    for ax, data, title in ((axes[0], before, "before"), (axes[1], after, "after")):
+        im = ax.imshow(data, cmap="RdBu_r", vmin=-lim, vmax=lim)
+        ax.set_title(f"mean depth residual per bin, {title}")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        fig.colorbar(im, ax=ax, label="mm")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_candidates(result: ReconcileResult, path: Path) -> Path:
+    """Every round's candidate scores (dBIC over steps) against the threshold."""
+    from sim.reconcile.workflow import DBIC_THRESHOLD
+
+    rounds = [it for it in result.iterations if it.fits]
+    fig, axes = plt.subplots(1, max(len(rounds), 1), figsize=(4.2 * max(len(rounds), 1), 3.6), squeeze=False)
+    for ax, (i, it) in zip(axes[0], enumerate(rounds), strict=False):
+        names = [f.name for f in it.fits][::-1]
+        scores = [max(f.score, -20.0) for f in it.fits][::-1]
+        ax.barh(names, scores, color=["tab:green" if s >= DBIC_THRESHOLD else "0.6" for s in scores])
+        ax.axvline(DBIC_THRESHOLD, color="tab:red", ls="--", lw=1)
+        ax.set_title(f"round {i + 1}: {it.decision}", fontsize=9)
+        ax.set_xlabel("dBIC over steps")
+        ax.tick_params(labelsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _where(result: ReconcileResult) -> str:
+    """Per procedure and the worst steps, before the reconcile."""
+    before, after = result.iterations[0].residual_z, result.residual_after
+    rb, ra = _step_rms(before), _step_rms(after)
+    scenes = [o.scene for o in result.observations]
+    rows = []
+    for proc in sorted({s.procedure for s in scenes}):
+        idx = [i for i, s in enumerate(scenes) if s.procedure == proc]
+        rows.append(f"<tr><td class=l>{html.escape(proc)}</td><td>{len(idx)}</td>"
+                    f"<td>{np.sqrt(np.nanmean(rb[idx] ** 2)):.3f}</td><td>{np.sqrt(np.nanmean(ra[idx] ** 2)):.3f}</td></tr>")
+    worst = [i for i in np.argsort(-np.nan_to_num(rb))[:6] if np.isfinite(rb[i])]
+    steps = []
+    for i in worst:
+        s = scenes[i]
+        where = f"{s.wall_distance_mm:.0f} mm" if s.wall_distance_mm is not None else f"{s.robot_angle_deg:g} deg"
+        steps.append(f"<tr><td class=l>{html.escape(s.step_id)}</td><td class=l>{html.escape(s.target)} at {where}</td>"
+                     f"<td>{rb[i]:.3f}</td><td>{ra[i]:.3f}</td></tr>")
+    return ("<table><tr><th class=l>procedure</th><th>steps</th><th>RMS before (mm)</th><th>RMS after (mm)</th></tr>"
+            + "".join(rows) + "</table><p>Steps that disagreed most:</p><table><tr><th class=l>step</th>"
+            "<th class=l>target</th><th>RMS before (mm)</th><th>RMS after (mm)</th></tr>" + "".join(steps) + "</table>")
+
+
+def _params(params: dict[str, Any], stderr: dict[str, float]) -> str:
+    parts = []
+    for k, v in params.items():
+        if isinstance(v, float):
+            err = f" &plusmn; {stderr[k]:.3g}" if k in stderr else ""
+            parts.append(f"{html.escape(k)} = {v:.4g}{err}")
+        else:
+            parts.append(f"{html.escape(k)} = {html.escape(str(v))}")
+    return ", ".join(parts)
+
+
+def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tuple[Path, Path, dict[str, Any]]:
+    """Write model.toml, reconcile.json and reconcile.html (with PNGs) into ``output``."""
+    output.mkdir(parents=True, exist_ok=True)
+    model_path = output / "model.toml"
+    model_path.write_text(result.model_toml(), encoding="utf-8")
+    doc = json_document(result, model_path)
+    (output / "reconcile.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
+    plots = [plot_residuals(result, output / "reconcile_residuals.png"),
+             plot_residual_map(result, output / "reconcile_map.png"),
+             plot_candidates(result, output / "reconcile_candidates.png")]
+    named = "".join(
+        f"<tr><td class=l>{html.escape(e['name'])}</td><td class=l>{_params(e['parameters'], e['evidence']['stderr'])}</td>"
+        f"<td>{e['evidence']['delta_bic']:.1f}</td><td>{e['evidence']['loso_gain']:.3f}</td>"
+        f"<td class=l>{html.escape(str(e['evidence']['runner_up']))}</td>"
+        f"<td>{e['evidence']['gap_before_mm']:.3f} &rarr; {e['evidence']['gap_after_mm']:.3f}</td></tr>"
+        for e in result.named)
+    rounds = "".join(
+        f"<h3>Round {i + 1}: {html.escape(it.decision)} (model effects: {html.escape(', '.join(it.model_effects) or 'none')};"
+        f" gap {it.gap_mm:.3f} mm)</h3><table><tr><th class=l>candidate</th><th>dBIC</th><th>LOSO gain</th>"
+        "<th class=l>linear fit</th></tr>"
+        + "".join(f"<tr><td class=l>{html.escape(f.name)}</td><td>{f.score:.1f}</td><td>{f.loso_gain:.3f}</td>"
+                  f"<td class=l>{_params(f.params, {})}</td></tr>" for f in it.fits) + "</table>"
+        for i, it in enumerate(result.iterations))
+    ambiguity = ""
+    if result.ambiguity:
+        a = result.ambiguity
+        ambiguity = (f"<p class=note>Ambiguous between {html.escape(a['between'][0])} and {html.escape(a['between'][1])}"
+                     f" (dBIC {a['scores'][0]:.1f} vs {a['scores'][1]:.1f}). Their predictions differ most at "
+                     f"{html.escape(a['separating_capture'])}: more captures like it would separate them.</p>")
+    notes = "".join(f"<li>{html.escape(n)}</li>" for n in result.notes)
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>labctl reconcile: {html.escape(measured.name)}</title>
+<style>{CSS}</style></head><body>
+<h1>Reconcile: {html.escape(measured.name)}</h1>
+<p>labctl {html.escape(labctl_version())}, {html.escape(now_iso())}. Model compared: camera
+<b>{html.escape(result.model.camera)}</b>; corrected model: <code>{html.escape(str(model_path))}</code>.</p>
+<p class=verdict>Verdict: {html.escape(result.verdict)}</p>{ambiguity}
+<p>Gap (RMS of the systematic mean-depth residual over every compared bin, lab nuisance removed, stack noise
+subtracted): <b>{result.gap_before:.3f} mm &rarr; {result.gap_after:.3f} mm</b>; intensity gap
+{result.intensity_gap_before:.2f} % &rarr; {result.intensity_gap_after:.2f} %.</p>
+<h2>Named effects</h2>
+<table><tr><th class=l>effect</th><th class=l>parameters (&plusmn; statistical standard error)</th><th>dBIC</th>
+<th>LOSO gain</th><th class=l>runner-up</th><th>gap (mm)</th></tr>{named or '<tr><td colspan=6>none</td></tr>'}</table>
+<h2>Where the disagreement sits</h2>{_where(result)}
+<img src="{plots[1].name}" alt="residual map">
+<h2>Residuals before and after</h2><img src="{plots[0].name}" alt="residual plots">
+<h2>Candidates</h2><img src="{plots[2].name}" alt="candidate scores">{rounds}
+<h2>Notes</h2><ul>{notes}</ul>
+</body></html>"""
+    report = output / "reconcile.html"
+    report.write_text(page, encoding="utf-8")
+    return report, model_path, doc
