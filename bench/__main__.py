@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import sys
 
-from bench import evaluation, recording, sim_capture
+from bench import evaluation, reconcile, recording, sim_capture
 
-BENCHMARKS = {"recording": recording.run, "evaluation": evaluation.run, "sim_capture": sim_capture.run}
+BENCHMARKS = {"recording": recording.run, "evaluation": evaluation.run, "sim_capture": sim_capture.run,
+              "reconcile": reconcile.run}
 
 
 def main(names: list[str]) -> int:

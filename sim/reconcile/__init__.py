@@ -1,0 +1,1 @@
+"""Simulation against measurement: name, fit and add the effects a model misses (docs/reconcile.md)."""
