@@ -38,6 +38,7 @@ from sim.reconcile.predict import Prediction, Predictor
 from sim.reconcile.residuals import Layout
 from sim.render import C_MM_PER_S
 from sim.scenes.targets import PLATE_MATERIALS
+from sim.tof import reference_amplitude
 
 Column = tuple[np.ndarray, np.ndarray]  # change of the stacked depth rows and log-intensity rows (Layout order)
 
@@ -178,7 +179,7 @@ TEMPERATURE_DRIFT = Candidate(
 
 # intensity_related_error: dr = e A_ref / A (light before vignetting)
 def _ire_columns(ctx: Context, _: float | None) -> list[Column]:
-    a_ref = ctx.make_predictor(ctx.model).sensor.a_ref
+    a_ref = reference_amplitude(ctx.model.profile())
     light = ctx.z_rows("light")
     with np.errstate(divide="ignore", invalid="ignore"):
         return [_depth(ctx, np.where(light > 0, a_ref / light, 0.0) * ctx.z_rows("z_per_range"))]

@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -72,6 +73,15 @@ def binned_effects(model: SimModel) -> dict[str, EffectParams]:
     return {k: v for k, v in model.effect_params().items() if k != "defocus"}
 
 
+@lru_cache(maxsize=4)
+def binned_dots(height: int, width: int, lens_sigma_px: float, bin_px: int) -> np.ndarray:
+    """Each binned pixel's share of the projector dots' light after the in-focus lens PSF (read-only)."""
+    spread = ndimage.gaussian_filter(dot_pattern(height, width), lens_sigma_px, mode="reflect")
+    coverage, _ = bin_mean(spread, bin_px)
+    coverage.setflags(write=False)
+    return coverage
+
+
 def scene_and_pose(step: StepScene, model: SimModel, effects: dict[str, EffectParams], wavelength_nm: float):
     """The scene and camera pose of a measured step, as the simulated lab (sim/world.py) builds them."""
     if step.target in PLATE_MATERIALS:
@@ -105,9 +115,7 @@ class Predictor:
             self.sensor: ToFSensor | StereoSensor = ToFSensor(self.profile, self.effects)
         else:
             self.sensor = StereoSensor(self.profile, self.effects)
-            # each binned pixel's share of the dots' light after the in-focus lens PSF
-            spread = ndimage.gaussian_filter(dot_pattern(height, width), full.lens_sigma_px, mode="reflect")
-            self.sensor.dots, _ = bin_mean(spread, bin_px)
+            self.sensor.dots = binned_dots(height, width, full.lens_sigma_px, bin_px)
         geo = self.sensor.geometry
         tx, ty = np.broadcast_arrays(geo.tx.astype(float), geo.ty.astype(float))
         self.z_per_range = 1.0 / np.sqrt(1.0 + tx**2 + ty**2) if self.technology == "tof" else np.ones_like(tx)

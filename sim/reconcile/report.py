@@ -14,16 +14,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from labctl.report import CSS as REPORT_CSS  # noqa: E402
 from labctl.store import labctl_version, now_iso  # noqa: E402
 from sim.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
 
-CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1150px;color:#222}
-h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
-table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ddd;padding:.3em .6em;text-align:right}
-th{background:#f4f4f4}td.l,th.l{text-align:left}.note{color:#a15c00}img{max-width:100%;border:1px solid #eee}
-.verdict{font-size:1.3em;font-weight:600}
-"""
+CSS = REPORT_CSS + ".verdict{font-size:1.3em;font-weight:600}\n"
 
 
 def _step_means(maps: list[np.ndarray]) -> np.ndarray:

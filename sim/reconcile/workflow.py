@@ -124,9 +124,8 @@ class Simulation:
         return [predictor.predict(o.scene, o.times_s - self.t0_s) for o in self.observations]
 
 
-def gaps(lay: Layout, obs: list[Observation], preds: list[Prediction]) -> tuple[float, float]:
-    """(depth gap in mm, intensity gap in %) between the measurement and these predictions."""
-    dz, di = raw_residuals(obs, preds)
+def gaps(lay: Layout, obs: list[Observation], dz: list[np.ndarray], di: list[np.ndarray]) -> tuple[float, float]:
+    """(depth gap in mm, intensity gap in %) of the residual maps ``dz``, ``di`` (``raw_residuals``)."""
     with np.errstate(invalid="ignore", divide="ignore"):
         log_var = [o.intensity_var / o.intensity**2 for o in obs]
     return depth_gap_mm(lay, dz, [o.z_var for o in obs]), intensity_gap_pct(lay, di, log_var)
@@ -138,9 +137,8 @@ def competing(a: Fit, b: Fit) -> bool:
     return norm > 0 and abs(float(a.signature @ b.signature)) / norm >= COMPETING_CORRELATION
 
 
-def _residual_maps(lay: Layout, obs: list[Observation], preds: list[Prediction]) -> list[np.ndarray]:
+def _residual_maps(lay: Layout, dz: list[np.ndarray]) -> list[np.ndarray]:
     """Per-step depth residual maps with the nuisance removed (NaN outside the compared bins)."""
-    dz, _ = raw_residuals(obs, preds)
     flat = lay.profile_z(np.nan_to_num(lay.stack_z(dz)))
     maps, start = [], 0
     for d, mask in zip(dz, lay.z_masks, strict=True):
@@ -152,20 +150,36 @@ def _residual_maps(lay: Layout, obs: list[Observation], preds: list[Prediction])
     return maps
 
 
+def _fit_effects(found: list[tuple[Candidate, dict[str, Any]]], model: SimModel, sim: Simulation, lay: Layout,
+                 max_nfev: int) -> tuple[optimize.OptimizeResult, Callable[[np.ndarray], SimModel]]:
+    """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations;
+    returns the solver's result and the map from its parameter vector to the model."""
+    vectors = [c.vector(p) for c, p in found]
+    x0 = np.concatenate([v[0] for v in vectors])
+    lo = np.concatenate([v[1][0] for v in vectors])
+    hi = np.concatenate([v[1][1] for v in vectors])
+    x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+    sizes = np.cumsum([0] + [len(v[0]) for v in vectors])
+
+    def build(x: np.ndarray) -> SimModel:
+        trial = model
+        for i, (candidate, _) in enumerate(found):
+            trial = with_effect(trial, candidate.name, candidate.from_vector(x[sizes[i]:sizes[i + 1]]))
+        return trial
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        dz, di = raw_residuals(sim.observations, sim.predict(build(x)))
+        return np.nan_to_num(lay.profiled(dz, di))
+
+    return optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev), build
+
+
 def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay: Layout) -> tuple[dict, dict, float]:
-    """Nonlinear least squares of the candidate's parameters on full re-simulations.
+    """The candidate's parameters refined on full re-simulations, starting from its linear fit.
 
     Returns the parameters, their standard errors and the whitened RSS.
     """
-    x0, (lo, hi) = candidate.vector(fit.params)
-    x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-
-    def residual(x: np.ndarray) -> np.ndarray:
-        trial = with_effect(model, candidate.name, candidate.from_vector(x))
-        dz, di = raw_residuals(sim.observations, sim.predict(trial))
-        return np.nan_to_num(lay.profiled(dz, di))
-
-    result = optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=25)
+    result, _ = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
     params = candidate.from_vector(result.x)
     rss = float(result.fun @ result.fun)
     stderr: dict[str, float] = {}
@@ -186,24 +200,8 @@ def refine_jointly(found: list[tuple[Candidate, dict[str, Any]]], model: SimMode
                    lay: Layout) -> SimModel:
     """All effects named in this reconcile refitted together (an effect fitted while another was still
     missing carries some of the other's residual)."""
-    vectors = [c.vector(p) for c, p in found]
-    x0 = np.concatenate([v[0] for v in vectors])
-    lo = np.concatenate([v[1][0] for v in vectors])
-    hi = np.concatenate([v[1][1] for v in vectors])
-    x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-    sizes = np.cumsum([0] + [len(v[0]) for v in vectors])
-
-    def build(x: np.ndarray) -> SimModel:
-        trial = model
-        for i, (candidate, _) in enumerate(found):
-            trial = with_effect(trial, candidate.name, candidate.from_vector(x[sizes[i]:sizes[i + 1]]))
-        return trial
-
-    def residual(x: np.ndarray) -> np.ndarray:
-        dz, di = raw_residuals(sim.observations, sim.predict(build(x)))
-        return np.nan_to_num(lay.profiled(dz, di))
-
-    return build(optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=20).x)
+    result, build = _fit_effects(found, model, sim, lay, max_nfev=20)
+    return build(result.x)
 
 
 def _separating_step(a: Fit, b: Fit, lay: Layout, obs: list[Observation]) -> str:
@@ -229,7 +227,8 @@ def reconcile(path: str | Path, model: SimModel | None = None,
     say(f"re-simulating {len(observations)} steps")
     preds = sim.predict(model)
     lay = layout(observations, preds, model.profile().technology)
-    gap_before, igap_before = gaps(lay, observations, preds)
+    dz, di = raw_residuals(observations, preds)
+    gap_before, igap_before = gaps(lay, observations, dz, di)
     iterations: list[Iteration] = []
     named: list[dict[str, Any]] = []
     verdict, ambiguity = "none", None
@@ -237,7 +236,6 @@ def reconcile(path: str | Path, model: SimModel | None = None,
     start_model = model
     found: list[tuple[Candidate, dict[str, Any]]] = []
     for _ in range(MAX_EFFECTS):
-        dz, di = raw_residuals(observations, preds)
         r = np.nan_to_num(lay.profiled(dz, di))
         ctx = Context(observations, preds, model, sim.predictor, sim.t0_s, lay)
         fits = []
@@ -247,9 +245,9 @@ def reconcile(path: str | Path, model: SimModel | None = None,
             if fit is not None:
                 fits.append((fit, candidate))
         fits.sort(key=lambda fc: -fc[0].score)
-        gap, igap = gaps(lay, observations, preds)
+        gap, igap = gaps(lay, observations, dz, di)
         iteration = Iteration(sorted(model.effects), gap, [f for f, _ in fits], "none significant",
-                              _residual_maps(lay, observations, preds))
+                              _residual_maps(lay, dz))
         iterations.append(iteration)
         if not first_candidates:
             first_candidates = [{"name": f.name, "score": round(f.score, 2)} for f, _ in fits]
@@ -268,7 +266,8 @@ def reconcile(path: str | Path, model: SimModel | None = None,
         model = with_effect(model, best.name, params)
         found.append((candidate, params))
         preds = sim.predict(model)
-        new_gap, new_igap = gaps(lay, observations, preds)
+        dz, di = raw_residuals(observations, preds)
+        new_gap, new_igap = gaps(lay, observations, dz, di)
         named.append({"name": best.name, "parameters": params, "evidence": {
             "delta_bic": round(best.score, 2), "loso_gain": round(best.loso_gain, 4),
             "runner_up": runner.name if runner else None,
@@ -282,10 +281,11 @@ def reconcile(path: str | Path, model: SimModel | None = None,
         say("refitting the named effects together")
         model = refine_jointly(found, start_model, sim, lay)
         preds = sim.predict(model)
+        dz, di = raw_residuals(observations, preds)
         for entry in named:
             entry["parameters"] = dict(model.effects[entry["name"]])
-    residual_after = _residual_maps(lay, observations, preds)
-    gap_after, igap_after = gaps(lay, observations, preds)
+    residual_after = _residual_maps(lay, dz)
+    gap_after, igap_after = gaps(lay, observations, dz, di)
     notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items()]
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
                            model, observations, iterations, residual_after, notes, ambiguity)
