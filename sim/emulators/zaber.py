@@ -80,9 +80,10 @@ class ZaberEmulator(PtyDevice):
     The carriage starts unreferenced at ``start_mm`` (default: mid-travel) and moves
     at ``speed_mm_s`` (which a test may change between moves, or the host with
     ``set maxspeed``). ``reply_checksums`` is the initial ``comm.checksum``. Tests may
-    inject rejections (:meth:`reject_next`), raise flags (:meth:`raise_flag`) and stop
-    the next move part-way with a flag (:meth:`interrupt_next_move`, e.g. ``WL`` for a
-    triggered limit sensor, ``FS`` for a stall); they read the raw request lines in
+    inject rejections (:meth:`reject_next`), corrupt reply checksums
+    (:meth:`corrupt_checksums`), raise flags (:meth:`raise_flag`) and stop the next
+    move part-way with a flag (:meth:`interrupt_next_move`, e.g. ``WL`` for a triggered
+    limit sensor, ``FS`` for a stall); they read the raw request lines in
     :attr:`lines`, the commands (without header and checksum) in :attr:`commands`
     and the number of requests dropped for a bad checksum in :attr:`bad_checksums`.
     """
@@ -121,6 +122,7 @@ class ZaberEmulator(PtyDevice):
         self._motion: _Motion | None = None
         self._rejections: deque[str] = deque()
         self._interrupt: tuple[float, str] | None = None
+        self._corrupt_checksums = 0
 
     # -- fault injection ------------------------------------------------------------
 
@@ -128,6 +130,11 @@ class ZaberEmulator(PtyDevice):
         """Reject the next command with ``RJ`` and ``reason`` (e.g. ``AGAIN``)."""
         with self.lock:
             self._rejections.append(reason)
+
+    def corrupt_checksums(self, count: int = 1) -> None:
+        """Send the next ``count`` reply checksums off by one (needs ``comm.checksum`` 1)."""
+        with self.lock:
+            self._corrupt_checksums += count
 
     def raise_flag(self, flag: str) -> None:
         """Set a warning or fault flag, e.g. ``FD`` (driver disabled)."""
@@ -192,7 +199,9 @@ class ZaberEmulator(PtyDevice):
     def _send(self, text: str, *, unsolicited: bool = False) -> None:
         """Send a reply (or an alert, ``unsolicited``), with its checksum while ``comm.checksum`` is 1."""
         if self.reply_checksums:
-            text += f":{-sum(text[1:].encode('ascii')) & 0xFF:02X}"
+            corrupt = int(self._corrupt_checksums > 0 and not unsolicited)
+            self._corrupt_checksums -= corrupt
+            text += f":{(corrupt - sum(text[1:].encode('ascii'))) & 0xFF:02X}"
         data = text.encode("ascii") + b"\r\n"
         if unsolicited:
             self.push(data)

@@ -158,7 +158,7 @@ def test_warnings_are_cleared_and_logged_before_a_move(
 ) -> None:
     zaber_emulator.raise_flag("WT")
     homed.move_to(5.0)
-    assert "cleared WT (controller temperature above the recommended limit)" in caplog.text
+    assert "cleared WT (controller temperature high: above the recommended limit)" in caplog.text
     assert homed.position_mm() == pytest.approx(5.0)
 
 
