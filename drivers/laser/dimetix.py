@@ -42,11 +42,11 @@ ERROR_CODES: dict[int, str] = {
     263: "too much light (or distance jump in moving-target mode)",
     264: "too much light: measuring on reflective targets not possible",
     330: "target acceleration too strong or distance jump (moving-target mode)",
-    331: "target moves too fast",
+    331: "over speed of the target: it moves too fast",
     360: "configured measuring time too short",
     361: "configured measuring time too long",
 }
-"""Meaning of each ``@Ezzz`` code (manual, "Error codes")."""
+"""Meaning of each ``@Ezzz`` code (manual, "Error codes"; DLS-C/FLS-C chapter 9, D-series section 6.6)."""
 
 TARGET_ERROR_CODES = frozenset({254, 255, 256, 260, 263, 264, 330, 331})
 """Codes caused by the target or beam path at that moment (a person crossing the beam,

@@ -67,17 +67,23 @@ WARNING_FLAGS: dict[str, str] = {
 starts with the flag's name in the manual."""
 
 REJECTION_REASONS: dict[str, str] = {
-    "AGAIN": "the command cannot be processed right now; send it again",
-    "BADAXIS": "the axis number exceeds the number of axes of the device",
-    "BADCOMMAND": "the command or setting is wrong or not valid now",
-    "BADDATA": "the command's data is wrong or out of range",
-    "BADMESSAGEID": "the message ID is not -- or a number from 0 to 99",
-    "DEVICEONLY": "an axis number was given for a device-only command",
-    "FULL": "the device has run out of permanent storage",
-    "LOCKSTEP": "the axis is in a lockstep group and cannot be moved on its own",
-    "NOACCESS": "the command or setting needs a higher access level",
-    "PARKED": "the device is parked and cannot move until unparked",
-    "STATUSBUSY": "the device is busy and cannot do this now",
+    "AGAIN": "the device cannot process the command right now; send it again",
+    "BADAXIS": "the axis number is greater than the number of axes available",
+    "BADCOMMAND": "the command or setting is incorrect or invalid (or needs a firmware update)",
+    "BADDATA": "the command's data is incorrect or out of range",
+    "BADMESSAGEID": "the message ID is neither -- nor a number from 0 to 99",
+    "BADSPLIT": "the command was split into packets the wrong way",
+    "DEVICEONLY": "an axis number was given for a device-scope command",
+    "DRIVERDISABLED": "a motor driver is disabled (over-temperature, over-voltage, over-current or by command)",
+    "FULL": "the device cannot allocate more memory for what the command needs",
+    "INACTIVE": "the axis is inactive",
+    "LOCKSTEP": "the axis is in an enabled lockstep group",
+    "NOACCESS": "the command or setting is not available at the current access level",
+    "NOTSUPPORTED": "the connected peripheral is not supported by this firmware",
+    "PARKED": "the device cannot move because it is parked",
+    "REMOTE": "the device is in EtherCAT (remote) control mode",
+    "STATUSBUSY": "the device is busy and cannot execute the command now",
+    "SYSTEMERROR": "the command failed because of a system failure (review the errors)",
 }
 """Reasons of an ``RJ`` reply (manual, "Replies": rejection reasons)."""
 
