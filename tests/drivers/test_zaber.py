@@ -7,6 +7,7 @@ import time
 from collections.abc import Iterator
 
 import pytest
+import serial
 
 from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.protocols import LinearStage
@@ -248,3 +249,33 @@ def test_move_stage_helper(zaber_emulator: ZaberEmulator) -> None:
     assert position == pytest.approx(42.0)
     with pytest.raises(ValueError, match="unknown stage protocol 'thorlabs'"):
         move_stage(zaber_emulator.port, "thorlabs")
+
+
+@pytest.mark.parametrize(
+    ("request_line", "reply"),
+    [
+        (b"/1 1 01 get pos:2B\n", b"@01 1 01 OK IDLE WR 160000\r\n"),  # zaber-motion's framing
+        (b"/1 1 00:FE\n", b"@01 1 00 OK IDLE WR 0\r\n"),  # empty command: LRC of '1 1 00' is FE
+        (b"/\n", b"@01 0 OK IDLE WR 0\r\n"),  # '/' alone: every device answers
+        (b"/1 1 get pos\r\n", b"@01 1 OK IDLE WR 160000\r\n"),  # no ID, no checksum, CR LF
+        (b"/1 1 -- get pos\n", b"@01 1 -- OK IDLE WR 160000\r\n"),
+        (b"/1 1 123 get pos\n", b"@01 1 123 RJ IDLE WR BADMESSAGEID\r\n"),
+        (b"/2 1 01 get pos\n/1 1 02 get pos\n", b"@01 1 02 OK IDLE WR 160000\r\n"),  # device 2 is not there
+    ],
+)
+def test_raw_framing(zaber_emulator: ZaberEmulator, request_line: bytes, reply: bytes) -> None:
+    with serial.Serial(zaber_emulator.port, 115200, timeout=FAST) as port:
+        port.write(request_line)
+        assert port.readline() == reply
+
+
+def test_command_with_a_wrong_checksum_is_dropped(zaber_emulator: ZaberEmulator) -> None:
+    with serial.Serial(zaber_emulator.port, 115200, timeout=FAST) as port:
+        port.write(b"/1 1 00:FF\n")  # the LRC of '1 1 00' is FE
+        assert port.readline() == b""
+        assert zaber_emulator.bad_checksums == 1
+        zaber_emulator.reply_checksums = True  # comm.checksum 1: replies carry one too
+        port.write(b"/1 0 07 get deviceid\n")
+        line = port.readline()
+        assert line.startswith(b"@01 0 07 OK IDLE WR 50081:")
+        assert (sum(line[1:-5]) + int(line[-4:-2], 16)) % 256 == 0

@@ -20,6 +20,8 @@ from zaber_motion.exceptions import BadCommandException, CommandFailedException,
 
 from drivers.errors import SerialGarbage
 from drivers.stage import ZaberStage
+from labctl.config import StageConfig
+from labctl.hardware import stage_from_config
 from sim.emulators import ZaberEmulator
 
 STEP = 0.000125  # mm per microstep
@@ -231,3 +233,12 @@ def test_a_corrupted_command_is_dropped(emulator: ZaberEmulator) -> None:
         assert emulator.bad_checksums == 1 and len(emulator.commands) == before  # unanswered, not executed
     finally:
         stage.close()
+
+
+def test_campaign_setting_reaches_the_driver(emulator: ZaberEmulator) -> None:
+    config = StageConfig(protocol="zaber", port=emulator.port, mm_per_microstep=STEP, travel_mm=(0, 400), checksums=True)
+    stage = stage_from_config(config)
+    assert isinstance(stage, ZaberStage) and stage.checksums
+    with stage:
+        assert stage.position_mm() == pytest.approx(20.0)
+    assert all(FRAMED.fullmatch(line) and lrc_ok(line) for line in emulator.lines)
