@@ -37,7 +37,8 @@ class DimetixEmulator(PtyDevice):
     measurement takes ``measure_time_s``. ``identity_commands`` False models a
     firmware without ``sNsn`` / ``sNsv``. Tests read ``laser_on``, ``tracking`` and
     the received ``commands`` (without ``sN``), and inject error replies with
-    :meth:`inject_error` and stray lines with :meth:`stray_lines_before_next_reply`. Stop/clear ends tracking and switches the laser off.
+    :meth:`inject_error` and stray lines with :meth:`stray_lines_before_next_reply`.
+    Stop/clear ends tracking and switches the laser off.
     """
 
     def __init__(

@@ -102,9 +102,7 @@ def test_without_checksum_and_id_the_device_still_answers(emulator: ZaberEmulato
         ("system reset", 1, "DEVICEONLY"),
     ],
 )
-def test_rejections_reach_the_library_with_their_reason(
-    connection: Connection, text: str, axis: int, reason: str
-) -> None:
+def test_rejections_reach_the_library_with_their_reason(connection: Connection, text: str, axis: int, reason: str) -> None:
     with pytest.raises(CommandFailedException) as caught:
         command(connection, text, axis=axis)
     assert caught.value.details.response_data == reason
@@ -200,9 +198,7 @@ def test_raw_commands_need_no_device_database(connection: Connection) -> None:
 
 def test_driver_with_checksums_against_reply_checksums() -> None:
     with ZaberEmulator(mm_per_microstep=STEP, travel_mm=400.0, speed_mm_s=2000.0, reply_checksums=True) as emulator:
-        stage = ZaberStage(
-            emulator.port, travel_mm=(0.0, 400.0), mm_per_microstep=STEP, timeout_s=0.5, checksums=True
-        )
+        stage = ZaberStage(emulator.port, travel_mm=(0.0, 400.0), mm_per_microstep=STEP, timeout_s=0.5, checksums=True)
         with stage:
             stage.home()
             stage.move_to(123.4)
