@@ -28,19 +28,19 @@ from drivers.serial_line import SerialLine
 log = logging.getLogger(__name__)
 
 WARNING_FLAGS: dict[str, str] = {
-    "FF": "critical system error: the device needs attention before it can be used",
-    "FN": "peripheral not supported: the connected peripheral does not work with this controller",
-    "FZ": "peripheral inactive: no peripheral is active on the axis",
-    "FH": "hardware emergency stop driver disabled: the emergency stop input disabled the driver",
-    "FV": "overvoltage or undervoltage driver disabled: the supply voltage left the safe range",
-    "FO": "driver disabled on startup or by command: the motor driver is off",
-    "FC": "current inrush error: the driver saw too much current and switched off",
-    "FM": "motor temperature error: the motor is too hot and the driver switched off",
+    "FF": "critical system error",
+    "FN": "peripheral not supported",
+    "FZ": "peripheral inactive",
+    "FH": "hardware emergency stop driver disabled",
+    "FV": "overvoltage or undervoltage driver disabled",
+    "FO": "driver disabled on startup or by command",
+    "FC": "current inrush error",
+    "FM": "motor temperature error",
     "FD": "driver disabled: the motor driver switched itself off (e.g. overheating)",
     "FQ": "encoder error: the encoder-measured position may be unreliable",
-    "FI": "index error: the encoder index was not found where expected",
-    "FA": "analog encoder sync error: the analog encoder lost synchronisation",
-    "FR": "overdrive limit exceeded: the axis was driven beyond its overdrive limit",
+    "FI": "index error",
+    "FA": "analog encoder sync error",
+    "FR": "overdrive limit exceeded",
     "FS": "stalled and stopped: the axis detected a stall and stopped itself",
     "FB": "stream/PVT sequence bounds error: a streamed motion failed a precondition",
     "FP": "interpolated path deviation: streamed motion stopped because an axis slipped",
@@ -51,20 +51,21 @@ WARNING_FLAGS: dict[str, str] = {
     "WT": "controller temperature high: above the recommended limit",
     "WS": "stalled with recovery: the axis stalled and recovered",
     "WM": "displaced when stationary: the axis was pushed out of position while at rest",
-    "WP": "invalid calibration type: the calibration data type is not supported",
+    "WP": "invalid calibration type",
     "WR": "no reference position: the axis must be homed",
     "WH": "device not homed: the axis has a reference position but was not homed",
     "NC": "manual control: the axis is being moved with the knob or joystick",
     "NI": "movement interrupted: by another command, a stop or manual control",
     "ND": "stream/PVT sequence discontinuity: streamed motion ran out of queued moves",
-    "NR": "value rounded: a setting or command value was rounded to what the device can hold",
-    "NT": "value truncated: a setting or command value was truncated",
-    "NU": "setting update pending: a setting update or reset takes effect later",
-    "NJ": "joystick calibrating: joystick calibration in progress",
+    "NR": "value rounded",
+    "NT": "value truncated",
+    "NU": "setting update pending",
+    "NJ": "joystick calibrating",
     "NB": "device in firmware update mode",
 }
 """Warning flags (manual, "Warning Flags"): F* faults, W* warnings, N* notices. Each meaning
-starts with the flag's name in the manual."""
+starts with the flag's name in the manual; the explanations after it cover the flags
+this stage can raise."""
 
 REJECTION_REASONS: dict[str, str] = {
     "AGAIN": "the device cannot process the command right now; send it again",
