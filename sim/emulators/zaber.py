@@ -81,7 +81,8 @@ class ZaberEmulator(PtyDevice):
     at ``speed_mm_s`` (which a test may change between moves, or the host with
     ``set maxspeed``). ``reply_checksums`` is the initial ``comm.checksum``. Tests may
     inject rejections (:meth:`reject_next`), corrupt reply checksums
-    (:meth:`corrupt_checksums`), raise flags (:meth:`raise_flag`) and stop the next
+    (:meth:`corrupt_checksums`), send messages ahead of a reply
+    (:meth:`messages_before_next_reply`), raise flags (:meth:`raise_flag`) and stop the next
     move part-way with a flag (:meth:`interrupt_next_move`, e.g. ``WL`` for a triggered
     limit sensor, ``FS`` for a stall); they read the raw request lines in
     :attr:`lines`, the commands (without header and checksum) in :attr:`commands`
@@ -123,6 +124,7 @@ class ZaberEmulator(PtyDevice):
         self._rejections: deque[str] = deque()
         self._interrupt: tuple[float, str] | None = None
         self._corrupt_checksums = 0
+        self._early: list[str] = []
 
     # -- fault injection ------------------------------------------------------------
 
@@ -135,6 +137,12 @@ class ZaberEmulator(PtyDevice):
         """Send the next ``count`` reply checksums off by one (needs ``comm.checksum`` 1)."""
         with self.lock:
             self._corrupt_checksums += count
+
+    def messages_before_next_reply(self, *lines: str) -> None:
+        """Send ``lines`` (alerts ``!...``, info messages ``#...``) just ahead of the next reply,
+        as when an alert crosses a command on the wire."""
+        with self.lock:
+            self._early.extend(lines)
 
     def raise_flag(self, flag: str) -> None:
         """Set a warning or fault flag, e.g. ``FD`` (driver disabled)."""
@@ -203,6 +211,9 @@ class ZaberEmulator(PtyDevice):
             self._corrupt_checksums -= corrupt
             text += f":{(corrupt - sum(text[1:].encode('ascii'))) & 0xFF:02X}"
         data = text.encode("ascii") + b"\r\n"
+        if not unsolicited and self._early:
+            data = "".join(f"{line}\r\n" for line in self._early).encode("ascii") + data
+            self._early.clear()
         if unsolicited:
             self.push(data)
         else:

@@ -279,3 +279,15 @@ def test_command_with_a_wrong_checksum_is_dropped(zaber_emulator: ZaberEmulator)
         line = port.readline()
         assert line.startswith(b"@01 0 07 OK IDLE WR 50081:")
         assert (sum(line[1:-5]) + int(line[-4:-2], 16)) % 256 == 0
+
+
+def test_alerts_and_info_messages_before_a_reply_are_skipped(
+    stage: ZaberStage, zaber_emulator: ZaberEmulator
+) -> None:
+    with zaber_emulator.lock:
+        zaber_emulator.alerts = True  # comm.alert 1: '!01 1 IDLE --' when a movement ends
+    stage.home()
+    zaber_emulator.messages_before_next_reply("!01 1 IDLE --", "#01 1 07 a note")
+    assert stage.position_mm() == 0.0
+    stage.move_to(12.5)
+    assert stage.position_mm() == pytest.approx(12.5)
