@@ -6,7 +6,8 @@ Message format (Zaber ASCII Protocol Manual, "Message Format"): a command is
 message ID (0..99 or ``--``) echoed in the reply, and ``:CC`` an optional checksum:
 two hex digits that make the byte sum of everything between ``/`` and ``:`` plus
 the checksum's value 0 modulo 256 (an LRC). A command whose checksum fails is
-dropped unanswered. Replies are ``@device axis [id] OK|RJ IDLE|BUSY flag data``
+dropped unanswered (this emulator's reading; what a real device answers is listed
+for the first day on hardware in docs/devices.md). Replies are ``@device axis [id] OK|RJ IDLE|BUSY flag data``
 (CR LF), with ``:CC`` appended while ``comm.checksum`` is 1; ``flag`` is the active
 warning flag of highest precedence or ``--``; a rejected (``RJ``) command's ``data``
 is the reason. ``/`` alone is a ping every device answers. With ``comm.alert`` 1 the
@@ -46,7 +47,8 @@ FLAG_PRECEDENCE = (
     "WL", "WV", "WT", "WS", "WM", "WP", "WR", "WH",
     "NC", "NI", "ND", "NR", "NT", "NU", "NJ", "NB",
 )  # fmt: skip
-"""Warning flags, highest precedence first (manual, "Warning Flags": faults, then warnings, then notices)."""
+"""Warning flags, highest precedence first: faults, then warnings, then notices (manual,
+"Warning Flags"), each group in the order Zaber's client library zaber-motion lists them."""
 
 MAXSPEED_PER_MICROSTEP_S = 1.6384
 """``maxspeed`` data per (microstep/s) (manual, "Physical Units": velocity)."""

@@ -238,3 +238,20 @@ def test_campaign_setting_reaches_the_driver(emulator: ZaberEmulator) -> None:
     with stage:
         assert stage.position_mm() == pytest.approx(20.0)
     assert all(FRAMED.fullmatch(line) and lrc_ok(line) for line in emulator.lines)
+
+
+def test_speed_setting_and_relative_moves(emulator: ZaberEmulator, connection: Connection) -> None:
+    command(connection, "home")
+    wait_idle(connection)
+    maxspeed = round(100.0 / STEP * 1.6384)  # 100 mm/s in the manual's velocity unit
+    command(connection, f"set maxspeed {maxspeed}")
+    assert int(command(connection, "get maxspeed").data) == maxspeed
+    assert emulator.speed_mm_s == pytest.approx(100.0, rel=1e-6)
+    start = time.monotonic()
+    command(connection, "move rel 80000")  # 10 mm
+    wait_idle(connection)
+    assert time.monotonic() - start >= 0.09
+    command(connection, "move rel -40000")
+    wait_idle(connection)
+    assert int(command(connection, "get pos").data) == 40000
+    assert command(connection, "move rel -40001", check_errors=False).data == "BADDATA"  # beyond limit.min
