@@ -123,7 +123,9 @@ def test_motion_busy_move_while_moving_stop_and_estop(emulator: ZaberEmulator, c
     command(connection, "home")
     wait_idle(connection)
     assert command(connection, "get pos").warning_flag == "--"
-    assert command(connection, "move abs 1600000").status == "BUSY"  # 200 mm at 200 mm/s
+    with emulator.lock:
+        emulator.speed_mm_s = 100.0
+    assert command(connection, "move abs 1600000").status == "BUSY"  # 200 mm at 100 mm/s
     busy = command(connection, "get pos")
     assert busy.status == "BUSY" and 0 < int(busy.data) < 1_600_000
     replaced = command(connection, "move abs 80000")  # accepted while moving: the new target wins
@@ -159,17 +161,19 @@ def test_system_reset_loses_the_reference(emulator: ZaberEmulator, connection: C
 def test_parking(connection: Connection) -> None:
     command(connection, "home")
     wait_idle(connection)
-    command(connection, "move abs 400000")
+    command(connection, "move abs 3000000")  # 375 mm at 200 mm/s: moving for almost 2 s
     with pytest.raises(CommandFailedException) as caught:
         command(connection, "tools parking park", axis=0)  # not while moving
     assert caught.value.details.response_data == "STATUSBUSY"
-    wait_idle(connection)
+    command(connection, "stop")
+    parked_at = int(command(connection, "get pos").data)
+    command(connection, "warnings clear")
     command(connection, "tools parking park", axis=0)
     assert command(connection, "move abs 10", check_errors=False).data == "PARKED"
     command(connection, "system reset", axis=0)  # a parked axis keeps its reference over a reset
     command(connection, "tools parking unpark", axis=0)
     assert command(connection, "get pos").warning_flag == "--"
-    assert int(command(connection, "get pos").data) == 400000
+    assert int(command(connection, "get pos").data) == parked_at
 
 
 def test_alerts_when_a_move_ends(emulator: ZaberEmulator, connection: Connection) -> None:
