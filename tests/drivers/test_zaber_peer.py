@@ -16,7 +16,12 @@ from collections.abc import Iterator
 import pytest
 from zaber_motion import DeviceDbSourceType, Library
 from zaber_motion.ascii import Connection
-from zaber_motion.exceptions import BadCommandException, CommandFailedException, DeviceDbFailedException
+from zaber_motion.exceptions import (
+    BadCommandException,
+    CommandFailedException,
+    DeviceDbFailedException,
+    RequestTimeoutException,
+)
 
 from drivers.errors import SerialGarbage
 from drivers.stage import ZaberStage
@@ -145,9 +150,12 @@ def test_motion_busy_move_while_moving_stop_and_estop(emulator: ZaberEmulator, c
 def test_reply_checksums_pass_the_library(emulator: ZaberEmulator, connection: Connection) -> None:
     assert command(connection, "set comm.checksum 1", axis=0).reply_flag == "OK"
     assert emulator.reply_checksums
-    reply = command(connection, "get pos")  # the library drops a reply whose checksum is wrong
+    reply = command(connection, "get pos")  # the library drops a reply whose checksum is wrong ...
     assert int(reply.data) == round(20.0 / STEP)
     assert command(connection, "get comm.checksum", axis=0).data == "1"
+    emulator.corrupt_checksums()
+    with pytest.raises(RequestTimeoutException):  # ... as here, so the replies above were right
+        command(connection, "get pos", timeout=300)
 
 
 def test_system_reset_loses_the_reference(emulator: ZaberEmulator, connection: Connection) -> None:
