@@ -30,7 +30,7 @@ from labctl.hardware import stage_from_config
 from sim.emulators import ZaberEmulator
 
 STEP = 0.000125  # mm per microstep
-TIMEOUT_MS = 1000
+TIMEOUT_MS = 3000  # generous: the emulator shares a loaded machine
 FRAMED = re.compile(r"/(\d+) (\d+) (\d\d) ?(.*):([0-9A-F]{2})")
 """A command as zaber-motion sends it: device, axis, two-digit message ID, command, checksum."""
 
@@ -84,7 +84,7 @@ def test_empty_command_with_id_and_checksum_is_answered(emulator: ZaberEmulator,
 
 
 def test_broadcast_ping_reaches_the_device(connection: Connection) -> None:
-    replies = connection.generic_command_multi_response("")  # '/0 0 NN:CC'
+    replies = connection.generic_command_multi_response("", timeout=1000)  # '/0 0 NN:CC'; waits 1 s for all
     assert [(r.device_address, r.axis_number, r.reply_flag) for r in replies] == [(1, 0, "OK")]
 
 
@@ -117,7 +117,7 @@ def test_rejections_reach_the_library_with_their_reason(connection: Connection, 
     assert (reply.reply_flag, reply.data) == ("RJ", reason)
 
 
-def wait_idle(link: Connection, limit_s: float = 5.0) -> None:
+def wait_idle(link: Connection, limit_s: float = 30.0) -> None:
     deadline = time.monotonic() + limit_s
     while command(link, "").status == "BUSY":
         assert time.monotonic() < deadline, "still BUSY"
@@ -201,6 +201,7 @@ def test_alerts_when_a_move_ends(emulator: ZaberEmulator, connection: Connection
 
 def test_raw_commands_need_no_device_database(connection: Connection) -> None:
     assert command(connection, "get version", axis=0).data == "7.38"
+    connection.default_request_timeout = 1000  # detection waits that long for further devices
     with pytest.raises(DeviceDbFailedException):  # only identification consults the database
         connection.detect_devices()
 
