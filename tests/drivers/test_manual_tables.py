@@ -74,7 +74,7 @@ def test_zaber_reason_file_matches_zaber_motion() -> None:
             for reason, entry in REASONS.items():
                 emulator.reject_next(reason)
                 with pytest.raises(CommandFailedException) as caught:
-                    connection.generic_command("get pos", device=1, axis=1, timeout=1000)
+                    connection.generic_command("get pos", device=1, axis=1, timeout=3000)
                 assert str(caught.value).endswith(f"with {reason}: {entry['meaning']}"), reason
         finally:
             connection.close()

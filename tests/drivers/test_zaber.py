@@ -264,7 +264,7 @@ def test_move_stage_helper(zaber_emulator: ZaberEmulator) -> None:
     ],
 )
 def test_raw_framing(zaber_emulator: ZaberEmulator, request_line: bytes, reply: bytes) -> None:
-    with serial.Serial(zaber_emulator.port, 115200, timeout=FAST) as port:
+    with serial.Serial(zaber_emulator.port, 115200, timeout=2.0) as port:
         port.write(request_line)
         assert port.readline() == reply
 
@@ -272,8 +272,12 @@ def test_raw_framing(zaber_emulator: ZaberEmulator, request_line: bytes, reply: 
 def test_command_with_a_wrong_checksum_is_dropped(zaber_emulator: ZaberEmulator) -> None:
     with serial.Serial(zaber_emulator.port, 115200, timeout=FAST) as port:
         port.write(b"/1 1 00:FF\n")  # the LRC of '1 1 00' is FE
-        assert port.readline() == b""
+        deadline = time.monotonic() + 5.0
+        while zaber_emulator.bad_checksums == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert zaber_emulator.bad_checksums == 1
+        assert port.readline() == b""  # dropped: no reply within FAST
+        port.timeout = 2.0
         zaber_emulator.reply_checksums = True  # comm.checksum 1: replies carry one too
         port.write(b"/1 0 07 get deviceid\n")
         line = port.readline()

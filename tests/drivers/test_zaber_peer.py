@@ -211,7 +211,7 @@ def test_raw_commands_need_no_device_database(connection: Connection) -> None:
 
 def test_driver_with_checksums_against_reply_checksums() -> None:
     with ZaberEmulator(mm_per_microstep=STEP, travel_mm=400.0, speed_mm_s=2000.0, reply_checksums=True) as emulator:
-        stage = ZaberStage(emulator.port, travel_mm=(0.0, 400.0), mm_per_microstep=STEP, timeout_s=0.5, checksums=True)
+        stage = ZaberStage(emulator.port, travel_mm=(0.0, 400.0), mm_per_microstep=STEP, timeout_s=2.0, checksums=True)
         with stage:
             stage.home()
             stage.move_to(123.4)
@@ -223,7 +223,7 @@ def test_driver_with_checksums_against_reply_checksums() -> None:
 
 def test_driver_refuses_a_reply_with_a_wrong_checksum() -> None:
     with ZaberEmulator(mm_per_microstep=STEP, travel_mm=400.0, reply_checksums=True) as emulator:
-        with ZaberStage(emulator.port, travel_mm=(0.0, 400.0), mm_per_microstep=STEP, timeout_s=0.5) as stage:
+        with ZaberStage(emulator.port, travel_mm=(0.0, 400.0), mm_per_microstep=STEP, timeout_s=2.0) as stage:
             emulator.corrupt_checksums()
             with pytest.raises(SerialGarbage, match="fails its checksum"):
                 stage.position_mm()
@@ -231,15 +231,18 @@ def test_driver_refuses_a_reply_with_a_wrong_checksum() -> None:
 
 
 def test_a_corrupted_command_is_dropped(emulator: ZaberEmulator) -> None:
-    stage = ZaberStage(emulator.port, travel_mm=(0.0, 400.0), mm_per_microstep=STEP, timeout_s=0.3, checksums=True)
+    stage = ZaberStage(emulator.port, travel_mm=(0.0, 400.0), mm_per_microstep=STEP, timeout_s=2.0, checksums=True)
     stage.connect()
     try:
         reply = stage._send("get pos")
         assert int(reply.data) == round(20.0 / STEP)
         before = len(emulator.commands)
         stage._line.write(b"/1 1 42 get pos:00\n", "get pos")  # a checksum no byte sum matches
-        time.sleep(0.1)
-        assert emulator.bad_checksums == 1 and len(emulator.commands) == before  # unanswered, not executed
+        deadline = time.monotonic() + 5.0
+        while emulator.bad_checksums == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert emulator.bad_checksums == 1 and len(emulator.commands) == before  # not executed ...
+        assert stage._line.discard_input() == b""  # ... and unanswered
     finally:
         stage.close()
 
