@@ -224,9 +224,10 @@ def test_safe_state_after_a_failure_and_recovery(homed: ZaberStage, zaber_emulat
 
 
 def test_move_timeout_stops_the_stage(zaber_emulator: ZaberEmulator) -> None:
-    stage = make_stage(zaber_emulator, move_timeout_s=0.05)
+    stage = make_stage(zaber_emulator)
     stage.connect()
-    stage.home()
+    stage.home()  # with the default time limit: a loaded machine may need more than 0.05 s
+    stage.move_timeout_s = 0.05
     with pytest.raises(DeviceError, match="still moving after 0.05 s; sent stop"):
         stage.move_to(399.0)
     assert not zaber_emulator.moving
