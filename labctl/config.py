@@ -91,6 +91,7 @@ class StageConfig(StrictModel):
     mm_per_microstep: float | None = Field(None, gt=0, description="Zaber: microstep size (stage datasheet)")
     device: int = Field(1, ge=1, le=99, description="Zaber: device number on the daisy chain")
     axis: int | str | None = Field(None, description="Zaber: axis number (default 1); Grbl: axis letter (default X)")
+    checksums: bool = Field(False, description="Zaber: send a checksum with every command")
 
     @model_validator(mode="after")
     def _protocol_options(self) -> StageConfig:
@@ -99,8 +100,8 @@ class StageConfig(StrictModel):
         if self.protocol == "grbl":
             if self.axis is not None and (not isinstance(self.axis, str) or self.axis.upper() not in "XYZABC"):
                 raise ValueError(f"axis: a Grbl axis is one of X, Y, Z, A, B, C, got {self.axis!r}")
-            if self.mm_per_microstep is not None or self.device != 1:
-                raise ValueError("mm_per_microstep and device apply to Zaber stages only")
+            if self.mm_per_microstep is not None or self.device != 1 or self.checksums:
+                raise ValueError("mm_per_microstep, device and checksums apply to Zaber stages only")
         return self
 
     @field_validator("travel_mm")

@@ -32,7 +32,14 @@ def stage_from_config(config: StageConfig) -> LinearStage:
         options["baud"] = config.baud
     if config.protocol == "zaber":
         step = _required(config.mm_per_microstep, "stage.mm_per_microstep", "the Zaber stage's microstep size in mm")
-        return ZaberStage(port, mm_per_microstep=step, device=config.device, axis=int(config.axis or 1), **options)
+        return ZaberStage(
+            port,
+            mm_per_microstep=step,
+            device=config.device,
+            axis=int(config.axis or 1),
+            checksums=config.checksums,
+            **options,
+        )
     return GrblStage(port, axis=str(config.axis or "X"), feed_mm_min=config.speed_mm_s * 60.0, **options)
 
 

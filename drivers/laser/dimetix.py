@@ -10,7 +10,10 @@ The sensor ships with 19200 baud, 7 data bits, even parity, 1 stop bit.
 from __future__ import annotations
 
 import contextlib
+import logging
+import re
 import threading
+import time
 from collections.abc import Mapping
 from types import TracebackType
 from typing import Any
@@ -18,6 +21,22 @@ from typing import Any
 from drivers.errors import DeviceError, SerialGarbage, TransientDeviceError
 from drivers.protocols import DeviceIdentity
 from drivers.serial_line import SerialLine
+
+log = logging.getLogger(__name__)
+
+_START_SEQUENCE = re.compile(r"g\d\?")
+_ANY_SENSOR = re.compile(r"g\d")
+
+
+def _stray(line: str, prefix: str, expect: str) -> bool:
+    """True for a line that answers no request of ours: a start sequence when ``?`` is not
+    the awaited reply, or a line of a sensor whose device ID is not in ``prefix``."""
+    if expect != "?" and _START_SEQUENCE.fullmatch(line):
+        return True
+    return _ANY_SENSOR.match(line) is not None and not line.startswith(prefix)
+
+UNKNOWN = "unknown"
+"""Serial number or software version of a sensor that does not tell them."""
 
 ERROR_CODES: dict[int, str] = {
     203: "wrong command syntax, forbidden parameter or invalid result",
@@ -42,11 +61,11 @@ ERROR_CODES: dict[int, str] = {
     263: "too much light (or distance jump in moving-target mode)",
     264: "too much light: measuring on reflective targets not possible",
     330: "target acceleration too strong or distance jump (moving-target mode)",
-    331: "target moves too fast",
+    331: "over speed of the target: it moves too fast",
     360: "configured measuring time too short",
     361: "configured measuring time too long",
 }
-"""Meaning of each ``@Ezzz`` code (manual, "Error codes")."""
+"""Meaning of each ``@Ezzz`` code (manual, "Error codes"; DLS-C/FLS-C chapter 9, D-series section 6.6)."""
 
 TARGET_ERROR_CODES = frozenset({254, 255, 256, 260, 263, 264, 330, 331})
 """Codes caused by the target or beam path at that moment (a person crossing the beam,
@@ -119,15 +138,18 @@ class DimetixLaser:
         """Open the port, stop anything running (``sNc``) and read serial number and version.
 
         Manual: "STOP/CLEAR command (sNc)", "Get serial number (sNsn)",
-        "Get software version (sNsv)".
+        "Get software version (sNsv)". The identity queries are optional: a sensor that
+        answers them with an error code (``gN@Ezzz``, e.g. E203 on a firmware without
+        them) is identified as ``"unknown"`` with a logged warning; it still measures.
+        A sensor that does not answer at all is refused.
         """
         if self._line.is_open:
             return
         self._line.open()
         try:
             self._request("c", "?")
-            serial_number = self._request("sn", "sn+")
-            version = self._request("sv", "sv+")
+            serial_number = self._optional_identity("sn", "serial number")
+            version = self._optional_identity("sv", "software version")
         except Exception:
             self.close()
             raise
@@ -137,6 +159,17 @@ class DimetixLaser:
             serial=serial_number,
             firmware=version,
         )
+
+    def _optional_identity(self, command: str, what: str) -> str:
+        """The answer to identity query ``sN<command>``, or :data:`UNKNOWN` if the sensor rejects it."""
+        try:
+            return self._request(command, f"{command}+")
+        except DimetixError as error:
+            log.warning(
+                "%s: %s %s: '%s' answered E%d (%s)",
+                self.name, what, UNKNOWN, self._describe(command).strip("'"), error.code, error.meaning,
+            )  # fmt: skip
+            return UNKNOWN
 
     def close(self) -> None:
         """Close the port (idempotent)."""
@@ -224,13 +257,21 @@ class DimetixLaser:
         return f"'s{self.device_id}{command}'"
 
     def _request(self, command: str, expect: str) -> str:
-        """Send ``sN<command>`` and return what follows ``gN<expect>`` in the reply."""
+        """Send ``sN<command>`` and return what follows ``gN<expect>`` in the reply.
+
+        Skipped while waiting: a start sequence ``gM?`` (manual, "Startup sequence": a
+        sensor that was just powered on), unless ``?`` is the expected reply, and lines
+        of sensors with another device ID."""
         request = f"s{self.device_id}{command}"
         prefix = f"g{self.device_id}"
+        expected = f"'{prefix}{expect}...' in reply to '{request}'"
         with self._lock:
             self._line.discard_input()  # a reply that arrived after an earlier timeout
             self._line.write(f"{request}\r\n".encode("ascii"), request)
-            line = self._line.read_line(f"'{prefix}{expect}...' in reply to '{request}'")
+            deadline = time.monotonic() + self.timeout_s
+            line = self._line.read_line(expected, deadline)
+            while _stray(line, prefix, expect):
+                line = self._line.read_line(expected, deadline)
         if line.startswith(f"{prefix}@E") and line[4:7].isdigit():
             raise _error(self.name, request, int(line[4:7]))
         if not line.startswith(prefix + expect):

@@ -28,41 +28,63 @@ from drivers.serial_line import SerialLine
 log = logging.getLogger(__name__)
 
 WARNING_FLAGS: dict[str, str] = {
+    "FF": "critical system error",
+    "FN": "peripheral not supported",
+    "FZ": "peripheral inactive",
+    "FH": "hardware emergency stop driver disabled",
+    "FV": "overvoltage or undervoltage driver disabled",
+    "FO": "driver disabled on startup or by command",
+    "FC": "current inrush error",
+    "FM": "motor temperature error",
     "FD": "driver disabled: the motor driver switched itself off (e.g. overheating)",
     "FQ": "encoder error: the encoder-measured position may be unreliable",
+    "FI": "index error",
+    "FA": "analog encoder sync error",
+    "FR": "overdrive limit exceeded",
     "FS": "stalled and stopped: the axis detected a stall and stopped itself",
-    "FT": "excessive twist: a lockstep group twisted beyond its limit and stopped",
-    "FB": "stream bounds error: a streamed motion failed a precondition",
+    "FB": "stream/PVT sequence bounds error: a streamed motion failed a precondition",
     "FP": "interpolated path deviation: streamed motion stopped because an axis slipped",
     "FE": "limit error: the limit sensor cannot be reached or is faulty",
+    "FT": "excessive twist: a lockstep group twisted beyond its limit and stopped",
     "WL": "unexpected limit trigger: a move did not finish because a limit sensor triggered",
-    "WV": "supply voltage outside the recommended range",
-    "WT": "controller temperature above the recommended limit",
+    "WV": "voltage out of range: the supply voltage is outside the recommended range",
+    "WT": "controller temperature high: above the recommended limit",
     "WS": "stalled with recovery: the axis stalled and recovered",
     "WM": "displaced when stationary: the axis was pushed out of position while at rest",
-    "WP": "unsupported calibration data type",
+    "WP": "invalid calibration type",
     "WR": "no reference position: the axis must be homed",
-    "WH": "not homed: the axis has a reference position but was not homed",
+    "WH": "device not homed: the axis has a reference position but was not homed",
     "NC": "manual control: the axis is being moved with the knob or joystick",
-    "NI": "movement interrupted by another command or manual control",
-    "ND": "stream discontinuity: streamed motion ran out of queued moves",
-    "NU": "a setting update or reset is pending",
-    "NJ": "joystick calibration in progress",
+    "NI": "movement interrupted: by another command, a stop or manual control",
+    "ND": "stream/PVT sequence discontinuity: streamed motion ran out of queued moves",
+    "NR": "value rounded",
+    "NT": "value truncated",
+    "NU": "setting update pending",
+    "NJ": "joystick calibrating",
+    "NB": "device in firmware update mode",
 }
-"""Warning flags (manual, "Warning Flags"): F* faults, W* warnings, N* notices."""
+"""Warning flags (manual, "Warning Flags"): F* faults, W* warnings, N* notices. Each meaning
+starts with the flag's name in the manual; the explanations after it cover the flags
+this stage can raise."""
 
 REJECTION_REASONS: dict[str, str] = {
-    "AGAIN": "the command cannot be processed right now; send it again",
-    "BADAXIS": "the axis number exceeds the number of axes of the device",
-    "BADCOMMAND": "the command or setting is wrong or not valid now",
-    "BADDATA": "the command's data is wrong or out of range",
-    "BADMESSAGEID": "the message ID is not -- or a number from 0 to 99",
-    "DEVICEONLY": "an axis number was given for a device-only command",
-    "FULL": "the device has run out of permanent storage",
-    "LOCKSTEP": "the axis is in a lockstep group and cannot be moved on its own",
-    "NOACCESS": "the command or setting needs a higher access level",
-    "PARKED": "the device is parked and cannot move until unparked",
-    "STATUSBUSY": "the device is busy and cannot do this now",
+    "AGAIN": "the device cannot process the command right now; send it again",
+    "BADAXIS": "the axis number is greater than the number of axes available",
+    "BADCOMMAND": "the command or setting is incorrect or invalid (or needs a firmware update)",
+    "BADDATA": "the command's data is incorrect or out of range",
+    "BADMESSAGEID": "the message ID is neither -- nor a number from 0 to 99",
+    "BADSPLIT": "the command was split into packets the wrong way",
+    "DEVICEONLY": "an axis number was given for a device-scope command",
+    "DRIVERDISABLED": "a motor driver is disabled (over-temperature, over-voltage, over-current or by command)",
+    "FULL": "the device cannot allocate more memory for what the command needs",
+    "INACTIVE": "the axis is inactive",
+    "LOCKSTEP": "the axis is in an enabled lockstep group",
+    "NOACCESS": "the command or setting is not available at the current access level",
+    "NOTSUPPORTED": "the connected peripheral is not supported by this firmware",
+    "PARKED": "the device cannot move because it is parked",
+    "REMOTE": "the device is in EtherCAT (remote) control mode",
+    "STATUSBUSY": "the device is busy and cannot execute the command now",
+    "SYSTEMERROR": "the command failed because of a system failure (review the errors)",
 }
 """Reasons of an ``RJ`` reply (manual, "Replies": rejection reasons)."""
 
@@ -72,7 +94,14 @@ MOTION_FAILURES = frozenset({"WL", "WS", "WM", "WR", "WH"})
 MAXSPEED_PER_MICROSTEP_S = 1.6384
 """``maxspeed`` data per (microstep/s) (manual, "Physical Units": velocity)."""
 
-_REPLY = re.compile(r"@(\d{2}) (\d+) (?:(\d{1,2}) )?(OK|RJ) (IDLE|BUSY) (--|[A-Z]{2}) ?(.*)")
+_REPLY = re.compile(r"@(\d{2}) (\d+) (?:(\d{1,2}) )?(OK|RJ) (IDLE|BUSY) (--|[A-Z]{2}) ?(.*?)(?::([0-9A-Fa-f]{2}))?")
+
+
+def checksum(body: str) -> str:
+    """The ASCII checksum of a message ``body`` (the text after ``/`` or ``@``): the two's
+    complement of its byte sum modulo 256 as two upper-case hex digits (manual, "Message
+    Format": checksum), so that body bytes plus checksum sum to 0 modulo 256."""
+    return f"{(256 - sum(body.encode('ascii')) % 256) % 256:02X}"
 
 
 @dataclass(frozen=True)
@@ -109,7 +138,10 @@ class ZaberStage:
 
     ``travel_mm`` are the soft limits checked before every move; ``mm_per_microstep``
     converts the device's microsteps to mm. Every reply is awaited at most
-    ``timeout_s``; a move or homing cycle may take ``move_timeout_s``.
+    ``timeout_s``; a move or homing cycle may take ``move_timeout_s``. Every command
+    carries a message ID; with ``checksums`` it also carries a checksum (``:CC``).
+    A reply's checksum is verified whenever the device sends one (setting
+    ``comm.checksum`` 1), whatever ``checksums`` says.
     """
 
     def __init__(
@@ -125,6 +157,7 @@ class ZaberStage:
         move_timeout_s: float = 120.0,
         poll_interval_s: float = 0.02,
         home_on_connect: bool = False,
+        checksums: bool = False,
     ) -> None:
         low, high = travel_mm
         if not low < high:
@@ -141,6 +174,7 @@ class ZaberStage:
         self.move_timeout_s = move_timeout_s
         self.poll_interval_s = poll_interval_s
         self.home_on_connect = home_on_connect
+        self.checksums = checksums
         self.name = f"Zaber stage {device}/{axis} on {port}"
         self._line = SerialLine(self.name, port, baud, terminator=b"\r\n", timeout_s=timeout_s)
         self._lock = threading.RLock()
@@ -189,6 +223,7 @@ class ZaberStage:
             "baud": self.baud,
             "device": self.device,
             "axis": self.axis,
+            "checksums": self.checksums,
             "mm_per_microstep": self.mm_per_microstep,
             "travel_mm": list(self.travel_mm),
             **self._device_settings,
@@ -324,7 +359,10 @@ class ZaberStage:
             self._message_id = (self._message_id + 1) % 100
             message_id = self._message_id
             self._line.discard_input()  # late replies to earlier commands
-            self._line.write(f"/{self.device} {axis} {message_id} {command}\n".encode("ascii"), command)
+            body = f"{self.device} {axis} {message_id:02d} {command}"
+            if self.checksums:
+                body += f":{checksum(body)}"
+            self._line.write(f"/{body}\n".encode("ascii"), command)
             reply = self._read_reply(command, axis, message_id)
         if not reply.accepted:
             raise ZaberRejection(self.name, command, reply.data, reply.flag)
@@ -342,7 +380,9 @@ class ZaberStage:
             match = _REPLY.fullmatch(line)
             if match is None:
                 raise SerialGarbage(self.name, f"reply {line!r} is not a Zaber ASCII reply (expected {expected})")
-            device, reply_axis, reply_id, flag, status, warning, data = match.groups()
+            device, reply_axis, reply_id, flag, status, warning, data, check = match.groups()
+            if check is not None and check.upper() != checksum(line[1 : line.rindex(":")]):
+                raise SerialGarbage(self.name, f"reply {line!r} fails its checksum (expected {expected})")
             if (int(device), int(reply_axis)) != (self.device, axis) or reply_id is None or int(reply_id) != message_id:
                 continue  # a late reply to an earlier command
             return Reply(flag == "OK", status == "BUSY", warning, data)

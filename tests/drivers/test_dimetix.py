@@ -9,9 +9,12 @@ import pytest
 
 from drivers.errors import DeviceError, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.laser import DimetixError, DimetixLaser, DimetixTargetError, read_distances
-from drivers.laser.dimetix import ERROR_CODES, TARGET_ERROR_CODES
+from drivers.laser.dimetix import ERROR_CODES, TARGET_ERROR_CODES, UNKNOWN
 from drivers.protocols import RangeMeter
 from sim.emulators import DimetixEmulator
+from tests.drivers.manuals import load
+
+DOCUMENTED_CODES = [entry["code"] for entry in load("dimetix_error_codes.toml")["code"]]
 
 FAST = 0.3  # driver timeout (s) in these tests
 
@@ -52,7 +55,7 @@ def test_identity_and_settings(laser: DimetixLaser, dimetix_emulator: DimetixEmu
     }
 
 
-@pytest.mark.parametrize("code", sorted(ERROR_CODES))
+@pytest.mark.parametrize("code", DOCUMENTED_CODES)
 def test_each_error_code_maps_to_its_documented_meaning(
     laser: DimetixLaser, dimetix_emulator: DimetixEmulator, code: int
 ) -> None:
@@ -189,3 +192,69 @@ def test_read_distances_helper() -> None:
         assert all(abs(d - 800.0) < 3.0 for d in distances)
         assert len(set(distances)) > 1
         assert not emulator.laser_on
+
+
+def test_sensor_without_identity_queries_is_unknown_not_refused(caplog: pytest.LogCaptureFixture) -> None:
+    with DimetixEmulator(distance_mm=987.6, identity_commands=False) as emulator:
+        port = emulator.port
+        with DimetixLaser(port, timeout_s=FAST) as laser:
+            identity = laser.identity()
+            assert (identity.backend, identity.serial, identity.firmware) == ("dimetix", UNKNOWN, UNKNOWN)
+            assert laser.measure_mm() == 987.6  # it measures all the same
+        assert emulator.commands[:3] == ["c", "sn", "sv"]
+    warnings = [r for r in caplog.records if r.levelname == "WARNING" and "dimetix" in r.name]
+    assert len(warnings) == 2
+    assert "serial number unknown: 's0sn' answered E203 (wrong command syntax" in warnings[0].getMessage()
+    assert "software version unknown: 's0sv' answered E203" in warnings[1].getMessage()
+    assert port in warnings[0].getMessage()
+
+
+def test_identity_query_that_times_out_is_still_refused() -> None:
+    with DimetixEmulator() as emulator:
+        laser = DimetixLaser(emulator.port, timeout_s=FAST)
+        emulator.delay_replies(0.0)  # 's0c' answers at once
+        emulator.delay_replies(FAST + 0.3)  # 's0sn' answers too late
+        with pytest.raises(SerialTimeout, match="'g0sn\\+...' in reply to 's0sn'"):
+            laser.connect()
+        with pytest.raises(DeviceError, match="not connected"):
+            laser.identity()
+
+
+def test_tracking_mode_refuses_everything_but_stop_and_read(
+    laser: DimetixLaser, dimetix_emulator: DimetixEmulator
+) -> None:
+    laser.start_tracking(0.02)
+    for command in (laser.laser_on, laser.laser_off, laser.measure_mm, lambda: laser.start_tracking(0.02)):
+        with pytest.raises(DimetixError, match="E212") as caught:
+            command()
+        assert caught.value.code == 212
+    assert dimetix_emulator.tracking
+    laser.stop_tracking()
+    laser.laser_on()
+    assert dimetix_emulator.laser_on
+
+
+def test_sampling_faster_than_a_measurement_is_refused(laser: DimetixLaser, dimetix_emulator: DimetixEmulator) -> None:
+    with dimetix_emulator.lock:
+        dimetix_emulator.measure_time_s = 0.05
+    with pytest.raises(DimetixError, match="E211: sampling too fast"):
+        laser.start_tracking(0.01)
+    assert not dimetix_emulator.tracking
+    laser.start_tracking(0.0)  # 0: as fast as the sensor can
+    assert dimetix_emulator.tracking
+
+
+def test_start_sequence_after_power_on_is_not_taken_for_a_reply(dimetix_emulator: DimetixEmulator) -> None:
+    with DimetixLaser(dimetix_emulator.port, timeout_s=FAST) as laser:  # 'g0?' waits in the line
+        assert laser.identity().serial == "12345678"
+        assert laser.measure_mm() == 1234.5
+
+
+def test_restart_sequence_and_other_sensors_lines_are_skipped(
+    laser: DimetixLaser, dimetix_emulator: DimetixEmulator
+) -> None:
+    dimetix_emulator.stray_lines_before_next_reply("g0?", "g7g+00000010")
+    assert laser.measure_mm() == 1234.5
+    dimetix_emulator.stray_lines_before_next_reply("g7?")
+    laser.laser_on()  # '?' is the awaited reply here, but not from sensor 7
+    assert dimetix_emulator.laser_on

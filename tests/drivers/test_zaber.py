@@ -7,12 +7,17 @@ import time
 from collections.abc import Iterator
 
 import pytest
+import serial
 
 from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.protocols import LinearStage
 from drivers.stage import ZaberFlagError, ZaberRejection, ZaberStage, move_stage
 from drivers.stage.zaber import MOTION_FAILURES, REJECTION_REASONS, WARNING_FLAGS
 from sim.emulators import ZaberEmulator
+from tests.drivers.manuals import load
+
+DOCUMENTED_REASONS = [entry["code"] for entry in load("zaber_ascii.toml")["reason"]]
+DOCUMENTED_FAULTS = [entry["code"] for entry in load("zaber_ascii.toml")["flag"] if entry["code"].startswith("F")]
 
 FAST = 0.3  # driver reply timeout (s) in these tests
 MM_PER_MICROSTEP = 0.000125  # an unround resolution, so that a mm/microstep mix-up cannot pass
@@ -113,7 +118,7 @@ def test_device_refuses_move_without_reference(stage: ZaberStage) -> None:
     assert caught.value.reason == "BADCOMMAND"
 
 
-@pytest.mark.parametrize("reason", sorted(REJECTION_REASONS))
+@pytest.mark.parametrize("reason", DOCUMENTED_REASONS)
 def test_each_rejection_reason_maps_to_its_meaning(
     homed: ZaberStage, zaber_emulator: ZaberEmulator, reason: str
 ) -> None:
@@ -134,7 +139,7 @@ def test_bad_axis_and_device_only_rejections_from_the_device(zaber_emulator: Zab
         stage._send("get deviceid", axis=1)
 
 
-@pytest.mark.parametrize("flag", sorted(f for f in WARNING_FLAGS if f.startswith("F")))
+@pytest.mark.parametrize("flag", DOCUMENTED_FAULTS)
 def test_active_fault_refuses_motion(homed: ZaberStage, zaber_emulator: ZaberEmulator, flag: str) -> None:
     zaber_emulator.raise_flag(flag)
     with pytest.raises(ZaberFlagError, match=f"nothing moved: warning flag {flag}: ") as caught:
@@ -158,7 +163,7 @@ def test_warnings_are_cleared_and_logged_before_a_move(
 ) -> None:
     zaber_emulator.raise_flag("WT")
     homed.move_to(5.0)
-    assert "cleared WT (controller temperature above the recommended limit)" in caplog.text
+    assert "cleared WT (controller temperature high: above the recommended limit)" in caplog.text
     assert homed.position_mm() == pytest.approx(5.0)
 
 
@@ -219,9 +224,10 @@ def test_safe_state_after_a_failure_and_recovery(homed: ZaberStage, zaber_emulat
 
 
 def test_move_timeout_stops_the_stage(zaber_emulator: ZaberEmulator) -> None:
-    stage = make_stage(zaber_emulator, move_timeout_s=0.05)
+    stage = make_stage(zaber_emulator)
     stage.connect()
-    stage.home()
+    stage.home()  # with the default time limit: a loaded machine may need more than 0.05 s
+    stage.move_timeout_s = 0.05
     with pytest.raises(DeviceError, match="still moving after 0.05 s; sent stop"):
         stage.move_to(399.0)
     assert not zaber_emulator.moving
@@ -244,3 +250,49 @@ def test_move_stage_helper(zaber_emulator: ZaberEmulator) -> None:
     assert position == pytest.approx(42.0)
     with pytest.raises(ValueError, match="unknown stage protocol 'thorlabs'"):
         move_stage(zaber_emulator.port, "thorlabs")
+
+
+@pytest.mark.parametrize(
+    ("request_line", "reply"),
+    [
+        (b"/1 1 01 get pos:2B\n", b"@01 1 01 OK IDLE WR 160000\r\n"),  # zaber-motion's framing
+        (b"/1 1 00:FE\n", b"@01 1 00 OK IDLE WR 0\r\n"),  # empty command: LRC of '1 1 00' is FE
+        (b"/\n", b"@01 0 OK IDLE WR 0\r\n"),  # '/' alone: every device answers
+        (b"/1 1 get pos\r\n", b"@01 1 OK IDLE WR 160000\r\n"),  # no ID, no checksum, CR LF
+        (b"/1 1 -- get pos\n", b"@01 1 -- OK IDLE WR 160000\r\n"),
+        (b"/1 1 123 get pos\n", b"@01 1 123 RJ IDLE WR BADMESSAGEID\r\n"),
+        (b"/2 1 01 get pos\n/1 1 02 get pos\n", b"@01 1 02 OK IDLE WR 160000\r\n"),  # device 2 is not there
+    ],
+)
+def test_raw_framing(zaber_emulator: ZaberEmulator, request_line: bytes, reply: bytes) -> None:
+    with serial.Serial(zaber_emulator.port, 115200, timeout=2.0) as port:
+        port.write(request_line)
+        assert port.readline() == reply
+
+
+def test_command_with_a_wrong_checksum_is_dropped(zaber_emulator: ZaberEmulator) -> None:
+    with serial.Serial(zaber_emulator.port, 115200, timeout=FAST) as port:
+        port.write(b"/1 1 00:FF\n")  # the LRC of '1 1 00' is FE
+        deadline = time.monotonic() + 5.0
+        while zaber_emulator.bad_checksums == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert zaber_emulator.bad_checksums == 1
+        assert port.readline() == b""  # dropped: no reply within FAST
+        port.timeout = 2.0
+        zaber_emulator.reply_checksums = True  # comm.checksum 1: replies carry one too
+        port.write(b"/1 0 07 get deviceid\n")
+        line = port.readline()
+        assert line.startswith(b"@01 0 07 OK IDLE WR 50081:")
+        assert (sum(line[1:-5]) + int(line[-4:-2], 16)) % 256 == 0
+
+
+def test_alerts_and_info_messages_before_a_reply_are_skipped(
+    stage: ZaberStage, zaber_emulator: ZaberEmulator
+) -> None:
+    with zaber_emulator.lock:
+        zaber_emulator.alerts = True  # comm.alert 1: '!01 1 IDLE --' when a movement ends
+    stage.home()
+    zaber_emulator.messages_before_next_reply("!01 1 IDLE --", "#01 1 07 a note")
+    assert stage.position_mm() == 0.0
+    stage.move_to(12.5)
+    assert stage.position_mm() == pytest.approx(12.5)

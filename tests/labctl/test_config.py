@@ -94,3 +94,10 @@ def test_several_errors_reported_together():
     text = campaign_text(backend="nope").replace("frames = 8\n\n", "frames = -1\n\n", 1)
     message = errors_of(text)
     assert "devices.camera.backend" in message and "procedure[0].frames" in message
+
+
+def test_stage_checksums_are_a_zaber_option():
+    text = campaign_text().replace('protocol = "zaber"', 'protocol = "grbl"\nchecksums = true')
+    assert "checksums apply to Zaber stages only" in errors_of(text)
+    zaber = parse_campaign(campaign_text().replace('protocol = "zaber"', 'protocol = "zaber"\nchecksums = true'))
+    assert zaber.devices.stage.checksums is True
