@@ -1,0 +1,182 @@
+"""Sessions back to back on one emulated Grbl controller: whatever the previous session left
+(a feed hold, an alarm, a Ctrl-C in the middle of a move), the next one connects and moves."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import textwrap
+
+import h5py
+import pytest
+import serial
+
+from labctl.cli import main
+from sim.emulators import GrblEmulator
+from tests.labctl.test_real_lab import BAG
+
+
+@pytest.fixture
+def grbl() -> Iterator[GrblEmulator]:
+    with GrblEmulator(homing_enabled=False, max_travel_mm=400.0, start_mm=0.0) as emulator:
+        yield emulator
+
+
+@dataclass
+class Session:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture
+def move(capsys: pytest.CaptureFixture[str]) -> Callable[..., Session]:
+    """``labctl device stage --protocol grbl --port PORT --move-mm TARGET``, in-process (stdin is no terminal)."""
+
+    def session(port: str, target: str, *extra: str) -> Session:
+        with pytest.raises(SystemExit) as done:
+            main(["device", "stage", "--protocol", "grbl", "--port", port, "--move-mm", target, *extra])
+        out, err = capsys.readouterr()
+        return Session(int(done.value.code), out, err)
+
+    return session
+
+
+def raw(port: str, data: bytes) -> None:
+    """What an earlier session (or a terminal) sent, without waiting for answers."""
+    with serial.Serial(port, 115200, timeout=0.1) as link:
+        link.write(data)
+        time.sleep(0.1)
+
+
+def test_two_sessions_back_to_back(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
+    for target in ("12.5", "12.5", "30"):
+        result = move(grbl.port, target)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.strip() == f"{float(target):.4f} mm" and grbl.status_state == "Idle"
+
+
+def test_a_session_after_a_feed_hold(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
+    raw(grbl.port, b"!")  # the former end-of-session stop: Hold:0, where no line is answered
+    assert grbl.status_state == "Hold:0"
+    result = move(grbl.port, "12.5")
+    assert result.returncode == 0, result.stderr
+    assert grbl.position_mm == pytest.approx(12.5) and grbl.status_state == "Idle"
+
+
+def test_a_session_after_a_held_program_does_not_resume_it(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
+    raw(grbl.port, b"G1X300F600\n")
+    time.sleep(0.1)
+    raw(grbl.port, b"!")
+    time.sleep(0.1)
+    result = move(grbl.port, "12.5")
+    assert result.returncode == 0, result.stderr
+    time.sleep(0.2)
+    assert grbl.position_mm == pytest.approx(12.5) and grbl.status_state == "Idle"  # the G1 was flushed
+
+
+def test_a_session_after_an_alarm(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
+    raw(grbl.port, b"$J=G53G90G21X300F6000\n")
+    raw(grbl.port, b"\x18")  # reset while jogging: ALARM:3
+    assert grbl.status_state == "Alarm"
+    refused = move(grbl.port, "12.5")  # no terminal to ask: the alarm stays
+    assert refused.returncode == 1
+    assert "no terminal to ask" in refused.stderr and "stays locked" in refused.stderr
+    assert "nothing moved" in refused.stderr and "Traceback" not in refused.stderr
+    assert grbl.status_state == "Alarm"
+    result = move(grbl.port, "12.5", "--unlock-alarm")
+    assert result.returncode == 0, result.stderr
+    assert grbl.position_mm == pytest.approx(12.5)
+    again = move(grbl.port, "20")
+    assert again.returncode == 0, again.stderr
+
+
+def test_a_session_after_a_hard_limit(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
+    grbl.trip_hard_limit_at(40.0)
+    first = move(grbl.port, "100")
+    assert first.returncode == 1 and "ALARM:1: Hard limit has been triggered" in first.stderr
+    result = move(grbl.port, "12.5", "--unlock-alarm")  # Grbl answered nothing until a reset
+    assert result.returncode == 0, result.stderr
+    assert grbl.position_mm == pytest.approx(12.5)
+
+
+def test_a_session_after_ctrl_c_during_a_move(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
+    command = [sys.executable, "-m", "labctl", "device", "stage", "--protocol", "grbl", "--port", grbl.port,
+               "--move-mm", "390"]  # 1000 mm/min: 23 s
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 20
+    while grbl.status_state != "Jog":
+        assert time.monotonic() < deadline and process.poll() is None
+        time.sleep(0.02)
+    os.kill(process.pid, signal.SIGINT)
+    _, err = process.communicate(timeout=30)
+    assert process.returncode == 130 and "Traceback" not in err
+    assert grbl.status_state == "Idle"  # jog cancelled, no hold left behind
+    stopped = grbl.position_mm
+    time.sleep(0.1)
+    assert grbl.position_mm == stopped < 390.0
+    result = move(grbl.port, "12.5")
+    assert result.returncode == 0, result.stderr
+
+
+def sweep(port: str, speed_mm_s: float) -> str:
+    """A depth sweep 1000..1400 mm on the Grbl stage, the camera playing the RealSense recording."""
+    return textwrap.dedent(f"""
+        [campaign]
+        name = "grbl-sessions"
+
+        [devices.camera]
+        backend = "realsense"
+        playback = "{BAG}"
+
+        [devices.stage]
+        protocol = "grbl"
+        port = "{port}"
+        travel_mm = [0, 400]
+        speed_mm_s = {speed_mm_s}
+        settle_s = 0
+        distance_at_zero_mm = 1000
+
+        [[procedure]]
+        kind = "depth_sweep"
+        start_mm = 1000
+        stop_mm = 1400
+        step_mm = 200
+        frames = 2
+    """)
+
+
+def run_campaign(labctl, tmp_path: Path, grbl: GrblEmulator, name: str) -> subprocess.CompletedProcess[str]:
+    path = tmp_path / "campaign.toml"
+    path.write_text(sweep(grbl.port, 1000))
+    return labctl("run", path, "-o", tmp_path / name)
+
+
+@pytest.mark.slow
+def test_a_campaign_after_a_campaign_ended_by_ctrl_c(tmp_path: Path, labctl) -> None:
+    with GrblEmulator(max_travel_mm=400.0, max_rate_mm_min=120_000.0, homing_enabled=False, start_mm=150.0) as grbl:
+        path = tmp_path / "slow.toml"
+        path.write_text(sweep(grbl.port, 20))
+        process = subprocess.Popen([sys.executable, "-m", "labctl", "run", str(path), "-o", str(tmp_path / "cut.h5")],
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 60
+        while grbl.status_state != "Jog":
+            assert time.monotonic() < deadline and process.poll() is None
+            time.sleep(0.02)
+        os.kill(process.pid, signal.SIGINT)
+        _, err = process.communicate(timeout=60)
+        assert process.returncode == 130, err
+        assert grbl.status_state == "Idle"
+        result = run_campaign(labctl, tmp_path, grbl, "after.h5")
+        assert result.returncode == 0, result.stderr
+    with h5py.File(tmp_path / "cut.h5", "r") as f:
+        assert f.attrs["status"] == "aborted"
+    with h5py.File(tmp_path / "after.h5", "r") as f:
+        assert f.attrs["status"] == "complete" and len(f["steps"]) == 3
