@@ -198,6 +198,15 @@ def test_slow_reply_times_out_then_recovers(homed: GrblStage, grbl_emulator: Grb
     assert homed.position_mm() == pytest.approx(3.0)
 
 
+def test_a_late_status_report_during_a_move_is_asked_for_again(homed: GrblStage, grbl_emulator: GrblEmulator) -> None:
+    homed.feed_mm_min = 30_000.0  # 0.8 s for 400 mm
+    late = threading.Timer(0.1, grbl_emulator.delay_replies, args=(FAST + 0.1,))
+    late.start()
+    homed.move_to(400.0)
+    late.join()
+    assert grbl_emulator.position_mm == pytest.approx(400.0) and grbl_emulator.state == "Idle"
+
+
 def test_garbage_reply(homed: GrblStage, grbl_emulator: GrblEmulator) -> None:
     grbl_emulator.garble_replies()
     with pytest.raises(SerialGarbage, match="non-ASCII reply"):
