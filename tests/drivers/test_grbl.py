@@ -14,7 +14,7 @@ from drivers.stage import GrblAlarm, GrblError, GrblStage, move_stage
 from drivers.stage.grbl import ALARM_CODES, ERROR_CODES
 from sim.emulators import GrblEmulator
 
-FAST = 0.3  # driver reply timeout (s) in these tests
+FAST = 1.0  # driver reply timeout (s) in these tests: generous, the test machine may be loaded
 FEED = 60_000.0  # mm/min = 1000 mm/s
 
 
