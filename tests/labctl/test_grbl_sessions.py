@@ -12,15 +12,13 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import textwrap
-
 import h5py
 import pytest
 import serial
 
 from labctl.cli import main
 from sim.emulators import GrblEmulator
-from tests.labctl.test_real_lab import BAG
+from tests.labctl.test_real_lab import campaign
 
 
 @pytest.fixture
@@ -107,17 +105,24 @@ def test_a_session_after_a_hard_limit(grbl: GrblEmulator, move: Callable[..., Se
     assert grbl.position_mm == pytest.approx(12.5)
 
 
-def test_a_session_after_ctrl_c_during_a_move(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
-    command = [sys.executable, "-m", "labctl", "device", "stage", "--protocol", "grbl", "--port", grbl.port,
-               "--move-mm", "390"]  # 1000 mm/min: 23 s
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 20
+def interrupt_when_jogging(command: list[str], grbl: GrblEmulator) -> tuple[int, str]:
+    """Start ``labctl COMMAND...`` in a subprocess, send SIGINT (Ctrl-C) once the stage jogs;
+    return its exit code and stderr."""
+    process = subprocess.Popen([sys.executable, "-m", "labctl", *command],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
     while grbl.status_state != "Jog":
-        assert time.monotonic() < deadline and process.poll() is None
+        assert time.monotonic() < deadline and process.poll() is None, process.communicate()
         time.sleep(0.02)
     os.kill(process.pid, signal.SIGINT)
-    _, err = process.communicate(timeout=30)
-    assert process.returncode == 130 and "Traceback" not in err
+    _, err = process.communicate(timeout=60)
+    return process.returncode, err
+
+
+def test_a_session_after_ctrl_c_during_a_move(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
+    code, err = interrupt_when_jogging(
+        ["device", "stage", "--protocol", "grbl", "--port", grbl.port, "--move-mm", "390"], grbl)  # 23 s
+    assert code == 130 and "Traceback" not in err, err
     assert grbl.status_state == "Idle"  # jog cancelled, no hold left behind
     stopped = grbl.position_mm
     time.sleep(0.1)
@@ -126,55 +131,17 @@ def test_a_session_after_ctrl_c_during_a_move(grbl: GrblEmulator, move: Callable
     assert result.returncode == 0, result.stderr
 
 
-def sweep(port: str, speed_mm_s: float) -> str:
-    """A depth sweep 1000..1400 mm on the Grbl stage, the camera playing the RealSense recording."""
-    return textwrap.dedent(f"""
-        [campaign]
-        name = "grbl-sessions"
-
-        [devices.camera]
-        backend = "realsense"
-        playback = "{BAG}"
-
-        [devices.stage]
-        protocol = "grbl"
-        port = "{port}"
-        travel_mm = [0, 400]
-        speed_mm_s = {speed_mm_s}
-        settle_s = 0
-        distance_at_zero_mm = 1000
-
-        [[procedure]]
-        kind = "depth_sweep"
-        start_mm = 1000
-        stop_mm = 1400
-        step_mm = 200
-        frames = 2
-    """)
-
-
-def run_campaign(labctl, tmp_path: Path, grbl: GrblEmulator, name: str) -> subprocess.CompletedProcess[str]:
-    path = tmp_path / "campaign.toml"
-    path.write_text(sweep(grbl.port, 1000))
-    return labctl("run", path, "-o", tmp_path / name)
-
-
 @pytest.mark.slow
 def test_a_campaign_after_a_campaign_ended_by_ctrl_c(tmp_path: Path, labctl) -> None:
-    with GrblEmulator(max_travel_mm=400.0, max_rate_mm_min=120_000.0, homing_enabled=False, start_mm=150.0) as grbl:
-        path = tmp_path / "slow.toml"
-        path.write_text(sweep(grbl.port, 20))
-        process = subprocess.Popen([sys.executable, "-m", "labctl", "run", str(path), "-o", str(tmp_path / "cut.h5")],
-                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + 60
-        while grbl.status_state != "Jog":
-            assert time.monotonic() < deadline and process.poll() is None
-            time.sleep(0.02)
-        os.kill(process.pid, signal.SIGINT)
-        _, err = process.communicate(timeout=60)
-        assert process.returncode == 130, err
+    with GrblEmulator(max_travel_mm=400.0, max_rate_mm_min=120_000.0, start_mm=150.0) as grbl:
+        stage = f'protocol = "grbl"\nport = "{grbl.port}"'
+        slow, fast = tmp_path / "slow.toml", tmp_path / "fast.toml"
+        slow.write_text(campaign(stage, None, speed_mm_s=20))  # 10 s per 200 mm step
+        fast.write_text(campaign(stage, None))
+        code, err = interrupt_when_jogging(["run", str(slow), "-o", str(tmp_path / "cut.h5")], grbl)
+        assert code == 130, err
         assert grbl.status_state == "Idle"
-        result = run_campaign(labctl, tmp_path, grbl, "after.h5")
+        result = labctl("run", fast, "-o", tmp_path / "after.h5")
         assert result.returncode == 0, result.stderr
     with h5py.File(tmp_path / "cut.h5", "r") as f:
         assert f.attrs["status"] == "aborted"
