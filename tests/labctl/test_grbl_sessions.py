@@ -105,11 +105,17 @@ def test_a_session_after_a_hard_limit(grbl: GrblEmulator, move: Callable[..., Se
     assert grbl.position_mm == pytest.approx(12.5)
 
 
+def default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def interrupt_when_jogging(command: list[str], grbl: GrblEmulator) -> tuple[int, str]:
     """Start ``labctl COMMAND...`` in a subprocess, send SIGINT (Ctrl-C) once the stage jogs;
     return its exit code and stderr."""
-    process = subprocess.Popen([sys.executable, "-m", "labctl", *command],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "labctl", *command], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=default_sigint,  # pytest started in the background ignores SIGINT, and so would its children
+    )
     deadline = time.monotonic() + 60
     while grbl.status_state != "Jog":
         assert time.monotonic() < deadline and process.poll() is None, process.communicate()
