@@ -17,6 +17,7 @@ import pytest
 import serial
 
 from labctl.cli import main
+from labctl.operator import Operator, unlock_confirmation
 from sim.emulators import GrblEmulator
 from tests.labctl.test_real_lab import campaign
 
@@ -153,3 +154,42 @@ def test_a_campaign_after_a_campaign_ended_by_ctrl_c(tmp_path: Path, labctl) -> 
         assert f.attrs["status"] == "aborted"
     with h5py.File(tmp_path / "after.h5", "r") as f:
         assert f.attrs["status"] == "complete" and len(f["steps"]) == 3
+
+
+@pytest.mark.slow
+def test_campaigns_after_a_feed_hold_and_after_a_hard_limit(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def run(name: str) -> tuple[int, str]:
+        with pytest.raises(SystemExit) as done:
+            main(["run", str(path), "-o", str(tmp_path / name), "--quiet"])
+        return int(done.value.code), capsys.readouterr().err
+
+    with GrblEmulator(max_travel_mm=400.0, max_rate_mm_min=120_000.0, start_mm=150.0) as grbl:
+        path = tmp_path / "campaign.toml"
+        path.write_text(campaign(f'protocol = "grbl"\nport = "{grbl.port}"', None))
+        raw(grbl.port, b"!")  # a hold left behind: every line would wait unanswered
+        assert grbl.status_state == "Alarm"  # the power-up homing lock ignores a hold
+        raw(grbl.port, b"$H\n")
+        time.sleep(0.1)
+        raw(grbl.port, b"!")
+        assert grbl.status_state == "Hold:0"
+        assert run("after_hold.h5") == (0, "")
+        assert grbl.status_state == "Idle"
+        grbl.trip_hard_limit_at(300.0)  # the third sweep step (400 mm) runs into a limit switch
+        code, err = run("hard_limit.h5")
+        assert code == 1 and "ALARM:1: Hard limit has been triggered" in err, err
+        assert run("after_limit.h5") == (0, "")  # silent Grbl reset, then homed (home_on_connect)
+    for name, status in [("after_hold.h5", "complete"), ("hard_limit.h5", "aborted"), ("after_limit.h5", "complete")]:
+        with h5py.File(tmp_path / name, "r") as f:
+            assert f.attrs["status"] == status
+
+
+def test_a_run_asks_the_operator_before_unlocking() -> None:
+    reports: list[str] = []
+    confirm = unlock_confirmation(Operator(automatic=True, report=reports.append))
+    assert confirm("ALARM:3: Reset while in motion") is False  # a simulated operator keeps it locked
+    assert reports == ["operator (simulated): ALARM:3: Reset while in motion -- keep locked"]
+    unattended = unlock_confirmation(Operator(automatic=False, report=reports.append))
+    assert unattended("ALARM:3") is False  # stdin is no terminal under pytest
+    assert "no terminal to ask" in reports[-1] and "stays locked" in reports[-1]
