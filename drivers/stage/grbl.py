@@ -324,7 +324,7 @@ class GrblStage:
             if time.monotonic() > deadline:
                 raise DeviceError(self.name, f"still moving ({state}) {STOP_S} s after the stop request")
             time.sleep(self.poll_interval_s)
-            state = self._status()[0]
+            state = self._status_until(deadline)[0]
         if state == "Hold:0":  # at rest: a reset now keeps the position and leaves the hold
             self._soft_reset()
 
@@ -381,19 +381,22 @@ class GrblStage:
         self._command("$X")
         self._alarm = None
 
-    def _wait_idle(self, command: str) -> float:
-        """Poll the status until Idle. A status report that does not come in time (grbl-sim
-        skipped them for up to 2 s near the end of a jog) is asked for again until the move
-        deadline, rather than abandoning a move that is still running."""
-        deadline = time.monotonic() + self.move_timeout_s
+    def _status_until(self, deadline: float) -> tuple[str, float]:
+        """:meth:`_status`, asking again until ``deadline`` when a report does not come in
+        time (grbl-sim skipped them for seconds near the end of a jog): a running motion is
+        not abandoned for one missing report."""
         while True:
             try:
-                state, position = self._status()
+                return self._status()
             except SerialTimeout as exc:
                 if time.monotonic() > deadline:
                     raise
                 log.warning("%s: %s; asking again", self.name, exc)
-                continue
+
+    def _wait_idle(self, command: str) -> float:
+        deadline = time.monotonic() + self.move_timeout_s
+        while True:
+            state, position = self._status_until(deadline)
             if state == "Idle":
                 return position
             if state == "Alarm":
