@@ -231,6 +231,8 @@ class GrblStage:
 
         If Grbl cannot be asked for its state (a dead link), it sends a jog cancel and
         a feed hold blind: stopping the axis matters more than the next session."""
+        if not self._line.is_open:
+            return
         try:
             self.stop()
         except Exception as exc:  # a dead or missing port must not stop the safe-state sweep
