@@ -125,7 +125,7 @@ def run(campaign: Path, output: Path, sim: bool, model: Path | None, seed: int |
     else:
         lab = build_real_lab(config)
         sim_record = None
-    connect_lab(lab, reporter.message)
+    connect_lab(lab, reporter.message, Operator(automatic=lab.simulated, report=reporter.message))
     try:
         writer = RunWriter.create(
             output,
@@ -164,7 +164,7 @@ def resume(run_file: Path, quiet: bool) -> None:
             lab = _sim_lab_from(config, str(sim["model_toml"]), f"{run_file} (stored model)", int(sim["seed"]))
         else:
             lab = build_real_lab(config)
-        connect_lab(lab, reporter.message)
+        connect_lab(lab, reporter.message, Operator(automatic=lab.simulated, report=reporter.message))
         dropped = writer.discard_incomplete()
         if dropped:
             reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")

@@ -20,6 +20,7 @@ import numpy as np
 from drivers.errors import DeviceError, LimitViolation
 from drivers.protocols import DepthCamera
 from labctl.errors import InputError, RunAborted
+from labctl.operator import Operator, unlock_confirmation
 from labctl.store import RunWriter
 from procedures.steps import Step
 
@@ -76,10 +77,12 @@ def laser(port: str, baud: int, count: int, as_json: bool) -> None:
 @click.option("--move-mm", type=float, help="absolute target position in mm")
 @click.option("--mm-per-microstep", type=click.FloatRange(min=0, min_open=True), help="Zaber: microstep size")
 @click.option("--axis", help="Zaber: axis number (1); Grbl: axis letter (X)")
+@click.option("--unlock-alarm", is_flag=True,
+              help="Grbl: unlock ($X) an alarm found at connect without asking (default: ask on a terminal)")
 @click.option("--json", "as_json", is_flag=True, help='print {"position_mm": ...}')
 def stage(
     port: str, protocol: str, baud: int | None, home: bool, move_mm: float | None,
-    mm_per_microstep: float | None, axis: str | None, as_json: bool,
+    mm_per_microstep: float | None, axis: str | None, unlock_alarm: bool, as_json: bool,
 ) -> None:
     """Optionally home and move the linear stage, then print its position."""
     from drivers.stage import move_stage
@@ -90,11 +93,15 @@ def stage(
             raise InputError("--mm-per-microstep is required for a Zaber stage (its microstep size in mm, datasheet)")
         if axis is not None and not axis.isdigit():
             raise InputError(f"--axis of a Zaber stage is a number, got {axis!r}")
+        if unlock_alarm:
+            raise InputError("--unlock-alarm applies to Grbl stages only")
         options.update(mm_per_microstep=mm_per_microstep, axis=int(axis or 1))
     else:
         if mm_per_microstep is not None:
             raise InputError("--mm-per-microstep applies to Zaber stages only")
         options["axis"] = axis or "X"
+        operator = Operator(automatic=False, report=lambda message: click.echo(message, err=True))
+        options["confirm_unlock"] = (lambda _: True) if unlock_alarm else unlock_confirmation(operator)
     with _device_errors(), _driver_options():
         position = move_stage(port, protocol, home=home, move_mm=move_mm, **options)
     click.echo(json.dumps({"position_mm": position}) if as_json else f"{position:.4f} mm")

@@ -40,3 +40,17 @@ class Operator:
                 return options[int(answer) - 1]
             if answer in options:
                 return answer
+
+
+def unlock_confirmation(operator: Operator) -> Callable[[str], bool]:
+    """A Grbl ``confirm_unlock`` callback: the operator decides whether an alarm may be
+    unlocked (``$X``); a simulated operator and one without a terminal keep it locked."""
+
+    def confirm(message: str) -> bool:
+        try:
+            return operator.choose(message, ["keep locked", "unlock"]) == "unlock"
+        except RuntimeError as exc:  # no terminal to ask: the alarm stays, moves are refused
+            operator.report(f"warning: {exc}; the stage stays locked")
+            return False
+
+    return confirm

@@ -34,7 +34,7 @@ from drivers.errors import (
 from labctl.config import Campaign
 from labctl.errors import Interrupted, RunAborted
 from labctl.lab import Lab
-from labctl.operator import Operator
+from labctl.operator import Operator, unlock_confirmation
 from labctl.planning import PlannedStep, schedule
 from labctl.progress import Reporter
 from labctl.store import FrameError, RunWriter, StepWriter
@@ -95,8 +95,13 @@ def close_all(lab: Lab, report: Callable[[str], None]) -> None:
             report(f"warning: closing {role} failed: {exc}")
 
 
-def connect_lab(lab: Lab, report: Callable[[str], None]) -> None:
-    """Connect every device; on failure all devices go to their safe state (RunAborted)."""
+def connect_lab(lab: Lab, report: Callable[[str], None], operator: Operator | None = None) -> None:
+    """Connect every device; on failure all devices go to their safe state (RunAborted).
+
+    A stage with a ``confirm_unlock`` callback slot (Grbl) found in the Alarm state asks
+    ``operator`` whether it may be unlocked."""
+    if operator is not None and getattr(lab.stage, "confirm_unlock", False) is None:
+        setattr(lab.stage, "confirm_unlock", unlock_confirmation(operator))  # noqa: B010 (Grbl only)
     try:
         for device in lab.devices().values():
             device.connect()

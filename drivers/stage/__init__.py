@@ -31,7 +31,7 @@ def move_stage(
 
     ``protocol`` is ``"zaber"`` or ``"grbl"``; ``options`` go to the stage's constructor
     (``baud``, ``travel_mm``, and for Zaber ``mm_per_microstep``; for Grbl ``axis``,
-    ``feed_mm_min``). Without ``travel_mm`` the soft limits are (0, ``move_mm``) or
+    ``feed_mm_min``, ``confirm_unlock``). Without ``travel_mm`` the soft limits are (0, ``move_mm``) or
     (0, 1) mm, so a move to a negative position is refused. The stage is left stopped.
     """
     try:

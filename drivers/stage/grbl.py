@@ -6,9 +6,22 @@ messages ``ALARM:N`` and ``[MSG:...]``, real-time status report ``?`` →
 hold ``!``) and ``doc/csv/error_codes_en_US.csv`` / ``alarm_codes_en_US.csv``.
 
 Moves are jogs in machine coordinates (``$J=G53 G90 G21 X.. F..``): Grbl answers a
-target beyond its own soft limits with ``error:15`` instead of an alarm, and a feed
-hold stops a jog cleanly without a reset. Lines end in LF only, because Grbl ends a
-line at CR as well and would answer the empty line of a CR LF with a second ``ok``.
+target beyond its own soft limits with ``error:15`` instead of an alarm, and a jog
+cancel (``0x85``) stops a jog cleanly without a reset. Lines end in LF only, because
+Grbl ends a line at CR as well and would answer the empty line of a CR LF with a
+second ``ok``.
+
+Every session leaves the controller usable by the next one. A feed hold ``!`` sent
+while Grbl is Idle puts it into ``Hold:0``, where it executes no line (the empty
+sync line of the next connection would wait unanswered) until a resume ``~`` or a
+reset; so :meth:`GrblStage.stop` cancels a jog with ``0x85``, holds other motion with
+``!`` and, once the hold has brought the axes to rest (``Hold:0``), soft-resets
+(``0x18``): Grbl 1.1 kills the steppers on a reset only while in motion (``ALARM:3``,
+position likely lost); a reset from a completed hold keeps the position, flushes the
+queued blocks and returns to Idle. :meth:`GrblStage.connect` asks for the state with
+``?`` before anything else and brings a controller left in Hold, Door, Jog or Run to
+Idle the same way; an Alarm is reported and unlocked (``$X``) only when the
+``confirm_unlock`` callback says it is safe.
 """
 
 from __future__ import annotations
@@ -17,7 +30,7 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from types import TracebackType
 from typing import Any
 
@@ -28,59 +41,63 @@ from drivers.serial_line import SerialLine
 log = logging.getLogger(__name__)
 
 ERROR_CODES: dict[int, str] = {
-    1: "expected a G-code command letter",
-    2: "bad or missing number format",
-    3: "'$' system command not recognised or supported",
-    4: "negative value for an expected positive value",
-    5: "homing cycle is not enabled in the settings ($22)",
-    6: "minimum step pulse time must be greater than 3 µs",
-    7: "EEPROM read failed; affected settings were restored to defaults",
-    8: "'$' command only possible while Grbl is idle",
-    9: "G-code is locked out during an alarm or jog",
-    10: "soft limits cannot be enabled without homing",
-    11: "line too long: not executed",
-    12: "setting would exceed the maximum step rate",
-    13: "safety door opened",
-    14: "build info or startup line too long for the EEPROM",
-    15: "jog target exceeds the machine travel ($130..): jog ignored",
-    16: "jog command without '=' or with forbidden G-code",
-    17: "laser mode requires PWM output",
-    20: "unsupported or invalid G-code command",
-    21: "more than one G-code command of the same modal group",
-    22: "feed rate not set",
-    23: "G-code command needs an integer value",
-    24: "more than one G-code command needing axis words",
-    25: "repeated G-code word",
-    26: "no axis words for a command that needs them",
-    27: "invalid line number",
-    28: "G-code command is missing a required value word",
-    29: "G59.x work coordinate systems are not supported",
-    30: "G53 only allowed with G0 and G1 motion",
-    31: "axis words in a block that does not use them",
-    32: "G2/G3 arc needs at least one in-plane axis word",
-    33: "invalid motion target",
-    34: "invalid arc radius",
-    35: "G2/G3 arc needs at least one in-plane offset word",
-    36: "unused value words in the block",
-    37: "G43.1 tool length offset not on the configured tool-length axis",
-    38: "tool number above the supported maximum",
+    1: "G-code words consist of a letter and a value. Letter was not found.",
+    2: "Missing the expected G-code word value or numeric value format is not valid.",
+    3: "Grbl '$' system command was not recognized or supported.",
+    4: "Negative value received for an expected positive value.",
+    5: "Homing cycle failure. Homing is not enabled via settings.",
+    6: "Minimum step pulse time must be greater than 3usec.",
+    7: "An EEPROM read failed. Auto-restoring affected EEPROM to default values.",
+    8: "Grbl '$' command cannot be used unless Grbl is IDLE. Ensures smooth operation during a job.",
+    9: "G-code commands are locked out during alarm or jog state.",
+    10: "Soft limits cannot be enabled without homing also enabled.",
+    11: "Max characters per line exceeded. Received command line was not executed.",
+    12: "Grbl '$' setting value cause the step rate to exceed the maximum supported.",
+    13: "Safety door detected as opened and door state initiated.",
+    14: "Build info or startup line exceeded EEPROM line length limit. Line not stored.",
+    15: "Jog target exceeds machine travel. Jog command has been ignored.",
+    16: "Jog command has no '=' or contains prohibited g-code.",
+    17: "Laser mode requires PWM output.",
+    20: "Unsupported or invalid g-code command found in block.",
+    21: "More than one g-code command from same modal group found in block.",
+    22: "Feed rate has not yet been set or is undefined.",
+    23: "G-code command in block requires an integer value.",
+    24: "More than one g-code command that requires axis words found in block.",
+    25: "Repeated g-code word found in block.",
+    26: "No axis words found in block for g-code command or current modal state which requires them.",
+    27: "Line number value is invalid.",
+    28: "G-code command is missing a required value word.",
+    29: "G59.x work coordinate systems are not supported.",
+    30: "G53 only allowed with G0 and G1 motion modes.",
+    31: "Axis words found in block when no command or current modal state uses them.",
+    32: "G2 and G3 arcs require at least one in-plane axis word.",
+    33: "Motion command target is invalid.",
+    34: "Arc radius value is invalid.",
+    35: "G2 and G3 arcs require at least one in-plane offset word.",
+    36: "Unused value words found in block.",
+    37: "G43.1 dynamic tool length offset is not assigned to configured tool length axis.",
+    38: "Tool number greater than max supported value.",
 }
-"""``error:N`` meanings (Grbl 1.1, ``doc/csv/error_codes_en_US.csv``)."""
+"""``error:N`` meanings as documented (Grbl 1.1h, ``doc/csv/error_codes_en_US.csv``, "Error Description")."""
 
 ALARM_CODES: dict[int, str] = {
-    1: "hard limit triggered: machine position is likely lost, re-homing needed",
-    2: "soft limit: motion target exceeds machine travel (position retained)",
-    3: "reset while in motion: position is likely lost, re-homing needed",
-    4: "probe fail: probe not in the expected initial state",
-    5: "probe fail: probe did not contact within the programmed travel",
-    6: "homing fail: the homing cycle was reset",
-    7: "homing fail: safety door opened during homing",
-    8: "homing fail: pull-off did not clear the limit switch",
-    9: "homing fail: limit switch not found within the search distance",
-    10: "homing fail: second switch of a dual axis not found",
+    1: "Hard limit has been triggered. Machine position is likely lost due to sudden halt. "
+    "Re-homing is highly recommended.",
+    2: "Soft limit alarm. G-code motion target exceeds machine travel. Machine position retained. "
+    "Alarm may be safely unlocked.",
+    3: "Reset while in motion. Machine position is likely lost due to sudden halt. Re-homing is highly recommended.",
+    4: "Probe fail. Probe is not in the expected initial state before starting probe cycle when G38.2 and G38.3 "
+    "is not triggered and G38.4 and G38.5 is triggered.",
+    5: "Probe fail. Probe did not contact the workpiece within the programmed travel for G38.2 and G38.4.",
+    6: "Homing fail. The active homing cycle was reset.",
+    7: "Homing fail. Safety door was opened during homing cycle.",
+    8: "Homing fail. Pull off travel failed to clear limit switch. Try increasing pull-off setting or check wiring.",
+    9: "Homing fail. Could not find limit switch within search distances. Try increasing max travel, decreasing "
+    "pull-off distance, or check wiring.",
+    10: "Homing fail. Second dual axis limit switch failed to trigger within configured search distance after "
+    "first. Try increasing trigger fail distance or check wiring.",
 }
-"""``ALARM:N`` meanings (Grbl 1.1, ``doc/csv/alarm_codes_en_US.csv``, which lists 1-9; later 1.1
-builds add 10 for dual-axis homing)."""
+"""``ALARM:N`` meanings as documented (Grbl 1.1h, ``doc/csv/alarm_codes_en_US.csv``, "Alarm Description")."""
 
 CRITICAL_ALARMS = frozenset({1, 2})
 """Limit alarms after which Grbl accepts nothing but a soft reset ("[MSG:Reset to continue]")."""
@@ -89,6 +106,9 @@ AXES = "XYZABC"
 
 STARTUP_S = 3.0
 """How long :meth:`GrblStage.connect` waits for a controller that reboots when the port opens."""
+
+STOP_S = 30.0
+"""Longest deceleration :meth:`GrblStage.stop` waits for (1000 mm/min at Grbl's default 10 mm/s²: 1.7 s)."""
 
 
 class GrblError(DeviceError):
@@ -101,12 +121,12 @@ class GrblError(DeviceError):
 
 
 class GrblAlarm(DeviceError):
-    """Grbl is in the Alarm state (``code`` from ``ALARM:N``, None for the start-up homing lock)."""
+    """Grbl is in the Alarm state (``code`` from ``ALARM:N``, None when only the state is known)."""
 
     def __init__(self, device: str, context: str, code: int | None) -> None:
         self.code = code
         self.meaning = (
-            "homing required after power-up or reset ([MSG:'$H'|'$X' to unlock])"
+            "motion locked until homing ($H) or unlock ($X) ([MSG:'$H'|'$X' to unlock])"
             if code is None
             else ALARM_CODES.get(code, "undocumented alarm code")
         )
@@ -119,7 +139,10 @@ class GrblStage:
 
     ``travel_mm`` are soft limits in machine coordinates, checked before every move;
     moves run at ``feed_mm_min``. Replies are awaited at most ``timeout_s``; homing
-    may take ``home_timeout_s`` and a move ``move_timeout_s``.
+    may take ``home_timeout_s`` and a move ``move_timeout_s``. ``confirm_unlock`` is
+    asked (with a description of the alarm) when :meth:`connect` finds Grbl in the
+    Alarm state and no homing follows: True unlocks with ``$X``, False (and no callback)
+    leaves the alarm in place, so moves are refused until :meth:`home`.
     """
 
     def __init__(
@@ -135,6 +158,7 @@ class GrblStage:
         move_timeout_s: float = 120.0,
         poll_interval_s: float = 0.02,
         home_on_connect: bool = False,
+        confirm_unlock: Callable[[str], bool] | None = None,
     ) -> None:
         low, high = travel_mm
         if not low < high:
@@ -153,6 +177,7 @@ class GrblStage:
         self.move_timeout_s = move_timeout_s
         self.poll_interval_s = poll_interval_s
         self.home_on_connect = home_on_connect
+        self.confirm_unlock = confirm_unlock
         self.name = f"Grbl stage ({self.axis} axis) on {port}"
         self._line = SerialLine(self.name, port, baud, terminator=b"\n", timeout_s=timeout_s)
         self._lock = threading.RLock()
@@ -164,19 +189,33 @@ class GrblStage:
     # -- LinearStage ----------------------------------------------------------------
 
     def connect(self) -> None:
-        """Open the port, check the link with an empty line (``ok``), read build info (``$I``)
-        and settings (``$$``) (interface.md, "Grbl Response Messages", "Feedback Messages").
-        With ``home_on_connect`` it runs the homing cycle too."""
+        """Open the port, learn the state (``?``) and bring Grbl to Idle (:meth:`stop`; a
+        ``Door:0`` is reset, an open door refused), check the link with an empty line
+        (``ok``), read build info (``$I``) and settings (``$$``) (interface.md, "Grbl
+        Response Messages", "Real-time Status Reports", "Feedback Messages"). In the
+        Alarm state it homes with ``home_on_connect``, else unlocks (``$X``) only if
+        ``confirm_unlock`` agrees. With ``home_on_connect`` it runs the homing cycle.
+        """
         if self._line.is_open:
             return
         self._line.open()
         try:
+            self._wake()
+            self.stop()
+            state = self._status()[0]
+            if state == "Door:0":  # door closed again: a reset leaves the hold without resuming motion
+                self._soft_reset()
+                state = self._status()[0]
+            if state.startswith("Door"):
+                raise DeviceError(self.name, f"the safety door is open (state {state}): close it, then connect again")
             self._synchronise()
             info = self._command("$I")
             self._grbl_settings = dict(line.split("=", 1) for line in self._command("$$") if "=" in line)
             version = next((line[5:-1] for line in info if line.startswith("[VER:")), "")
             build, _, user_string = version.partition(":")
             self._identity = DeviceIdentity("grbl", "Grbl controller", user_string, build)
+            if state == "Alarm" and not self.home_on_connect:
+                self._offer_unlock()
             if self.home_on_connect:
                 self.home()
         except Exception:
@@ -188,9 +227,18 @@ class GrblStage:
         self._line.close()
 
     def safe_state(self) -> None:
-        """Stop motion with a feed hold (``!``); never raises."""
-        with contextlib.suppress(Exception):  # a dead or missing port must not stop the safe-state sweep
+        """Stop motion and leave Grbl Idle for the next session (:meth:`stop`); never raises.
+
+        If Grbl cannot be asked for its state (a dead link), it sends a jog cancel and
+        a feed hold blind: stopping the axis matters more than the next session."""
+        if not self._line.is_open:
+            return
+        try:
             self.stop()
+        except Exception as exc:  # a dead or missing port must not stop the safe-state sweep
+            log.warning("%s: safe state: %s", self.name, exc)
+            with contextlib.suppress(Exception):
+                self._line.write(b"\x85!", "jog cancel and feed hold")
 
     def identity(self) -> DeviceIdentity:
         """Build version from ``$I``; the serial is the ``$I`` user string (Grbl has no serial number)."""
@@ -235,8 +283,12 @@ class GrblStage:
         command = f"$J=G53G90G21{self.axis}{position_mm:.3f}F{self.feed_mm_min:g}"
         with self._lock:
             self._drain()  # learn of alarms pushed since the last exchange
-        if self._reset_required or self._status()[0] == "Alarm":
-            raise GrblAlarm(self.name, f"'{command}' not sent, nothing moved; home first", self._alarm)
+        try:
+            alarmed = self._reset_required or self._status()[0] == "Alarm"
+        except GrblAlarm:  # an ALARM:N pushed just before the status report
+            alarmed = True
+        if alarmed:
+            raise GrblAlarm(self.name, f"'{command}' not sent, nothing moved; home (or unlock) first", self._alarm)
         self._command(command)
         reached = self._wait_idle(command)
         if abs(reached - position_mm) > 0.002:
@@ -247,17 +299,36 @@ class GrblStage:
         return self._status()[1]
 
     def stop(self) -> None:
-        """Feed hold (``!``; jogging.md: a feed hold cancels jogs); waits until motion has stopped."""
+        """Stop motion and leave Grbl Idle (interface.md, "Real-time Commands"; jogging.md).
+
+        A jog is cancelled with ``0x85`` and ends Idle by itself; a program (Run) gets a
+        feed hold ``!``; once the hold has come to rest (``Hold:0``) a soft reset ``0x18``
+        flushes the queue and returns to Idle with the position kept. An Idle or Alarm
+        controller is left alone (no ``!``: a hold while Idle would block every later
+        line). After a limit alarm, which has halted the machine, it soft-resets so that
+        Grbl answers again. Raises DeviceError if motion does not stop within ``STOP_S``.
+        """
         with self._lock:
             self._drain()
-            self._line.write(b"!", "!")
-        if self._reset_required:  # halted by a limit alarm; status reports resume only after a reset
-            return
-        deadline = time.monotonic() + self.move_timeout_s
-        while self._status()[0] in ("Jog", "Run"):
+            if self._reset_required:  # halted by a limit alarm; Grbl answers nothing but a reset
+                self._soft_reset()
+                return
+            state = self._status()[0]
+            if state == "Jog":
+                self._line.write(b"\x85", "jog cancel 0x85")
+            elif state == "Run":
+                self._line.write(b"!", "feed hold !")
+            elif state == "Home":
+                self._soft_reset()  # the only way to stop a homing cycle (ALARM:6)
+                return
+        deadline = time.monotonic() + STOP_S
+        while state in ("Jog", "Run", "Hold:1"):
             if time.monotonic() > deadline:
-                raise DeviceError(self.name, f"still moving {self.move_timeout_s} s after a feed hold")
+                raise DeviceError(self.name, f"still moving ({state}) {STOP_S} s after the stop request")
             time.sleep(self.poll_interval_s)
+            state = self._status_until(deadline)[0]
+        if state == "Hold:0":  # at rest: a reset now keeps the position and leaves the hold
+            self._soft_reset()
 
     def __enter__(self) -> GrblStage:
         self.connect()
@@ -272,12 +343,62 @@ class GrblStage:
         self.safe_state()
         self.close()
 
-    # -- motion helpers -------------------------------------------------------------
+    # -- state recovery -------------------------------------------------------------
+
+    def _wake(self) -> None:
+        """Ask for the state until Grbl answers; a controller that stays silent gets a soft reset.
+
+        A board that resets when the port opens (Arduino auto-reset) ignores input until its
+        boot loader hands over (up to ``STARTUP_S``); Grbl halted by a limit alarm answers
+        nothing, not even ``?``, until a reset (interface.md, "[MSG:Reset to continue]")."""
+        deadline = time.monotonic() + max(STARTUP_S, self.timeout_s)
+        while True:
+            try:
+                self._status()
+                return
+            except GrblAlarm:  # an ALARM:N pushed meanwhile; after a limit alarm stop() resets
+                if self._reset_required:
+                    return
+            except SerialTimeout:
+                if time.monotonic() >= deadline:
+                    break
+        log.warning("%s: no status report within %.1f s; sending a soft reset", self.name, STARTUP_S)
+        try:
+            self._soft_reset()
+        except SerialTimeout as exc:
+            raise DeviceError(
+                self.name, f"no answer to '?' nor a banner after a soft reset: is a Grbl 1.1 controller at "
+                f"{self.baud} baud on this port? ({exc})"
+            ) from exc
+
+    def _offer_unlock(self) -> None:
+        """Report the alarm and unlock (``$X``) only if ``confirm_unlock`` says the axis may move."""
+        alarm = GrblAlarm(self.name, "Grbl is in the Alarm state", self._alarm)
+        log.warning("%s", alarm)
+        if self.confirm_unlock is None or not self.confirm_unlock(
+            f"{alarm}. Unlocking ($X) allows motion although the position may be lost; "
+            "unlock only if the stage is clear and its position is trusted"
+        ):
+            return
+        self._command("$X")
+        self._alarm = None
+
+    def _status_until(self, deadline: float) -> tuple[str, float]:
+        """:meth:`_status`, asking again until ``deadline`` when a report does not come in
+        time (grbl-sim skipped them for seconds near the end of a jog): a running motion is
+        not abandoned for one missing report."""
+        while True:
+            try:
+                return self._status()
+            except SerialTimeout as exc:
+                if time.monotonic() > deadline:
+                    raise
+                log.warning("%s: %s; asking again", self.name, exc)
 
     def _wait_idle(self, command: str) -> float:
         deadline = time.monotonic() + self.move_timeout_s
         while True:
-            state, position = self._status()
+            state, position = self._status_until(deadline)
             if state == "Idle":
                 return position
             if state == "Alarm":
@@ -286,28 +407,30 @@ class GrblStage:
                 raise DeviceError(self.name, f"'{command}' interrupted: Grbl is in state {state}")
             if time.monotonic() > deadline:
                 self.stop()
-                raise DeviceError(self.name, f"'{command}' still moving after {self.move_timeout_s} s; feed hold sent")
+                raise DeviceError(self.name, f"'{command}' still moving after {self.move_timeout_s} s; stopped")
             time.sleep(self.poll_interval_s)
 
     def _synchronise(self) -> None:
-        """Send empty lines until one is answered ``ok``: a board that resets when the port
-        opens (Arduino auto-reset) ignores input until its boot loader hands over to Grbl."""
-        deadline = time.monotonic() + max(STARTUP_S, self.timeout_s)
-        while True:
-            try:
-                self._command("", timeout_s=min(self.timeout_s, max(deadline - time.monotonic(), 0.0)))
-                return
-            except SerialTimeout:
-                if time.monotonic() >= deadline:
-                    raise
+        """An empty line answered ``ok``; a first ``error:N`` only ends a line a previous
+        session left half-written, so one more empty line must then be answered ``ok``."""
+        try:
+            self._command("")
+        except GrblError:
+            self._command("")
 
     def _soft_reset(self) -> None:
-        """Soft reset, Ctrl-X (interface.md: the welcome banner "also prints after a reset")."""
+        """Soft reset, Ctrl-X (interface.md: the welcome banner "also prints after a reset");
+        an ``ALARM:N`` before the banner (``ALARM:3`` for a reset in motion) is recorded."""
         with self._lock:
+            self._line.discard_input()
             self._line.write(b"\x18", "Ctrl-X")
             deadline = time.monotonic() + self.timeout_s
-            while not self._read_line(deadline, "the 'Grbl X.Xx' banner after a reset").startswith("Grbl "):
-                pass
+            while True:
+                line = self._line.read_line("the 'Grbl X.Xx' banner after a reset", deadline)
+                if line.startswith("ALARM:") and line[6:].isdigit():
+                    self._alarm = int(line[6:])
+                elif line.startswith("Grbl "):
+                    break
             self._reset_required = False
 
     # -- serial exchange ----------------------------------------------------------------
@@ -332,7 +455,8 @@ class GrblStage:
                 collected.append(reply)
 
     def _status(self) -> tuple[str, float]:
-        """Real-time status report ``?`` → (state, machine position of the axis in mm)."""
+        """Real-time status report ``?`` → (state with sub-state, e.g. ``Hold:0``, machine
+        position of the axis in mm)."""
         with self._lock:
             self._drain()
             if self._reset_required:
@@ -350,7 +474,7 @@ class GrblStage:
         for field in fields[1:]:
             if field.startswith("MPos:"):
                 try:
-                    return fields[0].split(":")[0], float(field[5:].split(",")[AXES.index(self.axis)])
+                    return fields[0], float(field[5:].split(",")[AXES.index(self.axis)])
                 except (ValueError, IndexError) as exc:
                     raise SerialGarbage(self.name, f"status report {reply!r} has no {self.axis} position") from exc
         raise DeviceError(self.name, f"status report {reply!r} has no MPos field: set $10=1 to report machine position")

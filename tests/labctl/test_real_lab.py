@@ -26,8 +26,20 @@ BAG = shared_data("realsense_d4xx_640x480.bag")
 STEP = 0.000125  # Zaber mm per microstep
 
 
-def campaign(stage: str, laser_port: str, extra: str = "") -> str:
-    """Offset calibration at 1200 mm and a sweep 1000..1400 mm, 2 frames each (the recording holds 2)."""
+def campaign(stage: str, laser_port: str | None, extra: str = "", speed_mm_s: float = 1000) -> str:
+    """Offset calibration at 1200 mm and a sweep 1000..1400 mm, 2 frames each (the recording holds 2);
+    without ``laser_port`` the sweep alone."""
+    laser = f"""
+        [devices.laser]
+        port = "{laser_port}"
+        readings = 2
+        {extra}
+
+        [[procedure]]
+        kind = "offset_calibration"
+        distance_mm = 1200
+        frames = 2
+    """ if laser_port else ""
     return textwrap.dedent(f"""
         [campaign]
         name = "emulated-lab"
@@ -39,21 +51,11 @@ def campaign(stage: str, laser_port: str, extra: str = "") -> str:
         [devices.stage]
         {stage}
         travel_mm = [0, 400]
-        speed_mm_s = 1000
+        speed_mm_s = {speed_mm_s}
         settle_s = 0
         distance_at_zero_mm = 1000
         home_on_connect = true
-
-        [devices.laser]
-        port = "{laser_port}"
-        readings = 2
-        {extra}
-
-        [[procedure]]
-        kind = "offset_calibration"
-        distance_mm = 1200
-        frames = 2
-
+        {laser}
         [[procedure]]
         kind = "depth_sweep"
         start_mm = 1000
