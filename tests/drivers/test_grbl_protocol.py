@@ -2,42 +2,37 @@
 
 The exchanges below are the ones the real Grbl 1.1h firmware (compiled for the host with
 grbl-sim, on a pty) answered; the emulator must answer them the same way. The code tables
-are compared with Grbl's own code lists, transcribed unchanged into ``data/``:
-``doc/csv/error_codes_en_US.csv`` and ``doc/csv/alarm_codes_en_US.csv`` of the gnea/grbl
-repository, last changed in commit b75e557 (2019-07-30, Grbl 1.1h).
+are compared with Grbl's documented code lists, transcribed into
+``manuals/grbl_codes.toml`` (its header names the document and version).
 """
 
 from __future__ import annotations
 
-import csv
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 import serial
 
 from drivers.stage.grbl import ALARM_CODES, ERROR_CODES
 from sim.emulators import GrblEmulator
+from tests.drivers.manuals import load
 
-DATA = Path(__file__).parent / "data"
 BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
 UNLOCK = b"[MSG:'$H'|'$X' to unlock]\r\n"
 
 
-def documented(name: str) -> dict[int, str]:
-    """Code -> description column of one of Grbl's code lists."""
-    with (DATA / name).open(newline="", encoding="utf-8") as handle:
-        rows = list(csv.reader(handle))
-    return {int(code): description for code, _old_message, description in rows[1:]}
+def documented(kind: str) -> dict[int, str]:
+    """Code -> documented description of Grbl's ``error`` or ``alarm`` codes."""
+    return {entry["code"]: entry["description"] for entry in load("grbl_codes.toml")[kind]}
 
 
 def test_error_table_is_the_documented_list() -> None:
-    assert ERROR_CODES == documented("grbl_1.1h_error_codes_en_US.csv")
+    assert ERROR_CODES == documented("error")
 
 
 def test_alarm_table_is_the_documented_list() -> None:
-    assert ALARM_CODES == documented("grbl_1.1h_alarm_codes_en_US.csv")
+    assert ALARM_CODES == documented("alarm")
 
 
 class Link:
