@@ -188,8 +188,8 @@ def resume(run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], inter
         config = parse_campaign(_stored_text(writer, "/", "campaign_toml"), f"{run_file} (stored campaign)")
         history = recorded_overrides(writer.attrs, str(run_file))
         config = apply_overrides(config, [(e["role"], e["field"], e["value"]) for e in history], str(run_file))
-        history += history_entries(config, new, now_iso())
-        config = apply_overrides(config, new, str(run_file))
+        stored, config = config, apply_overrides(config, new, str(run_file))
+        history += history_entries(stored, new, now_iso())
         if simulated:
             model_text = _stored_text(writer, "sim", "model_toml")
             lab = _sim_lab_from(config, model_text, f"{run_file} (stored model)", int(writer.file["sim"].attrs["seed"]))

@@ -11,6 +11,7 @@ import fcntl
 import os
 import re
 import select
+import signal
 import subprocess
 import sys
 import termios
@@ -33,7 +34,7 @@ class Terminal:
         self.process = subprocess.Popen(
             [sys.executable, "-m", "labctl", *map(str, args)],
             stdin=slave, stdout=slave, stderr=slave, preexec_fn=controlling_terminal,
-            env={**os.environ, "COLUMNS": "200", **(env or {})},
+            env={**os.environ, "COLUMNS": "200", "PYTHONFAULTHANDLER": "1", **(env or {})},
         )
         os.close(slave)
 
@@ -67,7 +68,10 @@ class Terminal:
         deadline = time.monotonic() + timeout
         while self.process.poll() is None and time.monotonic() < deadline:
             self._read(0.1)
-        if self.process.poll() is None:
+        if self.process.poll() is None:  # hung: make it print where (faulthandler), then stop it
+            self.process.send_signal(signal.SIGABRT)
+            time.sleep(1.0)
+            self._read(0.5)
             self.process.kill()
             raise AssertionError(f"labctl still running after {timeout} s; output:\n{self.output}")
         while self._read(0.05) and select.select([self.master], [], [], 0)[0]:
