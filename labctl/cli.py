@@ -8,7 +8,6 @@ nothing else there; progress and messages go to stderr.
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from collections.abc import Sequence
@@ -21,12 +20,14 @@ from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
 from labctl.operator import Operator
+from labctl.outputs import output_directory, output_file
 from labctl.overrides import ATTRIBUTE as OVERRIDES_ATTRIBUTE
 from labctl.overrides import apply_overrides, encode_history, history_entries, parse_overrides, recorded_overrides
 from labctl.planning import format_duration, schedule
 from labctl.progress import EvaluationProgress, Reporter
 from labctl.runner import Runner, bring_to_safe_state, close_all, connect_lab
 from labctl.store import RunWriter, existing_output_advice, labctl_version, now_iso
+from metrics.jsonsafe import dumps_strict
 from sim.model import default_model_text, load_model, parse_model
 
 
@@ -71,7 +72,7 @@ def plan(campaign: Path, as_json: bool) -> None:
                 for p in planned
             ],
         }
-        click.echo(json.dumps(doc, indent=2))
+        click.echo(dumps_strict(doc, indent=2))
         return
     click.echo(f"campaign {config.campaign.name}: {len(planned)} steps, estimated lab time {format_duration(total)}")
     click.echo(f"{'step':<24} {'target':<12} {'distance':>9} {'angle':>6} {'frames':>6} {'start':>12} {'duration':>10}")
@@ -120,8 +121,7 @@ def run(
     config, text = load_campaign(campaign)
     if output.exists():
         raise InputError(existing_output_advice(output))
-    if not output.parent.is_dir():
-        raise InputError(f"directory {output.parent} for -o does not exist")
+    output_file(output, "-o")
     if (model is not None or seed is not None) and not sim:
         raise InputError("--model and --seed only apply to simulated runs (--sim)")
     reporter = Reporter(quiet=quiet)
@@ -229,8 +229,10 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     from labctl.evaluate import count_complete_steps, evaluate_runs
     from labctl.report import write_outputs
 
+    steps = count_complete_steps(runs)
+    output_directory(output)
     reporter = Reporter(quiet=quiet)
-    with EvaluationProgress(count_complete_steps(runs), quiet=quiet) as progress:
+    with EvaluationProgress(steps, quiet=quiet) as progress:
         evaluation = evaluate_runs(runs, progress=progress)
     json_path, report = write_outputs(evaluation, output)
     reporter.message(f"key figures: {json_path}")
@@ -244,6 +246,7 @@ def compare(evaluations: Sequence[Path], output: Path) -> None:
     """Compare cameras side by side from EVALUATIONS (output directories of 'labctl evaluate')."""
     from labctl.compare import compare as write_comparison
 
+    output_directory(output)
     click.echo(f"comparison: {write_comparison(list(evaluations), output)}")
 
 
@@ -278,5 +281,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     except KeyboardInterrupt:
         _echo_err("labctl: interrupted")
         sys.exit(130)
+    except OSError as exc:  # a file or device the checks above did not foresee: name it, no traceback
+        if debug:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        _echo_err(f"labctl: error: {where}{exc.strerror or exc}")
+        sys.exit(1)
     sys.exit(0)
 

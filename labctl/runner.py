@@ -290,7 +290,13 @@ class Runner:
         if readings:
             laser_mm = sum(readings) / len(readings)
             if roi is not None:
-                self.offset_mm = roi.value() - laser_mm
+                offset = roi.value() - laser_mm
+                if not math.isfinite(offset):
+                    raise DeviceError("camera", f"offset calibration {step.step_id}: the central 10 % x 10 % region "
+                                      f"has no valid depth in its {step.frames} frames, so the camera-laser offset is "
+                                      "undefined; check that the camera sees the wall at the image centre (exposure, "
+                                      "distance, nothing in the way) and resume")
+                self.offset_mm = offset
                 attrs["camera_laser_offset_mm"] = self.offset_mm
             attrs["laser_distance_mm"] = laser_mm
             attrs["laser_readings_mm"] = readings
