@@ -191,15 +191,15 @@ def resume(run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], inter
         stored, config = config, apply_overrides(config, new, str(run_file))
         history += history_entries(stored, new, now_iso())
         if simulated:
-            model_text = _stored_text(writer, "sim", "model_toml")
-            lab = _sim_lab_from(config, model_text, f"{run_file} (stored model)", int(writer.file["sim"].attrs["seed"]))
+            model_text, seed = _stored_text(writer, "sim", "model_toml"), int(_stored_text(writer, "sim", "seed"))
+            lab = _sim_lab_from(config, model_text, f"{run_file} (stored model)", seed)
         else:
             lab = build_real_lab(config)
-        for role, field, value in new:
-            reporter.message(f"{role} {field}: {value} (recorded in {run_file})")
         connect_lab(lab, reporter.message)
         if new:
             writer.attrs[OVERRIDES_ATTRIBUTE] = encode_history(history)
+        for role, field, value in new:
+            reporter.message(f"{role} {field}: {value} (recorded in {run_file})")
         dropped = writer.discard_incomplete()
         if dropped:
             reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
