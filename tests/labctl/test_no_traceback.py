@@ -212,3 +212,18 @@ def test_a_serial_port_that_refuses_its_line_settings(capsys) -> None:
         assert code == 0 and out.strip() == "1000.0 mm"
         code, _, err = labctl(capsys, "device", "laser", "--port", port, "--count", "1")
     assert code == 1 and f"Dimetix laser on {port}: cannot open the port at 19200 baud" in err
+
+
+def test_a_run_whose_laser_port_refuses_its_settings_stops_with_the_port_named(capsys, tmp_path: Path) -> None:
+    from sim.emulators import ZaberEmulator
+    from tests.labctl.test_real_lab import STEP, campaign
+
+    with DimetixEmulator(distance_mm=1000.0) as laser, ZaberEmulator(mm_per_microstep=STEP, travel_mm=400.0) as stage:
+        port = laser.port
+        assert labctl(capsys, "device", "laser", "--port", port, "--count", "1")[0] == 0  # leaves the pty at 7E1
+        path = tmp_path / "campaign.toml"
+        path.write_text(campaign(f'protocol = "zaber"\nport = "{stage.port}"\nmm_per_microstep = {STEP}', port))
+        code, _, err = labctl(capsys, "run", path, "-o", tmp_path / "run.h5", "--quiet")
+        assert not stage.moving
+    assert code == 1 and f"cannot connect devices: Dimetix laser on {port}: cannot open the port" in err
+    assert not (tmp_path / "run.h5").exists()
