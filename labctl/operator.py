@@ -34,6 +34,10 @@ def read_answer(prompt: str) -> str:
             if not line:
                 raise RuntimeError(f"the terminal closed while waiting for the operator: {prompt.strip()}")
             return line.decode(errors="replace").strip()
+    except BaseException:
+        sys.stdout.write("\n")  # the message that follows starts on its own line, not after the prompt
+        sys.stdout.flush()
+        raise
     finally:
         signal.set_wakeup_fd(previous)
         os.close(wake_r)
