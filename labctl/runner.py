@@ -129,7 +129,7 @@ class Runner:
         self, campaign: Campaign, lab: Lab, run: RunWriter, reporter: Reporter, operator: Operator,
         *, resumed: bool = False,
     ) -> None:
-        """``resumed``: the run continues an earlier session, so the operator re-confirms the mounted
+        """``resumed``: the run continues an interrupted one, so the operator re-confirms the mounted
         target before the first step that has no prompt of its own."""
         self.campaign = campaign
         self.lab = lab

@@ -208,8 +208,8 @@ def test_a_failed_offset_calibration_aborts_instead_of_writing_nan_references(ca
 
 
 def test_a_serial_port_that_refuses_its_line_settings(capsys) -> None:
-    """Linux refuses the Dimetix's 7E1 settings on a pseudo-terminal a previous session left at 7E1
-    (termios.error EINVAL): the second session must report the port, not a traceback."""
+    """Linux refuses the Dimetix's 7E1 settings on a pseudo-terminal a previous use left at 7E1
+    (termios.error EINVAL): the second use must report the port, not a traceback."""
     with DimetixEmulator(distance_mm=1000.0) as laser:
         port = laser.port
         code, out, _ = labctl(capsys, "device", "laser", "--port", port, "--count", "1")
