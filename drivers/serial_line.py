@@ -9,12 +9,15 @@ vanishes (an unplugged USB adapter) raises a fatal :class:`~drivers.errors.Devic
 
 pyserial reference: ``serial.Serial`` (``timeout``, ``write_timeout``,
 ``in_waiting``) and ``serial.SerialTimeoutException`` for a write that timed out;
-``serial.SerialException`` is an ``OSError``.
+``serial.SerialException`` is an ``OSError``; opening can also raise
+``termios.error`` when the port refuses the line settings (seen on a
+pseudo-terminal re-opened with 7 data bits and even parity).
 """
 
 from __future__ import annotations
 
 import contextlib
+import termios
 import time
 from typing import Any
 
@@ -68,7 +71,7 @@ class SerialLine:
             self._serial = serial.Serial(
                 self.port, self.baud, timeout=POLL_S, write_timeout=self.timeout_s, **self.options
             )
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, termios.error) as exc:  # termios.error: the line settings were refused
             raise DeviceError(self.name, f"cannot open the port at {self.baud} baud: {exc}") from exc
 
     def close(self) -> None:

@@ -8,7 +8,6 @@ nothing else there; progress and messages go to stderr.
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from collections.abc import Sequence
@@ -21,10 +20,14 @@ from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
 from labctl.operator import Operator
+from labctl.outputs import output_directory, output_file
+from labctl.overrides import ATTRIBUTE as OVERRIDES_ATTRIBUTE
+from labctl.overrides import apply_overrides, encode_history, history_entries, parse_overrides, recorded_overrides
 from labctl.planning import format_duration, schedule
 from labctl.progress import EvaluationProgress, Reporter
 from labctl.runner import Runner, bring_to_safe_state, close_all, connect_lab
-from labctl.store import RunWriter, labctl_version
+from labctl.store import RunWriter, existing_output_advice, labctl_version, now_iso
+from metrics.jsonsafe import dumps_strict
 from sim.model import default_model_text, load_model, parse_model
 
 
@@ -69,7 +72,7 @@ def plan(campaign: Path, as_json: bool) -> None:
                 for p in planned
             ],
         }
-        click.echo(json.dumps(doc, indent=2))
+        click.echo(dumps_strict(doc, indent=2))
         return
     click.echo(f"campaign {config.campaign.name}: {len(planned)} steps, estimated lab time {format_duration(total)}")
     click.echo(f"{'step':<24} {'target':<12} {'distance':>9} {'angle':>6} {'frames':>6} {'start':>12} {'duration':>10}")
@@ -91,9 +94,16 @@ def _sim_lab_from(campaign: Campaign, model_text: str, model_source: str, seed: 
     return build_sim_lab(campaign, model, seed)
 
 
-def _execute(campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter) -> None:
-    Runner(campaign, lab, writer, reporter, Operator(automatic=lab.simulated, report=reporter.message)).execute()
+def _execute(
+    campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter, *, interactive: bool, resumed: bool = False
+) -> None:
+    operator = Operator(automatic=lab.simulated and not interactive, report=reporter.message)
+    Runner(campaign, lab, writer, reporter, operator, resumed=resumed).execute()
     reporter.message(f"run complete: {writer.path}")
+
+
+INTERACTIVE_HELP = ("with --sim: ask at every operator prompt as on real hardware "
+                    "(default: a simulated operator confirms at once)")
 
 
 @cli.command()
@@ -102,14 +112,16 @@ def _execute(campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter
 @click.option("--sim", is_flag=True, help="replace every device by its simulated fake")
 @click.option("--model", type=click.Path(dir_okay=False, path_type=Path), help="simulation model file (with --sim)")
 @click.option("--seed", type=click.IntRange(min=0), help="simulation seed (default: [sim].seed)")
+@click.option("--interactive", is_flag=True, help=INTERACTIVE_HELP)
 @click.option("--quiet", is_flag=True, help="no progress output")
-def run(campaign: Path, output: Path, sim: bool, model: Path | None, seed: int | None, quiet: bool) -> None:
+def run(
+    campaign: Path, output: Path, sim: bool, model: Path | None, seed: int | None, interactive: bool, quiet: bool
+) -> None:
     """Run CAMPAIGN into the run file OUTPUT."""
     config, text = load_campaign(campaign)
     if output.exists():
-        raise InputError(f"{output} already exists; continue it with 'labctl resume {output}' or choose another -o")
-    if not output.parent.is_dir():
-        raise InputError(f"directory {output.parent} for -o does not exist")
+        raise InputError(existing_output_advice(output))
+    output_file(output, "-o")
     if (model is not None or seed is not None) and not sim:
         raise InputError("--model and --seed only apply to simulated runs (--sim)")
     reporter = Reporter(quiet=quiet)
@@ -140,16 +152,28 @@ def run(campaign: Path, output: Path, sim: bool, model: Path | None, seed: int |
         close_all(lab, reporter.message)
         raise
     try:
-        _execute(config, lab, writer, reporter)
+        _execute(config, lab, writer, reporter, interactive=interactive)
     finally:
         writer.close()
 
 
 @cli.command()
 @click.argument("run_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--port", "ports", multiple=True, metavar="ROLE=PORT",
+              help="connect a serial device on another port, e.g. laser=/dev/ttyUSB3 (stage, laser; repeatable)")
+@click.option("--host", "hosts", multiple=True, metavar="ROLE=HOST", help="connect the robot at another address, "
+              "e.g. robot=192.168.1.20")
+@click.option("--interactive", is_flag=True, help=INTERACTIVE_HELP)
 @click.option("--quiet", is_flag=True, help="no progress output")
-def resume(run_file: Path, quiet: bool) -> None:
-    """Continue RUN_FILE at the first step that is not complete."""
+def resume(run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], interactive: bool, quiet: bool) -> None:
+    """Continue RUN_FILE at the first step that is not complete.
+
+    The operator first confirms that the target of that step is mounted.
+    --port / --host change a device's connection; the change is recorded in
+    RUN_FILE and kept by later resumes.
+    """
+    new = [(role, "port", value) for role, value in parse_overrides("port", ports).items()]
+    new += [(role, "host", value) for role, value in parse_overrides("host", hosts).items()]
     if not run_file.is_file():
         raise InputError(f"run file {run_file} does not exist")
     writer = RunWriter(run_file)
@@ -158,20 +182,41 @@ def resume(run_file: Path, quiet: bool) -> None:
         if writer.attrs.get("status") == "complete":
             reporter.message(f"{run_file} is already complete; nothing to resume")
             return
-        config = parse_campaign(str(writer.attrs["campaign_toml"]), f"{run_file} (stored campaign)")
-        if bool(writer.attrs.get("simulated", False)):
-            sim = writer.file["sim"].attrs
-            lab = _sim_lab_from(config, str(sim["model_toml"]), f"{run_file} (stored model)", int(sim["seed"]))
+        simulated = bool(writer.attrs.get("simulated", False))
+        if new and simulated:
+            raise InputError(f"{run_file} is a simulated run: --port and --host apply to runs on real hardware")
+        config = parse_campaign(_stored_text(writer, "/", "campaign_toml"), f"{run_file} (stored campaign)")
+        history = recorded_overrides(writer.attrs, str(run_file))
+        config = apply_overrides(config, [(e["role"], e["field"], e["value"]) for e in history], str(run_file))
+        stored, config = config, apply_overrides(config, new, str(run_file))
+        history += history_entries(stored, new, now_iso())
+        if simulated:
+            model_text, seed = _stored_text(writer, "sim", "model_toml"), int(_stored_text(writer, "sim", "seed"))
+            lab = _sim_lab_from(config, model_text, f"{run_file} (stored model)", seed)
         else:
             lab = build_real_lab(config)
         connect_lab(lab, reporter.message, Operator(automatic=lab.simulated, report=reporter.message))
+        if new:
+            writer.attrs[OVERRIDES_ATTRIBUTE] = encode_history(history)
+        for role, field, value in new:
+            reporter.message(f"{role} {field}: {value} (recorded in {run_file})")
         dropped = writer.discard_incomplete()
         if dropped:
             reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
         writer.set_status("running")
-        _execute(config, lab, writer, reporter)
+        _execute(config, lab, writer, reporter, interactive=interactive, resumed=True)
     finally:
         writer.close()
+
+
+def _stored_text(writer: RunWriter, group: str, name: str) -> str:
+    """A text attribute every resumable run file has; InputError naming it when missing."""
+    where = writer.file[group] if group in writer.file else None
+    if where is None or name not in where.attrs:
+        what = f"group /{group.strip('/')}" if where is None else f"attribute {name} of {where.name}"
+        raise InputError(f"{writer.path} has no {what}, which resume needs; the file is damaged or was not "
+                         "written by labctl run")
+    return str(where.attrs[name])
 
 
 # ---------------------------------------------------------------------- evaluate
@@ -184,8 +229,10 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     from labctl.evaluate import count_complete_steps, evaluate_runs
     from labctl.report import write_outputs
 
+    steps = count_complete_steps(runs)
+    output_directory(output)
     reporter = Reporter(quiet=quiet)
-    with EvaluationProgress(count_complete_steps(runs), quiet=quiet) as progress:
+    with EvaluationProgress(steps, quiet=quiet) as progress:
         evaluation = evaluate_runs(runs, progress=progress)
     json_path, report = write_outputs(evaluation, output)
     reporter.message(f"key figures: {json_path}")
@@ -199,6 +246,7 @@ def compare(evaluations: Sequence[Path], output: Path) -> None:
     """Compare cameras side by side from EVALUATIONS (output directories of 'labctl evaluate')."""
     from labctl.compare import compare as write_comparison
 
+    output_directory(output)
     click.echo(f"comparison: {write_comparison(list(evaluations), output)}")
 
 
@@ -233,5 +281,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     except KeyboardInterrupt:
         _echo_err("labctl: interrupted")
         sys.exit(130)
+    except OSError as exc:  # a file or device the checks above did not foresee: name it, no traceback
+        if debug:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        _echo_err(f"labctl: error: {where}{exc.strerror or exc}")
+        sys.exit(1)
     sys.exit(0)
 

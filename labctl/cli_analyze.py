@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
 
 from labctl.errors import InputError
+from labctl.outputs import output_file
+from metrics.jsonsafe import dumps_strict
 
 
 @click.group("analyze")
@@ -58,7 +59,7 @@ def sfr(image: Path, roi: str | None, sfrmat5: bool, as_json: bool) -> None:
         "sfr": [round(float(v), 6) for v in result.sfr],
     }
     if as_json:
-        click.echo(json.dumps({k: (None if isinstance(v, float) and v != v else v) for k, v in doc.items()}))
+        click.echo(dumps_strict(doc))
         return
     click.echo(f"{image}: {result.orientation} edge at {result.angle_deg:.2f} deg")
     click.echo(f"SFR50 {result.sfr50:.4f} cy/px, SFR10 {result.sfr10:.4f} cy/px, SFR area {result.sfr_area:.4f}")
@@ -93,6 +94,8 @@ def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str,
     from metrics.sfr import load_image
 
     fov = _fov_deg(fov_text)
+    if plot_path is not None:
+        output_file(plot_path, "--plot")
     if tile_mm <= 0 or distance_mm <= 0:
         raise InputError("--tile-mm and --distance-mm must be positive")
     try:
@@ -144,7 +147,7 @@ def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str,
 
         plot_distortion(pixels, result, plot_path, in_cloud, title=str(image))
     if as_json:
-        click.echo(json.dumps({k: (None if isinstance(v, float) and v != v else v) for k, v in doc.items()}))
+        click.echo(dumps_strict(doc))
         return
     click.echo(f"{image}: {result.n_corners} corners ({corners.detector} detector)")
     click.echo(f"distortion (max, width / height): raw {result.raw_distortion_w_pct:+.2f} / "
@@ -199,6 +202,8 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
     from metrics.boehler import analyze_boehler
 
     fov = _fov_deg(fov_text) if fov_text is not None else None
+    if plot_path is not None:
+        output_file(plot_path, "--plot")
     if segments < 16 or segments % 2:
         raise InputError(f"--segments {segments}: a Böhler star has an even number of segments (72 or 24)")
     if inlier_mm <= 0:
@@ -246,7 +251,7 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
         },
     }
     if as_json:
-        click.echo(json.dumps({k: (None if isinstance(v, float) and v != v else v) for k, v in doc.items()}))
+        click.echo(dumps_strict(doc))
         return
     x, y, z = result.centre_mm
     click.echo(f"{cloud}: {segments}-segment star at {result.distance_mm:.0f} mm, centre ({x:.1f}, {y:.1f}, {z:.1f}) mm")

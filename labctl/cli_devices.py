@@ -21,6 +21,7 @@ from drivers.errors import DeviceError, LimitViolation
 from drivers.protocols import DepthCamera
 from labctl.errors import InputError, RunAborted
 from labctl.operator import Operator, unlock_confirmation
+from labctl.outputs import output_file
 from labctl.store import RunWriter
 from procedures.steps import Step
 
@@ -174,8 +175,7 @@ def camera(
 
     if output.exists():
         raise InputError(f"{output} already exists; choose another -o")
-    if not output.parent.is_dir():
-        raise InputError(f"directory {output.parent} for -o does not exist")
+    output_file(output, "-o")
     for path, option in ((playback, "--playback"), (producer, "--producer")):
         if path is not None and not path.is_file():
             raise InputError(f"{option} file {path} does not exist")

@@ -8,6 +8,7 @@ import click
 import numpy as np
 
 from labctl.errors import InputError
+from labctl.outputs import output_file
 from labctl.pointcloud_io import write_pcd, write_ply
 from labctl.store import RunReader, StepRecord
 from metrics.stack import stack_stats
@@ -46,17 +47,17 @@ def _complete_step(reader: RunReader, step_id: str) -> StepRecord:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="file to write")
 @click.option("--frame", type=int, help="export frame K (0-based) instead of the mean of the step's frames")
 @click.option("--ascii", "as_text", is_flag=True, help="text data instead of binary")
-def export(run_file: Path, step_id: str, fmt: str, output: Path, frame: int | None, as_text: bool) -> None:
+@click.option("--force", is_flag=True, help="overwrite an existing output file")
+def export(run_file: Path, step_id: str, fmt: str, output: Path, frame: int | None, as_text: bool, force: bool) -> None:
     """Write the organized point cloud of one step of RUN_FILE (mm, camera frame) as PCD or PLY.
 
     PCD keeps the image organization (invalid points as NaN); PLY holds the
     valid points only. The cloud is the mean of the step's frames unless
-    --frame K.
+    --frame K. An existing OUTPUT is only replaced with --force.
     """
-    if not output.parent.is_dir():
-        raise InputError(f"directory {output.parent} for -o does not exist")
     if output.exists() and output.resolve() == run_file.resolve():
         raise InputError(f"-o {output} is the run file itself")
+    output_file(output, "-o", force=force)
     with RunReader(run_file) as reader:
         record = _complete_step(reader, step_id)
         frames = record.group["z"].shape[0]

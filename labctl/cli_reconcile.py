@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import click
 
 from labctl.progress import Reporter
+from labctl.outputs import output_directory
+from metrics.jsonsafe import dumps_strict
 
 
 @click.command()
@@ -25,6 +26,7 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
     from sim.reconcile.report import write_reconcile
     from sim.reconcile.workflow import reconcile as run_reconcile
 
+    output_directory(output)
     reporter = Reporter(quiet=quiet)
     model = load_model(model_path)[0] if model_path is not None else None
     start = time.monotonic()
@@ -35,7 +37,7 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
     result = run_reconcile(measured, model, progress=progress)
     report, model_file, doc = write_reconcile(result, measured, output)
     if as_json:
-        click.echo(json.dumps(doc, indent=2))
+        click.echo(dumps_strict(doc, indent=2))
         return
     named = ", ".join(e["name"] for e in result.named) or "nothing significant"
     reporter.message(f"verdict: {result.verdict} ({named}); gap {result.gap_before:.3f} -> {result.gap_after:.3f} mm")

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from labctl.errors import InputError
+from labctl.outputs import output_file
 from sim.model import default_model_text, load_model, parse_model
 from sim.profiles import PROFILES, SOURCES
 from sim.scenes.targets import PLATE_MATERIALS, TARGETS
@@ -52,6 +53,7 @@ def preview(camera, model_path, target, distance_mm, angle_deg, param, projector
     """Render a simulated frame (intensity and depth) of a scene to a PNG."""
     from sim.preview import GALLERY, preview_figure
 
+    output_file(output, "-o")
     model = _model(camera, model_path)
     if target is None:
         targets = [(name, dict(where)) for name, where in GALLERY.items()]

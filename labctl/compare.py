@@ -26,6 +26,7 @@ from labctl.errors import InputError  # noqa: E402
 from labctl.keyfigures import FIGURES  # noqa: E402
 from labctl.store import labctl_version, now_iso  # noqa: E402
 from labctl.suitability import IED_MIN_PX  # noqa: E402
+from metrics.jsonsafe import dumps_strict  # noqa: E402
 
 #: figures left out of the chart (different scale or "higher is better")
 NOT_CHARTED = {"hyperfocal_distance_mm", "best_focus_distance_mm", "ied_pixels_at_hyperfocal"}
@@ -66,7 +67,7 @@ def compare(directories: list[Path], outdir: Path) -> Path:
     verdicts = {label: {k: v["verdict"] for k, v in doc.get("suitability", {}).get("stories", {}).items()}
                 for label, doc in zip(labels, docs)}
     result = {"cameras": labels, "sources": [str(d) for d in directories], "figures": table, "suitability": verdicts}
-    (outdir / "compare.json").write_text(json.dumps(result, indent=2) + "\n")
+    (outdir / "compare.json").write_text(dumps_strict(result, indent=2) + "\n")
     chart = _chart(table, labels, plots / "comparison.png")
     ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")
     page = outdir / "compare.html"

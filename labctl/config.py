@@ -17,6 +17,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from labctl.errors import InputError
 from procedures import PROCEDURES, ProcedureConfig, Step
 from procedures.steps import StrictModel
+from procedures.targets import with_target_prompts
 
 if TYPE_CHECKING:
     from drivers.robot.circle import MeasurementCircle
@@ -277,11 +278,11 @@ class Campaign(StrictModel):
         return self
 
     def steps(self) -> list[Step]:
-        """The whole plan, steps numbered in execution order."""
+        """The whole plan, steps numbered in execution order, a prompt at every change of target."""
         steps: list[Step] = []
         for proc in self.procedure:
             steps.extend(proc.steps(len(steps)))
-        return steps
+        return with_target_prompts(steps)
 
 
 def _format_location(loc: tuple[Any, ...]) -> str:

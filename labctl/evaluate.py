@@ -222,7 +222,11 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         masks = [s for r in readers for s in r.steps("face_mask")]
         if masks:
             progress(f"{masks[-1].step_id} face mask")
-            evaluation.face = face_mask(masks[-1])
+            face = face_mask(masks[-1])
+            if face.invalid_fraction < 1.0:
+                evaluation.face = face
+            else:
+                evaluation.notes.append(f"face mask {face.step_id} has no valid point: no point cloud or rendering")
         aligned = [a for a in (alignment(s) for r in readers for s in r.steps("alignment")) if a is not None]
         evaluation.alignment = aligned[-1] if aligned else None
         return evaluation

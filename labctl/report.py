@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import html
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ from labctl.plots import (
 from labctl.pointcloud_io import write_pcd
 from labctl.store import labctl_version, now_iso
 from labctl.suitability import suitability
+from metrics.jsonsafe import dumps_strict
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1150px;color:#222}
@@ -97,7 +97,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         sections.append(_section("Face mask (SPEC 8, thesis 6.7)", img, outdir, link))
         doc["face_mask"] = {"step": face.step_id, "pcd": pcd.name, "invalid_fraction": face.invalid_fraction}
     json_path = outdir / "keyfigures.json"
-    json_path.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    json_path.write_text(dumps_strict(doc, indent=2) + "\n")
     report = outdir / "report.html"
     report.write_text(_page(evaluation, doc, sections))
     return json_path, report

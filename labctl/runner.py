@@ -9,7 +9,8 @@ It is the only place that handles faults, retries and checkpoints:
 * a robot protective stop waits for an operator's confirmation, then recovers;
 * anything else, Ctrl-C and SIGTERM included, puts every device in its safe
   state, marks the run ``aborted`` and stops (exit 1, or 130 for Ctrl-C);
-  Ctrl-C takes effect at the next frame or device operation (twice: at once);
+  Ctrl-C takes effect at the next frame or device operation (twice, or at an
+  operator prompt: at once);
 * every step is committed atomically (``complete`` last), so ``resume`` can
   continue at the first step that is not complete.
 """
@@ -39,6 +40,7 @@ from labctl.planning import PlannedStep, schedule
 from labctl.progress import Reporter
 from labctl.store import FrameError, RunWriter, StepWriter
 from metrics.stack import RoiMean, central_roi
+from procedures.targets import confirm_mounted_prompt
 
 T = TypeVar("T")
 
@@ -48,16 +50,30 @@ class StopRequests:
 
     A KeyboardInterrupt raised at an arbitrary bytecode can land in a finalizer
     or callback, where Python ignores it; a flag checked between frames and
-    device operations cannot be lost. A second Ctrl-C interrupts at once.
+    device operations cannot be lost. A second Ctrl-C interrupts at once, and
+    so does the first while an operator prompt waits (:meth:`at_once`).
     """
 
     def __init__(self) -> None:
         self.reason: str | None = None
+        self._waiting = False
 
     def _handle(self, signum: int, frame: Any) -> None:
         if self.reason is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
         self.reason = "interrupted by the operator (Ctrl-C)" if signum == signal.SIGINT else "terminated by SIGTERM"
+        if self._waiting:
+            raise Interrupted(self.reason)
+
+    @contextmanager
+    def at_once(self) -> Iterator[None]:
+        """While a person is asked (a prompt waits for Enter), a stop request interrupts at once."""
+        self.check()
+        self._waiting = True
+        try:
+            yield
+        finally:
+            self._waiting = False
 
     def check(self) -> None:
         """Raise Interrupted if a stop was requested."""
@@ -115,8 +131,11 @@ class Runner:
     """Executes a campaign's plan on a connected lab into an open run file."""
 
     def __init__(
-        self, campaign: Campaign, lab: Lab, run: RunWriter, reporter: Reporter, operator: Operator
+        self, campaign: Campaign, lab: Lab, run: RunWriter, reporter: Reporter, operator: Operator,
+        *, resumed: bool = False,
     ) -> None:
+        """``resumed``: the run continues an interrupted one, so the operator re-confirms the mounted
+        target before the first step that has no prompt of its own."""
         self.campaign = campaign
         self.lab = lab
         self.run = run
@@ -127,6 +146,7 @@ class Runner:
         self.offset_mm: float | None = laser.offset_mm if laser else None
         self.stop = StopRequests()
         self._focus_mm: float | None = None
+        self._confirm_target = resumed
 
     # ------------------------------------------------------------------ driver
     def execute(self) -> None:
@@ -208,7 +228,10 @@ class Runner:
         self.reporter.step(step.step_id)
         faults: list[dict[str, Any]] = []
         if step.prompt:
-            self.operator.confirm(step.prompt)
+            self._confirm(step.prompt)
+        elif self._confirm_target:
+            self._confirm(confirm_mounted_prompt(step))
+        self._confirm_target = False
         if position is not None and lab.stage is not None:
             self._retry("stage move", lambda: lab.stage.move_to(position), faults)
         if step.robot_angle_deg is not None and lab.robot is not None:
@@ -247,8 +270,9 @@ class Runner:
         depths = ", ".join(f"{name.replace('_', ' ')} {value:.1f}" for name, value in fields.depths().items())
         self.reporter.message(f"alignment fields (mm): {depths}; implied tilt about x {fields.tilt_x_deg:+.3f} deg, "
                               f"about y {fields.tilt_y_deg:+.3f} deg")
-        choice = self.operator.choose("accept this alignment, or adjust the tilt stage and measure again",
-                                      ["accept", "measure again"])
+        with self.stop.at_once():
+            choice = self.operator.choose("accept this alignment, or adjust the tilt stage and measure again",
+                                          ["accept", "measure again"])
         if choice != "accept":
             return False
         attrs["alignment_fields_json"] = json.dumps(fields.fields)
@@ -271,7 +295,13 @@ class Runner:
         if readings:
             laser_mm = sum(readings) / len(readings)
             if roi is not None:
-                self.offset_mm = roi.value() - laser_mm
+                offset = roi.value() - laser_mm
+                if not math.isfinite(offset):
+                    raise DeviceError("camera", f"offset calibration {step.step_id}: the central 10 % x 10 % region "
+                                      f"has no valid depth in its {step.frames} frames, so the camera-laser offset is "
+                                      "undefined; check that the camera sees the wall at the image centre (exposure, "
+                                      "distance, nothing in the way) and resume")
+                self.offset_mm = offset
                 attrs["camera_laser_offset_mm"] = self.offset_mm
             attrs["laser_distance_mm"] = laser_mm
             attrs["laser_readings_mm"] = readings
@@ -283,6 +313,11 @@ class Runner:
             attrs["reference_distance_mm"] = step.distance_mm if step.distance_mm is not None else math.nan
             attrs["reference_source"] = "stage" if step.distance_mm is not None else "none"
         return attrs
+
+    def _confirm(self, message: str) -> None:
+        """An operator prompt; Ctrl-C or SIGTERM while it waits stops the run at once."""
+        with self.stop.at_once():
+            self.operator.confirm(message)
 
     # ------------------------------------------------------------------ faults
     def _note(self, faults: list[dict[str, Any]], operation: str, exc: DeviceError, attempt: int) -> None:
@@ -314,7 +349,7 @@ class Runner:
                 if recoverable is None or attempt == self.cfg.max_attempts:
                     raise
                 self._note(faults, operation, exc, attempt)
-                self.operator.confirm(f"{exc}: check that the cell is safe, then confirm to recover and continue")
+                self._confirm(f"{exc}: check that the cell is safe, then confirm to recover and continue")
                 recoverable.recover()
         raise AssertionError("unreachable")
 

@@ -136,7 +136,7 @@ class RunWriter:
         """Create a new run file (atomically: written aside, then renamed into place)."""
         path = Path(path)
         if path.exists():
-            raise InputError(f"{path} already exists; continue it with 'labctl resume {path}' or choose another -o")
+            raise InputError(existing_output_advice(path))
         tmp = path.with_name(f".{path.name}.creating")
         with h5py.File(tmp, "w") as f:
             f.attrs.update(
@@ -356,3 +356,16 @@ class RunReader:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def existing_output_advice(path: Path) -> str:
+    """Why a new run cannot be written to the existing ``path``, and what to do instead."""
+    try:
+        with RunReader(path) as reader:
+            status = reader.attrs.get("status")
+    except InputError:
+        return f"{path} already exists and is not a labctl run file; choose another -o"
+    if status == "complete":
+        return (f"{path} already exists and is a complete run; evaluate it with 'labctl evaluate {path} -o DIR', "
+                "or choose another -o for a new run")
+    return f"{path} already exists (a run that is {status}); continue it with 'labctl resume {path}' or choose another -o"

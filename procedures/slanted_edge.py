@@ -1,8 +1,8 @@
 """Sharpness over distance with the ISO 12233 slanted-edge chart (thesis 5.1.2, 6.2, SPEC §3).
 
-The camera sweeps the chart from ``start_mm`` to ``stop_mm``; then the
-operator covers the chart with the white sheet once, and the camera sweeps
-back over the same distances for the white reference (one prompt instead of
+The operator mounts the chart (one prompt), the camera sweeps it from
+``start_mm`` to ``stop_mm``; then the operator covers the chart with the
+white sheet once, and the camera sweeps back over the same distances for the white reference (one prompt instead of
 one per position). Exposure may follow the distance, as in thesis Table C-1:
 ``exposure_table = [[from_mm, exposure_us], ...]`` uses the exposure of the
 last row whose ``from_mm`` is not above the distance.
@@ -19,6 +19,12 @@ from procedures.depth_sweep import sweep_positions
 from procedures.steps import Step, StrictModel
 
 COVER_PROMPT = "cover the slanted-edge chart with the white sheet (white reference)"
+
+
+def mount_prompt(angle_deg: float) -> str:
+    """The operator's set-up of the chart before the first chart step."""
+    return (f"mount the slanted-edge chart on the wall, its edges slanted {angle_deg:g} deg from the image axes, "
+            "centred on the camera axis")
 
 
 class SlantedEdge(StrictModel):
@@ -82,6 +88,6 @@ class SlantedEdge(StrictModel):
                     distance_mm=distance,
                     exposure_us=self.exposure_at(distance),
                     camera_settings=self.camera_settings,
-                    prompt=COVER_PROMPT if target == "white_sheet" and n == 0 else None,
+                    prompt=None if n else (COVER_PROMPT if target == "white_sheet" else mount_prompt(self.angle_deg)),
                 )
                 index += 1

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import html
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -16,6 +15,7 @@ import numpy as np  # noqa: E402
 
 from labctl.report import CSS as REPORT_CSS  # noqa: E402
 from labctl.store import labctl_version, now_iso  # noqa: E402
+from metrics.jsonsafe import dumps_strict  # noqa: E402
 from sim.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
 
 CSS = REPORT_CSS + ".verdict{font-size:1.3em;font-weight:600}\n"
@@ -123,6 +123,12 @@ def plot_candidates(result: ReconcileResult, path: Path) -> Path:
     return path
 
 
+def _rms_text(values: np.ndarray) -> str:
+    """RMS of the finite ``values`` to 3 decimals, or "n/a" when a procedure has no usable step."""
+    finite = values[np.isfinite(values)]
+    return f"{np.sqrt(np.mean(finite ** 2)):.3f}" if finite.size else "n/a"
+
+
 def _where(result: ReconcileResult) -> str:
     """Per procedure and the worst steps, before the reconcile."""
     before, after = result.iterations[0].residual_z, result.residual_after
@@ -132,7 +138,7 @@ def _where(result: ReconcileResult) -> str:
     for proc in sorted({s.procedure for s in scenes}):
         idx = [i for i, s in enumerate(scenes) if s.procedure == proc]
         rows.append(f"<tr><td class=l>{html.escape(proc)}</td><td>{len(idx)}</td>"
-                    f"<td>{np.sqrt(np.nanmean(rb[idx] ** 2)):.3f}</td><td>{np.sqrt(np.nanmean(ra[idx] ** 2)):.3f}</td></tr>")
+                    f"<td>{_rms_text(rb[idx])}</td><td>{_rms_text(ra[idx])}</td></tr>")
     worst = [i for i in np.argsort(-np.nan_to_num(rb))[:6] if np.isfinite(rb[i])]
     steps = []
     for i in worst:
@@ -162,7 +168,7 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
     model_path = output / "model.toml"
     model_path.write_text(result.model_toml(), encoding="utf-8")
     doc = json_document(result, model_path)
-    (output / "reconcile.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
+    (output / "reconcile.json").write_text(dumps_strict(doc, indent=2), encoding="utf-8")
     plots = [plot_residuals(result, output / "reconcile_residuals.png"),
              plot_residual_map(result, output / "reconcile_map.png"),
              plot_candidates(result, output / "reconcile_candidates.png")]

@@ -33,13 +33,14 @@ def slanted(extra: str = "", start=100, stop=2000, step=100, frames=10) -> str:
     """
 
 
-def test_plan_sweeps_chart_then_white_sheet_with_one_prompt():
+def test_plan_sweeps_chart_then_white_sheet_with_two_prompts():
     text = campaign_text(procedures=slanted("exposure_table = [[100, 100], [300, 300], [500, 1000]]",
                                              start=100, stop=600))
     steps = parse_campaign(text).steps()
     assert [s.target for s in steps] == ["slanted_edge"] * 6 + ["white_sheet"] * 6
     assert [s.distance_mm for s in steps] == [100, 200, 300, 400, 500, 600, 600, 500, 400, 300, 200, 100]
-    assert [s.prompt is not None for s in steps].count(True) == 1 and "white sheet" in steps[6].prompt
+    assert [s.prompt is not None for s in steps] == [True] + [False] * 5 + [True] + [False] * 5
+    assert "mount the slanted-edge chart" in steps[0].prompt and "white sheet" in steps[6].prompt
     assert [s.exposure_us for s in steps[:6]] == [100, 100, 300, 300, 1000, 1000]
 
 
