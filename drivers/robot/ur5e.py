@@ -345,8 +345,8 @@ class UR5eRobot:
         ``unlockProtectiveStop``) and restart ur-rtde's control script (``reuploadScript``).
 
         Call only after an operator confirmed the cell is safe. The controller refuses to
-        unlock within 5 s of the stop, so this retries for up to 10 s. An emergency stop
-        cannot be cleared in software.
+        unlock within 5 s of the stop, so this retries for up to 10 s; it returns when the
+        control script runs again. An emergency stop cannot be cleared in software.
         """
         rtde = self._connected()
         if rtde.receive.isEmergencyStopped():
@@ -361,6 +361,7 @@ class UR5eRobot:
                     raise DeviceError(self.name, f"could not unlock the protective stop: {exc}") from exc
                 time.sleep(0.5)
         rtde.control.reuploadScript()
+        self._wait_for_control_script(rtde, "after recovery")
 
     def __enter__(self) -> UR5eRobot:
         self.connect()
@@ -395,6 +396,22 @@ class UR5eRobot:
                 self.name, f"{context}: safety mode is '{SAFETY_MODES.get(mode, mode)}'; clear it on the pendant"
             )
 
+    def _wait_for_control_script(self, rtde: RTDEInterfaces, context: str, timeout_s: float = 5.0) -> None:
+        """Wait until ur-rtde's control script runs (runtime state PLAYING): ``reuploadScript``
+        returns as soon as the script is sent, and commands sent before it runs fail."""
+        deadline = time.monotonic() + timeout_s
+        while not rtde.control.isProgramRunning():
+            if time.monotonic() > deadline:
+                raise DeviceError(self.name, f"{context}: ur-rtde's control script did not start within {timeout_s:g} s")
+            time.sleep(self.poll_interval_s)
+
+    def _refused(self, rtde: RTDEInterfaces, context: str) -> None:
+        """ur-rtde answers False also when the controller could not run the query (a safety stop,
+        or its control script not running): raise that instead of a limit violation."""
+        self._check_safety(context)
+        if not rtde.control.isProgramRunning():
+            raise DeviceError(self.name, f"{context}: ur-rtde's control script is not running on the controller; nothing moved")
+
     def _check_waypoints(self, rtde: RTDEInterfaces, waypoints: list[np.ndarray]) -> None:
         """Every waypoint inside the TCP box (checked first, for all), then within the controller's
         safety limits and with an inverse-kinematics solution (seeded by the previous one) inside
@@ -414,8 +431,10 @@ class UR5eRobot:
         for k, pose in enumerate(waypoints):
             target = _to_controller(pose)
             if not rtde.control.isPoseWithinSafetyLimits(target):
+                self._refused(rtde, f"checking {where(k)}")
                 raise LimitViolation(self.name, f"{where(k)} violates the controller's safety limits; nothing moved")
             if not rtde.control.getInverseKinematicsHasSolution(target, q_near):
+                self._refused(rtde, f"checking {where(k)}")
                 raise LimitViolation(self.name, f"{where(k)} is out of reach (no inverse kinematics); nothing moved")
             q_near = list(rtde.control.getInverseKinematics(target, q_near))
             if self.joint_limits_deg is not None:

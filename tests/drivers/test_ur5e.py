@@ -193,6 +193,9 @@ class FakeController:
     def reuploadScript(self) -> None:  # noqa: N802
         self.calls.append(("reuploadScript", None))
 
+    def isProgramRunning(self) -> bool:  # noqa: N802
+        return True
+
     def stopScript(self) -> None:  # noqa: N802
         self.calls.append(("stopScript", None))
 
@@ -226,7 +229,7 @@ class FakeController:
         return "20235500001"
 
     def polyscopeVersion(self) -> str:  # noqa: N802
-        return "URSoftware 5.15.0"
+        return "5.15.0.12345"  # ur-rtde returns the a.b.c.d part of "URSoftware 5.15.0.12345 (...)"
 
     def closeSafetyPopup(self) -> None:  # noqa: N802
         self.calls.append(("closeSafetyPopup", None))
@@ -252,7 +255,7 @@ def connected(controller: FakeController, **options: Any) -> UR5eRobot:
 
 def test_identity_and_protocol(controller: FakeController) -> None:
     device = connected(controller)
-    assert device.identity().model == "UR5" and device.identity().firmware == "URSoftware 5.15.0"
+    assert device.identity().model == "UR5" and device.identity().firmware == "5.15.0.12345"
     assert device.angle_deg() == pytest.approx(0.0)
     assert device.settings()["zero_radius_mm"] == pytest.approx(RADIUS)
 

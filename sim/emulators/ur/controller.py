@@ -161,6 +161,10 @@ class URController:
         return int(powered) | (int(self.runtime_state == RUNTIME_STATES["PLAYING"]) << 1)
 
     @property
+    def moving(self) -> bool:
+        return self._motion is not None
+
+    @property
     def protective_stopped(self) -> bool:
         return self.safety_mode == SAFETY_MODES["PROTECTIVE_STOP"]
 
