@@ -71,6 +71,9 @@ ROBOT_MODES: dict[int, str] = {
 }
 """``robot_mode`` of the RTDE guide's output list (ur-rtde ``getRobotMode``)."""
 
+ARRIVAL_LAG_S = 0.25
+"""How long the receive stream may lag the control stream after a path ends."""
+
 SAFE_MODES = frozenset({1, 2})
 ROBOT_RUNNING = 7
 
@@ -317,10 +320,21 @@ class UR5eRobot:
             waypoints += self.circle.arc(here.angle_deg, angle_deg, radius_mm, self.arc_step_deg)
         if not waypoints:
             return
+        what = f"move to {angle_deg} deg at {radius_mm} mm"
         self._check_waypoints(rtde, waypoints)
-        self._run_path(rtde, waypoints, radius_mm, f"move to {angle_deg} deg at {radius_mm} mm")
-        reached = self.circle.locate(_from_controller(rtde.receive.getActualTCPPose()))
-        if abs(reached.angle_deg - angle_deg) > self.tolerance_deg or abs(reached.radius_mm - radius_mm) > self.tolerance_mm:
+        self._run_path(rtde, waypoints, radius_mm, what)
+        # RTDEReceiveInterface has its own RTDE stream, which can lag the control stream that
+        # reported the end of the path by a few output periods: allow it ARRIVAL_LAG_S to catch up
+        # (and to show a safety stop that ended the path).
+        deadline = time.monotonic() + ARRIVAL_LAG_S
+        while True:
+            self._check_safety(what)
+            reached = self.circle.locate(_from_controller(rtde.receive.getActualTCPPose()))
+            arrived = abs(reached.angle_deg - angle_deg) <= self.tolerance_deg and abs(reached.radius_mm - radius_mm) <= self.tolerance_mm
+            if arrived or time.monotonic() > deadline:
+                break
+            time.sleep(self.poll_interval_s)
+        if not arrived:
             raise DeviceError(
                 self.name,
                 f"stopped at {reached.angle_deg:.2f} deg / {reached.radius_mm:.1f} mm instead of "

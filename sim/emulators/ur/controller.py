@@ -96,8 +96,8 @@ class URController:
     ``q`` is the initial joint position (rad), ``tcp`` the TCP offset from the flange.
     ``safety_planes`` limit the TCP (``is_within_safety_limits`` and motion: crossing one
     is a protective stop). ``unlock_delay_s`` is the controller's 5 s wait before a
-    protective stop can be unlocked; ``time_scale`` runs motions that many times faster than
-    commanded (tests).
+    protective stop can be unlocked; ``script_start_s`` the time a received program takes to
+    start; ``time_scale`` runs motions that many times faster than commanded (tests).
     """
 
     def __init__(
@@ -109,6 +109,7 @@ class URController:
         remote_control: bool = True,
         safety_planes: Sequence[SafetyPlane] = (),
         unlock_delay_s: float = 5.0,
+        script_start_s: float = 0.05,
         time_scale: float = 1.0,
         polyscope_version: tuple[int, int, int, int] = (5, 11, 6, 1107777),
         serial_number: str = "20205500001",
@@ -127,6 +128,7 @@ class URController:
         self.remote_control = remote_control
         self.safety_planes = list(safety_planes)
         self.unlock_delay_s = unlock_delay_s
+        self.script_start_s = script_start_s
         self.time_scale = time_scale
         self.version = polyscope_version
         self.serial_number = serial_number
@@ -176,7 +178,7 @@ class URController:
             self.safety_mode = SAFETY_MODES["PROTECTIVE_STOP"]
             self.stopped_at = time.monotonic()
             self.safety_popup = True
-            self._halt()
+            self._halt(paused=True)
             if self.runtime_state == RUNTIME_STATES["PLAYING"]:
                 self.runtime_state = RUNTIME_STATES["PAUSED"]
 
@@ -232,7 +234,7 @@ class URController:
         with self.lock:
             if self.runtime_state != RUNTIME_STATES["PLAYING"]:
                 return False
-            self._halt()
+            self._halt(paused=True)
             self.runtime_state = RUNTIME_STATES["PAUSED"]
             return True
 
@@ -256,7 +258,6 @@ class URController:
                 (np.array([float(v) for v in m.group(1).split(",")]), float(m.group(2)), float(m.group(3)))
                 for m in _MOVEL.finditer(body)
             ]
-            self.runtime_state = RUNTIME_STATES["PLAYING"]
             self._program_stop = threading.Event()
             self._program = threading.Thread(
                 target=self._control_loop, args=(self._program_stop,), name="ur-control-script", daemon=True
@@ -301,7 +302,12 @@ class URController:
         self._out_int(2, register)
 
     def _control_loop(self, stop: threading.Event) -> None:
+        if stop.wait(self.script_start_s):  # the controller compiles the program first
+            return
         with self.lock:
+            if stop.is_set():
+                return
+            self.runtime_state = RUNTIME_STATES["PLAYING"]
             self._async_progress(-1)
             self._out_int(0, 1)  # ready
         executing = False
@@ -395,11 +401,13 @@ class URController:
         self._async_progress(0)
         return self._motion
 
-    def _halt(self) -> None:
+    def _halt(self, *, paused: bool = False) -> None:
+        """Stop the arm. A program paused mid-move (protective stop, ``pause``) does not get to
+        signal the end of its move; a stopped move or program does."""
         motion, self._motion = self._motion, None
         self.qd[:] = 0.0
         self.tcp_speed[:] = 0.0
-        if motion is not None:
+        if motion is not None and not paused:
             motion.done.set()
             self._async_progress(-1)
 

@@ -40,7 +40,8 @@ class URControllerProcess:
     (or reads an attribute) and returns the result. Use as a context manager."""
 
     def __init__(self, q: list[float], *, start_timeout_s: float = 20.0, **options: Any) -> None:
-        context = multiprocessing.get_context("spawn")
+        context = multiprocessing.get_context("forkserver")  # forks of a clean, single-threaded server
+        context.set_forkserver_preload(["sim.emulators.ur.server"])
         self._pipe, child = context.Pipe()
         self._process = context.Process(target=_serve, args=(child, list(q), options), daemon=True, name="ur-emulator")
         self._process.start()
