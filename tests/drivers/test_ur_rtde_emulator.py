@@ -164,6 +164,18 @@ def test_control_interface_moves_stops_and_answers_queries(emulator: URControlle
         receive.disconnect()
 
 
+def test_a_second_control_interface_finds_the_registers_in_use(emulator: URControllerProcess) -> None:
+    """RTDE inputs have one writer: a second RTDEControlInterface (another session) is refused (IN_USE)."""
+    control = rtde_control.RTDEControlInterface(emulator.host)
+    try:
+        with pytest.raises(RuntimeError, match="RTDE input registers are already in use"):
+            rtde_control.RTDEControlInterface(emulator.host)
+        assert control.isProgramRunning()
+    finally:
+        control.stopScript()
+        control.disconnect()
+
+
 # ------------------------------------------------------------------ the UR5e adapter through ur-rtde
 def test_adapter_reads_identity_pose_and_joints(emulator: URControllerProcess) -> None:
     with adapter(emulator.host) as robot:
