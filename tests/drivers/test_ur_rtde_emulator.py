@@ -14,6 +14,7 @@ from the emulator's code.
 
 from __future__ import annotations
 
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -65,6 +66,12 @@ def adapter(host: str, **options: Any) -> UR5eRobot:
     settings: dict[str, Any] = {"speed_deg_s": 90.0, "acceleration_deg_s2": 180.0, "settle_s": 0.05, "poll_interval_s": 0.005}
     settings.update(options)
     return UR5eRobot(host, circle(), connect_timeout_s=2.0, move_timeout_s=10.0, **settings)
+
+
+def inject(emulator: URControllerProcess, fault: str) -> None:
+    """Inject a fault and give it time to reach the clients."""
+    emulator.call(fault)
+    time.sleep(RTDE_LAG_S)
 
 
 def wait_for(condition: Any, timeout_s: float = 3.0) -> None:
@@ -176,6 +183,18 @@ def test_a_second_control_interface_finds_the_registers_in_use(emulator: URContr
         control.disconnect()
 
 
+def test_a_foreign_program_does_not_run(emulator: URControllerProcess) -> None:
+    """The emulator does not interpret URScript: a program other than ur-rtde's control script
+    (here sent to the secondary port 30002 as a plain socket client would) never starts."""
+    program = "def wave():\n  movej([0, -1.57, 0, -1.57, 0, 0])\nend\n"
+    with socket.create_connection((emulator.host, 30002), timeout=2.0) as client:
+        client.sendall(program.encode())
+        wait_for(lambda: emulator.call("scripts_received") == [program])
+    assert emulator.call("refused_scripts") == [program]
+    assert emulator.call("runtime_state") == 1  # STOPPED
+    assert emulator.call("q") == pytest.approx(home_q(), abs=1e-12)
+
+
 # ------------------------------------------------------------------ the UR5e adapter through ur-rtde
 def test_adapter_reads_identity_pose_and_joints(emulator: URControllerProcess) -> None:
     with adapter(emulator.host) as robot:
@@ -220,8 +239,7 @@ def test_adapter_refuses_poses_outside_the_limits_before_motion(emulator: URCont
 
 def test_adapter_protective_stop_before_a_move_and_recovery(emulator: URControllerProcess) -> None:
     with adapter(emulator.host) as robot:
-        emulator.call("protective_stop")
-        time.sleep(RTDE_LAG_S)
+        inject(emulator, "protective_stop")
         with pytest.raises(ProtectiveStop, match="before moving: the controller is in a protective stop"):
             robot.move_on_circle(10.0, RADIUS_MM)
         assert robot.angle_deg() == pytest.approx(0.0, abs=1e-6)
@@ -249,7 +267,7 @@ def test_adapter_protective_stop_during_a_move(emulator: URControllerProcess) ->
             stopper.join()
         time.sleep(RTDE_LAG_S)
         stopped = robot.angle_deg()
-        assert 4.0 < stopped < 12.0  # stopped on the way: 20°/s for about 0.4 s
+        assert 2.0 < stopped < 20.0  # stopped on the way to 40°: 20°/s for about 0.4 s
         time.sleep(0.2)
         assert robot.angle_deg() == pytest.approx(stopped, abs=1e-9)
         robot.recover()
@@ -259,8 +277,7 @@ def test_adapter_protective_stop_during_a_move(emulator: URControllerProcess) ->
 
 def test_adapter_emergency_stop_is_fatal(emulator: URControllerProcess) -> None:
     with adapter(emulator.host) as robot:
-        emulator.call("emergency_stop")
-        time.sleep(RTDE_LAG_S)
+        inject(emulator, "emergency_stop")
         with pytest.raises(DeviceError, match="emergency stop is engaged"):
             robot.move_on_circle(10.0, RADIUS_MM)
         with pytest.raises(DeviceError, match="emergency stop is engaged"):
@@ -275,8 +292,6 @@ def test_adapter_refuses_a_robot_in_local_control(emulator: URControllerProcess)
 
 def test_emulator_leaves_no_listener(emulator: URControllerProcess) -> None:
     """After close, the robot's ports on the emulator's address are free again."""
-    import socket
-
     host = emulator.host
     emulator.close()
     for port in (29999, 30002, 30003, 30004):
