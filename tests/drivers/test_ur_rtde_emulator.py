@@ -20,18 +20,17 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
+import dashboard_client
 import numpy as np
 import pytest
+import rtde_control
+import rtde_receive
 from scipy.spatial.transform import Rotation
 
 from drivers.errors import DeviceError, LimitViolation, ProtectiveStop
 from drivers.robot import MeasurementCircle, UR5eRobot
 from sim.emulators.ur import SafetyPlane, URControllerProcess
 from sim.emulators.ur.kinematics import inverse
-
-dashboard_client = pytest.importorskip("dashboard_client")
-rtde_control = pytest.importorskip("rtde_control")
-rtde_receive = pytest.importorskip("rtde_receive")
 
 CENTER_MM = np.array([200.0, 0.0, 300.0])
 RADIUS_MM = 350.0

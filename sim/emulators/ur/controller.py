@@ -7,26 +7,23 @@ transitions follow the Dashboard Server e-Series (port 29999) commands and the
 ``unlock protective stop`` is refused until 5 s after the stop.
 
 Programs arrive as URScript on the secondary/real-time script ports. The emulator does not
-interpret URScript: it recognises ur-rtde's control script (``def rtde_control():`` with
-its ``rtde_cmd()`` register loop) and emulates the register protocol that script
-implements (command in ``input_int_register_0``, arguments in the input registers, results
-in ``output_int_register_0..2`` and ``output_double_register_0..5``), including the
-``movel(p[...], a=, v=, r=)`` path injected by ``moveL(path)``. Any other program is
-recorded and refused (it never runs).
+interpret URScript: it recognises ur-rtde's control script and carries out its register
+protocol (:mod:`sim.emulators.ur.control_script`). Any other program is recorded and
+refused (it never runs); none starts while the arm is not running or in a safety stop.
 """
 
 from __future__ import annotations
 
-import re
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from sim.emulators.ur import kinematics
+from sim.emulators.ur.control_script import ControlScript, is_control_script
 
 ROBOT_MODES = {
     "NO_CONTROLLER": -1, "DISCONNECTED": 0, "CONFIRM_SAFETY": 1, "BOOTING": 2, "POWER_OFF": 3,
@@ -50,15 +47,6 @@ UNLOCK_REFUSED = (
     "Cannot unlock protective stop until 5s after occurrence. Always inspect cause of protective stop before unlocking"
 )
 
-_MOVEL = re.compile(r"movel\(p\[([^\]]*)\],\s*a=([-+0-9.eE]+),\s*v=([-+0-9.eE]+),\s*r=([-+0-9.eE]+)\)")
-_OFFSET = re.compile(r"global reg_offset_int\s*=\s*(\d+)")
-
-# ur-rtde control-script commands (input_int_register_0) that the emulator carries out
-CMD_MOVEL, CMD_PROTECTIVE_STOP, CMD_STOPL, CMD_STOPJ = 3, 31, 33, 34
-CMD_IK_ARGS, CMD_IK_DEFAULT, CMD_POSE_SAFE = 30, 46, 36
-CMD_MOVE_PATH, CMD_IK_HAS_SOLUTION_DEFAULT, CMD_IK_HAS_SOLUTION_ARGS, CMD_STOP_SCRIPT = 45, 60, 61, 255
-
-
 ROTATION_SPEED_RAD_S = 1.0
 """Speed of a pure reorientation (moveL's speed is the TCP's linear speed)."""
 
@@ -74,6 +62,7 @@ class _Segment:
 class _Motion:
     segments: list[_Segment]
     started: float
+    progress: Callable[[int], None]
     index: int = 0
     done: threading.Event = field(default_factory=threading.Event)
 
@@ -141,14 +130,9 @@ class URController:
         self.scripts_received: list[str] = []
         self.refused_scripts: list[str] = []
         self.commands_done: list[int] = []
-        self.register_offset = 0
-        self.move_path: list[tuple[np.ndarray, float, float]] = []
-        self._writes = 0
-        self._operation = 0
         self._last_tick = time.monotonic()
         self._motion: _Motion | None = None
-        self._program: threading.Thread | None = None
-        self._program_stop = threading.Event()
+        self._program: ControlScript | None = None
         self._closed = threading.Event()
         self._ticker = threading.Thread(target=self._tick_loop, name="ur-motion", daemon=True)
         self._ticker.start()
@@ -161,6 +145,17 @@ class URController:
         """Bit 0 power on, bit 1 program running (RTDE guide)."""
         powered = self.robot_mode in (ROBOT_MODES["POWER_ON"], ROBOT_MODES["IDLE"], ROBOT_MODES["RUNNING"])
         return int(powered) | (int(self.runtime_state == RUNTIME_STATES["PLAYING"]) << 1)
+
+    @property
+    def program_playing(self) -> bool:
+        return self.runtime_state == RUNTIME_STATES["PLAYING"]
+
+    def program_started(self) -> None:
+        self.runtime_state = RUNTIME_STATES["PLAYING"]
+
+    def within_planes(self, pose: Sequence[float]) -> bool:
+        """The TCP position of ``pose`` on the allowed side of every safety plane."""
+        return all(plane.allows(pose) for plane in self.safety_planes)
 
     @property
     def moving(self) -> bool:
@@ -178,7 +173,7 @@ class URController:
             self.safety_mode = SAFETY_MODES["PROTECTIVE_STOP"]
             self.stopped_at = time.monotonic()
             self.safety_popup = True
-            self._halt(paused=True)
+            self.halt(paused=True)
             if self.runtime_state == RUNTIME_STATES["PLAYING"]:
                 self.runtime_state = RUNTIME_STATES["PAUSED"]
 
@@ -186,7 +181,7 @@ class URController:
         """The pendant's emergency stop: motion halts, the program stops, the arm loses power."""
         with self.lock:
             self.safety_mode = SAFETY_MODES["ROBOT_EMERGENCY_STOP"]
-            self._halt()
+            self.halt()
             self._end_program()
             self.robot_mode = ROBOT_MODES["POWER_OFF"]
 
@@ -198,7 +193,7 @@ class URController:
 
     def power_off(self) -> None:
         with self.lock:
-            self._halt()
+            self.halt()
             self._end_program()
             self.robot_mode = ROBOT_MODES["POWER_OFF"]
 
@@ -218,7 +213,7 @@ class URController:
 
     def stop_program(self) -> bool:
         with self.lock:
-            self._halt()
+            self.halt()
             self._end_program()
             return True
 
@@ -234,7 +229,7 @@ class URController:
         with self.lock:
             if self.runtime_state != RUNTIME_STATES["PLAYING"]:
                 return False
-            self._halt(paused=True)
+            self.halt(paused=True)
             self.runtime_state = RUNTIME_STATES["PAUSED"]
             return True
 
@@ -243,26 +238,13 @@ class URController:
         """A program received on a script port: it replaces the running one."""
         with self.lock:
             self.scripts_received.append(script)
-            self._halt()
+            self.halt()
             self._end_program()
-            if not (script.startswith("def rtde_control():") and "def rtde_cmd():" in script):
+            runnable = self.robot_mode == ROBOT_MODES["RUNNING"] and self.safety_mode == SAFETY_MODES["NORMAL"]
+            if not (is_control_script(script) and runnable):
                 self.refused_scripts.append(script)
                 return
-            if self.robot_mode != ROBOT_MODES["RUNNING"] or self.safety_mode != SAFETY_MODES["NORMAL"]:
-                self.refused_scripts.append(script)
-                return
-            offset = _OFFSET.search(script)
-            self.register_offset = int(offset.group(1)) if offset else 0
-            body = script.split("def exec_move_path():", 1)[-1].split("\n    end", 1)[0]
-            self.move_path = [
-                (np.array([float(v) for v in m.group(1).split(",")]), float(m.group(2)), float(m.group(3)))
-                for m in _MOVEL.finditer(body)
-            ]
-            self._program_stop = threading.Event()
-            self._program = threading.Thread(
-                target=self._control_loop, args=(self._program_stop,), name="ur-control-script", daemon=True
-            )
-            self._program.start()
+            self._program = ControlScript(self, script)
 
     def close(self) -> None:
         with self.lock:
@@ -271,137 +253,28 @@ class URController:
         self._ticker.join(timeout=2.0)
 
     def _end_program(self) -> None:
-        self._program_stop.set()
+        if self._program is not None:
+            self._program.stop()
+            self._program = None
         if self.runtime_state != RUNTIME_STATES["STOPPED"]:
             self.runtime_state = RUNTIME_STATES["STOPPED"]
 
-    # -- ur-rtde control-script register protocol ---------------------------------------------
-    def _in_int(self, k: int) -> int:
-        return int(self.inputs.get(f"input_int_register_{k + self.register_offset}", 0))
-
-    def _in_doubles(self, first: int, count: int) -> np.ndarray:
-        offset = self.register_offset
-        return np.array([float(self.inputs.get(f"input_double_register_{first + k + offset}", 0.0)) for k in range(count)])
-
-    def _out_int(self, k: int, value: int) -> None:
-        self.outputs[f"output_int_register_{k + self.register_offset}"] = int(value)
-
-    def _out_doubles(self, values: Sequence[float]) -> None:
-        for k, value in enumerate(values):
-            self.outputs[f"output_double_register_{k + self.register_offset}"] = float(value)
-
-    def _async_progress(self, value: int) -> None:
-        """``write_async_progress_register``: bits 24-30 operation id, 16-23 write count,
-        bit 15 running, bits 0-14 progress."""
-        self._writes = (self._writes + 1) % 128
-        if value == 0:
-            self._operation = (self._operation + 1) % 128
-        register = self._writes * 65536 + self._operation * 16777216
-        if value >= 0:
-            register += min(value, 32767) + 32768
-        self._out_int(2, register)
-
-    def _control_loop(self, stop: threading.Event) -> None:
-        if stop.wait(self.script_start_s):  # the controller compiles the program first
-            return
-        with self.lock:
-            if stop.is_set():
-                return
-            self.runtime_state = RUNTIME_STATES["PLAYING"]
-            self._async_progress(-1)
-            self._out_int(0, 1)  # ready
-        executing = False
-        while not stop.wait(0.002):
-            with self.lock:
-                if self.runtime_state != RUNTIME_STATES["PLAYING"]:
-                    continue  # paused by a protective stop: the loop waits
-                command = self._in_int(0)
-                if command == 0:
-                    executing = False
-                    self._out_int(0, 1)
-                    continue
-                if executing:
-                    continue
-                executing = True
-            if not self._execute(command, stop):
-                return
-
-    def _execute(self, command: int, stop: threading.Event) -> bool:
-        """Carry out one command; False when the program ends."""
-        with self.lock:
-            if command == CMD_STOP_SCRIPT:
-                self._halt()
-                self._end_program()
-                return False
-            if command in (CMD_MOVE_PATH, CMD_MOVEL):
-                if command == CMD_MOVEL:
-                    values = self._in_doubles(0, 8)
-                    path = [(values[:6], values[7], values[6])]
-                else:
-                    path = list(self.move_path)
-                motion = self._start(path)
-                asynchronous = self._in_int(1) == 1
-            elif command in (CMD_STOPL, CMD_STOPJ):
-                self._halt()
-                motion, asynchronous = None, True
-            else:
-                if not self._query(command):
-                    self.refused_scripts.append(f"command {command} is not emulated")
-                    self._end_program()
-                    return False
-                motion, asynchronous = None, True
-        if motion is not None and not asynchronous:
-            while not motion.done.wait(0.005):
-                if stop.is_set():
-                    return False
-        with self.lock:
-            if stop.is_set():
-                return False
-            self.commands_done.append(command)
-            self._out_int(0, 2)  # done with command
-        return True
-
-    def _query(self, command: int) -> bool:
-        """Commands answered from the registers at once; False for one the emulator lacks."""
-        if command in (CMD_IK_ARGS, CMD_IK_HAS_SOLUTION_ARGS):
-            values = self._in_doubles(0, 14)
-            solution = kinematics.inverse(
-                values[:6], values[6:12], self.tcp,
-                max_position_error=max(values[12], 1e-9), max_orientation_error=max(values[13], 1e-9),
-            )
-        elif command in (CMD_IK_DEFAULT, CMD_IK_HAS_SOLUTION_DEFAULT, CMD_POSE_SAFE):
-            solution = kinematics.inverse(self._in_doubles(0, 6), self.q, self.tcp)
-        elif command == CMD_PROTECTIVE_STOP:
-            self.protective_stop()
-            return True
-        else:
-            return False
-        if command in (CMD_IK_ARGS, CMD_IK_DEFAULT):
-            if solution is None:  # get_inverse_kin raises a runtime error: the program stops
-                self._end_program()
-                return True
-            self._out_doubles(solution)
-        elif command == CMD_POSE_SAFE:
-            pose = self._in_doubles(0, 6)
-            self._out_int(1, int(solution is not None and all(p.allows(pose) for p in self.safety_planes)))
-        else:
-            self._out_int(1, int(solution is not None))
-        return True
-
     # -- motion -----------------------------------------------------------------------------
-    def _start(self, path: Sequence[tuple[np.ndarray, float, float]]) -> _Motion:
-        """Linear moves through every waypoint at its speed (blends pass through the waypoints)."""
-        self._halt()
+    def move(self, path: Sequence[tuple[np.ndarray, float]], progress: Callable[[int], None]) -> threading.Event:
+        """Move linearly through every ``(pose, speed m/s)`` waypoint (blends pass through the
+        waypoints); ``progress`` gets 0 at the start, the index of each waypoint reached after
+        the first and -1 at the end. Returns an event set when the move ends or is stopped."""
+        self.halt()
         segments, start = [], self.pose.copy()
-        for target, _acceleration, speed in path:
+        for target, speed in path:
             segments.append(_Segment(start, np.asarray(target, float), max(float(speed), 1e-6)))
             start = np.asarray(target, float)
-        self._motion = _Motion(segments, time.monotonic())
+        self._motion = _Motion(segments, time.monotonic(), progress)
         self._last_tick = time.monotonic()
-        self._async_progress(0)
-        return self._motion
+        progress(0)
+        return self._motion.done
 
-    def _halt(self, *, paused: bool = False) -> None:
+    def halt(self, *, paused: bool = False) -> None:
         """Stop the arm. A program paused mid-move (protective stop, ``pause``) does not get to
         signal the end of its move; a stopped move or program does."""
         motion, self._motion = self._motion, None
@@ -409,7 +282,7 @@ class URController:
         self.tcp_speed[:] = 0.0
         if motion is not None and not paused:
             motion.done.set()
-            self._async_progress(-1)
+            motion.progress(-1)
 
     def _tick_loop(self) -> None:
         while not self._closed.wait(0.004):
@@ -429,12 +302,12 @@ class URController:
                 break
             motion.started += duration
             motion.index += 1
-            self._async_progress(motion.index)
+            motion.progress(motion.index)
         fraction = min(max(fraction, 0.0), 1.0)
         rotations = Rotation.from_rotvec([segment.start[3:], segment.target[3:]])
         pose = np.array([*(segment.start[:3] + fraction * (segment.target[:3] - segment.start[:3])),
                          *Slerp([0.0, 1.0], rotations)(fraction).as_rotvec()])
-        if not all(p.allows(pose) for p in self.safety_planes):
+        if not self.within_planes(pose):
             self.protective_stop()  # the safety system stops the arm at the plane
             return
         q = kinematics.inverse(pose, self.q, self.tcp)
@@ -450,7 +323,7 @@ class URController:
             self.qd[:] = 0.0
             self.tcp_speed[:] = 0.0
             motion.done.set()
-            self._async_progress(-1)
+            motion.progress(-1)
 
 
 def mode_name(table: dict[str, int], value: int) -> str:
