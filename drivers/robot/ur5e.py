@@ -330,7 +330,10 @@ class UR5eRobot:
         while True:
             self._check_safety(what)
             reached = self.circle.locate(_from_controller(rtde.receive.getActualTCPPose()))
-            arrived = abs(reached.angle_deg - angle_deg) <= self.tolerance_deg and abs(reached.radius_mm - radius_mm) <= self.tolerance_mm
+            arrived = (
+                abs(reached.angle_deg - angle_deg) <= self.tolerance_deg
+                and abs(reached.radius_mm - radius_mm) <= self.tolerance_mm
+            )
             if arrived or time.monotonic() > deadline:
                 break
             time.sleep(self.poll_interval_s)
