@@ -1,10 +1,11 @@
 """UR5e adapter at the boundary of ur-rtde.
 
 Without a controller: connecting to nothing, to a silent server or to a foreign one over
-real sockets; limit checks that refuse before any call. The rest (safety stops, recovery,
-the order of checks and motion commands) needs controller states that no test machine
-has, so those tests use :class:`FakeController`, a small stand-in for ur-rtde's three
-clients, and only for that logic. docs/ursim.md describes the first test against URSim.
+real sockets; limit checks that refuse before any call. The adapter through ur-rtde's own
+clients against the controller emulator is tested in ``test_ur_rtde_emulator.py``; the
+tests here that need controller states use :class:`FakeController`, a small stand-in for
+ur-rtde's three clients, also for states the emulator does not produce (safeguard stop,
+fault, a move that never ends). docs/ursim.md describes the first test against URSim.
 """
 
 from __future__ import annotations
