@@ -71,6 +71,9 @@ ROBOT_MODES: dict[int, str] = {
 }
 """``robot_mode`` of the RTDE guide's output list (ur-rtde ``getRobotMode``)."""
 
+ARRIVAL_LAG_S = 0.25
+"""How long the receive stream may lag the control stream after a path ends."""
+
 SAFE_MODES = frozenset({1, 2})
 ROBOT_RUNNING = 7
 
@@ -317,10 +320,24 @@ class UR5eRobot:
             waypoints += self.circle.arc(here.angle_deg, angle_deg, radius_mm, self.arc_step_deg)
         if not waypoints:
             return
+        what = f"move to {angle_deg} deg at {radius_mm} mm"
         self._check_waypoints(rtde, waypoints)
-        self._run_path(rtde, waypoints, radius_mm, f"move to {angle_deg} deg at {radius_mm} mm")
-        reached = self.circle.locate(_from_controller(rtde.receive.getActualTCPPose()))
-        if abs(reached.angle_deg - angle_deg) > self.tolerance_deg or abs(reached.radius_mm - radius_mm) > self.tolerance_mm:
+        self._run_path(rtde, waypoints, radius_mm, what)
+        # RTDEReceiveInterface has its own RTDE stream, which can lag the control stream that
+        # reported the end of the path by a few output periods: allow it ARRIVAL_LAG_S to catch up
+        # (and to show a safety stop that ended the path).
+        deadline = time.monotonic() + ARRIVAL_LAG_S
+        while True:
+            self._check_safety(what)
+            reached = self.circle.locate(_from_controller(rtde.receive.getActualTCPPose()))
+            arrived = (
+                abs(reached.angle_deg - angle_deg) <= self.tolerance_deg
+                and abs(reached.radius_mm - radius_mm) <= self.tolerance_mm
+            )
+            if arrived or time.monotonic() > deadline:
+                break
+            time.sleep(self.poll_interval_s)
+        if not arrived:
             raise DeviceError(
                 self.name,
                 f"stopped at {reached.angle_deg:.2f} deg / {reached.radius_mm:.1f} mm instead of "
@@ -345,8 +362,8 @@ class UR5eRobot:
         ``unlockProtectiveStop``) and restart ur-rtde's control script (``reuploadScript``).
 
         Call only after an operator confirmed the cell is safe. The controller refuses to
-        unlock within 5 s of the stop, so this retries for up to 10 s. An emergency stop
-        cannot be cleared in software.
+        unlock within 5 s of the stop, so this retries for up to 10 s; it returns when the
+        control script runs again. An emergency stop cannot be cleared in software.
         """
         rtde = self._connected()
         if rtde.receive.isEmergencyStopped():
@@ -361,6 +378,7 @@ class UR5eRobot:
                     raise DeviceError(self.name, f"could not unlock the protective stop: {exc}") from exc
                 time.sleep(0.5)
         rtde.control.reuploadScript()
+        self._wait_for_control_script(rtde, "after recovery")
 
     def __enter__(self) -> UR5eRobot:
         self.connect()
@@ -395,6 +413,22 @@ class UR5eRobot:
                 self.name, f"{context}: safety mode is '{SAFETY_MODES.get(mode, mode)}'; clear it on the pendant"
             )
 
+    def _wait_for_control_script(self, rtde: RTDEInterfaces, context: str, timeout_s: float = 5.0) -> None:
+        """Wait until ur-rtde's control script runs (runtime state PLAYING): ``reuploadScript``
+        returns as soon as the script is sent, and commands sent before it runs fail."""
+        deadline = time.monotonic() + timeout_s
+        while not rtde.control.isProgramRunning():
+            if time.monotonic() > deadline:
+                raise DeviceError(self.name, f"{context}: ur-rtde's control script did not start within {timeout_s:g} s")
+            time.sleep(self.poll_interval_s)
+
+    def _refused(self, rtde: RTDEInterfaces, context: str) -> None:
+        """ur-rtde answers False also when the controller could not run the query (a safety stop,
+        or its control script not running): raise that instead of a limit violation."""
+        self._check_safety(context)
+        if not rtde.control.isProgramRunning():
+            raise DeviceError(self.name, f"{context}: ur-rtde's control script is not running on the controller; nothing moved")
+
     def _check_waypoints(self, rtde: RTDEInterfaces, waypoints: list[np.ndarray]) -> None:
         """Every waypoint inside the TCP box (checked first, for all), then within the controller's
         safety limits and with an inverse-kinematics solution (seeded by the previous one) inside
@@ -414,8 +448,10 @@ class UR5eRobot:
         for k, pose in enumerate(waypoints):
             target = _to_controller(pose)
             if not rtde.control.isPoseWithinSafetyLimits(target):
+                self._refused(rtde, f"checking {where(k)}")
                 raise LimitViolation(self.name, f"{where(k)} violates the controller's safety limits; nothing moved")
             if not rtde.control.getInverseKinematicsHasSolution(target, q_near):
+                self._refused(rtde, f"checking {where(k)}")
                 raise LimitViolation(self.name, f"{where(k)} is out of reach (no inverse kinematics); nothing moved")
             q_near = list(rtde.control.getInverseKinematics(target, q_near))
             if self.joint_limits_deg is not None:

@@ -1,10 +1,11 @@
 """UR5e adapter at the boundary of ur-rtde.
 
 Without a controller: connecting to nothing, to a silent server or to a foreign one over
-real sockets; limit checks that refuse before any call. The rest (safety stops, recovery,
-the order of checks and motion commands) needs controller states that no test machine
-has, so those tests use :class:`FakeController`, a small stand-in for ur-rtde's three
-clients, and only for that logic. docs/ursim.md describes the first test against URSim.
+real sockets; limit checks that refuse before any call. The adapter through ur-rtde's own
+clients against the controller emulator is tested in ``test_ur_rtde_emulator.py``; the
+tests here that need controller states use :class:`FakeController`, a small stand-in for
+ur-rtde's three clients, also for states the emulator does not produce (safeguard stop,
+fault, a move that never ends). docs/ursim.md describes the first test against URSim.
 """
 
 from __future__ import annotations
@@ -193,6 +194,9 @@ class FakeController:
     def reuploadScript(self) -> None:  # noqa: N802
         self.calls.append(("reuploadScript", None))
 
+    def isProgramRunning(self) -> bool:  # noqa: N802
+        return True
+
     def stopScript(self) -> None:  # noqa: N802
         self.calls.append(("stopScript", None))
 
@@ -226,7 +230,7 @@ class FakeController:
         return "20235500001"
 
     def polyscopeVersion(self) -> str:  # noqa: N802
-        return "URSoftware 5.15.0"
+        return "5.15.0.12345"  # ur-rtde returns the a.b.c.d part of "URSoftware 5.15.0.12345 (...)"
 
     def closeSafetyPopup(self) -> None:  # noqa: N802
         self.calls.append(("closeSafetyPopup", None))
@@ -252,7 +256,7 @@ def connected(controller: FakeController, **options: Any) -> UR5eRobot:
 
 def test_identity_and_protocol(controller: FakeController) -> None:
     device = connected(controller)
-    assert device.identity().model == "UR5" and device.identity().firmware == "URSoftware 5.15.0"
+    assert device.identity().model == "UR5" and device.identity().firmware == "5.15.0.12345"
     assert device.angle_deg() == pytest.approx(0.0)
     assert device.settings()["zero_radius_mm"] == pytest.approx(RADIUS)
 

@@ -1,0 +1,299 @@
+"""ur-rtde's own clients against the UR controller emulator over loopback.
+
+The real ``rtde_receive.RTDEReceiveInterface``, ``dashboard_client.DashboardClient`` and
+``rtde_control.RTDEControlInterface`` talk RTDE (30004), the dashboard protocol (29999)
+and upload their control script (30003) to :mod:`sim.emulators.ur`, which runs in a child
+process (ur-rtde keeps the interpreter lock while it waits). Then the UR5e adapter runs
+through the same clients: pose, limits refused before motion, motion along the circle,
+protective stop and recovery.
+
+Expected values come from the RTDE guide and the dashboard server's command table (mode
+numbers and reply texts), from the circle's geometry and from the injected state, never
+from the emulator's code.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import dashboard_client
+import numpy as np
+import pytest
+import rtde_control
+import rtde_receive
+from scipy.spatial.transform import Rotation
+
+from drivers.errors import DeviceError, LimitViolation, ProtectiveStop
+from drivers.robot import MeasurementCircle, UR5eRobot
+from sim.emulators.ur import SafetyPlane, URControllerProcess
+from sim.emulators.ur.kinematics import inverse
+
+CENTER_MM = np.array([200.0, 0.0, 300.0])
+RADIUS_MM = 350.0
+LOOKING = Rotation.from_matrix(np.column_stack([[0, -1, 0], [0, 0, 1], [-1, 0, 0]]).astype(float)).as_rotvec()
+"""Tool z axis along -x: at angle 0 the camera looks from +x back at the centre."""
+ZERO_POSE_M = [(CENTER_MM[0] + RADIUS_MM) / 1000.0, 0.0, CENTER_MM[2] / 1000.0, *LOOKING]
+SEED_Q = [0.0, -1.2, -1.8, -0.2, 1.57, 0.0]
+RTDE_LAG_S = 0.1
+"""Time for a state change to reach the clients: several RTDE output periods."""
+
+
+def home_q() -> list[float]:
+    """Joint angles of the 0° pose (the arm jogged there before the session)."""
+    q = inverse(ZERO_POSE_M, SEED_Q, max_position_error=1e-10, max_orientation_error=1e-10)
+    assert q is not None
+    return list(q)
+
+
+def circle() -> MeasurementCircle:
+    return MeasurementCircle(CENTER_MM, (0, 0, 1), [*(1000.0 * np.array(ZERO_POSE_M[:3])), *LOOKING])
+
+
+@pytest.fixture
+def emulator(request: pytest.FixtureRequest) -> Iterator[URControllerProcess]:
+    options: dict[str, Any] = {"robot_mode": "RUNNING", "unlock_delay_s": 0.3}
+    options.update(getattr(request, "param", {}))
+    with URControllerProcess(home_q(), **options) as process:
+        yield process
+
+
+def adapter(host: str, **options: Any) -> UR5eRobot:
+    settings: dict[str, Any] = {"speed_deg_s": 90.0, "acceleration_deg_s2": 180.0, "settle_s": 0.05, "poll_interval_s": 0.005}
+    settings.update(options)
+    return UR5eRobot(host, circle(), connect_timeout_s=2.0, move_timeout_s=10.0, **settings)
+
+
+def inject(emulator: URControllerProcess, fault: str) -> None:
+    """Inject a fault and give it time to reach the clients."""
+    emulator.call(fault)
+    time.sleep(RTDE_LAG_S)
+
+
+def wait_for(condition: Any, timeout_s: float = 3.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        time.sleep(0.01)
+
+
+# ------------------------------------------------------------------ the clients themselves
+@pytest.mark.parametrize("emulator", [{"robot_mode": "POWER_OFF"}], indirect=True)
+def test_dashboard_client_and_receive_interface(emulator: URControllerProcess) -> None:
+    dashboard = dashboard_client.DashboardClient(emulator.host)
+    dashboard.connect(2000)
+    receive = rtde_receive.RTDEReceiveInterface(emulator.host)
+    try:
+        assert dashboard.isConnected()
+        assert dashboard.polyscopeVersion() == "5.11.6.1107777"  # ur-rtde extracts a.b.c.d from "URSoftware ..."
+        assert dashboard.getRobotModel() == "UR5"
+        assert dashboard.isInRemoteControl() is True
+        assert receive.getActualTCPPose() == pytest.approx(ZERO_POSE_M, abs=1e-9)
+        assert receive.getActualQ() == pytest.approx(home_q(), abs=1e-12)
+        # power-up sequence of the dashboard server, seen through RTDE's robot_mode (3, 5, 7)
+        assert dashboard.robotmode() == "Robotmode: POWER_OFF" and receive.getRobotMode() == 3
+        dashboard.powerOn()
+        wait_for(lambda: receive.getRobotMode() == 5)
+        assert dashboard.robotmode() == "Robotmode: IDLE"
+        dashboard.brakeRelease()
+        wait_for(lambda: receive.getRobotMode() == 7)
+        assert receive.getSafetyMode() == 1 and dashboard.safetystatus() == "Safetystatus: NORMAL"
+        assert not receive.isProtectiveStopped() and not receive.isEmergencyStopped()
+        # an injected protective stop: safety_mode 3, bit 2 of safety_status_bits
+        emulator.call("protective_stop")
+        wait_for(receive.isProtectiveStopped)
+        assert receive.getSafetyMode() == 3 and receive.getSafetyStatusBits() & 0b100
+        assert dashboard.safetymode() == "Safetymode: PROTECTIVE_STOP"
+        with pytest.raises(RuntimeError, match="Cannot unlock protective stop until 5s after occurrence"):
+            dashboard.unlockProtectiveStop()
+        time.sleep(0.35)
+        dashboard.closeSafetyPopup()
+        dashboard.unlockProtectiveStop()
+        wait_for(lambda: not receive.isProtectiveStopped())
+        assert receive.getSafetyMode() == 1
+        # programs: load, play, programState, stop
+        with pytest.raises(RuntimeError, match="File not found: missing.urp"):
+            dashboard.loadURP("missing.urp")
+        dashboard.loadURP("calibration.urp")
+        dashboard.play()
+        assert dashboard.running() and dashboard.programState() == "PLAYING calibration.urp"
+        wait_for(lambda: receive.getRuntimeState() == 2)
+        dashboard.stop()
+        assert not dashboard.running() and dashboard.programState() == "STOPPED calibration.urp"
+    finally:
+        receive.disconnect()
+        dashboard.disconnect()
+
+
+def test_receive_interface_refuses_unknown_variables(emulator: URControllerProcess) -> None:
+    """The RTDE server answers NOT_FOUND for a name outside the guide's output table; ur-rtde names it."""
+    with pytest.raises(RuntimeError, match=r"not found by the controller: \[actual_teleport_pose\]"):
+        rtde_receive.RTDEReceiveInterface(emulator.host, 125.0, ["actual_TCP_pose", "actual_teleport_pose"])
+
+
+def test_control_interface_moves_stops_and_answers_queries(emulator: URControllerProcess) -> None:
+    control = rtde_control.RTDEControlInterface(emulator.host)
+    receive = rtde_receive.RTDEReceiveInterface(emulator.host)
+    try:
+        assert control.isProgramRunning()
+        target = list(ZERO_POSE_M)
+        target[2] += 0.05
+        assert control.isPoseWithinSafetyLimits(target)
+        assert not control.isPoseWithinSafetyLimits([1.5, 0.0, 0.3, *LOOKING])  # 1.5 m: beyond the UR5e's 850 mm reach
+        q = control.getInverseKinematics(target, receive.getActualQ())
+        assert control.getInverseKinematicsHasSolution(target, receive.getActualQ())
+        # independent check of the joint solution: it must differ from home, and moving there reaches the target
+        assert not np.allclose(q, home_q())
+        assert control.moveL([[*target, 0.25, 1.2, 0.0]], False)  # synchronous: returns at the target
+        time.sleep(RTDE_LAG_S)
+        assert receive.getActualTCPPose() == pytest.approx(target, abs=1e-6)
+        assert receive.getActualQ() == pytest.approx(q, abs=1e-4)  # both solved to about 1e-6 m
+        # asynchronous path, stopped half way
+        far = list(target)
+        far[1] += 0.2
+        assert control.moveL([[*far, 0.1, 1.2, 0.0]], True)
+        wait_for(lambda: control.getAsyncOperationProgressEx().isAsyncOperationRunning(), 1.0)
+        time.sleep(0.5)
+        control.stopL(2.0)
+        wait_for(lambda: not control.getAsyncOperationProgressEx().isAsyncOperationRunning(), 1.0)
+        time.sleep(RTDE_LAG_S)
+        stopped = receive.getActualTCPPose()
+        assert 0.01 < stopped[1] < 0.19  # at 0.1 m/s for about 0.5 s
+        time.sleep(0.2)
+        assert receive.getActualTCPPose() == pytest.approx(stopped, abs=1e-9)
+    finally:
+        control.stopScript()
+        control.disconnect()
+        receive.disconnect()
+
+
+def test_a_second_control_interface_finds_the_registers_in_use(emulator: URControllerProcess) -> None:
+    """RTDE inputs have one writer: a second RTDEControlInterface (another session) is refused (IN_USE)."""
+    control = rtde_control.RTDEControlInterface(emulator.host)
+    try:
+        with pytest.raises(RuntimeError, match="RTDE input registers are already in use"):
+            rtde_control.RTDEControlInterface(emulator.host)
+        assert control.isProgramRunning()
+    finally:
+        control.stopScript()
+        control.disconnect()
+
+
+def test_a_foreign_program_does_not_run(emulator: URControllerProcess) -> None:
+    """The emulator does not interpret URScript: a program other than ur-rtde's control script
+    (here sent to the secondary port 30002 as a plain socket client would) never starts."""
+    program = "def wave():\n  movej([0, -1.57, 0, -1.57, 0, 0])\nend\n"
+    with socket.create_connection((emulator.host, 30002), timeout=2.0) as client:
+        client.sendall(program.encode())
+        wait_for(lambda: emulator.call("scripts_received") == [program])
+    assert emulator.call("refused_scripts") == [program]
+    assert emulator.call("runtime_state") == 1  # STOPPED
+    assert emulator.call("q") == pytest.approx(home_q(), abs=1e-12)
+
+
+# ------------------------------------------------------------------ the UR5e adapter through ur-rtde
+def test_adapter_reads_identity_pose_and_joints(emulator: URControllerProcess) -> None:
+    with adapter(emulator.host) as robot:
+        identity = robot.identity()
+        assert (identity.model, identity.serial, identity.firmware) == ("UR5", "20205500001", "5.11.6.1107777")
+        assert robot.pose_mm() == pytest.approx([*(1000.0 * np.array(ZERO_POSE_M[:3])), *LOOKING], abs=1e-6)
+        assert robot.angle_deg() == pytest.approx(0.0, abs=1e-6)
+        assert robot.joints_deg() == pytest.approx(np.degrees(home_q()), abs=1e-9)
+
+
+def test_adapter_moves_along_the_circle(emulator: URControllerProcess) -> None:
+    with adapter(emulator.host) as robot:
+        robot.move_on_circle(20.0, RADIUS_MM)
+        assert robot.angle_deg() == pytest.approx(20.0, abs=0.01)
+        expected = CENTER_MM + RADIUS_MM * np.array([np.cos(np.radians(20.0)), np.sin(np.radians(20.0)), 0.0])
+        assert robot.pose_mm()[:3] == pytest.approx(expected, abs=0.01)
+        robot.move_on_circle(-10.0, 300.0)
+        assert robot.angle_deg() == pytest.approx(-10.0, abs=0.01)
+        assert np.linalg.norm(robot.pose_mm()[:2] - CENTER_MM[:2]) == pytest.approx(300.0, abs=0.01)
+    # the path went through the waypoints on the arc (every 5°), not along the chord
+    scripts = emulator.call("scripts_received")
+    paths = [s for s in scripts if "movel(p[" in s]
+    assert len(paths) == 2 and paths[0].count("movel(p[") == 4
+
+
+@pytest.mark.parametrize("emulator", [{"safety_planes": [SafetyPlane((0.0, 1.0, 0.0), -0.1)]}], indirect=True)
+def test_adapter_refuses_poses_outside_the_limits_before_motion(emulator: URControllerProcess) -> None:
+    """A safety plane y >= -100 mm in the controller: -30° (y = -175 mm) is refused by
+    ``isPoseWithinSafetyLimits``; a reach beyond 850 mm and a joint limit likewise; nothing moves."""
+    with adapter(emulator.host, joint_limits_deg=[[-360, 20]] + [[-360, 360]] * 5, radius_max_mm=1000.0) as robot:
+        before = robot.pose_mm()
+        with pytest.raises(LimitViolation, match=r"waypoint \d+/\d+ .* violates the controller's safety limits; nothing moved"):
+            robot.move_on_circle(-30.0, RADIUS_MM)
+        with pytest.raises(LimitViolation, match="violates the controller's safety limits; nothing moved"):
+            robot.move_on_circle(0.0, 900.0)  # 1100 mm from the base
+        with pytest.raises(LimitViolation, match=r"joint 0 would be at 2[0-9.]* deg, outside \[-360, 20\]; nothing moved"):
+            robot.move_on_circle(20.0, RADIUS_MM)  # the base turns by about 25° (TCP bearing 12.7° plus the shoulder offset)
+        assert robot.pose_mm() == pytest.approx(before, abs=1e-9)
+    assert not [s for s in emulator.call("scripts_received") if "movel(p[" in s]
+    assert emulator.call("commands_done").count(45) == 0
+
+
+def test_adapter_protective_stop_before_a_move_and_recovery(emulator: URControllerProcess) -> None:
+    with adapter(emulator.host) as robot:
+        inject(emulator, "protective_stop")
+        with pytest.raises(ProtectiveStop, match="before moving: the controller is in a protective stop"):
+            robot.move_on_circle(10.0, RADIUS_MM)
+        assert robot.angle_deg() == pytest.approx(0.0, abs=1e-6)
+        started = time.monotonic()
+        robot.recover()  # the first unlock is refused (within the controller's wait), then it goes through
+        assert time.monotonic() - started >= 0.3
+        assert not emulator.call("safety_popup")
+        robot.move_on_circle(10.0, RADIUS_MM)
+        assert robot.angle_deg() == pytest.approx(10.0, abs=0.01)
+
+
+def test_adapter_protective_stop_during_a_move(emulator: URControllerProcess) -> None:
+    def stop_on_the_way() -> None:
+        wait_for(lambda: emulator.call("moving"), 10.0)
+        time.sleep(0.4)
+        emulator.call("protective_stop")
+
+    with adapter(emulator.host, speed_deg_s=20.0) as robot:
+        stopper = threading.Thread(target=stop_on_the_way)
+        stopper.start()
+        try:
+            with pytest.raises(ProtectiveStop, match="move to 40.0 deg .* protective stop"):
+                robot.move_on_circle(40.0, RADIUS_MM)
+        finally:
+            stopper.join()
+        time.sleep(RTDE_LAG_S)
+        stopped = robot.angle_deg()
+        assert 2.0 < stopped < 20.0  # stopped on the way to 40°: 20°/s for about 0.4 s
+        time.sleep(0.2)
+        assert robot.angle_deg() == pytest.approx(stopped, abs=1e-9)
+        robot.recover()
+        robot.move_on_circle(0.0, RADIUS_MM)
+        assert robot.angle_deg() == pytest.approx(0.0, abs=0.01)
+
+
+def test_adapter_emergency_stop_is_fatal(emulator: URControllerProcess) -> None:
+    with adapter(emulator.host) as robot:
+        inject(emulator, "emergency_stop")
+        with pytest.raises(DeviceError, match="emergency stop is engaged"):
+            robot.move_on_circle(10.0, RADIUS_MM)
+        with pytest.raises(DeviceError, match="emergency stop is engaged"):
+            robot.recover()
+
+
+@pytest.mark.parametrize("emulator", [{"remote_control": False}], indirect=True)
+def test_adapter_refuses_a_robot_in_local_control(emulator: URControllerProcess) -> None:
+    with pytest.raises(DeviceError, match="Local Control"):
+        adapter(emulator.host).connect()
+
+
+def test_emulator_leaves_no_listener(emulator: URControllerProcess) -> None:
+    """After close, the robot's ports on the emulator's address are free again."""
+    host = emulator.host
+    emulator.close()
+    for port in (29999, 30002, 30003, 30004):
+        with socket.socket() as probe:
+            probe.settimeout(0.5)
+            assert probe.connect_ex((host, port)) != 0
