@@ -16,15 +16,19 @@ from pathlib import Path
 
 import click
 
+from drivers.protocols import CameraInfo
 from labctl import cli_analyze, cli_devices, cli_export, cli_reconcile, cli_sim
 from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
 from labctl.operator import Operator
-from labctl.planning import format_duration, schedule
+from labctl.compression import COMPRESSIONS
+from labctl.diskspace import ensure_free, format_bytes
+from labctl.planning import expected_run_bytes, format_duration, schedule
 from labctl.progress import EvaluationProgress, Reporter
 from labctl.runner import Runner, bring_to_safe_state, close_all, connect_lab
 from labctl.store import RunWriter, labctl_version
+from procedures.steps import Step
 from sim.model import default_model_text, load_model, parse_model
 
 
@@ -42,15 +46,21 @@ def cli() -> None:
 @cli.command()
 @click.argument("campaign", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="print the plan as one JSON document")
-def plan(campaign: Path, as_json: bool) -> None:
-    """Validate CAMPAIGN and list every step with its estimated lab time (no hardware)."""
+@click.option("--compression", type=click.Choice(COMPRESSIONS), help="size estimate for this storage (default: [runner])")
+def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
+    """Validate CAMPAIGN and list every step with its estimated lab time and the run file's size (no hardware)."""
     config, _ = load_campaign(campaign)
     planned = schedule(config)
     total = sum(p.duration_s for p in planned)
+    compression = compression or config.runner.compression
+    raw_bytes, file_bytes = expected_run_bytes(config, compression)
     if as_json:
         doc = {
             "campaign": config.campaign.name,
             "total_duration_s": round(total, 3),
+            "compression": compression,
+            "expected_file_bytes": file_bytes,
+            "uncompressed_bytes": raw_bytes,
             "steps": [
                 {
                     "step_id": p.step.step_id,
@@ -71,7 +81,10 @@ def plan(campaign: Path, as_json: bool) -> None:
         }
         click.echo(json.dumps(doc, indent=2))
         return
-    click.echo(f"campaign {config.campaign.name}: {len(planned)} steps, estimated lab time {format_duration(total)}")
+    size = f"run file about {format_bytes(file_bytes)}"
+    if compression != "none":
+        size += f" ({compression}; {format_bytes(raw_bytes)} uncompressed)"
+    click.echo(f"campaign {config.campaign.name}: {len(planned)} steps, estimated lab time {format_duration(total)}, {size}")
     click.echo(f"{'step':<24} {'target':<12} {'distance':>9} {'angle':>6} {'frames':>6} {'start':>12} {'duration':>10}")
     for p in planned:
         s = p.step
@@ -91,6 +104,13 @@ def _sim_lab_from(campaign: Campaign, model_text: str, model_source: str, seed: 
     return build_sim_lab(campaign, model, seed)
 
 
+def _ensure_room(run_file: Path, campaign: Campaign, compression: str, steps: list[Step], camera: CameraInfo) -> None:
+    """Refuse to start (exit 1) when the disk cannot hold the expected size of the steps to run."""
+    raw, expected = expected_run_bytes(campaign, compression, steps, camera)
+    ensure_free(run_file, expected, f"the run's {len(steps)} remaining step(s) (about {format_bytes(expected)} "
+                                    f"with compression {compression}; {format_bytes(raw)} uncompressed)")
+
+
 def _execute(campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter) -> None:
     Runner(campaign, lab, writer, reporter, Operator(automatic=lab.simulated, report=reporter.message)).execute()
     reporter.message(f"run complete: {writer.path}")
@@ -102,8 +122,11 @@ def _execute(campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter
 @click.option("--sim", is_flag=True, help="replace every device by its simulated fake")
 @click.option("--model", type=click.Path(dir_okay=False, path_type=Path), help="simulation model file (with --sim)")
 @click.option("--seed", type=click.IntRange(min=0), help="simulation seed (default: [sim].seed)")
+@click.option("--compression", type=click.Choice(COMPRESSIONS), help="how frames are stored (default: [runner] compression)")
 @click.option("--quiet", is_flag=True, help="no progress output")
-def run(campaign: Path, output: Path, sim: bool, model: Path | None, seed: int | None, quiet: bool) -> None:
+def run(
+    campaign: Path, output: Path, sim: bool, model: Path | None, seed: int | None, compression: str | None, quiet: bool
+) -> None:
     """Run CAMPAIGN into the run file OUTPUT."""
     config, text = load_campaign(campaign)
     if output.exists():
@@ -112,6 +135,7 @@ def run(campaign: Path, output: Path, sim: bool, model: Path | None, seed: int |
         raise InputError(f"directory {output.parent} for -o does not exist")
     if (model is not None or seed is not None) and not sim:
         raise InputError("--model and --seed only apply to simulated runs (--sim)")
+    compression = compression or config.runner.compression
     reporter = Reporter(quiet=quiet)
     if sim:
         if model is not None:
@@ -127,6 +151,7 @@ def run(campaign: Path, output: Path, sim: bool, model: Path | None, seed: int |
         sim_record = None
     connect_lab(lab, reporter.message)
     try:
+        _ensure_room(output, config, compression, config.steps(), lab.camera.info())
         writer = RunWriter.create(
             output,
             campaign_toml=text,
@@ -134,6 +159,7 @@ def run(campaign: Path, output: Path, sim: bool, model: Path | None, seed: int |
             devices={role: (dev.identity(), dev.settings()) for role, dev in lab.devices().items()},
             camera=lab.camera.info(),
             sim=sim_record,
+            compression=compression,
         )
     except BaseException:
         bring_to_safe_state(lab, reporter.message)
@@ -159,6 +185,9 @@ def resume(run_file: Path, quiet: bool) -> None:
             reporter.message(f"{run_file} is already complete; nothing to resume")
             return
         config = parse_campaign(str(writer.attrs["campaign_toml"]), f"{run_file} (stored campaign)")
+        done = writer.completed()
+        _ensure_room(run_file, config, writer.compression, [s for s in config.steps() if s.step_id not in done],
+                     writer.camera_info())
         if bool(writer.attrs.get("simulated", False)):
             sim = writer.file["sim"].attrs
             lab = _sim_lab_from(config, str(sim["model_toml"]), f"{run_file} (stored model)", int(sim["seed"]))

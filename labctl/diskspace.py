@@ -15,13 +15,15 @@ from pathlib import Path
 import numpy as np
 
 from labctl.compression import ESTIMATED_RATIO
+from labctl.errors import RunAborted
 
 MARGIN_BYTES = 256 * 2**20
 """Kept free beyond a step's raw size: HDF5 metadata, the operating system, other programs."""
 
 
-class DiskSpaceLow(OSError):
-    """Not enough free space for the next step: the run stops before writing it."""
+class DiskSpaceLow(RunAborted, OSError):
+    """Not enough free space for a run or its next step: nothing of it is written (exit 1).
+    An OSError too, so the runner treats it as a failure: devices safe, run aborted, resumable."""
 
 
 def frame_bytes(width: int, height: int, confidence_dtype: str) -> int:
