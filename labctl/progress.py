@@ -83,12 +83,12 @@ class Reporter:
         self._current, self._captured = planned, 0
         ids = [p.step.step_id for p in self._plan]
         position = ids.index(planned.step.step_id) + 1 if planned.step.step_id in ids else len(ids)
-        description = f"step {position}/{len(ids)} {planned.step.step_id}"
+        description = f"step {position}/{len(ids)} {planned.step.step_id} ({len(self._done)} done)"
         if self._task is not None:
             self.progress.update(self._task, description=description, left=self._left_text())
         if not self.live:
             total = sum(p.step.frames for p in self._plan)
-            self.message(f"{description} ({len(self._done)} done): target {planned.step.target}, "
+            self.message(f"{description}: target {planned.step.target}, "
                          f"{planned.step.frames} frames; frames {self._frames_done}/{total}; "
                          f"lab time left {self._left_text()}")
 
