@@ -17,6 +17,7 @@ import os
 from pathlib import Path
 
 from bench.common import Result, best_of, scratch_dir
+from bench.sim_capture import CAMPAIGN
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.compression import DEFAULT
 from labctl.config import parse_campaign
@@ -28,25 +29,11 @@ from sim.model import default_model_text, parse_model
 FPS = 60.0
 FRAMES = 300
 SCENES = (("wall", 800.0), ("wall", 1500.0), ("wall", 3000.0), ("checkerboard", 800.0))
-CAMPAIGN = """
-[campaign]
-name = "bench"
-[devices.camera]
-backend = "blaze101"
-[devices.stage]
-protocol = "zaber"
-[[procedure]]
-kind = "depth_sweep"
-start_mm = 800
-stop_mm = 800
-step_mm = 100
-frames = 1
-"""
 
 
 def _frames(per_scene: int = 2) -> tuple[list[Frame], CameraInfo]:
     """Simulated blaze-101 frames of the demo's scenes."""
-    lab = build_sim_lab(parse_campaign(CAMPAIGN), parse_model(default_model_text("blaze101")), 1)
+    lab = build_sim_lab(parse_campaign(CAMPAIGN.format(backend="blaze101")), parse_model(default_model_text("blaze101")), 1)
     lab.camera.connect()
     lab.stage.connect()
     frames = []
