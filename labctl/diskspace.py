@@ -17,8 +17,9 @@ import numpy as np
 from labctl.compression import ESTIMATED_RATIO
 from labctl.errors import RunAborted
 
-MARGIN_BYTES = 256 * 2**20
-"""Kept free beyond a step's raw size: HDF5 metadata, the operating system, other programs."""
+MARGIN_BYTES = 64 * 2**20
+"""Kept free beyond a step's raw size (itself 1.7x the compressed size it will take): HDF5 metadata,
+the operating system, other programs."""
 
 
 class DiskSpaceLow(RunAborted, OSError):
