@@ -9,7 +9,6 @@ stores at the raw size) and keep a margin for HDF5 metadata and the rest of the 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -63,8 +62,3 @@ def ensure_free(run_file: Path, needed: int, what: str) -> None:
             f"then continue"
         )
 
-
-def remaining_frames(frames_by_step: Iterable[tuple[str, int]], done: Iterable[str]) -> int:
-    """Frames of the steps not done yet."""
-    finished = set(done)
-    return sum(n for step_id, n in frames_by_step if step_id not in finished)

@@ -3,6 +3,8 @@ fills during a run stops it safely before the next step (file valid, devices saf
 
 from __future__ import annotations
 
+import json
+
 import h5py
 import pytest
 
@@ -47,7 +49,7 @@ def test_plan_states_lab_time_and_file_size(write_campaign, capsys):
     # blaze101 profile: 640 x 480, uint16 confidence; 6 steps x 8 frames, uncompressed
     assert f"run file about {48 * 640 * 480 * 18 / 1e6:.2f} MB" in header and "estimated lab time" in header
     assert invoke("plan", campaign, "--json") == 0
-    doc = __import__("json").loads(capsys.readouterr().out)
+    doc = json.loads(capsys.readouterr().out)
     assert doc["uncompressed_bytes"] == 48 * 640 * 480 * 18
     assert doc["compression"] == "blosc-lz4" and doc["expected_file_bytes"] < doc["uncompressed_bytes"]
 
