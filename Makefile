@@ -1,7 +1,10 @@
 # labctl: the two commands of the README's Quick start.
 #   make demo  - simulated characterization of the four cameras, their reports and their comparison
 #   make test  - the whole test suite
-# Both create (or refresh, when pyproject.toml changed) the virtual environment .venv.
+# Both create (or refresh, when pyproject.toml changed) the virtual environment .venv, then check that
+# every native SDK imports (labctl/setup_check.py): as root a missing system library is installed with
+# apt-get, otherwise the set-up stops with the command to run. No root is needed on Debian/Ubuntu: the
+# one system library (libusb-1.0, for pyrealsense2) comes from the libusb-package wheel.
 
 PYTHON ?= $(shell for p in python3.11 python3.12 python3; do \
 	  command -v $$p >/dev/null 2>&1 && $$p -c 'import sys; sys.exit(not ((3, 11) <= sys.version_info[:2] < (3, 13)))' 2>/dev/null \
@@ -20,6 +23,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m labctl.setup_check --install
 	touch $(STAMP)
 
 test: $(STAMP)

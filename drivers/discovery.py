@@ -45,7 +45,7 @@ def serial_ports() -> Section:
 
 def realsense_devices() -> Section:
     """RealSense devices librealsense sees."""
-    rs = import_sdk("pyrealsense2", "RealSense", realsense.INSTALL)
+    rs = realsense.sdk("RealSense")
     info = rs.camera_info
     found = [f"{d.get_info(info.name)} serial {d.get_info(info.serial_number)}" for d in rs.context().query_devices()]
     return Section("RealSense (pyrealsense2)", True, found)

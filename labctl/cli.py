@@ -15,19 +15,23 @@ from pathlib import Path
 
 import click
 
-from labctl import cli_analyze, cli_devices, cli_export, cli_reconcile, cli_sim
+from drivers.protocols import CameraInfo
+from labctl import cli_analyze, cli_devices, cli_export, cli_info, cli_reconcile, cli_sim
 from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
 from labctl.operator import Operator
+from labctl.compression import COMPRESSIONS
+from labctl.diskspace import ensure_free, format_bytes
 from labctl.outputs import output_directory, output_file
 from labctl.overrides import ATTRIBUTE as OVERRIDES_ATTRIBUTE
 from labctl.overrides import apply_overrides, encode_history, history_entries, parse_overrides, recorded_overrides
-from labctl.planning import format_duration, schedule
+from labctl.planning import expected_run_bytes, format_duration, schedule
 from labctl.progress import EvaluationProgress, Reporter
 from labctl.runner import Runner, bring_to_safe_state, close_all, connect_lab
 from labctl.store import RunWriter, existing_output_advice, labctl_version, now_iso
 from metrics.jsonsafe import dumps_strict
+from procedures.steps import Step
 from sim.model import default_model_text, load_model, parse_model
 
 
@@ -45,15 +49,21 @@ def cli() -> None:
 @cli.command()
 @click.argument("campaign", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="print the plan as one JSON document")
-def plan(campaign: Path, as_json: bool) -> None:
-    """Validate CAMPAIGN and list every step with its estimated lab time (no hardware)."""
+@click.option("--compression", type=click.Choice(COMPRESSIONS), help="size estimate for this storage (default: [runner])")
+def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
+    """Validate CAMPAIGN and list every step with its estimated lab time and the run file's size (no hardware)."""
     config, _ = load_campaign(campaign)
     planned = schedule(config)
     total = sum(p.duration_s for p in planned)
+    compression = compression or config.runner.compression
+    raw_bytes, file_bytes = expected_run_bytes(config, compression)
     if as_json:
         doc = {
             "campaign": config.campaign.name,
             "total_duration_s": round(total, 3),
+            "compression": compression,
+            "expected_file_bytes": file_bytes,
+            "uncompressed_bytes": raw_bytes,
             "steps": [
                 {
                     "step_id": p.step.step_id,
@@ -74,7 +84,10 @@ def plan(campaign: Path, as_json: bool) -> None:
         }
         click.echo(dumps_strict(doc, indent=2))
         return
-    click.echo(f"campaign {config.campaign.name}: {len(planned)} steps, estimated lab time {format_duration(total)}")
+    size = f"run file about {format_bytes(file_bytes)}"
+    if compression != "none":
+        size += f" ({compression}; {format_bytes(raw_bytes)} uncompressed)"
+    click.echo(f"campaign {config.campaign.name}: {len(planned)} steps, estimated lab time {format_duration(total)}, {size}")
     click.echo(f"{'step':<24} {'target':<12} {'distance':>9} {'angle':>6} {'frames':>6} {'start':>12} {'duration':>10}")
     for p in planned:
         s = p.step
@@ -92,6 +105,13 @@ def plan(campaign: Path, as_json: bool) -> None:
 def _sim_lab_from(campaign: Campaign, model_text: str, model_source: str, seed: int) -> Lab:
     model = parse_model(model_text, model_source)
     return build_sim_lab(campaign, model, seed)
+
+
+def _ensure_room(run_file: Path, campaign: Campaign, compression: str, steps: list[Step], camera: CameraInfo) -> None:
+    """Refuse to start (exit 1) when the disk cannot hold the expected size of the steps to run."""
+    raw, expected = expected_run_bytes(campaign, compression, steps, camera)
+    ensure_free(run_file, expected, f"the run's {len(steps)} remaining step(s) (about {format_bytes(expected)} "
+                                    f"with compression {compression}; {format_bytes(raw)} uncompressed)")
 
 
 def _execute(
@@ -113,9 +133,11 @@ INTERACTIVE_HELP = ("with --sim: ask at every operator prompt as on real hardwar
 @click.option("--model", type=click.Path(dir_okay=False, path_type=Path), help="simulation model file (with --sim)")
 @click.option("--seed", type=click.IntRange(min=0), help="simulation seed (default: [sim].seed)")
 @click.option("--interactive", is_flag=True, help=INTERACTIVE_HELP)
+@click.option("--compression", type=click.Choice(COMPRESSIONS), help="how frames are stored (default: [runner] compression)")
 @click.option("--quiet", is_flag=True, help="no progress output")
 def run(
-    campaign: Path, output: Path, sim: bool, model: Path | None, seed: int | None, interactive: bool, quiet: bool
+    campaign: Path, output: Path, sim: bool, model: Path | None, seed: int | None, interactive: bool,
+    compression: str | None, quiet: bool
 ) -> None:
     """Run CAMPAIGN into the run file OUTPUT."""
     config, text = load_campaign(campaign)
@@ -124,6 +146,7 @@ def run(
     output_file(output, "-o")
     if (model is not None or seed is not None) and not sim:
         raise InputError("--model and --seed only apply to simulated runs (--sim)")
+    compression = compression or config.runner.compression
     reporter = Reporter(quiet=quiet)
     if sim:
         if model is not None:
@@ -139,6 +162,7 @@ def run(
         sim_record = None
     connect_lab(lab, reporter.message, Operator(automatic=lab.simulated, report=reporter.message))
     try:
+        _ensure_room(output, config, compression, config.steps(), lab.camera.info())
         writer = RunWriter.create(
             output,
             campaign_toml=text,
@@ -146,6 +170,7 @@ def run(
             devices={role: (dev.identity(), dev.settings()) for role, dev in lab.devices().items()},
             camera=lab.camera.info(),
             sim=sim_record,
+            compression=compression,
         )
     except BaseException:
         bring_to_safe_state(lab, reporter.message)
@@ -186,6 +211,9 @@ def resume(run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], inter
         if new and simulated:
             raise InputError(f"{run_file} is a simulated run: --port and --host apply to runs on real hardware")
         config = parse_campaign(_stored_text(writer, "/", "campaign_toml"), f"{run_file} (stored campaign)")
+        done = writer.completed()
+        _ensure_room(run_file, config, writer.compression, [s for s in config.steps() if s.step_id not in done],
+                     writer.camera_info())
         history = recorded_overrides(writer.attrs, str(run_file))
         config = apply_overrides(config, [(e["role"], e["field"], e["value"]) for e in history], str(run_file))
         stored, config = config, apply_overrides(config, new, str(run_file))
@@ -257,6 +285,7 @@ cli.add_command(cli_sim.sim_group)
 cli.add_command(cli_analyze.analyze_group)
 cli.add_command(cli_export.export)
 cli.add_command(cli_reconcile.reconcile)
+cli.add_command(cli_info.info)
 
 
 # ---------------------------------------------------------------------- entry point

@@ -186,6 +186,7 @@ class RunnerConfig(StrictModel):
     backoff_s: float = Field(0.5, ge=0, le=60, description="first retry delay, doubled each time")
     backoff_max_s: float = Field(10.0, ge=0, le=600)
     operator_time_s: float = Field(60.0, ge=0, description="lab time planned per operator prompt")
+    compression: Literal["blosc-lz4", "none"] = Field("blosc-lz4", description="how run files store frames")
 
 
 ProcedureEntry = Annotated[ProcedureConfig, Field(discriminator="kind")]

@@ -5,13 +5,17 @@ moves |delta angle| / speed + 1 s, each laser reading 0.3 s, a stack
 frames / frame rate + 0.5 s set-up, and every operator prompt the campaign's
 ``runner.operator_time_s``. Simulated devices spend exactly these times on
 their virtual clock, so a dry run predicts the lab time of the real one.
+The expected run-file size is the frames' raw size over the compression's
+planning ratio (labctl.compression.ESTIMATED_RATIO).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from drivers.protocols import CameraInfo
 from labctl.config import Campaign
+from labctl.diskspace import expected_file_bytes, frame_bytes
 from procedures.steps import Step
 from sim.profiles import get_profile
 
@@ -71,6 +75,21 @@ def schedule(campaign: Campaign) -> list[PlannedStep]:
         planned.append(PlannedStep(step, position, t, duration))
         t += duration
     return planned
+
+
+def expected_run_bytes(
+    campaign: Campaign, compression: str, steps: list[Step] | None = None, camera: CameraInfo | None = None
+) -> tuple[int, int]:
+    """(raw, stored) bytes of the frames of ``steps`` (default: every step) at the resolution of
+    ``camera`` (default: the camera profile's); stored = raw / the compression's planning ratio."""
+    if camera is None:
+        profile = get_profile(campaign.devices.camera.sim_profile)
+        width, height, confidence = profile.width, profile.height, profile.confidence_dtype
+    else:
+        width, height, confidence = camera.width, camera.height, camera.confidence_dtype
+    frames = sum(s.frames for s in (campaign.steps() if steps is None else steps))
+    return frames * frame_bytes(width, height, confidence), expected_file_bytes(frames, width, height, confidence,
+                                                                               compression)
 
 
 def format_duration(seconds: float) -> str:

@@ -1,8 +1,9 @@
-"""Progress with ETA on stderr (rich): frames of a run, steps of an evaluation; plus log lines."""
+"""Progress on stderr (rich): steps, frames and planned lab time left of a run, steps of an evaluation; log lines."""
 
 from __future__ import annotations
 
 import sys
+from collections.abc import Collection, Sequence
 
 from rich.console import Console
 from rich.progress import (
@@ -11,39 +12,91 @@ from rich.progress import (
     Progress,
     TextColumn,
     TimeElapsedColumn,
+    TaskID,
     TimeRemainingColumn,
 )
 
+from labctl.planning import PlannedStep, format_duration
+
 
 class Reporter:
-    """Shows frames captured out of the plan's total and the estimated time left."""
+    """Progress of a run: the step (k of n) and steps done, frames captured out of the plan's total,
+    and the lab time left as planned (labctl.planning: moves, settling, laser readings, operator
+    prompts and captures of the current and the remaining steps), not a frame-rate extrapolation,
+    so a run waiting at a prompt shows the time the rest of the campaign still needs.
 
-    def __init__(self, quiet: bool = False) -> None:
-        self.console = Console(stderr=True, quiet=quiet, highlight=False)
+    On a terminal a live bar; otherwise (log file, pipe) one line per step event and no wrapping.
+    """
+
+    def __init__(self, quiet: bool = False, console: Console | None = None) -> None:
+        self.console = console or Console(stderr=True, quiet=quiet, highlight=False, soft_wrap=True)
+        self.live = self.console.is_terminal
         self.progress = Progress(
             TextColumn("{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
             TextColumn("frames"),
             TimeElapsedColumn(),
-            TextColumn("ETA"),
-            TimeRemainingColumn(),
+            TextColumn("lab time left {task.fields[left]}"),
             console=self.console,
             transient=False,
+            disable=not self.live,
         )
-        self._task = None
+        self._task: TaskID | None = None
+        self._plan: list[PlannedStep] = []
+        self._done: set[str] = set()
+        self._current: PlannedStep | None = None
+        self._captured = 0
+        self._frames_done = 0
 
-    def start(self, total_frames: int, done_frames: int) -> None:
+    def start(self, plan: Sequence[PlannedStep], done: Collection[str]) -> None:
+        """Begin a run of ``plan`` whose steps ``done`` are already complete (resume)."""
+        self._plan = list(plan)
+        self._done = {p.step.step_id for p in self._plan} & set(done)
+        self._frames_done = sum(p.step.frames for p in self._plan if p.step.step_id in self._done)
+        total = sum(p.step.frames for p in self._plan)
         self.progress.start()
-        self._task = self.progress.add_task("run", total=total_frames, completed=done_frames)
+        self._task = self.progress.add_task("run", total=total, completed=self._frames_done, left=self._left_text())
+        if not self.live:
+            self.message(f"run: {len(self._plan)} steps ({len(self._done)} done), frames {self._frames_done}/{total}, "
+                         f"lab time left {self._left_text()}")
 
-    def step(self, step_id: str) -> None:
+    def lab_time_left_s(self) -> float:
+        """Planned lab time of the steps not done: the current one pro rata of its frames, the rest in full."""
+        left = 0.0
+        for p in self._plan:
+            if p.step.step_id in self._done:
+                continue
+            if self._current is not None and p.step.step_id == self._current.step.step_id:
+                left += p.duration_s * (1.0 - min(self._captured, p.step.frames) / max(p.step.frames, 1))
+            else:
+                left += p.duration_s
+        return left
+
+    def _left_text(self) -> str:
+        return format_duration(self.lab_time_left_s())
+
+    def step(self, planned: PlannedStep) -> None:
+        """A step starts (its prompt, moves and capture follow)."""
+        if self._current is not None:
+            self._done.add(self._current.step.step_id)
+        self._current, self._captured = planned, 0
+        ids = [p.step.step_id for p in self._plan]
+        position = ids.index(planned.step.step_id) + 1 if planned.step.step_id in ids else len(ids)
+        description = f"step {position}/{len(ids)} {planned.step.step_id} ({len(self._done)} done)"
         if self._task is not None:
-            self.progress.update(self._task, description=step_id)
+            self.progress.update(self._task, description=description, left=self._left_text())
+        if not self.live:
+            total = sum(p.step.frames for p in self._plan)
+            self.message(f"{description}: target {planned.step.target}, "
+                         f"{planned.step.frames} frames; frames {self._frames_done}/{total}; "
+                         f"lab time left {self._left_text()}")
 
     def frames(self, n: int = 1) -> None:
+        self._captured += n
+        self._frames_done += n
         if self._task is not None:
-            self.progress.advance(self._task, n)
+            self.progress.update(self._task, advance=n, left=self._left_text())
 
     def message(self, text: str) -> None:
         self.console.print(text, markup=False)

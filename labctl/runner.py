@@ -157,8 +157,7 @@ class Runner:
             offset = attrs.get("camera_laser_offset_mm")
             if offset is not None and math.isfinite(offset):
                 self.offset_mm = float(offset)
-        total = sum(p.step.frames for p in plan)
-        self.reporter.start(total, sum(p.step.frames for p in plan if p.step.step_id in done))
+        self.reporter.start(plan, done)
         try:
             with self.stop.installed():
                 for planned in plan:
@@ -225,7 +224,7 @@ class Runner:
             step = dataclasses.replace(step, distance_mm=self._resolved_distance(step))
             position = self._stage_position(step.distance_mm)
         lab.begin_step(step, planned.start_s)
-        self.reporter.step(step.step_id)
+        self.reporter.step(planned)
         faults: list[dict[str, Any]] = []
         if step.prompt:
             self._confirm(step.prompt)

@@ -6,15 +6,17 @@ loss during a stack). The writer therefore
 * creates the file under a temporary name and renames it into place, so the
   path either does not exist or holds a valid file;
 * creates a step's group and datasets, then flushes, before the first frame;
-* allocates every dataset at creation (``ALLOC_TIME_EARLY``, uncompressed, one
-  chunk per frame), so writing frames is pure raw-data I/O that never touches
-  HDF5 metadata;
+* stores one frame per chunk, compressed losslessly by default (labctl.compression;
+  ``compression = "none"``: allocated at creation, ``ALLOC_TIME_EARLY``, and written
+  as raw chunks); the metadata cache never evicts while the file is open, so HDF5
+  metadata reaches the disk only at the flushes below, and a crash between them
+  leaves the file as it was at the last one;
+* checks before each step that the disk has room for it (labctl.diskspace), so
+  a run stops before the disk fills;
 * writes the step's attributes at the end, ``complete = True`` last, then
   flushes and fsyncs.
 
 A step without ``complete = True`` is unfinished and is discarded by resume.
-Data are stored uncompressed: noisy float depth compresses poorly, and raw
-writes keep up with the fastest camera (see bench/).
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ import h5py
 import numpy as np
 
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
+from labctl import compression as codecs
+from labctl.diskspace import ensure_free, frame_bytes
 from labctl.errors import InputError
 from procedures.steps import Step
 
@@ -70,6 +74,16 @@ class FrameError(ValueError):
     """A frame from a camera that does not fit the announced format."""
 
 
+def _keep_metadata_until_flush(f: h5py.File) -> None:
+    """Disable metadata-cache evictions (H5Pset_mdc_config: ``evictions_enabled`` needs the automatic
+    resize modes off): dirty metadata, such as the chunk index of compressed frames, reaches the file
+    only at an explicit flush, never half-way through a step."""
+    config = f.id.get_mdc_config()
+    config.incr_mode = config.flash_incr_mode = config.decr_mode = 0
+    config.evictions_enabled = False
+    f.id.set_mdc_config(config)
+
+
 def _early_alloc_dcpl() -> h5py.h5p.PropDCID:
     dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
     dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
@@ -87,6 +101,8 @@ class StepWriter:
         self.confidence_dtype = np.dtype(camera.confidence_dtype)
         self._datasets = {name: group[name] for name in CHANNELS}
         self._timestamps = group["timestamp"]
+        self._raw_chunks = run.compression == "none"
+        self._frame_space = h5py.h5s.create_simple((1, *self.shape))
 
     def write(self, k: int, frame: Frame) -> None:
         """Store frame ``k`` of the stack; FrameError if its arrays do not fit."""
@@ -97,8 +113,14 @@ class StepWriter:
             if array.shape != self.shape:
                 raise FrameError(f"frame {k}: {name} has shape {array.shape}, expected {self.shape}")
             dtype = self.confidence_dtype if name == "confidence" else np.float32
-            # one frame is exactly one uncompressed chunk: write it without HDF5's selection machinery
-            self._datasets[name].id.write_direct_chunk((k, 0, 0), np.ascontiguousarray(array, dtype=dtype))
+            data = np.ascontiguousarray(array, dtype=dtype)
+            dataset = self._datasets[name].id
+            if self._raw_chunks:  # one frame is exactly one uncompressed chunk: no selection or filter machinery
+                dataset.write_direct_chunk((k, 0, 0), data)
+            else:  # one chunk through the filter pipeline
+                space = dataset.get_space()
+                space.select_hyperslab((k, 0, 0), (1, *self.shape))
+                dataset.write(self._frame_space, space, data.reshape(1, *self.shape))
         self._timestamps[k] = float(frame.timestamp)
 
     def commit(self, attrs: Mapping[str, Any]) -> None:
@@ -120,6 +142,7 @@ class RunWriter:
         except OSError as exc:
             raise InputError(f"cannot open run file {self.path} for writing: {exc}") from None
         _check_format(self.file, self.path)
+        _keep_metadata_until_flush(self.file)
 
     # ------------------------------------------------------------------ create
     @classmethod
@@ -132,9 +155,12 @@ class RunWriter:
         devices: Mapping[str, tuple[DeviceIdentity, Mapping[str, Any]]],
         camera: CameraInfo,
         sim: tuple[str, int] | None = None,
+        compression: str = codecs.DEFAULT,
     ) -> RunWriter:
-        """Create a new run file (atomically: written aside, then renamed into place)."""
+        """Create a new run file (atomically: written aside, then renamed into place); frames are
+        stored with ``compression`` (one of labctl.compression.COMPRESSIONS)."""
         path = Path(path)
+        codecs.dataset_options(compression)  # an unknown name fails before anything is written
         if path.exists():
             raise InputError(existing_output_advice(path))
         tmp = path.with_name(f".{path.name}.creating")
@@ -147,6 +173,7 @@ class RunWriter:
                 campaign_toml=campaign_toml,
                 status="running",
                 simulated=bool(simulated),
+                compression=compression,
             )
             for role, (ident, settings) in devices.items():
                 g = f.create_group(f"devices/{role}")
@@ -175,6 +202,12 @@ class RunWriter:
 
     def camera_info(self) -> CameraInfo:
         return _camera_info(self.file)
+
+    @property
+    def compression(self) -> str:
+        """How frames are stored (files written before compression existed: ``none``)."""
+        value = self.file.attrs.get("compression", "none")
+        return value.decode() if isinstance(value, bytes) else str(value)
 
     def completed(self) -> dict[str, dict[str, Any]]:
         """Attributes of every complete step, by step id."""
@@ -209,11 +242,14 @@ class RunWriter:
 
     # ------------------------------------------------------------------ steps
     def begin_step(self, step: Step, stage_position_mm: float | None) -> StepWriter:
-        """Create the step's group and pre-allocated datasets, marked incomplete."""
+        """Create the step's group and datasets, marked incomplete; DiskSpaceLow (before anything
+        is written) if the disk has no room for the step's raw size."""
+        camera = self.camera_info()
+        ensure_free(self.path, step.frames * frame_bytes(camera.width, camera.height, camera.confidence_dtype),
+                    f"step {step.step_id} ({step.frames} frames)")
         steps = self.file["steps"]
         if step.step_id in steps:
             del steps[step.step_id]
-        camera = self.camera_info()
         g = steps.create_group(step.step_id)
         g.attrs.update(
             complete=False,
@@ -229,12 +265,17 @@ class RunWriter:
             started=now_iso(),
         )
         n, h, w = step.frames, camera.height, camera.width
+        compression = self.compression
         for name in CHANNELS:
             dtype = camera.confidence_dtype if name == "confidence" else "float32"
-            g.create_dataset(
-                name, shape=(n, h, w), dtype=dtype, chunks=(1, h, w),
-                dcpl=_early_alloc_dcpl(), fill_time="never",
-            )
+            if compression == "none":
+                g.create_dataset(
+                    name, shape=(n, h, w), dtype=dtype, chunks=(1, h, w),
+                    dcpl=_early_alloc_dcpl(), fill_time="never",
+                )
+            else:
+                g.create_dataset(name, shape=(n, h, w), dtype=dtype, chunks=(1, h, w),
+                                 **codecs.dataset_options(compression))
         g.create_dataset("timestamp", shape=(n,), dtype="float64", dcpl=_early_alloc_dcpl(), fill_time="never")
         _fsync(self.file)
         return StepWriter(self, g, step, camera)

@@ -10,6 +10,11 @@ from pathlib import Path
 
 import pytest
 
+from drivers.libusb import ensure_libusb
+
+# test modules import pyrealsense2 directly: resolve its libusb first (the system's or libusb-package's)
+ensure_libusb()
+
 if os.environ.get("PYTEST_XDIST_WORKER"):
     # one pytest-xdist worker per core: the compiled kernels run single-threaded in each, instead of
     # every worker starting a thread per core (oversubscribed, the suite ran twice as long)

@@ -28,9 +28,10 @@ import numpy as np
 
 from drivers.camera.frames import import_sdk, invalidate
 from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame
+from drivers.libusb import ensure_libusb
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 
-INSTALL = "pip install pyrealsense2 (on Debian/Ubuntu it also needs the system package libusb-1.0-0)"
+INSTALL = "pip install pyrealsense2 libusb-package (or the system package libusb-1.0-0 instead of libusb-package)"
 WAVELENGTH_NM = 850.0
 """D4xx IR projector and IR-pass imagers (Intel RealSense D400 Series datasheet, "Projector")."""
 PIXEL_PITCH_UM = {"D415": 1.4, "D435": 3.0, "D455": 3.0, "D457": 3.0}
@@ -41,8 +42,10 @@ SETTINGS = ("mode", "projector", "laser_power", "filters")
 """Campaign ``settings`` keys this backend understands."""
 
 
-def _sdk() -> ModuleType:
-    return import_sdk("pyrealsense2", "RealSense camera", INSTALL)
+def sdk(device: str = "RealSense camera") -> ModuleType:
+    """pyrealsense2, with libusb resolved first (drivers.libusb)."""
+    ensure_libusb()
+    return import_sdk("pyrealsense2", device, INSTALL)
 
 
 def depth_filters(rs: ModuleType) -> list[Any]:
@@ -131,7 +134,7 @@ class RealSenseCamera:
         recording (``rs.config.resolve``) and read its streams."""
         if self._profile is not None:
             return
-        rs = self._rs = _sdk()
+        rs = self._rs = sdk()
         self._pointcloud = rs.pointcloud()
         if self.playback is not None:
             self._inspect_recording(rs)

@@ -12,15 +12,16 @@ from labctl.errors import InputError
 from labctl.store import CHANNELS, FrameError, RunReader, RunWriter
 from procedures.steps import Step
 
+BLOSC_FILTER_ID = 32001
 CAMERA = CameraInfo(width=8, height=6, fov_deg=(67.0, 51.0), pixel_pitch_um=10.0, frame_rate_hz=30.0,
                     wavelength_nm=940.0, confidence_dtype="uint16")
 
 
-def make_run(path, sim=None):
+def make_run(path, sim=None, **kwargs):
     return RunWriter.create(
         path, campaign_toml="[campaign]\nname='x'\n", simulated=sim is not None,
         devices={"camera": (DeviceIdentity("sim", "cam", "S1", "1.0"), {"exposure_us": 100})},
-        camera=CAMERA, sim=sim,
+        camera=CAMERA, sim=sim, **kwargs,
     )
 
 
@@ -42,7 +43,8 @@ def test_layout_matches_contract(tmp_path):
     run.close()
     with h5py.File(path, "r") as f:
         assert f.attrs["format"] == "labctl-run" and f.attrs["format_version"] == 1
-        for key in ("labctl_version", "created", "campaign_toml", "status", "simulated"):
+        assert f.attrs["compression"] == "blosc-lz4"
+        for key in ("labctl_version", "created", "campaign_toml", "status", "simulated", "compression"):
             assert key in f.attrs
         assert f.attrs["status"] == "complete" and bool(f.attrs["simulated"])
         assert f["devices/camera"].attrs["serial"] == "S1"
@@ -56,11 +58,47 @@ def test_layout_matches_contract(tmp_path):
         assert math.isnan(g.attrs["robot_angle_deg"])
         for name in ("x", "y", "z", "intensity"):
             assert g[name].shape == (3, 6, 8) and g[name].dtype == np.float32
-            assert g[name].chunks == (1, 6, 8) and g[name].compression is None
+            assert g[name].chunks == (1, 6, 8)
+            # the Blosc filter: HDF5 registered filter 32001 (The HDF Group, "Registered Filter Plugins")
+            assert g[name].id.get_create_plist().get_filter(0)[0] == BLOSC_FILTER_ID
         assert g["confidence"].dtype == np.uint16
         assert g["timestamp"].dtype == np.float64 and g["timestamp"].shape == (3,)
         np.testing.assert_array_equal(g["z"][:, 0, 0], [1000, 1001, 1002])
         assert f["sim"].attrs["seed"] == 3
+
+
+@pytest.mark.parametrize("compression", ["blosc-lz4", "none"])
+def test_frames_read_back_bit_exact(tmp_path, compression):
+    """Lossless: every bit of noisy float depth, NaN holes and uint16 confidence comes back."""
+    rng = np.random.default_rng(1)
+    path = tmp_path / "r.h5"
+    run = make_run(path, compression=compression)
+    writer = run.begin_step(Step(index=0, procedure="depth_sweep", target="wall", frames=4, distance_mm=1000.0), 1000.0)
+    written = []
+    for k in range(4):
+        z = (1000 + rng.standard_normal((6, 8))).astype(np.float32)
+        z[rng.random((6, 8)) < 0.2] = np.nan
+        f = Frame(z * 0.1, z * 0.2, z, rng.random((6, 8), np.float32), rng.integers(0, 65535, (6, 8), np.uint16), k)
+        writer.write(k, f)
+        written.append(f)
+    writer.commit({})
+    run.close()
+    with RunReader(path) as reader:
+        rec = reader.step("00000_depth_sweep")
+        assert reader.attrs["compression"] == compression
+        for name in CHANNELS:
+            expected = np.stack([getattr(f, name) for f in written])
+            stored = rec.read(name)
+            assert stored.dtype == expected.dtype
+            assert stored.tobytes() == expected.tobytes(), name
+        filters = rec.group["z"].id.get_create_plist().get_nfilters()
+        assert filters == (0 if compression == "none" else 1)
+
+
+def test_unknown_compression_is_refused_before_writing(tmp_path):
+    with pytest.raises(ValueError, match="unknown compression 'zip'"):
+        make_run(tmp_path / "r.h5", compression="zip")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_nothing_outside_sim_mentions_the_model(tmp_path):
