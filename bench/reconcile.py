@@ -19,9 +19,9 @@ import tomli_w
 
 from bench.common import Result, best_of, scratch_dir
 from labctl.cli import main as labctl_main
+from labctl.reconcile.observe import MAX_FRAMES
+from labctl.reconcile.workflow import reconcile
 from sim.profiles import default_effects, get_profile
-from sim.reconcile.observe import MAX_FRAMES
-from sim.reconcile.workflow import reconcile
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 BUDGET_S = 60.0

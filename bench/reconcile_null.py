@@ -1,7 +1,7 @@
 """Calibrate the reconcile threshold: simulated-vs-simulated runs with nothing hidden.
 
 ``python -m bench.reconcile_null [SEEDS]`` simulates the reconcile test
-campaign (tests/sim/test_reconcile.py) for every camera profile and SEEDS
+campaign (tests/labctl/test_reconcile.py) for every camera profile and SEEDS
 seeds (default 10) from the built-in model, reconciles each against the same
 model and prints the best candidate's dBIC per run, the largest over all runs
 and the false-positive rate at ``DBIC_THRESHOLD``. Not a budget benchmark.
@@ -13,8 +13,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from sim.reconcile.workflow import DBIC_THRESHOLD, reconcile
-from tests.sim.test_reconcile import SIZES, measured_run
+from labctl.reconcile.workflow import DBIC_THRESHOLD, reconcile
+from tests.labctl.test_reconcile import SIZES, measured_run
 
 
 def main(seeds: int) -> int:

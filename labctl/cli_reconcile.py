@@ -21,9 +21,9 @@ from labctl.progress import Reporter
 def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bool, quiet: bool) -> None:
     """Find where the simulation disagrees with MEASURED, name the missing effects, fit them and write
     OUTPUT/reconcile.json, OUTPUT/reconcile.html and the corrected OUTPUT/model.toml."""
+    from labctl.reconcile.report import write_reconcile
+    from labctl.reconcile.workflow import reconcile as run_reconcile
     from sim.model import load_model
-    from sim.reconcile.report import write_reconcile
-    from sim.reconcile.workflow import reconcile as run_reconcile
 
     reporter = Reporter(quiet=quiet)
     model = load_model(model_path)[0] if model_path is not None else None

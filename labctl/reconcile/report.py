@@ -14,9 +14,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from labctl.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
 from labctl.report import CSS as REPORT_CSS  # noqa: E402
 from labctl.store import labctl_version, now_iso  # noqa: E402
-from sim.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
 
 CSS = REPORT_CSS + ".verdict{font-size:1.3em;font-weight:600}\n"
 
@@ -105,7 +105,7 @@ def plot_residual_map(result: ReconcileResult, path: Path) -> Path:
 
 def plot_candidates(result: ReconcileResult, path: Path) -> Path:
     """Every round's candidate scores (dBIC over steps) against the threshold."""
-    from sim.reconcile.workflow import DBIC_THRESHOLD
+    from labctl.reconcile.workflow import DBIC_THRESHOLD
 
     rounds = [it for it in result.iterations if it.fits]
     fig, axes = plt.subplots(1, max(len(rounds), 1), figsize=(4.2 * max(len(rounds), 1), 3.6), squeeze=False)

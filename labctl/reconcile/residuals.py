@@ -34,8 +34,8 @@ from functools import cached_property
 import numpy as np
 from scipy import ndimage
 
-from sim.reconcile.observe import Observation
-from sim.reconcile.predict import Prediction
+from labctl.reconcile.observe import Observation
+from labctl.reconcile.predict import Prediction
 
 MIN_VALID_FRACTION = 0.9
 Z_FLOOR_MM = 0.02

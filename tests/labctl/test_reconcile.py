@@ -24,10 +24,10 @@ import pytest
 import tomli_w
 
 from labctl.cli import main
+from labctl.reconcile.score import delta_bic, loso_gain
+from labctl.reconcile.workflow import reconcile
 from sim.model import parse_model
 from sim.profiles import default_effects, get_profile
-from sim.reconcile.score import delta_bic, loso_gain
-from sim.reconcile.workflow import reconcile
 
 SIZES = {"blaze101": (160, 120), "amt100": (160, 120), "flexx2": (224, 172), "d455": (160, 120)}
 BACKENDS = {"blaze101": "blaze", "amt100": "amt100", "flexx2": "flexx2", "d455": "realsense"}

@@ -2,9 +2,9 @@
 
 1. Observe the measured run (bin means of z and intensity, their variances,
    the frames' times; ``/sim`` is never read) and re-simulate every step with
-   the current model on the bin grid (sim/reconcile/predict.py).
-2. Residuals with the lab's nuisance profiled out (sim/reconcile/residuals.py).
-3. Score every candidate effect not yet in the model (sim/reconcile/score.py):
+   the current model on the bin grid (labctl/reconcile/predict.py).
+2. Residuals with the lab's nuisance profiled out (labctl/reconcile/residuals.py).
+3. Score every candidate effect not yet in the model (labctl/reconcile/score.py):
    dBIC over steps, leave-one-step-out gain, margin over the runner-up.
 4. The winner, if its dBIC passes ``DBIC_THRESHOLD`` and it predicts held-out
    steps, is refined by nonlinear least squares on full re-simulations
@@ -33,13 +33,13 @@ import tomli_w
 from scipy import optimize
 
 from labctl.errors import InputError
+from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
+from labctl.reconcile.observe import Observation, observe_run
+from labctl.reconcile.predict import Prediction, Predictor
+from labctl.reconcile.residuals import Layout, depth_gap_mm, intensity_gap_pct, layout, raw_residuals
+from labctl.reconcile.score import Fit, score
 from sim.model import SimModel, parse_model
 from sim.profiles import default_effects, get_profile
-from sim.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
-from sim.reconcile.observe import Observation, observe_run
-from sim.reconcile.predict import Prediction, Predictor
-from sim.reconcile.residuals import Layout, depth_gap_mm, intensity_gap_pct, layout, raw_residuals
-from sim.reconcile.score import Fit, score
 
 DBIC_THRESHOLD = 30.0
 MARGIN = 10.0
