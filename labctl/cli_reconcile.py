@@ -38,6 +38,13 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
         click.echo(json.dumps(doc, indent=2))
         return
     named = ", ".join(e["name"] for e in result.named) or "nothing significant"
-    reporter.message(f"verdict: {result.verdict} ({named}); gap {result.gap_before:.3f} -> {result.gap_after:.3f} mm")
+    if result.not_comparable is not None:
+        reporter.message(f"verdict: not_comparable ({result.not_comparable['reason']}); would need: "
+                         + ", ".join(result.not_comparable["procedures_needed"]))
+    else:
+        reporter.message(f"verdict: {result.verdict} ({named}); gap {result.gap_before:.3f} -> {result.gap_after:.3f} mm"
+                         f" (noise floor {doc['gap_floor']:.3f} mm)")
+    if result.unexplained is not None:
+        reporter.message(result.unexplained["message"])
     reporter.message(f"corrected model: {model_file}")
     click.echo(f"report: {report}")

@@ -125,8 +125,9 @@ def test_two_hidden_effects_are_both_named(tmp_path):
 @pytest.mark.parametrize("camera,seed", [(c, s) for c in sorted(SIZES) for s in (5, 6)])
 def test_nothing_hidden_names_nothing(camera, seed, tmp_path):
     result = reconcile(measured_run(tmp_path, camera, {}, seed=seed))
-    assert result.verdict == "none", result.candidates
-    assert result.named == []
+    assert result.verdict == "none", (result.candidates, result.goodness_after.summary())
+    assert result.named == [] and result.empirical == []
+    assert result.goodness_after.consistent and result.gap_after <= result.goodness_after.gap_floor_mm
 
 
 def test_cli_writes_the_contract_outputs(tmp_path):
