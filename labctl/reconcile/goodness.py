@@ -1,11 +1,14 @@
 """Goodness of fit: is the remaining residual consistent with the noise the stacks themselves show?
 
-For every step and residual family (depth in mm, intensity in % of ln I) the
-*step gap* is the systematic RMS of the profiled residual with the bin means'
-own noise variance (estimated from the stack) subtracted, exactly as the
-run's gap (``residuals.depth_gap_mm``). Its *floor* is the noise level of one
-bin mean of that step, combined with what the comparison itself cannot
-resolve:
+The run's gap (``gap_before``, ``gap_after`` of reconcile.json), in mm: the RMS over every usable bin of every step
+of the systematic mean-depth residual (measured minus simulated bin mean, the
+lab's nuisance removed), with the bin means' own noise variance (estimated
+from the stacks) subtracted: sqrt(max(0, mean(r^2 - var))). The intensity
+gap is the same for ln I in % (each step's gain removed; the gap that
+vignetting, which leaves depth alone, closes). For every step and family
+the *step gap* is the same over that step's bins. Its *floor* is the noise
+level of one bin mean of that step, combined with what the comparison itself
+cannot resolve:
 
     floor_s^2 = mean_s(var_bin) + Z_FLOOR_MM^2 + REFERENCE_NOISE_MM^2 (stage steps)
 

@@ -1,4 +1,4 @@
-"""The reconcile workflow (DESIGN "Reconcile", CONTRACTS §6).
+"""The reconcile workflow (docs/reconcile.md).
 
 1. Observe the measured run (bin means of z and intensity, their variances,
    the frames' times; ``/sim`` is never read) and re-simulate every step with
@@ -50,7 +50,7 @@ from labctl.reconcile.empirical import FIRST_FORM, FORMS
 from labctl.reconcile.goodness import Goodness, goodness
 from labctl.reconcile.observe import Observation, observe_run
 from labctl.reconcile.predict import Prediction, Predictor
-from labctl.reconcile.residuals import Layout, depth_gap_mm, intensity_gap_pct, layout, raw_residuals
+from labctl.reconcile.residuals import Layout, layout, raw_residuals
 from labctl.reconcile.score import Fit, score
 from sim.model import SimModel, parse_model
 from sim.profiles import default_effects, get_profile
@@ -157,13 +157,6 @@ class Simulation:
     def predict(self, model: SimModel) -> list[Prediction]:
         predictor = self.predictor(model)
         return [predictor.predict(o.scene, o.times_s - self.t0_s) for o in self.observations]
-
-
-def gaps(lay: Layout, obs: list[Observation], dz: list[np.ndarray], di: list[np.ndarray]) -> tuple[float, float]:
-    """(depth gap in mm, intensity gap in %) of the residual maps ``dz``, ``di`` (``raw_residuals``)."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        log_var = [o.intensity_var / o.intensity**2 for o in obs]
-    return depth_gap_mm(lay, dz, [o.z_var for o in obs]), intensity_gap_pct(lay, di, log_var)
 
 
 def competing(a: Fit, b: Fit) -> bool:
@@ -404,8 +397,8 @@ def reconcile(path: str | Path, model: SimModel | None = None,
         return _not_comparable(observations, info, model, notes, f"{_comparable_steps(lay)} step(s) with compared "
                                f"bins; at least {MIN_STEPS} are needed to tell an effect from the lab's nuisance")
     state = _State(sim, lay, model)
-    gap_before, igap_before = gaps(lay, observations, state.dz, state.di)
     good_before = state.good
+    gap_before, igap_before = good_before.gap_mm, good_before.intensity_gap_pct
     iterations: list[Iteration] = []
     named: list[dict[str, Any]] = []
     ambiguity = None
@@ -422,8 +415,7 @@ def reconcile(path: str | Path, model: SimModel | None = None,
             if fit is not None:
                 fits.append((fit, candidate))
         fits.sort(key=lambda fc: -fc[0].score)
-        gap, igap = gaps(lay, observations, state.dz, state.di)
-        iteration = Iteration(sorted(state.model.effects), gap, [f for f, _ in fits], "none significant",
+        iteration = Iteration(sorted(state.model.effects), state.good.gap_mm, [f for f, _ in fits], "none significant",
                               _residual_maps(lay, state.dz), state.good)
         iterations.append(iteration)
         if not first_candidates:
@@ -471,7 +463,7 @@ def reconcile(path: str | Path, model: SimModel | None = None,
         say("characterizing the unexplained residual")
         unexplained = characterize(observations, state.preds, residual_physical, sim.t0_s)
         empirical = _add_empirical(state, unexplained["carrying_axis"], say)
-    gap_after, igap_after = gaps(lay, observations, state.dz, state.di)
+    gap_after, igap_after = state.good.gap_mm, state.good.intensity_gap_pct
     if good_physical.consistent:
         verdict = "effect_found" if named else "none"
     elif ambiguity is not None:
@@ -507,7 +499,7 @@ def _rounded(value: float) -> float | None:
 
 
 def json_document(result: ReconcileResult, model_path: Path) -> dict[str, Any]:
-    """CONTRACTS §6, extended: gap floor and consistency, per-round goodness of fit, the unexplained residual's
+    """reconcile.json (docs/reconcile.md): the verdict, named effects and gaps, with the gap floor and consistency, per-round goodness of fit, the unexplained residual's
     characterization, empirical corrections, what a not-comparable run would need."""
     after = result.goodness_after
     doc: dict[str, Any] = {
