@@ -325,8 +325,8 @@ def _comparable_steps(lay: Layout) -> int:
     return int(sum(int(z.sum()) >= 2 or int(i.sum()) >= 2 for z, i in zip(lay.z_masks, lay.i_masks, strict=True)))
 
 
-def _not_comparable(observations: list[Observation], info: dict[str, Any], model: SimModel, notes: list[str],
-                    why: str) -> ReconcileResult:
+def _not_comparable(observations: list[Observation], model: SimModel, notes: list[str], why: str) -> ReconcileResult:
+    """The result for a run with nothing (or too little) the simulator can re-create, with what would help."""
     procedures = sorted({o.scene.procedure for o in observations})
     needed = {k: v for k, v in NEEDED_PROCEDURES.items() if k not in procedures}
     detail = {"reason": why, "comparable_steps": [o.scene.step_id for o in observations],
@@ -387,14 +387,14 @@ def reconcile(path: str | Path, model: SimModel | None = None,
     observations, info, notes = observe_run(path)
     model = model or base_model(info)
     if not observations:
-        return _not_comparable(observations, info, model, notes, "the run holds no step the simulator can "
+        return _not_comparable(observations, model, notes, "the run holds no step the simulator can "
                                "re-create (walls, charts, boards, stars, masks, material plates)")
     sim = Simulation(observations, info)
     say(f"re-simulating {len(observations)} steps")
     preds = sim.predict(model)
     lay = layout(observations, preds, model.profile().technology)
     if _comparable_steps(lay) < MIN_STEPS:
-        return _not_comparable(observations, info, model, notes, f"{_comparable_steps(lay)} step(s) with compared "
+        return _not_comparable(observations, model, notes, f"{_comparable_steps(lay)} step(s) with compared "
                                f"bins; at least {MIN_STEPS} are needed to tell an effect from the lab's nuisance")
     state = _State(sim, lay, model)
     good_before = state.good
@@ -499,8 +499,9 @@ def _rounded(value: float) -> float | None:
 
 
 def json_document(result: ReconcileResult, model_path: Path) -> dict[str, Any]:
-    """reconcile.json (docs/reconcile.md): the verdict, named effects and gaps, with the gap floor and consistency, per-round goodness of fit, the unexplained residual's
-    characterization, empirical corrections, what a not-comparable run would need."""
+    """reconcile.json (docs/reconcile.md): verdict, named effects and gaps, with the gap floor and consistency,
+    per-round goodness of fit, the unexplained residual's characterization, empirical corrections, and what a
+    not-comparable run would need."""
     after = result.goodness_after
     doc: dict[str, Any] = {
         "verdict": result.verdict,

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from labctl.cli import main
-from labctl.reconcile.workflow import reconcile
+from labctl.reconcile.goodness import Goodness, StepFit
+from labctl.reconcile.workflow import material, reconcile
 from sim.model import parse_model
 from tests.reconcile.forward import BACKENDS, rewrite_run, simulated_run
 
@@ -110,3 +111,29 @@ def test_a_checkerboard_only_run_is_not_comparable(tmp_path):
     assert doc["verdict"] == "not_comparable"
     assert "depth_sweep" in doc["not_comparable"]["procedures_needed"]
     assert doc["gap_before"] is None and doc["named_effects"] == []
+
+
+def _goodness(gaps_floors, family="depth"):
+    steps = [StepFit(f"s{i}", family, g, f) for i, (g, f) in enumerate(gaps_floors)]
+    gap = math.sqrt(np.mean([g * g for g, _ in gaps_floors]))
+    floor = math.sqrt(np.mean([f * f for _, f in gaps_floors]))
+    return Goodness(gap, floor, 0.0, 0.2, steps)
+
+
+def test_consistency_needs_the_gap_under_its_floor_and_every_step_under_three_floors():
+    assert _goodness([(0.1, 0.2)] * 10).consistent
+    assert not _goodness([(0.1, 0.2)] * 9 + [(0.7, 0.2)]).consistent  # one step 3.5 floors up
+    assert _goodness([(0.1, 0.2)] * 9 + [(0.5, 0.2)]).consistent  # 2.5 floors: within STEP_FACTOR = 3
+    assert not _goodness([(0.5, 0.2)] * 10).consistent  # every step 2.5 floors: the gap is above its floor
+
+
+def test_an_effect_is_material_only_if_it_removes_a_material_share_and_half_a_floor():
+    before = _goodness([(2.0, 0.2)] * 5 + [(0.1, 0.2)] * 5)
+    assert material(before, _goodness([(0.1, 0.2)] * 10))  # 10 floors -> 0.5 floor on the steps it moves
+    # 0.08 mm removed from each step of floor 0.2 mm: no step moves by half a floor
+    assert not material(_goodness([(0.18, 0.2)] * 10), _goodness([(0.10, 0.2)] * 10))
+    # moves steps by more than half a floor but removes under 20 % of their gap: 10 -> 8.5 floors
+    assert not material(before, _goodness([(1.7, 0.2)] * 5 + [(0.1, 0.2)] * 5))
+    # worse elsewhere but much better where it acts (whitened: quiet steps count as much as noisy ones)
+    mixed = _goodness([(2.0, 0.2)] * 5 + [(5.0, 0.9)] * 5)
+    assert material(mixed, _goodness([(0.1, 0.2)] * 5 + [(5.6, 0.9)] * 5))
