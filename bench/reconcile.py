@@ -19,9 +19,9 @@ import tomli_w
 
 from bench.common import Result, best_of, scratch_dir
 from labctl.cli import main as labctl_main
+from labctl.reconcile.observe import MAX_FRAMES
+from labctl.reconcile.workflow import reconcile
 from sim.profiles import default_effects, get_profile
-from sim.reconcile.observe import MAX_FRAMES
-from sim.reconcile.workflow import reconcile
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 BUDGET_S = 60.0
@@ -67,6 +67,7 @@ def run() -> Result:
         result = outcome["result"]
         named = ", ".join(f"{e['name']} {e['parameters']}" for e in result.named) or "nothing"
         steps = len(result.observations)
-    return Result("reconcile", f"{seconds:.1f} s for {steps} steps (named {named}; gap "
-                  f"{result.gap_before:.2f} -> {result.gap_after:.2f} mm)", f"reading {floor:.1f} s",
+    return Result("reconcile", f"{seconds:.1f} s for {steps} steps (verdict {result.verdict}, named {named}; gap "
+                  f"{result.gap_before:.2f} -> {result.gap_after:.2f} mm, floor "
+                  f"{result.goodness_after.gap_floor_mm:.2f} mm)", f"reading {floor:.1f} s",
                   seconds / BUDGET_S, f"< {BUDGET_S:.0f} s", seconds < BUDGET_S)

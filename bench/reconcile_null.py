@@ -1,10 +1,13 @@
-"""Calibrate the reconcile threshold: simulated-vs-simulated runs with nothing hidden.
+"""Calibrate the reconcile thresholds: simulated-vs-simulated runs with nothing hidden.
 
 ``python -m bench.reconcile_null [SEEDS]`` simulates the reconcile test
-campaign (tests/sim/test_reconcile.py) for every camera profile and SEEDS
+campaign (tests/reconcile/forward.py) for every camera profile and SEEDS
 seeds (default 10) from the built-in model, reconciles each against the same
-model and prints the best candidate's dBIC per run, the largest over all runs
-and the false-positive rate at ``DBIC_THRESHOLD``. Not a budget benchmark.
+model and prints per run the verdict, the best candidate's dBIC, the gap
+against its noise floor and the largest step gap in units of its floor;
+then the rate of ``none`` verdicts, the false-``unexplained`` rate, the
+largest dBIC (against ``DBIC_THRESHOLD``) and the largest step ratio
+(against ``goodness.STEP_FACTOR``). Not a budget benchmark.
 """
 
 from __future__ import annotations
@@ -13,22 +16,31 @@ import sys
 import tempfile
 from pathlib import Path
 
-from sim.reconcile.workflow import DBIC_THRESHOLD, reconcile
-from tests.sim.test_reconcile import SIZES, measured_run
+from labctl.reconcile.goodness import STEP_FACTOR
+from labctl.reconcile.workflow import DBIC_THRESHOLD, reconcile
+from tests.reconcile.forward import SIZES, simulated_run
 
 
 def main(seeds: int) -> int:
-    best_scores, positives = [], 0
+    best_scores, ratios, verdicts = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for camera in sorted(SIZES):
             for seed in range(100, 100 + seeds):
-                result = reconcile(measured_run(Path(tmp) / f"{camera}-{seed}", camera, {}, seed=seed))
+                result = reconcile(simulated_run(Path(tmp) / f"{camera}-{seed}", camera, {}, seed=seed))
                 best = max((c["score"] for c in result.candidates), default=float("-inf"))
+                good = result.goodness_before
+                worst = good.worst_step
                 best_scores.append(best)
-                positives += result.verdict != "none"
-                print(f"{camera} seed {seed}: verdict {result.verdict}, best candidate dBIC {best:.1f}", flush=True)
-    print(f"{len(best_scores)} runs: largest dBIC {max(best_scores):.1f}; threshold {DBIC_THRESHOLD:g}; "
-          f"false positives {positives}/{len(best_scores)}")
+                ratios.append(worst.ratio if worst else 0.0)
+                verdicts.append(result.verdict)
+                print(f"{camera} seed {seed}: verdict {result.verdict}, best candidate dBIC {best:.1f}, gap "
+                      f"{good.gap_mm:.3f} mm (floor {good.gap_floor_mm:.3f}), worst step {ratios[-1]:.2f} x its floor",
+                      flush=True)
+    n = len(verdicts)
+    print(f"{n} runs: verdict none {verdicts.count('none')}/{n}, unexplained {verdicts.count('unexplained')}/{n}, "
+          f"effect_found {verdicts.count('effect_found')}/{n}, ambiguous {verdicts.count('ambiguous')}/{n}; "
+          f"largest dBIC {max(best_scores):.1f} (threshold {DBIC_THRESHOLD:g}); "
+          f"largest step gap {max(ratios):.2f} x its floor (limit {STEP_FACTOR:g})")
     return 0
 
 

@@ -22,9 +22,9 @@ from metrics.jsonsafe import dumps_strict
 def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bool, quiet: bool) -> None:
     """Find where the simulation disagrees with MEASURED, name the missing effects, fit them and write
     OUTPUT/reconcile.json, OUTPUT/reconcile.html and the corrected OUTPUT/model.toml."""
+    from labctl.reconcile.report import write_reconcile
+    from labctl.reconcile.workflow import reconcile as run_reconcile
     from sim.model import load_model
-    from sim.reconcile.report import write_reconcile
-    from sim.reconcile.workflow import reconcile as run_reconcile
 
     output_directory(output)
     reporter = Reporter(quiet=quiet)
@@ -40,6 +40,13 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
         click.echo(dumps_strict(doc, indent=2))
         return
     named = ", ".join(e["name"] for e in result.named) or "nothing significant"
-    reporter.message(f"verdict: {result.verdict} ({named}); gap {result.gap_before:.3f} -> {result.gap_after:.3f} mm")
+    if result.not_comparable is not None:
+        reporter.message(f"verdict: not_comparable ({result.not_comparable['reason']}); would need: "
+                         + ", ".join(result.not_comparable["procedures_needed"]))
+    else:
+        reporter.message(f"verdict: {result.verdict} ({named}); gap {result.gap_before:.3f} -> {result.gap_after:.3f} mm"
+                         f" (noise floor {doc['gap_floor']:.3f} mm)")
+    if result.unexplained is not None:
+        reporter.message(result.unexplained["message"])
     reporter.message(f"corrected model: {model_file}")
     click.echo(f"report: {report}")

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from sim.effects import EffectParams, range_offset, range_scale, temperature_drift, vignetting
+from sim.effects import EffectParams, apply_empirical, range_offset, range_scale, temperature_drift, vignetting
 from sim.geometry import Pose
 from sim.kernels import stereo_frame
 from sim.noise import NoiseBank, make_bank
@@ -117,13 +117,14 @@ class StereoSensor:
         return np.maximum(ir, 0.0)
 
     def depth(self, left: Rendered) -> np.ndarray:
-        """Noise-free depth of the left camera's dominant surface after ``range_scale`` and ``range_offset``."""
+        """Noise-free depth of the left camera's dominant surface after ``range_scale``, ``range_offset`` and the
+        empirical corrections."""
         z, fx = left.z_dom, self.effects
         if "range_scale" in fx:
             z = range_scale.apply(z, fx["range_scale"])
         if "range_offset" in fx:
             z = range_offset.apply(z, fx["range_offset"])
-        return z
+        return apply_empirical(z, fx)
 
     def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int,
                 projector: bool = True) -> StereoPrepared:

@@ -10,8 +10,10 @@ Per step (noise-free, once):
 3. range: the dominant surface's range, or with ``flying_pixels`` (or
    ``multipath``) the phase of the blurred phasor sum (plus the multipath
    return), then the range effects: ``wiggling``, ``range_scale``,
-   ``range_offset``, ``intensity_related_error``; ``material_bias`` lengthens
-   ranges on translucent materials;
+   ``range_offset``, ``intensity_related_error``, then the empirical
+   corrections a reconcile fitted (``empirical_range``,
+   ``empirical_pixel_map``); ``material_bias`` lengthens ranges on
+   translucent materials;
 4. noise (eq. 2-9, Li 2014): sigma_r = c / (4 sqrt2 pi f_mod) sqrt(A + B) / (c_d A)
    with B = A + B_ambient, B_ambient = ambient_ratio A_ref t_exp / t_default;
    the amplitude itself scatters by sqrt(B / 2).
@@ -29,7 +31,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.effects import EffectParams, range_offset, range_scale, temperature_drift, vignetting, wiggling
+from sim.effects import (
+    EffectParams,
+    apply_empirical,
+    range_offset,
+    range_scale,
+    temperature_drift,
+    vignetting,
+    wiggling,
+)
 from sim.effects import intensity_related_error as ire
 from sim.geometry import Pose
 from sim.kernels import tof_frame
@@ -161,7 +171,7 @@ class ToFSensor:
             range_mm = range_offset.apply(range_mm, fx["range_offset"])
         if "intensity_related_error" in fx:
             range_mm = range_mm + ire.error_mm(light, self.a_ref, fx["intensity_related_error"])
-        return range_mm
+        return apply_empirical(range_mm, fx)
 
     def frame(self, prep: ToFPrepared, k: int, t_s: float) -> tuple[np.ndarray, ...]:
         """Frame ``k`` of the stack, taken at device time ``t_s``: (x, y, z, intensity, confidence)."""

@@ -5,11 +5,14 @@ from __future__ import annotations
 from types import ModuleType
 from typing import Any
 
+import numpy as np
 from pydantic import ValidationError
 
 from sim.effects import (
     camera_axis_offset,
     defocus,
+    empirical_pixel_map,
+    empirical_range,
     flying_pixels,
     fov_error,
     intensity_related_error,
@@ -26,16 +29,26 @@ from sim.effects import (
 )
 from sim.effects.base import EffectParams
 
-__all__ = ["EFFECTS", "EffectParams", "parse_effects"]
+__all__ = ["EFFECTS", "EffectParams", "apply_empirical", "parse_effects"]
 
 EFFECTS: dict[str, ModuleType] = {
     m.NAME: m
     for m in (
         range_offset, range_scale, wiggling, temperature_drift, intensity_related_error, vignetting,
         radial_distortion, fov_error, defocus, quantization, flying_pixels, multipath, material_bias,
-        target_misalignment, camera_axis_offset,
+        target_misalignment, camera_axis_offset, empirical_range, empirical_pixel_map,
     )
 }
+
+
+def apply_empirical(values: np.ndarray, effects: dict[str, EffectParams]) -> np.ndarray:
+    """``values`` (ToF range or stereo z, an (H, W) map) with the model's empirical corrections added
+    (``empirical_range``, then ``empirical_pixel_map``); unchanged without them."""
+    if "empirical_range" in effects:
+        values = empirical_range.apply(values, effects["empirical_range"])
+    if "empirical_pixel_map" in effects:
+        values = empirical_pixel_map.apply(values, effects["empirical_pixel_map"])
+    return values
 
 
 def parse_effects(raw: dict[str, dict[str, Any]], technology: str) -> dict[str, EffectParams]:

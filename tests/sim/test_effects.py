@@ -41,7 +41,7 @@ def test_vocabulary_is_the_contract():
     assert set(EFFECTS) == {
         "range_offset", "range_scale", "wiggling", "temperature_drift", "intensity_related_error", "vignetting",
         "radial_distortion", "fov_error", "defocus", "quantization", "flying_pixels", "multipath",
-        "material_bias", "target_misalignment", "camera_axis_offset",
+        "material_bias", "target_misalignment", "camera_axis_offset", "empirical_range", "empirical_pixel_map",
     }
 
 
@@ -61,6 +61,29 @@ def test_range_offset_and_scale():
     np.testing.assert_allclose(off.range_mm - base.range_mm, 7.5, atol=1e-3)
     np.testing.assert_allclose(scl.range_mm, base.range_mm * 1.01, rtol=1e-6)
     np.testing.assert_array_equal(off.amplitude, base.amplitude)
+
+
+def test_empirical_corrections_interpolate_their_tables():
+    table = "[effects.empirical_range]\nrange_mm = [1000.0, 2000.0]\ncorrection_mm = [2.0, -2.0]\n"
+    grid = "[effects.empirical_pixel_map]\ncorrection_mm = [[0.0, 4.0], [0.0, 4.0]]\n"
+    base = prep(make())
+    r = base.range_mm.astype(float)
+    rng = prep(make(effects=table))
+    np.testing.assert_allclose(rng.range_mm - base.range_mm, np.interp(r, [1000, 2000], [2, -2]), atol=2e-3)
+    pix = prep(make(effects=grid))
+    w = r.shape[1]
+    u = (np.arange(w) - (w - 1) / 2) / (w / 2)  # -1 ... 1 across the sensor: the map goes 0 ... 4 mm
+    np.testing.assert_allclose(pix.range_mm - base.range_mm, np.broadcast_to(2 * (u + 1), r.shape), atol=2e-3)
+    stereo = make("d455", effects=table)
+    plain = make("d455")
+    z = plain.depth(plain.render_scene(build_scene("wall", {}, plain.profile.wavelength_nm, 1500.0), Pose.at_origin())[0])
+    z_fx = stereo.depth(stereo.render_scene(build_scene("wall", {}, plain.profile.wavelength_nm, 1500.0),
+                                            Pose.at_origin())[0])
+    np.testing.assert_allclose(z_fx - z, np.interp(z, [1000, 2000], [2, -2]), atol=1e-6)
+    with pytest.raises(Exception, match="range_mm must increase"):
+        parse_model('camera = "blaze101"\n[effects.empirical_range]\nrange_mm = [2.0, 1.0]\ncorrection_mm = [0.0, 0.0]\n')
+    with pytest.raises(Exception, match="rectangular"):
+        parse_model('camera = "blaze101"\n[effects.empirical_pixel_map]\ncorrection_mm = [[1.0], [1.0, 2.0]]\n')
 
 
 def test_wiggling_formula_on_the_range():

@@ -31,11 +31,11 @@ from typing import Any
 
 import numpy as np
 
+from labctl.reconcile.observe import Observation
+from labctl.reconcile.predict import Prediction, Predictor
+from labctl.reconcile.residuals import Layout
 from sim.materials import get_material
 from sim.model import SimModel
-from sim.reconcile.observe import Observation
-from sim.reconcile.predict import Prediction, Predictor
-from sim.reconcile.residuals import Layout
 from sim.render import C_MM_PER_S
 from sim.scenes.targets import PLATE_MATERIALS
 from sim.tof import reference_amplitude

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from sim.reconcile.candidates import Candidate, Context
-from sim.reconcile.residuals import Layout
+from labctl.reconcile.candidates import Candidate, Context
+from labctl.reconcile.residuals import Layout
 
 
 @dataclass(frozen=True)

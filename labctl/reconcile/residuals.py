@@ -34,8 +34,8 @@ from functools import cached_property
 import numpy as np
 from scipy import ndimage
 
-from sim.reconcile.observe import Observation
-from sim.reconcile.predict import Prediction
+from labctl.reconcile.observe import Observation
+from labctl.reconcile.predict import Prediction
 
 MIN_VALID_FRACTION = 0.9
 Z_FLOOR_MM = 0.02
@@ -168,22 +168,3 @@ def raw_residuals(observations: list[Observation], predictions: list[Prediction]
         with np.errstate(invalid="ignore", divide="ignore"):
             di.append(np.log(obs.intensity) - np.log(pred.intensity))
     return dz, di
-
-
-def depth_gap_mm(lay: Layout, dz: list[np.ndarray], z_var: list[np.ndarray]) -> float:
-    """The gap of CONTRACTS §6, in mm: the RMS over every usable bin of every step of the systematic
-    mean-depth residual (measured minus simulated bin mean, the lab's nuisance removed), with the bin
-    means' own noise variance (estimated from the stacks) subtracted: sqrt(max(0, mean(r^2 - var)))."""
-    v = lay.profile_z(np.nan_to_num(lay.stack_z(dz)))
-    if not len(v):
-        return float("nan")
-    return float(np.sqrt(max(0.0, float(np.mean(v**2 - lay.stack_z(z_var))))))
-
-
-def intensity_gap_pct(lay: Layout, di: list[np.ndarray], i_var: list[np.ndarray]) -> float:
-    """The same for the intensity image, in %: systematic RMS of ln I_measured - ln I_simulated after each
-    step's gain is removed (the gap that vignetting, which leaves depth alone, closes)."""
-    v = lay.profile_i(np.nan_to_num(lay.stack_i(di)))
-    if not len(v):
-        return float("nan")
-    return 100.0 * float(np.sqrt(max(0.0, float(np.mean(v**2 - lay.stack_i(i_var))))))

@@ -21,69 +21,18 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-import tomli_w
 
 from labctl.cli import main
+from labctl.reconcile.score import delta_bic, loso_gain
+from labctl.reconcile.workflow import reconcile
 from sim.model import parse_model
-from sim.profiles import default_effects, get_profile
-from sim.reconcile.score import delta_bic, loso_gain
-from sim.reconcile.workflow import reconcile
-
-SIZES = {"blaze101": (160, 120), "amt100": (160, 120), "flexx2": (224, 172), "d455": (160, 120)}
-BACKENDS = {"blaze101": "blaze", "amt100": "amt100", "flexx2": "flexx2", "d455": "realsense"}
-
-CAMPAIGN = """
-[campaign]
-name = "reconcile-test"
-[devices.camera]
-backend = "{backend}"
-[devices.stage]
-protocol = "zaber"
-port = "/dev/ttyUSB0"
-travel_mm = [0, 4000]
-speed_mm_s = 50
-[devices.laser]
-port = "/dev/ttyUSB1"
-[devices.robot]
-host = "192.168.1.10"
-radius_max_mm = 850
-[[procedure]]
-kind = "offset_calibration"
-distance_mm = 2000
-frames = 10
-[[procedure]]
-kind = "depth_sweep"
-start_mm = 400
-stop_mm = 4000
-step_mm = 200
-frames = 10
-[[procedure]]
-kind = "remission_angle"
-materials = ["ptfe", "silicone"]
-angles_deg = [-60, 60, 20]
-radius_mm = 850
-frames = 10
-[sim]
-seed = {seed}
-"""
+from sim.profiles import get_profile
+from tests.reconcile.forward import SIZES, simulated_run
 
 
 def measured_run(directory: Path, camera: str, hidden: dict, seed: int = 3) -> Path:
-    """A simulated campaign with ``hidden`` effects, ``/sim`` removed."""
-    directory.mkdir(parents=True, exist_ok=True)
-    width, height = SIZES[camera]
-    (directory / "campaign.toml").write_text(CAMPAIGN.format(backend=BACKENDS[camera], seed=seed))
-    model = {"camera": camera, "camera_overrides": {"width": width, "height": height},
-             "effects": {**default_effects(get_profile(camera)), **hidden}}
-    (directory / "hidden.toml").write_text(tomli_w.dumps(model))
-    run = directory / "measured.h5"
-    with pytest.raises(SystemExit) as info:
-        main(["run", str(directory / "campaign.toml"), "--sim", "--model", str(directory / "hidden.toml"),
-              "-o", str(run), "--quiet"])
-    assert info.value.code == 0
-    with h5py.File(run, "a") as f:
-        del f["sim"]
-    return run
+    """The full test campaign with ``hidden`` effects, ``/sim`` removed."""
+    return simulated_run(directory, camera, hidden, seed)
 
 
 def _sign(rng: np.random.Generator) -> float:
@@ -176,8 +125,9 @@ def test_two_hidden_effects_are_both_named(tmp_path):
 @pytest.mark.parametrize("camera,seed", [(c, s) for c in sorted(SIZES) for s in (5, 6)])
 def test_nothing_hidden_names_nothing(camera, seed, tmp_path):
     result = reconcile(measured_run(tmp_path, camera, {}, seed=seed))
-    assert result.verdict == "none", result.candidates
-    assert result.named == []
+    assert result.verdict == "none", (result.candidates, result.goodness_after.summary())
+    assert result.named == [] and result.empirical == []
+    assert result.goodness_after.consistent and result.gap_after <= result.goodness_after.gap_floor_mm
 
 
 def test_cli_writes_the_contract_outputs(tmp_path):

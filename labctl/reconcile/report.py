@@ -13,10 +13,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from labctl.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
 from labctl.report import CSS as REPORT_CSS  # noqa: E402
 from labctl.store import labctl_version, now_iso  # noqa: E402
 from metrics.jsonsafe import dumps_strict  # noqa: E402
-from sim.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
 
 CSS = REPORT_CSS + ".verdict{font-size:1.3em;font-weight:600}\n"
 
@@ -105,7 +105,7 @@ def plot_residual_map(result: ReconcileResult, path: Path) -> Path:
 
 def plot_candidates(result: ReconcileResult, path: Path) -> Path:
     """Every round's candidate scores (dBIC over steps) against the threshold."""
-    from sim.reconcile.workflow import DBIC_THRESHOLD
+    from labctl.reconcile.workflow import DBIC_THRESHOLD
 
     rounds = [it for it in result.iterations if it.fits]
     fig, axes = plt.subplots(1, max(len(rounds), 1), figsize=(4.2 * max(len(rounds), 1), 3.6), squeeze=False)
@@ -127,6 +127,75 @@ def _rms_text(values: np.ndarray) -> str:
     """RMS of the finite ``values`` to 3 decimals, or "n/a" when a procedure has no usable step."""
     finite = values[np.isfinite(values)]
     return f"{np.sqrt(np.mean(finite ** 2)):.3f}" if finite.size else "n/a"
+
+
+def plot_unexplained(result: ReconcileResult, path: Path) -> Path:
+    """The unexplained residual: its curve over the carrying axis and its mean map over the sensor."""
+    u = result.unexplained or {}
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    ax = axes[0]
+    curve = u.get("curve", [])
+    if curve:
+        xs = [c["x"] for c in curve]
+        numeric = all(isinstance(x, (int, float)) for x in xs)
+        ax.plot(xs if numeric else range(len(xs)), [c["mean_mm"] for c in curve], "o-", color="tab:purple", ms=4)
+        if not numeric:
+            ax.set_xticks(range(len(xs)), xs, rotation=30, fontsize=8)
+        ax.axhline(0, color="0.6", lw=0.8)
+        axis = next(a for a in u["axes"] if a["axis"] == u["carrying_axis"])
+        ax.set_xlabel(f"{u['carrying_axis']} ({axis['unit']})" if axis["unit"] else u["carrying_axis"])
+    else:
+        ax.text(0.5, 0.5, "no single axis carries the residual", transform=ax.transAxes, ha="center", color="0.5")
+    ax.set_ylabel("mean depth residual (mm)")
+    ax.set_title("curve over the carrying axis", fontsize=9)
+    data = np.array([[math.nan if v is None else v for v in row] for row in u.get("spatial_map_mm", [])], float)
+    if data.size and np.isfinite(data).any():
+        lim = float(np.nanpercentile(np.abs(data), 98)) or 1.0
+        im = axes[1].imshow(data, cmap="RdBu_r", vmin=-lim, vmax=lim)
+        fig.colorbar(im, ax=axes[1], label="mm")
+    axes[1].set_title("mean residual per bin over all steps (physical effects only)", fontsize=9)
+    axes[1].set_xticks([])
+    axes[1].set_yticks([])
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _unexplained(result: ReconcileResult, plot: Path | None) -> str:
+    u = result.unexplained
+    if u is None:
+        return ""
+    rows = "".join(f"<tr><td class=l>{html.escape(a['axis'])}</td><td>{a['eta2']:.3f}</td><td>{a['effect_mm']:.3f}</td>"
+                   f"<td>{'' if a.get('same_at_every_distance') is None else a['same_at_every_distance']}</td></tr>"
+                   for a in u["axes"])
+    empirical = "".join(f"<li><b>{html.escape(e['name'])}</b> (empirical): gap {e['gap_before_mm']:.3f} &rarr; "
+                        f"{e['gap_after_mm']:.3f} mm</li>" for e in result.empirical)
+    return (f"<h2>Unexplained residual</h2><p class=note>{html.escape(u['message'])}</p>"
+            "<table><tr><th class=l>axis</th><th>share of the residual (eta&sup2;)</th><th>peak to peak (mm)</th>"
+            f"<th>same at every distance</th></tr>{rows}</table>"
+            + (f"<p>Empirical corrections in the model:</p><ul>{empirical}</ul>" if empirical else "")
+            + (f'<img src="{plot.name}" alt="unexplained residual">' if plot else ""))
+
+
+def _goodness(result: ReconcileResult) -> str:
+    g, p = result.goodness_after, result.goodness_physical
+    if g is None or p is None:
+        return ""
+    worst = p.worst_step
+    return (f"<p>Noise floor of the gap: <b>{g.gap_floor_mm:.3f} mm</b> (intensity {g.intensity_gap_floor_pct:.2f} %). "
+            f"With the named physical effects the residual is <b>{'consistent' if p.consistent else 'NOT consistent'}"
+            f"</b> with the noise the stacks show"
+            + (f" (worst step {html.escape(worst.step_id)}: {worst.gap:.3f} against its floor {worst.floor:.3f} in "
+               f"{worst.family})" if worst else "") + ".</p>")
+
+
+def _not_comparable_page(result: ReconcileResult) -> str:
+    nc = result.not_comparable or {}
+    needed = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in nc.get("procedures_needed", {}).items())
+    return (f"<p class=note>Nothing to compare: {html.escape(nc.get('reason', ''))}.</p>"
+            f"<p>Procedures that would give the comparison something to work with:</p><ul>{needed}</ul>"
+            f"<p>{html.escape(nc.get('not_compared', ''))}</p>")
 
 
 def _where(result: ReconcileResult) -> str:
@@ -169,11 +238,15 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
     model_path.write_text(result.model_toml(), encoding="utf-8")
     doc = json_document(result, model_path)
     (output / "reconcile.json").write_text(dumps_strict(doc, indent=2), encoding="utf-8")
+    if not result.iterations:
+        return _write_page(output, measured, result, model_path, _not_comparable_page(result)), model_path, doc
     plots = [plot_residuals(result, output / "reconcile_residuals.png"),
              plot_residual_map(result, output / "reconcile_map.png"),
              plot_candidates(result, output / "reconcile_candidates.png")]
+    unexplained_plot = plot_unexplained(result, output / "reconcile_unexplained.png") if result.unexplained else None
     named = "".join(
-        f"<tr><td class=l>{html.escape(e['name'])}</td><td class=l>{_params(e['parameters'], e['evidence']['stderr'])}</td>"
+        f"<tr><td class=l>{html.escape(e['name'])}</td><td class=l>{_params(e['parameters'], e['evidence']['stderr'])}"
+        f"{_determination(e['evidence'].get('determination'))}</td>"
         f"<td>{e['evidence']['delta_bic']:.1f}</td><td>{e['evidence']['loso_gain']:.3f}</td>"
         f"<td class=l>{html.escape(str(e['evidence']['runner_up']))}</td>"
         f"<td>{e['evidence']['gap_before_mm']:.3f} &rarr; {e['evidence']['gap_after_mm']:.3f}</td></tr>"
@@ -191,25 +264,38 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
         ambiguity = (f"<p class=note>Ambiguous between {html.escape(a['between'][0])} and {html.escape(a['between'][1])}"
                      f" (dBIC {a['scores'][0]:.1f} vs {a['scores'][1]:.1f}). Their predictions differ most at "
                      f"{html.escape(a['separating_capture'])}: more captures like it would separate them.</p>")
-    notes = "".join(f"<li>{html.escape(n)}</li>" for n in result.notes)
-    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>labctl reconcile: {html.escape(measured.name)}</title>
-<style>{CSS}</style></head><body>
-<h1>Reconcile: {html.escape(measured.name)}</h1>
-<p>labctl {html.escape(labctl_version())}, {html.escape(now_iso())}. Model compared: camera
-<b>{html.escape(result.model.camera)}</b>; corrected model: <code>{html.escape(str(model_path))}</code>.</p>
-<p class=verdict>Verdict: {html.escape(result.verdict)}</p>{ambiguity}
+    body = f"""{ambiguity}{_goodness(result)}
 <p>Gap (RMS of the systematic mean-depth residual over every compared bin, lab nuisance removed, stack noise
 subtracted): <b>{result.gap_before:.3f} mm &rarr; {result.gap_after:.3f} mm</b>; intensity gap
 {result.intensity_gap_before:.2f} % &rarr; {result.intensity_gap_after:.2f} %.</p>
 <h2>Named effects</h2>
 <table><tr><th class=l>effect</th><th class=l>parameters (&plusmn; statistical standard error)</th><th>dBIC</th>
 <th>LOSO gain</th><th class=l>runner-up</th><th>gap (mm)</th></tr>{named or '<tr><td colspan=6>none</td></tr>'}</table>
+{_unexplained(result, unexplained_plot)}
 <h2>Where the disagreement sits</h2>{_where(result)}
 <img src="{plots[1].name}" alt="residual map">
 <h2>Residuals before and after</h2><img src="{plots[0].name}" alt="residual plots">
-<h2>Candidates</h2><img src="{plots[2].name}" alt="candidate scores">{rounds}
+<h2>Candidates</h2><img src="{plots[2].name}" alt="candidate scores">{rounds}"""
+    return _write_page(output, measured, result, model_path, body), model_path, doc
+
+
+def _determination(det: dict[str, Any] | None) -> str:
+    if not det or det.get("well_determined", True):
+        return ""
+    return (f"<br><span class=note>poorly determined: {html.escape('; '.join(det.get('problems', [])))}. "
+            f"Capture that would fix it: {html.escape(str(det.get('capture')))}</span>")
+
+
+def _write_page(output: Path, measured: Path, result: ReconcileResult, model_path: Path, body: str) -> Path:
+    notes = "".join(f"<li>{html.escape(n)}</li>" for n in result.notes)
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>labctl reconcile: {html.escape(measured.name)}</title>
+<style>{CSS}</style></head><body>
+<h1>Reconcile: {html.escape(measured.name)}</h1>
+<p>labctl {html.escape(labctl_version())}, {html.escape(now_iso())}. Model compared: camera
+<b>{html.escape(result.model.camera)}</b>; corrected model: <code>{html.escape(str(model_path))}</code>.</p>
+<p class=verdict>Verdict: {html.escape(result.verdict)}</p>{body}
 <h2>Notes</h2><ul>{notes}</ul>
 </body></html>"""
     report = output / "reconcile.html"
     report.write_text(page, encoding="utf-8")
-    return report, model_path, doc
+    return report

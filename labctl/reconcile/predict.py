@@ -27,11 +27,11 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
+from labctl.reconcile.observe import StepScene, bin_mean
 from sim.effects import EffectParams, temperature_drift
 from sim.geometry import Pose
 from sim.model import SimModel
 from sim.profiles import CameraProfile
-from sim.reconcile.observe import StepScene, bin_mean
 from sim.render import centre_distance_mm, render
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
 from sim.sensor import default_coc_px

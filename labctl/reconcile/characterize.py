@@ -1,0 +1,196 @@
+"""What a residual that no library effect explains follows: its axes, their effect sizes, its map and curve.
+
+The residual is the per-step, per-bin depth residual of the final model with
+the lab's nuisance removed (``workflow._residual_maps``). Every axis a lab
+varies or a sensor has is tried:
+
+* per bin: ``distance`` (the bin's range along its ray as simulated, mm;
+  stereo: its depth), pixel ``row``,
+  ``column`` and ``radius`` (bin centre, 0 ... 1 of the half diagonal) and
+  ``intensity`` (the measured bin mean, log-spaced groups);
+* per step: ``time`` (mean frame time since the run's first frame, s),
+  ``robot_angle`` (deg, robot steps only) and ``target`` (the target or
+  material, categorical).
+
+Each axis's values are grouped (``GROUPS`` groups of equal width between the
+smallest and largest value, or one group per category) and the residual's group means form the axis's curve. The share of
+the residual's variance the axis carries is the correlation ratio
+
+    eta^2 = sum_g n_g (m_g - m)^2 / sum_i (r_i - m)^2          (Pearson 1905)
+
+(sums weighted by each bin's inverse noise variance, so that precise steps
+count for more than noisy ones) and its effect size the peak-to-peak of the
+curve (mm). The carrying axis
+is the one with the largest eta^2; axes whose values are strongly
+correlated with it over the compared bins (|Spearman rho| >= ``CONFOUNDED``,
+e.g. distance and time in a sweep run in one direction) are listed as
+confounded with it, since the run cannot tell them apart. For the pixel
+axes, ``same_at_every_distance`` is the correlation of the curve from the
+nearer half of the steps with the curve from the farther half (1: a fixed
+pattern; near 0: it changes with distance).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from labctl.reconcile.observe import Observation
+from labctl.reconcile.predict import Prediction
+from labctl.reconcile.residuals import Z_FLOOR_MM
+
+GROUPS = 24
+CONFOUNDED = 0.8
+MIN_ETA2 = 0.1  # below this share no axis is said to carry the residual
+PIXEL_AXES = ("row", "column", "radius")
+
+
+@dataclass(frozen=True)
+class AxisFit:
+    name: str
+    unit: str
+    eta2: float
+    effect_mm: float
+    curve: list[dict[str, Any]]  # {"x": group centre or category, "mean_mm": ..., "n": bins}
+    same_at_every_distance: float | None = None
+
+
+def _axes(observations: list[Observation], predictions: list[Prediction], maps: list[np.ndarray],
+          t0_s: float) -> dict[str, tuple[str, list]]:
+    """Per axis: unit and, per step, the axis value of every bin (an (h, w) array, or a scalar/str per step)."""
+    h, w = maps[0].shape
+    row, col = np.mgrid[0:h, 0:w].astype(float)
+    radius = np.hypot(col - (w - 1) / 2, row - (h - 1) / 2) / math.hypot(w / 2, h / 2)
+    out: dict[str, tuple[str, list]] = {
+        "distance": ("mm", [p.range_mm for p in predictions]),
+        "row": ("bin", [row] * len(maps)), "column": ("bin", [col] * len(maps)),
+        "radius": ("of the half diagonal", [radius] * len(maps)),
+        "intensity": ("log10 of the bin mean", [np.log10(np.where(o.intensity > 0, o.intensity, np.nan))
+                                                for o in observations]),
+        "time": ("s", [float(np.mean(o.times_s)) - t0_s if len(o.times_s) else math.nan for o in observations]),
+        "robot_angle": ("deg", [o.scene.robot_angle_deg if o.scene.reference == "robot" else math.nan
+                                for o in observations]),
+        "target": ("", [o.scene.target for o in observations]),
+    }
+    return out
+
+
+def _stack(values: list, maps: list[np.ndarray]) -> np.ndarray:
+    """An axis's value of every compared bin, in the order of ``np.concatenate([m[ok] for m in maps])``."""
+    parts = []
+    for v, m in zip(values, maps, strict=True):
+        ok = np.isfinite(m)
+        parts.append(np.asarray(v)[ok] if np.ndim(v) == 2 else np.full(int(ok.sum()), v, dtype=object))
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _groups(x: np.ndarray) -> tuple[np.ndarray, list[Any]]:
+    """Group index per value (quantile groups for numbers, one per category) and each group's label."""
+    if x.dtype == object and len(x) and isinstance(x[0], str):
+        labels = sorted(set(x.tolist()))
+        return np.array([labels.index(v) for v in x]), labels
+    x = x.astype(float)
+    edges = np.linspace(float(x.min()), float(x.max()), GROUPS + 1)
+    idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, GROUPS - 1)
+    centres = [float(np.mean(x[idx == g])) if np.any(idx == g) else math.nan for g in range(GROUPS)]
+    return idx, centres
+
+
+def _curve(v: np.ndarray, x: np.ndarray, wt: np.ndarray) -> tuple[float, float, list[dict[str, Any]], np.ndarray]:
+    idx, labels = _groups(x)
+    n = np.bincount(idx, minlength=len(labels)).astype(float)
+    wsum = np.bincount(idx, wt, len(labels))
+    means = np.bincount(idx, wt * v, len(labels)) / np.maximum(wsum, 1e-300)
+    mean = float(np.sum(wt * v) / np.sum(wt))
+    total = float(np.sum(wt * (v - mean) ** 2))
+    eta2 = float(np.sum(wsum * (means - mean) ** 2) / total) if total > 0 else 0.0
+    used = n > 0
+    curve = [{"x": lab if isinstance(lab, str) else round(lab, 4), "mean_mm": round(float(m), 4), "n": int(k)}
+             for lab, m, k, u in zip(labels, means, n, used, strict=True) if u]
+    return eta2, float(np.ptp(means[used])) if used.any() else 0.0, curve, means[idx]
+
+
+def characterize(observations: list[Observation], predictions: list[Prediction], maps: list[np.ndarray],
+                 t0_s: float) -> dict[str, Any]:
+    """The axes the residual maps follow (sorted by eta^2), the carrying axis, its curve, and the mean map."""
+    if not maps or not any(np.isfinite(m).any() for m in maps):
+        return {"axes": [], "carrying_axis": None, "spatial_map_mm": [], "description": "no compared bins"}
+    v = np.concatenate([m[np.isfinite(m)] for m in maps])
+    weight = 1.0 / _stack([o.z_var + Z_FLOOR_MM**2 for o in observations], maps).astype(float)
+    distance = np.array([o.scene.wall_distance_mm if o.scene.wall_distance_mm is not None
+                         else float(np.nanmedian(o.z)) for o in observations])
+    near = distance <= np.nanmedian(distance)
+    fits: list[AxisFit] = []
+    values: dict[str, np.ndarray] = {}
+    for name, (unit, per_step) in _axes(observations, predictions, maps, t0_s).items():
+        x = _stack(per_step, maps)
+        ok = np.array([isinstance(a, str) for a in x]) if name == "target" else np.isfinite(x.astype(float))
+        if ok.sum() < 2 or len(set(x[ok].tolist() if name == "target" else np.round(x[ok].astype(float), 6))) < 2:
+            continue
+        eta2, size, curve, _ = _curve(v[ok], x[ok], weight[ok])
+        eta2 *= float(weight[ok].sum() / weight.sum())  # an axis defined on part of the bins carries at most that part
+        steady = None
+        if name in PIXEL_AXES:
+            parts = []
+            for half in (True, False):
+                sel = [i for i, s in enumerate(near) if s == half]
+                sub = [maps[i] for i in sel]
+                parts.append((np.concatenate([m[np.isfinite(m)] for m in sub] or [np.zeros(0)]),
+                              _stack([per_step[i] for i in sel], sub).astype(float),
+                              _stack([observations[i].z_var + Z_FLOOR_MM**2 for i in sel], sub).astype(float)))
+            if all(len(h) > GROUPS for h, _, _ in parts):
+                a = [_curve(h, xx, 1.0 / var)[2] for h, xx, var in parts]
+                ca, cb = ([c["mean_mm"] for c in k] for k in a)
+                if len(ca) == len(cb) and len(ca) > 2 and np.std(ca) > 0 and np.std(cb) > 0:
+                    steady = round(float(np.corrcoef(ca, cb)[0, 1]), 3)
+        fits.append(AxisFit(name, unit, eta2, size, curve, steady))
+        values[name] = x
+    fits.sort(key=lambda f: -f.eta2)
+    carrying = fits[0] if fits and fits[0].eta2 >= MIN_ETA2 else None
+    confounded = []
+    if carrying is not None and carrying.name != "target":
+        xc = values[carrying.name].astype(float)
+        for f in fits[1:]:
+            if f.name == "target":
+                continue
+            x = values[f.name].astype(float)
+            ok = np.isfinite(xc) & np.isfinite(x)
+            if ok.sum() > 2 and np.std(x[ok]) > 0 and np.std(xc[ok]) > 0:
+                rho = stats.spearmanr(xc[ok], x[ok]).statistic
+                if abs(rho) >= CONFOUNDED:
+                    confounded.append({"axis": f.name, "spearman_rho": round(float(rho), 3)})
+    stack = np.stack(maps)
+    count = np.isfinite(stack).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_map = np.where(count > 0, np.nansum(stack, axis=0) / count, np.nan)
+    return {
+        "axes": [{"axis": f.name, "unit": f.unit, "eta2": round(float(f.eta2), 4), "effect_mm": round(f.effect_mm, 4),
+                  **({"same_at_every_distance": f.same_at_every_distance}
+                     if f.same_at_every_distance is not None else {})} for f in fits],
+        "carrying_axis": carrying.name if carrying else None,
+        "confounded_with": confounded,
+        "curve": carrying.curve if carrying else [],
+        "spatial_map_mm": [[None if not math.isfinite(x) else round(float(x), 3) for x in r] for r in mean_map],
+        "description": describe(carrying, confounded),
+    }
+
+
+def describe(carrying: AxisFit | None, confounded: list[dict[str, Any]]) -> str:
+    """One sentence a user reads: what the residual follows and how large it is."""
+    if carrying is None:
+        return f"no single axis carries the residual (every axis's eta^2 < {MIN_ETA2})"
+    what = {"distance": "a curve over the camera-target distance", "time": "a change over the run's time",
+            "row": "a pattern over the pixel rows", "column": "a pattern over the pixel columns",
+            "radius": "a pattern over the distance from the image centre", "intensity": "a function of the intensity",
+            "robot_angle": "a function of the robot angle", "target": "a difference between targets"}[carrying.name]
+    text = f"{what}, {carrying.effect_mm:.2f} mm peak to peak, carrying {100 * carrying.eta2:.0f} % of the residual"
+    if carrying.same_at_every_distance is not None:
+        text += ("; the same at every distance" if carrying.same_at_every_distance >= 0.8
+                 else "; it changes with distance")
+    if confounded:
+        text += "; this run cannot tell it from " + ", ".join(c["axis"] for c in confounded)
+    return text

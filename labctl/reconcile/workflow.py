@@ -1,0 +1,539 @@
+"""The reconcile workflow (docs/reconcile.md).
+
+1. Observe the measured run (bin means of z and intensity, their variances,
+   the frames' times; ``/sim`` is never read) and re-simulate every step with
+   the current model on the bin grid (labctl/reconcile/predict.py).
+2. Residuals with the lab's nuisance profiled out (labctl/reconcile/residuals.py).
+3. Score every candidate effect not yet in the model (labctl/reconcile/score.py):
+   dBIC over steps, leave-one-step-out gain, margin over the runner-up.
+4. The winner, if its dBIC passes ``DBIC_THRESHOLD`` and it predicts held-out
+   steps, is refined by nonlinear least squares on full re-simulations
+   (scipy.optimize.least_squares), added to the model if it is material
+   (``material``: on the steps it moves, it reduces their gap in units of
+   their noise floors by at least ``MATERIAL_FRACTION`` of it and by at
+   least ``FLOOR_FRACTION``), and the run re-simulated; repeat until nothing passes,
+   the residual is consistent with the noise (labctl/reconcile/goodness.py)
+   or ``MAX_EFFECTS`` are named.
+   A runner-up within ``MARGIN`` of the winner stops the search: "ambiguous
+   between X and Y", with the step where their predictions differ most
+   (the capture that would separate them).
+
+5. The verdict: ``none`` or ``effect_found`` only when the final residual is
+   consistent with the noise; otherwise ``unexplained``, with the residual
+   characterized (labctl/reconcile/characterize.py) and, where it is
+   structured, an empirical correction added to the model
+   (labctl/reconcile/empirical.py). A run with fewer than ``MIN_STEPS``
+   comparable steps is ``not_comparable``.
+
+``DBIC_THRESHOLD`` is calibrated on simulated-vs-simulated runs with nothing
+hidden (``bench/reconcile_null.py`` prints the largest dBIC any candidate
+reached over seeds and cameras; the threshold sits well above it).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+from scipy import optimize
+
+from labctl.errors import InputError
+from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
+from labctl.reconcile.characterize import characterize
+from labctl.reconcile.empirical import FIRST_FORM, FORMS
+from labctl.reconcile.goodness import Goodness, goodness
+from labctl.reconcile.observe import Observation, observe_run
+from labctl.reconcile.predict import Prediction, Predictor
+from labctl.reconcile.residuals import Layout, layout, raw_residuals
+from labctl.reconcile.score import Fit, score
+from sim.model import SimModel, parse_model
+from sim.profiles import default_effects, get_profile
+
+DBIC_THRESHOLD = 30.0
+MARGIN = 10.0
+COMPETING_CORRELATION = 0.5
+MAX_EFFECTS = 4
+MIN_STEPS = 2  # steps are the replications: one step cannot separate an effect from the lab's nuisance
+MATERIAL_FRACTION = 0.2  # an effect must remove at least this share of a family's gap ...
+FLOOR_FRACTION = 0.5  # ... and at least this multiple of that family's noise floor
+POOR_RELATIVE_ERROR = 0.05  # a parameter whose standard error exceeds 5 % (2 sigma: 10 %) is poorly determined
+POOR_ANGLE_ERROR_RAD = 0.05
+POOR_CORRELATION = 0.95
+BACKEND_PROFILES = {"blaze": "blaze101", "amt100": "amt100", "flexx2": "flexx2", "realsense": "d455"}
+#: which procedures give the comparison something to work with (for ``not_comparable``)
+NEEDED_PROCEDURES = {
+    "depth_sweep": "a wall at several distances (range effects: range_scale, wiggling, intensity_related_error, "
+                   "multipath, drift)",
+    "offset_calibration": "the same wall position at the start of the run (with a sweep: drift against distance)",
+    "remission_angle": "material plates on the robot circle at several angles (material_bias, target_misalignment, "
+                       "camera_axis_offset)",
+}
+
+
+@dataclass
+class Iteration:
+    """One round: the model compared, every candidate's fit, what was decided."""
+
+    model_effects: list[str]
+    gap_mm: float
+    fits: list[Fit]
+    decision: str  # "added NAME", "none significant", "ambiguous", "consistent with noise", "NAME not material"
+    residual_z: list[np.ndarray]  # per-step depth residual maps (nuisance removed, NaN outside the comparison)
+    goodness: Goodness | None = None
+
+
+@dataclass
+class ReconcileResult:
+    verdict: str
+    named: list[dict[str, Any]]
+    candidates: list[dict[str, Any]]
+    gap_before: float
+    gap_after: float
+    intensity_gap_before: float
+    intensity_gap_after: float
+    model: SimModel
+    observations: list[Observation]
+    iterations: list[Iteration]
+    residual_after: list[np.ndarray]
+    notes: list[str] = field(default_factory=list)
+    ambiguity: dict[str, Any] | None = None
+    goodness_before: Goodness | None = None
+    goodness_after: Goodness | None = None  # the final model (with any empirical correction)
+    goodness_physical: Goodness | None = None  # the named physical effects only
+    unexplained: dict[str, Any] | None = None
+    empirical: list[dict[str, Any]] = field(default_factory=list)
+    not_comparable: dict[str, Any] | None = None
+
+    def model_toml(self) -> str:
+        return tomli_w.dumps(self.model.model_dump(mode="json", exclude_defaults=False))
+
+
+def base_model(info: dict[str, Any]) -> SimModel:
+    """The camera's built-in model at the run's sensor size and reported FOV (without ``--model``)."""
+    try:
+        backend = tomllib.loads(info["campaign_toml"] or "")["devices"]["camera"]["backend"]
+    except (tomllib.TOMLDecodeError, KeyError, TypeError):
+        backend = info.get("backend", "")
+    profile_name = BACKEND_PROFILES.get(backend, backend)
+    try:
+        profile = get_profile(profile_name)
+    except KeyError:
+        raise InputError(f"the run's camera backend {backend!r} has no built-in profile; "
+                         "give the simulation model with --model MODEL.toml") from None
+    overrides: dict[str, Any] = {}
+    if (info["width"], info["height"]) != (profile.width, profile.height):
+        overrides.update(width=info["width"], height=info["height"])
+    if tuple(info["fov_deg"]) != (profile.fov_h_deg, profile.fov_v_deg):
+        overrides.update(fov_h_deg=info["fov_deg"][0], fov_v_deg=info["fov_deg"][1])
+    return parse_model(tomli_w.dumps({"camera": profile_name, "camera_overrides": overrides,
+                                      "effects": default_effects(profile)}), "built-in model")
+
+
+def with_effect(model: SimModel, name: str, params: dict[str, Any]) -> SimModel:
+    """A copy of ``model`` with effect ``name`` on (validated like a model file)."""
+    data = model.model_dump(mode="json")
+    data["effects"] = {**data["effects"], name: params}
+    return parse_model(tomli_w.dumps(data), f"model with {name}")
+
+
+class Simulation:
+    """Re-simulates the measured steps; renders are shared across models with the same geometry."""
+
+    def __init__(self, observations: list[Observation], info: dict[str, Any]) -> None:
+        self.observations = observations
+        self.info = info
+        self.cache: dict[tuple[str, str], Any] = {}
+        self.t0_s = min((float(o.times_s[0]) for o in observations if len(o.times_s)), default=0.0)
+
+    def predictor(self, model: SimModel) -> Predictor:
+        return Predictor(model, self.info["width"], self.info["height"], self.info["bin_px"], self.cache)
+
+    def predict(self, model: SimModel) -> list[Prediction]:
+        predictor = self.predictor(model)
+        return [predictor.predict(o.scene, o.times_s - self.t0_s) for o in self.observations]
+
+
+def competing(a: Fit, b: Fit) -> bool:
+    """Whether two candidates explain the same part of the residual (their fitted changes correlate)."""
+    norm = float(np.linalg.norm(a.signature) * np.linalg.norm(b.signature))
+    return norm > 0 and abs(float(a.signature @ b.signature)) / norm >= COMPETING_CORRELATION
+
+
+def _residual_maps(lay: Layout, dz: list[np.ndarray]) -> list[np.ndarray]:
+    """Per-step depth residual maps with the nuisance removed (NaN outside the compared bins)."""
+    flat = lay.profile_z(np.nan_to_num(lay.stack_z(dz)))
+    maps, start = [], 0
+    for d, mask in zip(dz, lay.z_masks, strict=True):
+        m = np.full(d.shape, np.nan)
+        n = int(mask.sum())
+        m[mask] = flat[start:start + n]
+        maps.append(m)
+        start += n
+    return maps
+
+
+def _fit_effects(found: list[tuple[Candidate, dict[str, Any]]], model: SimModel, sim: Simulation, lay: Layout,
+                 max_nfev: int) -> tuple[optimize.OptimizeResult, Callable[[np.ndarray], SimModel]]:
+    """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations;
+    returns the solver's result and the map from its parameter vector to the model."""
+    vectors = [c.vector(p) for c, p in found]
+    x0 = np.concatenate([v[0] for v in vectors])
+    lo = np.concatenate([v[1][0] for v in vectors])
+    hi = np.concatenate([v[1][1] for v in vectors])
+    x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+    sizes = np.cumsum([0] + [len(v[0]) for v in vectors])
+
+    def build(x: np.ndarray) -> SimModel:
+        trial = model
+        for i, (candidate, _) in enumerate(found):
+            trial = with_effect(trial, candidate.name, candidate.from_vector(x[sizes[i]:sizes[i + 1]]))
+        return trial
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        dz, di = raw_residuals(sim.observations, sim.predict(build(x)))
+        return np.nan_to_num(lay.profiled(dz, di))
+
+    return optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev), build
+
+
+def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_steps: int) -> np.ndarray:
+    """Covariance of least-squares parameters with the steps as the independent replications (cluster-robust
+    sandwich, Liang & Zeger 1986): (J'J)^-1 (sum_s J_s' f_s f_s' J_s) (J'J)^-1 n / (n - k)."""
+    k = jac.shape[1]
+    bread = np.linalg.pinv(jac.T @ jac)
+    scores = np.stack([np.bincount(steps, jac[:, i] * fun, n_steps) for i in range(k)], axis=1)  # (n, k)
+    used = max(int(np.count_nonzero(np.any(scores != 0, axis=1))), k + 1)
+    return bread @ (scores.T @ scores) @ bread * used / (used - k)
+
+
+def determination(candidate: Candidate, params: dict[str, Any], x: np.ndarray, cov: np.ndarray,
+                  capture: str) -> tuple[dict[str, float], dict[str, Any]]:
+    """Standard errors of the named parameters, 95 % intervals, correlations, and whether the run determines
+    them (relative error at most ``POOR_RELATIVE_ERROR``, angles within ``POOR_ANGLE_ERROR_RAD``, no pair
+    correlated beyond ``POOR_CORRELATION``); when not, the capture that would."""
+    sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    keys = [k for k, v in candidate.from_vector(x).items() if isinstance(v, float)]
+    stderr: dict[str, float] = {}
+    interval: dict[str, list[float]] = {}
+    for i in range(len(x)):
+        for sign in (-1.96, 1.96):
+            moved = candidate.from_vector(x + sign * sigma[i] * np.eye(len(x))[i])
+            for key in keys:
+                if moved[key] != params[key]:
+                    lo, hi = interval.get(key, [params[key], params[key]])
+                    interval[key] = [min(lo, moved[key]), max(hi, moved[key])]
+                    stderr[key] = max(stderr.get(key, 0.0), abs(moved[key] - params[key]) / 1.96)
+    problems = []
+    for key, err in stderr.items():
+        limit = POOR_ANGLE_ERROR_RAD if key.endswith("_rad") else POOR_RELATIVE_ERROR * abs(params[key])
+        if err > limit:
+            problems.append(f"{key} is uncertain by {err:.3g} (standard error)")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sigma, sigma)
+    correlations = []
+    for i in range(len(x)):
+        for j in range(i + 1, len(x)):
+            if i < len(keys) and j < len(keys) and np.isfinite(corr[i, j]):
+                correlations.append({"between": [keys[i], keys[j]], "correlation": round(float(corr[i, j]), 3)})
+                if abs(corr[i, j]) > POOR_CORRELATION:
+                    problems.append(f"{keys[i]} and {keys[j]} trade off (correlation {corr[i, j]:.2f})")
+    info = {"well_determined": not problems, "interval_95": interval, "correlations": correlations,
+            "problems": problems, "capture": capture if problems else None}
+    return stderr, info
+
+
+def capture_hint(name: str, params: dict[str, Any], obs: list[Observation]) -> str:
+    """The capture that would determine an effect's parameters better."""
+    stage = [o.scene for o in obs if o.scene.wall_distance_mm is not None]
+    first = f"{stage[0].wall_distance_mm:.0f} mm" if stage else "first"
+    if name == "temperature_drift":
+        tau = float(params.get("tau_s", 600.0))
+        return (f"repeat the {first} position later in the run (after about {3 * tau:.0f} s, three time constants) "
+                "and start capturing right after power-on: the drift's amplitude and time constant separate "
+                "only when the same position is seen warm and settled")
+    if name == "wiggling":
+        period = float(params.get("period_mm", 1000.0))
+        return (f"a depth sweep with steps below a quarter of the period ({period / 4:.0f} mm) over at least two "
+                "periods")
+    if name == "multipath":
+        return "the same scene at more distances (the extra path's phase turns with the modulation wavelength)"
+    return "more steps of the procedure where the effect shows most"
+
+
+def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay: Layout) -> tuple[dict, dict, dict, float]:
+    """The candidate's parameters refined on full re-simulations, starting from its linear fit.
+
+    Returns the parameters, their standard errors (steps as replications), how well the run determines them
+    (``determination``) and the whitened RSS.
+    """
+    result, _ = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
+    params = candidate.from_vector(result.x)
+    rss = float(result.fun @ result.fun)
+    hint = capture_hint(candidate.name, params, sim.observations)
+    try:
+        cov = _step_covariance(result.jac, result.fun, lay.row_steps(), lay.n_steps)
+        stderr, info = determination(candidate, params, result.x, cov, hint)
+    except (np.linalg.LinAlgError, ValueError):
+        stderr, info = {}, {"well_determined": False, "problems": ["no covariance"], "capture": hint}
+    return params, stderr, info, rss
+
+
+def refine_jointly(found: list[tuple[Candidate, dict[str, Any]]], model: SimModel, sim: Simulation,
+                   lay: Layout) -> SimModel:
+    """All effects named in this reconcile refitted together (an effect fitted while another was still
+    missing carries some of the other's residual)."""
+    result, build = _fit_effects(found, model, sim, lay, max_nfev=20)
+    return build(result.x)
+
+
+def _separating_step(a: Fit, b: Fit, lay: Layout, obs: list[Observation]) -> str:
+    """The measured step where the two fitted candidates' predictions differ most."""
+    diff = (a.signature - b.signature) ** 2
+    per_step = np.bincount(lay.row_steps(), diff, lay.n_steps)
+    s = obs[int(np.argmax(per_step))].scene
+    where = f"{s.wall_distance_mm:.0f} mm" if s.wall_distance_mm is not None else f"{s.robot_angle_deg:g} deg"
+    return f"{s.step_id} ({s.procedure}, {s.target} at {where})"
+
+
+def material(before: Goodness, after: Goodness) -> bool:
+    """The practical-significance rule. Over the steps whose own gap a change of the model moves by more than
+    ``FLOOR_FRACTION`` of their floor (an effect may act on part of the run only: a drift early on, a target on
+    the robot), in one residual family, the change must reduce their RMS gap in units of their own floors
+    (whitened, so that a quiet step counts as much as a noisy one) by at least ``MATERIAL_FRACTION`` of it and
+    by at least ``FLOOR_FRACTION`` (half a floor)."""
+    after_steps = {(s.step_id, s.family): s for s in after.steps}
+    for family in ("depth", "intensity"):
+        pairs = [(b, after_steps[(b.step_id, family)]) for b in before.steps
+                 if b.family == family and (b.step_id, family) in after_steps]
+        moved = [(b, a) for b, a in pairs if abs(b.gap - a.gap) > FLOOR_FRACTION * b.floor]
+        if not moved:
+            continue
+        ratio_b = math.sqrt(np.mean([b.ratio**2 for b, _ in moved]))
+        ratio_a = math.sqrt(np.mean([(a.gap / b.floor) ** 2 for b, a in moved]))
+        if ratio_b - ratio_a >= max(MATERIAL_FRACTION * ratio_b, FLOOR_FRACTION):
+            return True
+    return False
+
+
+def _comparable_steps(lay: Layout) -> int:
+    return int(sum(int(z.sum()) >= 2 or int(i.sum()) >= 2 for z, i in zip(lay.z_masks, lay.i_masks, strict=True)))
+
+
+def _not_comparable(observations: list[Observation], model: SimModel, notes: list[str], why: str) -> ReconcileResult:
+    """The result for a run with nothing (or too little) the simulator can re-create, with what would help."""
+    procedures = sorted({o.scene.procedure for o in observations})
+    needed = {k: v for k, v in NEEDED_PROCEDURES.items() if k not in procedures}
+    detail = {"reason": why, "comparable_steps": [o.scene.step_id for o in observations],
+              "procedures_needed": needed or NEEDED_PROCEDURES,
+              "not_compared": "checkerboard corner positions and edge sharpness are evaluated by labctl evaluate, "
+                              "not compared here"}
+    nan = math.nan
+    return ReconcileResult("not_comparable", [], [], nan, nan, nan, nan, model, observations, [], [],
+                           notes + [f"not comparable: {why}"], not_comparable=detail)
+
+
+class _State:
+    """The model under test and its residuals."""
+
+    def __init__(self, sim: Simulation, lay: Layout, model: SimModel) -> None:
+        self.sim, self.lay = sim, lay
+        self.set(model)
+
+    def set(self, model: SimModel) -> None:
+        self.model = model
+        self.preds = self.sim.predict(model)
+        self.dz, self.di = raw_residuals(self.sim.observations, self.preds)
+        self.good = goodness(self.lay, self.sim.observations, self.dz, self.di, model.profile().technology)
+
+    def context(self) -> Context:
+        return Context(self.sim.observations, self.preds, self.model, self.sim.predictor, self.sim.t0_s, self.lay)
+
+    def whitened(self) -> np.ndarray:
+        return np.nan_to_num(self.lay.profiled(self.dz, self.di))
+
+
+def _add_empirical(state: _State, carrying: str | None, say: Callable[[str], None]) -> list[dict[str, Any]]:
+    """Empirical corrections added to ``state`` while each is material (the carrying axis's form first)."""
+    order = sorted(FORMS, key=lambda name: name != FIRST_FORM.get(carrying or "", ""))
+    added = []
+    for name in order:
+        if state.good.consistent:
+            break
+        say(f"fitting {name}")
+        params = FORMS[name](state.context(), state.whitened())
+        before = state.good
+        trial = with_effect(state.model, name, params)
+        keep = state.model
+        state.set(trial)
+        if not material(before, state.good):
+            state.set(keep)
+            continue
+        added.append({"name": name, "parameters": params, "empirical": True,
+                      "gap_before_mm": before.gap_mm, "gap_after_mm": state.good.gap_mm})
+    return added
+
+
+def reconcile(path: str | Path, model: SimModel | None = None,
+              progress: Callable[[str], None] | None = None) -> ReconcileResult:
+    """Name, fit and add the effects the model is missing to explain the measured run at ``path``."""
+    say = progress or (lambda _: None)
+    say("reading the measured run")
+    observations, info, notes = observe_run(path)
+    model = model or base_model(info)
+    if not observations:
+        return _not_comparable(observations, model, notes, "the run holds no step the simulator can "
+                               "re-create (walls, charts, boards, stars, masks, material plates)")
+    sim = Simulation(observations, info)
+    say(f"re-simulating {len(observations)} steps")
+    preds = sim.predict(model)
+    lay = layout(observations, preds, model.profile().technology)
+    if _comparable_steps(lay) < MIN_STEPS:
+        return _not_comparable(observations, model, notes, f"{_comparable_steps(lay)} step(s) with compared "
+                               f"bins; at least {MIN_STEPS} are needed to tell an effect from the lab's nuisance")
+    state = _State(sim, lay, model)
+    good_before = state.good
+    gap_before, igap_before = good_before.gap_mm, good_before.intensity_gap_pct
+    iterations: list[Iteration] = []
+    named: list[dict[str, Any]] = []
+    ambiguity = None
+    first_candidates: list[dict[str, Any]] = []
+    start_model = model
+    found: list[tuple[Candidate, dict[str, Any]]] = []
+    for _ in range(MAX_EFFECTS):
+        r = state.whitened()
+        ctx = state.context()
+        fits = []
+        for candidate in candidates_for(ctx):
+            say(f"scoring {candidate.name}")
+            fit = score(candidate, ctx, lay, r)
+            if fit is not None:
+                fits.append((fit, candidate))
+        fits.sort(key=lambda fc: -fc[0].score)
+        iteration = Iteration(sorted(state.model.effects), state.good.gap_mm, [f for f, _ in fits], "none significant",
+                              _residual_maps(lay, state.dz), state.good)
+        iterations.append(iteration)
+        if not first_candidates:
+            first_candidates = [{"name": f.name, "score": round(f.score, 2)} for f, _ in fits]
+        if state.good.consistent:
+            iteration.decision = "consistent with noise"
+            break
+        if not fits or fits[0][0].score < DBIC_THRESHOLD or fits[0][0].loso_gain <= 0:
+            break
+        best, candidate = fits[0]
+        runner = fits[1][0] if len(fits) > 1 else None
+        if runner is not None and runner.score > best.score - MARGIN and competing(best, runner):
+            iteration.decision = "ambiguous"
+            ambiguity = {"between": [best.name, runner.name], "scores": [best.score, runner.score],
+                         "separating_capture": _separating_step(best, runner, lay, observations)}
+            break
+        say(f"fitting {best.name}")
+        params, stderr, info_det, rss = refine(candidate, best, state.model, sim, lay)
+        before, previous = state.good, state.model
+        state.set(with_effect(state.model, best.name, params))
+        if not material(before, state.good):
+            iteration.decision = (f"{best.name} not material (gap {before.gap_mm:.3f} -> {state.good.gap_mm:.3f} mm, "
+                                  f"floor {before.gap_floor_mm:.3f} mm)")
+            state.set(previous)
+            break
+        found.append((candidate, params))
+        named.append({"name": best.name, "parameters": params, "evidence": {
+            "delta_bic": round(best.score, 2), "loso_gain": round(best.loso_gain, 4),
+            "runner_up": runner.name if runner else None,
+            "runner_up_delta_bic": round(runner.score, 2) if runner else None,
+            "stderr": stderr, "determination": info_det, "rss_before": best.rss0, "rss_after": rss,
+            "gap_before_mm": before.gap_mm, "gap_after_mm": state.good.gap_mm,
+            "intensity_gap_before_pct": before.intensity_gap_pct,
+            "intensity_gap_after_pct": state.good.intensity_gap_pct, "steps": lay.n_steps}})
+        iteration.decision = f"added {best.name}"
+    if len(found) > 1:
+        say("refitting the named effects together")
+        state.set(refine_jointly(found, start_model, sim, lay))
+        for entry in named:
+            entry["parameters"] = dict(state.model.effects[entry["name"]])
+    good_physical = state.good
+    residual_physical = _residual_maps(lay, state.dz)
+    unexplained, empirical = None, []
+    if not good_physical.consistent:
+        say("characterizing the unexplained residual")
+        unexplained = characterize(observations, state.preds, residual_physical, sim.t0_s)
+        empirical = _add_empirical(state, unexplained["carrying_axis"], say)
+    gap_after, igap_after = state.good.gap_mm, state.good.intensity_gap_pct
+    if good_physical.consistent:
+        verdict = "effect_found" if named else "none"
+    elif ambiguity is not None:
+        verdict = "ambiguous"
+    else:
+        verdict = "unexplained"
+    if unexplained is not None:
+        unexplained["message"] = _unexplained_message(named, good_physical, unexplained, empirical)
+    notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items()]
+    return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
+                           state.model, observations, iterations, _residual_maps(lay, state.dz), notes, ambiguity,
+                           good_before, state.good, good_physical, unexplained, empirical)
+
+
+def _unexplained_message(named: list[dict[str, Any]], good: Goodness, found: dict[str, Any],
+                         empirical: list[dict[str, Any]]) -> str:
+    """What the user reads: what remains, what it follows, and what the empirical correction is."""
+    worst = good.worst_step
+    text = (f"a residual of {good.gap_mm:.3f} mm remains (noise floor {good.gap_floor_mm:.3f} mm"
+            + (f"; step {worst.step_id} {worst.ratio:.1f} x its floor in {worst.family}" if worst else "") + ")"
+            + (" after " + ", ".join(e["name"] for e in named) if named else "")
+            + f" that no library effect explains: {found['description']}.")
+    if empirical:
+        text += (" Added to the model as an EMPIRICAL correction (" + ", ".join(e["name"] for e in empirical)
+                 + "), which closes the gap without naming a cause.")
+    else:
+        text += " No empirical correction closed it materially."
+    return text
+
+
+def _rounded(value: float) -> float | None:
+    return round(value, 4) if math.isfinite(value) else None
+
+
+def json_document(result: ReconcileResult, model_path: Path) -> dict[str, Any]:
+    """reconcile.json (docs/reconcile.md): verdict, named effects and gaps, with the gap floor and consistency,
+    per-round goodness of fit, the unexplained residual's characterization, empirical corrections, and what a
+    not-comparable run would need."""
+    after = result.goodness_after
+    doc: dict[str, Any] = {
+        "verdict": result.verdict,
+        "named_effects": result.named,
+        "candidates": result.candidates,
+        "gap_before": _rounded(result.gap_before),
+        "gap_after": _rounded(result.gap_after),
+        "gap_unit": "mm",
+        "model_toml": str(model_path),
+        "gap_floor": _rounded(after.gap_floor_mm) if after else None,
+        "consistent_with_noise": after.consistent if after else None,
+        "gap_after_physical": _rounded(result.goodness_physical.gap_mm) if result.goodness_physical else None,
+        "intensity_gap_before": _rounded(result.intensity_gap_before),
+        "intensity_gap_after": _rounded(result.intensity_gap_after),
+        "intensity_gap_floor": _rounded(after.intensity_gap_floor_pct) if after else None,
+        "intensity_gap_unit": "%",
+        "goodness_of_fit": {
+            "before": result.goodness_before.summary() if result.goodness_before else None,
+            "rounds": [{"model_effects": it.model_effects, "decision": it.decision,
+                        **(it.goodness.summary() if it.goodness else {})} for it in result.iterations],
+            "after_physical": result.goodness_physical.summary() if result.goodness_physical else None,
+            "after": after.summary() if after else None,
+        },
+        "significance_rule": {"material_fraction": MATERIAL_FRACTION, "floor_fraction": FLOOR_FRACTION,
+                              "dbic_threshold": DBIC_THRESHOLD},
+        "empirical_corrections": result.empirical,
+        "notes": result.notes,
+    }
+    if result.unexplained is not None:
+        doc["unexplained"] = result.unexplained
+    if result.not_comparable is not None:
+        doc["not_comparable"] = result.not_comparable
+    if result.ambiguity:
+        doc["ambiguity"] = result.ambiguity
+    return doc

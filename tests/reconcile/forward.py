@@ -1,0 +1,152 @@
+"""Forward models for reconcile tests: rewrite a plain simulated run as a camera with an effect would measure it.
+
+The effects are written in the tests from first principles, not with the
+effect library's code: a test gives ``rewrite_run`` a function that returns,
+for every pixel of one frame, the range error in mm the camera would have
+made there (``Pixels`` says what the function may depend on). Every valid
+point is moved along its own ray by that error (x, y, z scaled by
+(r + dr) / r, r = |(x, y, z)|), so a range error keeps the pixel's direction
+as a ToF camera's does; for stereo, a depth error dz at a point is the range
+error dz r / z.
+
+``simulated_run`` makes the plain run (the library's simulator with the
+camera's built-in effects only, or with ``hidden`` library effects) and
+removes ``/sim`` so that the reconcile sees only what a measured file holds.
+
+    run = simulated_run(tmp_path / "plain", "blaze101")
+    measured = rewrite_run(run, tmp_path / "measured.h5",
+                           lambda px: 2.0 * np.cos(2 * np.pi * px.col / px.width * 3))
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import pytest
+import tomli_w
+
+from labctl.cli import main
+from sim.profiles import default_effects, get_profile
+
+SIZES = {"blaze101": (160, 120), "amt100": (160, 120), "flexx2": (224, 172), "d455": (160, 120)}
+BACKENDS = {"blaze101": "blaze", "amt100": "amt100", "flexx2": "flexx2", "d455": "realsense"}
+
+#: offset calibration, a 0.4-4 m depth sweep in 200 mm steps, PTFE and silicone plates at -60...60 deg on the
+#: robot circle, 10 frames per stack (``{sweep_step_mm}``, ``{robot}`` and ``{seed}`` filled in)
+CAMPAIGN = """
+[campaign]
+name = "reconcile-test"
+[devices.camera]
+backend = "{backend}"
+[devices.stage]
+protocol = "zaber"
+port = "/dev/ttyUSB0"
+travel_mm = [0, 4000]
+speed_mm_s = 50
+[devices.laser]
+port = "/dev/ttyUSB1"
+[devices.robot]
+host = "192.168.1.10"
+radius_max_mm = 850
+[[procedure]]
+kind = "offset_calibration"
+distance_mm = 2000
+frames = 10
+[[procedure]]
+kind = "depth_sweep"
+start_mm = 400
+stop_mm = 4000
+step_mm = {sweep_step_mm}
+frames = 10
+{robot}
+[sim]
+seed = {seed}
+"""
+
+ROBOT = """
+[[procedure]]
+kind = "remission_angle"
+materials = ["ptfe", "silicone"]
+angles_deg = [-60, 60, 20]
+radius_mm = 850
+frames = 10
+"""
+
+
+def simulated_run(directory: Path, camera: str, hidden: dict[str, Any] | None = None, seed: int = 3,
+                  campaign: str | None = None, sweep_step_mm: int = 200, robot: bool = True) -> Path:
+    """A simulated campaign (``CAMPAIGN`` or the given campaign text) of ``camera`` at its test size with the
+    built-in effects plus ``hidden`` library effects; ``/sim`` removed. Returns the run file's path."""
+    directory.mkdir(parents=True, exist_ok=True)
+    width, height = SIZES[camera]
+    text = campaign if campaign is not None else CAMPAIGN.format(
+        backend=BACKENDS[camera], seed=seed, sweep_step_mm=sweep_step_mm, robot=ROBOT if robot else "")
+    (directory / "campaign.toml").write_text(text)
+    model = {"camera": camera, "camera_overrides": {"width": width, "height": height},
+             "effects": {**default_effects(get_profile(camera)), **(hidden or {})}}
+    (directory / "hidden.toml").write_text(tomli_w.dumps(model))
+    run = directory / "measured.h5"
+    with pytest.raises(SystemExit) as info:
+        main(["run", str(directory / "campaign.toml"), "--sim", "--model", str(directory / "hidden.toml"),
+              "-o", str(run), "--quiet"])
+    assert info.value.code == 0
+    with h5py.File(run, "a") as f:
+        if "sim" in f:
+            del f["sim"]
+    return run
+
+
+@dataclass(frozen=True)
+class Pixels:
+    """What a range-error function may depend on, for one frame of one step ((H, W) arrays unless noted)."""
+
+    row: np.ndarray  # pixel row index
+    col: np.ndarray  # pixel column index
+    width: int
+    height: int
+    x_mm: np.ndarray  # the point as the camera reported it (NaN = invalid)
+    y_mm: np.ndarray
+    z_mm: np.ndarray
+    range_mm: np.ndarray  # |(x, y, z)|
+    intensity: np.ndarray
+    time_s: float  # device time of the frame
+    frame: int  # frame number within the step
+    step: dict[str, Any]  # the step's attributes: target, procedure, distance_mm, robot_angle_deg, ...
+
+    @property
+    def radius(self) -> np.ndarray:
+        """Distance of the pixel from the image centre over half the image diagonal (0 ... 1)."""
+        du, dv = self.col - (self.width - 1) / 2, self.row - (self.height - 1) / 2
+        return np.hypot(du, dv) / np.hypot(self.width / 2, self.height / 2)
+
+
+RangeError = Callable[[Pixels], np.ndarray]
+
+
+def rewrite_run(source: Path, destination: Path, range_error_mm: RangeError) -> Path:
+    """Copy the run at ``source`` to ``destination`` and move every valid point of every frame of every step
+    along its ray by ``range_error_mm(pixels)`` mm (a scalar or an (H, W) array). Returns ``destination``."""
+    shutil.copyfile(source, destination)
+    with h5py.File(destination, "a") as f:
+        for group in f["steps"].values():
+            x_ds, y_ds, z_ds = group["x"], group["y"], group["z"]
+            n, h, w = z_ds.shape
+            row, col = np.mgrid[0:h, 0:w]
+            times = np.asarray(group["timestamp"][:], float)
+            attrs = dict(group.attrs)
+            for k in range(n):
+                x, y, z = (np.asarray(d[k], float) for d in (x_ds, y_ds, z_ds))
+                r = np.sqrt(x * x + y * y + z * z)
+                pixels = Pixels(row, col, w, h, x, y, z, r, np.asarray(group["intensity"][k], float),
+                                float(times[k]), k, attrs)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    factor = (r + np.broadcast_to(range_error_mm(pixels), r.shape)) / r
+                for d, v in ((x_ds, x), (y_ds, y), (z_ds, z)):
+                    d[k] = (v * factor).astype(np.float32)
+    return destination
