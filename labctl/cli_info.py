@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
 
 from labctl.diskspace import format_bytes
 from labctl.runinfo import run_info
+from metrics.jsonsafe import dumps_strict
 
 
 def _position(step: dict) -> str:
@@ -27,7 +27,7 @@ def info(run_file: Path, as_json: bool) -> None:
     """Show RUN_FILE's header (campaign, status, size, compression) and every step with its status."""
     doc = run_info(run_file)
     if as_json:
-        click.echo(json.dumps(doc, indent=2))
+        click.echo(dumps_strict(doc, indent=2))
         return
     kind = "simulated" if doc["simulated"] else "measured"
     reason = f" ({doc['status_reason']})" if doc["status_reason"] else ""
