@@ -7,7 +7,18 @@ act after the render have closed-form signatures from the base prediction
 that move the geometry are differentiated by re-simulating with the effect
 switched on (finite difference). Nonlinear parameters (a wiggling period, a
 drift time constant, a multipath extra path) are searched on a grid, the
-linear ones solved for at each grid point.
+linear ones solved for at each grid point (a ``floor_multipath`` plane and
+its distance, a wiggling period, a drift time constant, a multipath extra path).
+
+``fixed_pattern`` has a range offset per pixel: far more parameters than the
+comparison can determine. It is fitted as a zero-mean column profile of
+``PATTERN_CELLS[0]`` cells across the width plus a row profile of
+``PATTERN_CELLS[1]`` cells down the height (their mean is the constant offset
+the nuisance takes). What it can see: the bin means of column and row
+structure wider than a cell. What it cannot: stripes narrower than a cell
+(one column's own offset averages with its neighbours'), a per-pixel random
+map (it averages out within a bin), and structure that is neither a column
+nor a row pattern.
 
 Not candidates, because the comparison cannot see them:
 
@@ -34,6 +45,7 @@ import numpy as np
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout
+from sim.effects import fixed_pattern, floor_multipath
 from sim.materials import get_material
 from sim.model import SimModel
 from sim.render import C_MM_PER_S
@@ -66,6 +78,17 @@ class Context:
                                                   for p in self.predictions])
         return self._stacks[attr]
 
+    def z_rows_of_map(self, image: np.ndarray) -> np.ndarray:
+        """A map of the bin grid (the same for every step) stacked over the depth rows."""
+        return self.lay.stack_z([np.broadcast_to(image, p.z.shape) for p in self.predictions])
+
+    def rays(self) -> np.ndarray:
+        """(3, h, w) unit camera-frame ray of every bin (cached)."""
+        if "rays" not in self._stacks:
+            optics = self.make_predictor(self.model).sensor.geometry.optics
+            self._stacks["rays"] = optics.directions(*optics.pixel_grid())
+        return self._stacks["rays"]
+
     def per_step(self, values: np.ndarray) -> np.ndarray:
         """One value per step spread over that step's depth rows."""
         return np.asarray(values)[self.lay.z_step]
@@ -96,9 +119,9 @@ class Candidate:
     name: str
     technologies: tuple[str, ...]
     n_params: int  # free parameters (linear and nonlinear), for the BIC penalty
-    grid: Callable[[Context], list[float | None]]
-    columns: Callable[[Context, float | None], list[Column]]
-    to_params: Callable[[Context, np.ndarray, float | None], dict[str, Any] | None]
+    grid: Callable[[Context], list[Any]]  # nonlinear parameter values (None: a purely linear candidate)
+    columns: Callable[[Context, Any], list[Column]]
+    to_params: Callable[[Context, np.ndarray, Any], dict[str, Any] | None]
     vector: Callable[[dict[str, Any]], tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]]
     from_vector: Callable[[np.ndarray], dict[str, Any]]
     applies: Callable[[Context], bool] = field(default=lambda ctx: True)
@@ -241,6 +264,119 @@ MULTIPATH = Candidate(
 )
 
 
+# fixed_pattern: dr = C(u) + R(v), C and R zero-mean profiles on PATTERN_CELLS cells (bin means of each cell)
+PATTERN_CELLS = (16, 12)
+PATTERN_LIMIT_MM = 100.0
+
+
+def _zero_mean(free: np.ndarray) -> np.ndarray:
+    """A zero-mean profile of n cells from its first n - 1 values."""
+    return np.append(free, -np.sum(free))
+
+
+def _pattern_columns(ctx: Context, _: Any) -> list[Column]:
+    height, width = ctx.predictions[0].z.shape
+    ratio = ctx.z_rows("z_per_range")
+    out = []
+    for axis, (cells, bins) in enumerate(zip(PATTERN_CELLS, (width, height), strict=True)):
+        share = fixed_pattern.cell_average(cells, bins)  # (bins, cells)
+        for j in range(cells - 1):  # cell j against the last one (the profile's mean goes to the nuisance)
+            profile = share[:, j] - share[:, -1]
+            image = np.broadcast_to(profile[None, :] if axis == 0 else profile[:, None], (height, width))
+            out.append(_depth(ctx, ctx.z_rows_of_map(image) * ratio))
+    return out
+
+
+def _pattern_profiles(free: np.ndarray) -> dict[str, Any]:
+    """The column and row profiles from their free values (all cells but each profile's last)."""
+    n = PATTERN_CELLS[0] - 1
+    return {"column_offsets_mm": [float(v) for v in _zero_mean(free[:n])],
+            "row_offsets_mm": [float(v) for v in _zero_mean(free[n:])]}
+
+
+def _pattern_params(ctx: Context, c: np.ndarray, _: Any) -> dict[str, Any] | None:
+    p = _pattern_profiles(c)
+    return p if max(np.abs(p["column_offsets_mm"]).max(), np.abs(p["row_offsets_mm"]).max()) <= PATTERN_LIMIT_MM \
+        else None
+
+
+def _pattern_vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    x = np.concatenate([p["column_offsets_mm"][:-1], p["row_offsets_mm"][:-1]])
+    return x, (np.full(len(x), -PATTERN_LIMIT_MM), np.full(len(x), PATTERN_LIMIT_MM))
+
+
+FIXED_PATTERN = Candidate(
+    "fixed_pattern", ("tof",), sum(PATTERN_CELLS) - 2, _none, _pattern_columns, _pattern_params,
+    _pattern_vector, _pattern_profiles,
+)
+
+
+# floor_multipath: dr ~ q sin(k (R' - r) / 2) / k per unit reflectance (first order), the plane and its
+# distance from the optical axis searched on a grid. The plane is coded into the distance parameter of the
+# refit (PLANE_CODE_MM per plane), whose bounds keep the solver on the plane the grid found.
+PLANE_CODE_MM = 20000.0
+PLANE_NAMES = tuple(floor_multipath.PLANES)
+
+
+def _bounce_grid(_: Context) -> list[Any]:
+    return [(plane, float(d)) for plane in PLANE_NAMES for d in np.geomspace(100.0, 3000.0, 40)]
+
+
+def _bounce_columns(ctx: Context, where: Any) -> list[Column]:
+    plane, distance = where
+    k = _wavenumber(ctx)
+    rays = ctx.rays()
+    ranges = np.nan_to_num(ctx.z_rows("range_mm"))
+    x, y, z = (ctx.z_rows_of_map(rays[i]) * ranges for i in range(3))
+    ratio, half_extra = floor_multipath.bounce(x, y, z, plane, distance)
+    return [_depth(ctx, ratio * np.sin(k * half_extra) / k * ctx.z_rows("z_per_range"))]
+
+
+def _bounce_params(ctx: Context, c: np.ndarray, where: Any) -> dict[str, Any] | None:
+    plane, distance = where
+    return {"plane": plane, "distance_mm": distance, "reflectance": float(c[0])} if 0.0 < c[0] <= 1.0 else None
+
+
+def _bounce_vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    code = PLANE_NAMES.index(p["plane"]) * PLANE_CODE_MM
+    return (np.array([p["reflectance"], code + p["distance_mm"]]),
+            (np.array([0.0, code + 1.0]), np.array([1.0, code + 10000.0])))
+
+
+def _bounce_from_vector(x: np.ndarray) -> dict[str, Any]:
+    index = int(x[1] // PLANE_CODE_MM)
+    return {"plane": PLANE_NAMES[index], "distance_mm": float(x[1] - index * PLANE_CODE_MM),
+            "reflectance": float(x[0])}
+
+
+FLOOR_MULTIPATH = Candidate(
+    "floor_multipath", ("tof",), 3, _bounce_grid, _bounce_columns, _bounce_params, _bounce_vector,
+    _bounce_from_vector,
+)
+
+
+# disparity_bias: dz = -z^2 / (f b) * (a sin(2 pi d) + b cos(2 pi d)), d = f b / z in the matcher's pixels
+def _bias_columns(ctx: Context, _: Any) -> list[Column]:
+    focal_baseline = ctx.make_predictor(ctx.model).sensor.matching_focal_baseline
+    z = np.nan_to_num(ctx.z_rows("z"), nan=1.0)
+    d = focal_baseline / z
+    slope = -z * z / focal_baseline
+    return [_depth(ctx, slope * np.sin(2 * math.pi * d)), _depth(ctx, slope * np.cos(2 * math.pi * d))]
+
+
+def _bias_params(ctx: Context, c: np.ndarray, _: Any) -> dict[str, Any] | None:
+    amplitude = float(np.hypot(c[0], c[1]))
+    return {"amplitude_px": amplitude, "phase_rad": float(math.atan2(c[1], c[0]))} if amplitude <= 0.5 else None
+
+
+DISPARITY_BIAS = Candidate(
+    "disparity_bias", ("stereo",), 2, _none, _bias_columns, _bias_params,
+    lambda p: (np.array([p["amplitude_px"], p["phase_rad"]]),
+               (np.array([0.0, -4 * math.pi]), np.array([0.5, 4 * math.pi]))),
+    lambda x: {"amplitude_px": float(x[0]), "phase_rad": float((x[1] + math.pi) % (2 * math.pi) - math.pi)},
+)
+
+
 # material_bias: translucent materials read scale x their sub-surface bias long (re-simulated)
 def _translucent(o: Observation) -> bool:
     material = o.scene.target if o.scene.target in PLATE_MATERIALS else None
@@ -287,7 +423,8 @@ RADIAL_DISTORTION = Candidate(
 )
 
 CANDIDATES = (RANGE_SCALE, WIGGLING, TEMPERATURE_DRIFT, INTENSITY_RELATED_ERROR, VIGNETTING, MULTIPATH,
-              MATERIAL_BIAS, TARGET_MISALIGNMENT, CAMERA_AXIS_OFFSET, RADIAL_DISTORTION)
+              FIXED_PATTERN, FLOOR_MULTIPATH, DISPARITY_BIAS, MATERIAL_BIAS, TARGET_MISALIGNMENT,
+              CAMERA_AXIS_OFFSET, RADIAL_DISTORTION)
 NOT_IDENTIFIABLE = {
     "range_offset": "absorbed by the offset calibration and the per-group offsets",
     "quantization": "does not move the mean of a noisy stack",

@@ -10,6 +10,9 @@ from pydantic import ValidationError
 from sim.effects import (
     camera_axis_offset,
     defocus,
+    disparity_bias,
+    fixed_pattern,
+    floor_multipath,
     flying_pixels,
     fov_error,
     intensity_related_error,
@@ -33,7 +36,7 @@ EFFECTS: dict[str, ModuleType] = {
     for m in (
         range_offset, range_scale, wiggling, temperature_drift, intensity_related_error, vignetting,
         radial_distortion, fov_error, defocus, quantization, flying_pixels, multipath, material_bias,
-        target_misalignment, camera_axis_offset,
+        target_misalignment, camera_axis_offset, fixed_pattern, floor_multipath, disparity_bias,
     )
 }
 
