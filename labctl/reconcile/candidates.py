@@ -11,14 +11,16 @@ linear ones solved for at each grid point (a ``floor_multipath`` plane and
 its distance, a wiggling period, a drift time constant, a multipath extra path).
 
 ``fixed_pattern`` has a range offset per pixel: far more parameters than the
-comparison can determine. It is fitted as a zero-mean column profile of
-``PATTERN_CELLS[0]`` cells across the width plus a row profile of
-``PATTERN_CELLS[1]`` cells down the height (their mean is the constant offset
-the nuisance takes). What it can see: the bin means of column and row
-structure wider than a cell. What it cannot: stripes narrower than a cell
-(one column's own offset averages with its neighbours'), a per-pixel random
-map (it averages out within a bin), and structure that is neither a column
-nor a row pattern.
+comparison can determine. It is fitted as a column profile (one value per
+bin column) plus a row profile (one per bin row), the additive fit of the
+residual over all steps; its mean is the constant offset the nuisance takes.
+A step's signature is the profiles fitted to the other steps (out of sample),
+with two linear parameters, the gains of the two profiles. What it can see:
+the bin means of column and row structure that is the same at every distance
+and pose. What it cannot: a single column's own offset (it averages with the
+other columns of its bin), a per-pixel random map (it averages out within a
+bin), bins never compared (the image border, edges: their offset is left 0),
+and structure that is neither a column nor a row pattern.
 
 Not candidates, because the comparison cannot see them:
 
@@ -45,7 +47,7 @@ import numpy as np
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout
-from sim.effects import fixed_pattern, floor_multipath
+from sim.effects import floor_multipath
 from sim.materials import get_material
 from sim.model import SimModel
 from sim.render import C_MM_PER_S
@@ -82,12 +84,14 @@ class Context:
         """A map of the bin grid (the same for every step) stacked over the depth rows."""
         return self.lay.stack_z([np.broadcast_to(image, p.z.shape) for p in self.predictions])
 
-    def rays(self) -> np.ndarray:
-        """(3, h, w) unit camera-frame ray of every bin (cached)."""
-        if "rays" not in self._stacks:
+    def points(self) -> np.ndarray:
+        """(3, rows) camera-frame point of every depth row: the predicted range along the bin's ray (cached)."""
+        if "points" not in self._stacks:
             optics = self.make_predictor(self.model).sensor.geometry.optics
-            self._stacks["rays"] = optics.directions(*optics.pixel_grid())
-        return self._stacks["rays"]
+            rays = optics.directions(*optics.pixel_grid())
+            ranges = np.nan_to_num(self.z_rows("range_mm"))
+            self._stacks["points"] = np.stack([self.z_rows_of_map(rays[i]) * ranges for i in range(3)])
+        return self._stacks["points"]
 
     def per_step(self, values: np.ndarray) -> np.ndarray:
         """One value per step spread over that step's depth rows."""
@@ -125,6 +129,7 @@ class Candidate:
     vector: Callable[[dict[str, Any]], tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]]
     from_vector: Callable[[np.ndarray], dict[str, Any]]
     applies: Callable[[Context], bool] = field(default=lambda ctx: True)
+    bind: Callable[[Context], Candidate] | None = None  # builds the candidate from the run (its signatures)
 
 
 def _none(_: Context) -> list[float | None]:
@@ -264,50 +269,73 @@ MULTIPATH = Candidate(
 )
 
 
-# fixed_pattern: dr = C(u) + R(v), C and R zero-mean profiles on PATTERN_CELLS cells (bin means of each cell)
-PATTERN_CELLS = (16, 12)
-PATTERN_LIMIT_MM = 100.0
+# fixed_pattern: dr = C(u) + R(v), a column and a row profile at the bin resolution. The profiles are the
+# additive fit of the residual over all steps (what stays the same at every distance); a step's signature is
+# the profiles fitted to the other steps only, so the score is out of sample and its two linear parameters
+# (the column and the row profile's gain) cannot fit a step's own noise.
+PATTERN_GAIN_LIMIT = 10.0
 
 
-def _zero_mean(free: np.ndarray) -> np.ndarray:
-    """A zero-mean profile of n cells from its first n - 1 values."""
-    return np.append(free, -np.sum(free))
+def _additive_profiles(res: np.ndarray, weight: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares of res[s, v, u] = C[u] + R[v] by alternating weighted means (both zero-mean)."""
+    col = np.zeros(res.shape[2])
+    row = np.zeros(res.shape[1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for _ in range(iterations):
+            col = np.nan_to_num((weight * (res - row[None, :, None])).sum((0, 1)) / weight.sum((0, 1)))
+            row = np.nan_to_num((weight * (res - col[None, None, :])).sum((0, 2)) / weight.sum((0, 2)))
+    seen_col, seen_row = weight.sum((0, 1)) > 0, weight.sum((0, 2)) > 0
+    col = np.where(seen_col, col - (col[seen_col].mean() if seen_col.any() else 0.0), 0.0)
+    row = np.where(seen_row, row - (row[seen_row].mean() if seen_row.any() else 0.0), 0.0)
+    return col, row
 
 
-def _pattern_columns(ctx: Context, _: Any) -> list[Column]:
-    height, width = ctx.predictions[0].z.shape
-    ratio = ctx.z_rows("z_per_range")
-    out = []
-    for axis, (cells, bins) in enumerate(zip(PATTERN_CELLS, (width, height), strict=True)):
-        share = fixed_pattern.cell_average(cells, bins)  # (bins, cells)
-        for j in range(cells - 1):  # cell j against the last one (the profile's mean goes to the nuisance)
-            profile = share[:, j] - share[:, -1]
-            image = np.broadcast_to(profile[None, :] if axis == 0 else profile[:, None], (height, width))
-            out.append(_depth(ctx, ctx.z_rows_of_map(image) * ratio))
-    return out
+def _pattern_residual(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
+    """(steps, h, w) depth residual in range units with the nuisance removed, and its weights (0 where unused)."""
+    dz = [o.z - p.z for o, p in zip(ctx.observations, ctx.predictions, strict=True)]
+    flat = ctx.lay.profile_z(np.nan_to_num(ctx.lay.stack_z(dz))) / ctx.z_rows("z_per_range")
+    res, weight = np.zeros((len(dz),) + dz[0].shape), np.zeros((len(dz),) + dz[0].shape)
+    start = 0
+    for s, mask in enumerate(ctx.lay.z_masks):
+        n = int(mask.sum())
+        res[s][mask] = flat[start:start + n]
+        weight[s][mask] = ctx.lay.z_weight[start:start + n]
+        start += n
+    return res, weight
 
 
-def _pattern_profiles(free: np.ndarray) -> dict[str, Any]:
-    """The column and row profiles from their free values (all cells but each profile's last)."""
-    n = PATTERN_CELLS[0] - 1
-    return {"column_offsets_mm": [float(v) for v in _zero_mean(free[:n])],
-            "row_offsets_mm": [float(v) for v in _zero_mean(free[n:])]}
+def _bind_pattern(ctx: Context) -> Candidate:
+    """The fixed_pattern candidate with the profiles of this run's residual."""
+    res, weight = _pattern_residual(ctx)
+    col, row = _additive_profiles(res, weight)
+    held_out_col, held_out_row = [], []
+    for s in range(len(res)):
+        keep = np.arange(len(res)) != s
+        c, r = _additive_profiles(res[keep], weight[keep])
+        held_out_col.append(np.broadcast_to(c[None, :], res.shape[1:]))
+        held_out_row.append(np.broadcast_to(r[:, None], res.shape[1:]))
+    norms = (float(col @ col), float(row @ row))
+
+    def columns(c: Context, _: Any) -> list[Column]:
+        ratio = c.z_rows("z_per_range")
+        return [_depth(c, c.lay.stack_z(held_out_col) * ratio), _depth(c, c.lay.stack_z(held_out_row) * ratio)]
+
+    def from_vector(x: np.ndarray) -> dict[str, Any]:
+        return {"column_offsets_mm": [float(v) for v in x[0] * col], "row_offsets_mm": [float(v) for v in x[1] * row]}
+
+    def to_params(_: Context, c: np.ndarray, __: Any) -> dict[str, Any] | None:
+        return from_vector(c) if np.all(np.abs(c) <= PATTERN_GAIN_LIMIT) and min(norms) > 0 else None
+
+    def vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        x = np.array([np.dot(p["column_offsets_mm"], col) / norms[0], np.dot(p["row_offsets_mm"], row) / norms[1]])
+        return x, (np.full(2, -PATTERN_GAIN_LIMIT), np.full(2, PATTERN_GAIN_LIMIT))
+
+    return Candidate("fixed_pattern", ("tof",), 2, _none, columns, to_params, vector, from_vector)
 
 
-def _pattern_params(ctx: Context, c: np.ndarray, _: Any) -> dict[str, Any] | None:
-    p = _pattern_profiles(c)
-    return p if max(np.abs(p["column_offsets_mm"]).max(), np.abs(p["row_offsets_mm"]).max()) <= PATTERN_LIMIT_MM \
-        else None
-
-
-def _pattern_vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    x = np.concatenate([p["column_offsets_mm"][:-1], p["row_offsets_mm"][:-1]])
-    return x, (np.full(len(x), -PATTERN_LIMIT_MM), np.full(len(x), PATTERN_LIMIT_MM))
-
-
-FIXED_PATTERN = Candidate(
-    "fixed_pattern", ("tof",), sum(PATTERN_CELLS) - 2, _none, _pattern_columns, _pattern_params,
-    _pattern_vector, _pattern_profiles,
+FIXED_PATTERN = Candidate(  # bound to a run's residual by candidates_for
+    "fixed_pattern", ("tof",), 2, _none, lambda ctx, _: [], lambda ctx, c, _: None,
+    lambda p: (np.zeros(0), (np.zeros(0), np.zeros(0))), lambda x: {}, bind=_bind_pattern,
 )
 
 
@@ -319,15 +347,13 @@ PLANE_NAMES = tuple(floor_multipath.PLANES)
 
 
 def _bounce_grid(_: Context) -> list[Any]:
-    return [(plane, float(d)) for plane in PLANE_NAMES for d in np.geomspace(100.0, 3000.0, 40)]
+    return [(plane, float(d)) for plane in PLANE_NAMES for d in np.geomspace(100.0, 3000.0, 24)]
 
 
 def _bounce_columns(ctx: Context, where: Any) -> list[Column]:
     plane, distance = where
     k = _wavenumber(ctx)
-    rays = ctx.rays()
-    ranges = np.nan_to_num(ctx.z_rows("range_mm"))
-    x, y, z = (ctx.z_rows_of_map(rays[i]) * ranges for i in range(3))
+    x, y, z = ctx.points()
     ratio, half_extra = floor_multipath.bounce(x, y, z, plane, distance)
     return [_depth(ctx, ratio * np.sin(k * half_extra) / k * ctx.z_rows("z_per_range"))]
 
@@ -438,4 +464,4 @@ def candidates_for(ctx: Context) -> Iterator[Candidate]:
     """The candidates that apply to this run and are not yet in the model."""
     for c in CANDIDATES:
         if ctx.technology in c.technologies and c.name not in ctx.model.effects and c.applies(ctx):
-            yield c
+            yield c.bind(ctx) if c.bind is not None else c
