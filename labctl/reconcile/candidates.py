@@ -46,7 +46,7 @@ import numpy as np
 
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
-from labctl.reconcile.residuals import Layout
+from labctl.reconcile.residuals import Layout, raw_residuals
 from sim.effects import floor_multipath
 from sim.materials import get_material
 from sim.model import SimModel
@@ -185,23 +185,98 @@ WIGGLING = Candidate(
 )
 
 
-# temperature_drift: dr = delta exp(-t / tau), t since the run's first frame
-def _drift_grid(_: Context) -> list[float | None]:
+# temperature_drift: dr = delta exp(-t / tau) (+ delta_2 exp(-t / tau_2)), t since the run's first frame.
+# A second time constant is scored only where the run asks for it: the candidate is bound to the run by
+# comparing the best one- and two-term fits with Schwarz's criterion over steps (as score.py counts it);
+# if two terms win by TWO_TERM_EVIDENCE (strong evidence on the Kass & Raftery 1995 scale is > 6), the
+# candidate is the two-term form with its 4 parameters, otherwise the one-term form with 2.
+TWO_TERM_EVIDENCE = 10.0
+TWO_TERM_MIN_RATIO = 2.0  # the two time constants must differ by this factor
+DRIFT_LIMIT_MM = 100.0
+TAU_RANGE_S = (1.0, 86400.0)
+
+
+def _drift_grid(_: Context) -> list[Any]:
     return list(np.geomspace(10.0, 86400.0, 48))
 
 
-def _drift_columns(ctx: Context, tau: float | None) -> list[Column]:
+def _drift_rows(ctx: Context, tau: float) -> np.ndarray:
+    """The frames' mean exp(-t / tau) of each step, spread over its depth rows (range -> z)."""
     factor = [float(np.mean(np.exp(-(o.times_s - ctx.t0_s) / float(tau)))) if len(o.times_s) else 0.0
               for o in ctx.observations]
-    return [_depth(ctx, ctx.per_step(factor) * ctx.z_rows("z_per_range"))]
+    return ctx.per_step(factor) * ctx.z_rows("z_per_range")
+
+
+def _drift_columns(ctx: Context, taus: Any) -> list[Column]:
+    return [_depth(ctx, _drift_rows(ctx, tau)) for tau in (taus if isinstance(taus, tuple) else (taus,))]
+
+
+def _drift_params(_: Context, c: np.ndarray, taus: Any) -> dict[str, Any] | None:
+    taus = taus if isinstance(taus, tuple) else (taus,)
+    if np.any(np.abs(c) > DRIFT_LIMIT_MM):
+        return None
+    params: dict[str, Any] = {"delta_mm": float(c[0]), "tau_s": float(taus[0])}
+    if len(taus) > 1:
+        params["terms"] = [{"delta_mm": float(c[1]), "tau_s": float(taus[1])}]
+    return params
+
+
+def _drift_vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    terms = [(p["delta_mm"], p["tau_s"])] + [(t["delta_mm"], t["tau_s"]) for t in p.get("terms", [])]
+    x = np.array([v for delta, tau in terms for v in (delta, math.log(tau))])
+    lo = np.tile([-DRIFT_LIMIT_MM, math.log(TAU_RANGE_S[0])], len(terms))
+    hi = np.tile([DRIFT_LIMIT_MM, math.log(TAU_RANGE_S[1])], len(terms))
+    return x, (lo, hi)
+
+
+def _drift_from_vector(x: np.ndarray) -> dict[str, Any]:
+    params: dict[str, Any] = {"delta_mm": float(x[0]), "tau_s": float(math.exp(x[1]))}
+    if len(x) > 2:
+        params["terms"] = [{"delta_mm": float(x[i]), "tau_s": float(math.exp(x[i + 1]))} for i in range(2, len(x), 2)]
+    return params
+
+
+def _bind_drift(ctx: Context) -> Candidate:
+    """The one- or two-term drift candidate, whichever the run's depth residual supports."""
+    lay = ctx.lay
+    dz, di = raw_residuals(ctx.observations, ctx.predictions)
+    r = np.nan_to_num(lay.profiled(dz, di))[:len(lay.z_step)]  # the depth rows (drift leaves intensity alone)
+    taus = _drift_grid(ctx)
+    cols = np.column_stack([lay.profile_z(_drift_rows(ctx, tau)) * np.sqrt(lay.z_weight) for tau in taus])
+    per_step = [lay.z_step == s for s in range(lay.n_steps)]
+    gram = np.stack([cols[k].T @ cols[k] for k in per_step])
+    cross = np.stack([cols[k].T @ r[k] for k in per_step])
+    rss0 = np.array([r[k] @ r[k] for k in per_step])
+    used = rss0 > 0
+
+    def log_rss(idx: list[int]) -> float | None:
+        """Sum over steps of ln RSS with the drift terms ``idx`` fitted (None: no valid fit)."""
+        g = gram[:, idx][:, :, idx]
+        try:
+            theta = np.linalg.solve(g.sum(0), cross[:, idx].sum(0))
+        except np.linalg.LinAlgError:
+            return None
+        if np.any(np.abs(theta) > DRIFT_LIMIT_MM):
+            return None
+        rss = rss0 - 2 * cross[:, idx] @ theta + np.einsum("i,sij,j->s", theta, g, theta)
+        return float(np.sum(np.log(np.maximum(rss[used], 1e-300))))
+
+    singles = [v for v in (log_rss([i]) for i in range(len(taus))) if v is not None]
+    pairs = [((taus[i], taus[j]), log_rss([i, j])) for i in range(len(taus)) for j in range(i + 1, len(taus))
+             if taus[j] / taus[i] >= TWO_TERM_MIN_RATIO]
+    pairs = [(p, v) for p, v in pairs if v is not None]
+    if singles and pairs:
+        best_pair, best_two = min(pairs, key=lambda pv: pv[1])
+        if min(singles) - best_two - 2 * math.log(max(lay.n_steps, 2)) > TWO_TERM_EVIDENCE:
+            return Candidate("temperature_drift", ("tof", "stereo"), 4, lambda _: [best_pair], _drift_columns,
+                             _drift_params, _drift_vector, _drift_from_vector)
+    return Candidate("temperature_drift", ("tof", "stereo"), 2, _drift_grid, _drift_columns, _drift_params,
+                     _drift_vector, _drift_from_vector)
 
 
 TEMPERATURE_DRIFT = Candidate(
-    "temperature_drift", ("tof", "stereo"), 2, _drift_grid, _drift_columns,
-    lambda ctx, c, tau: {"delta_mm": float(c[0]), "tau_s": float(tau)} if abs(c[0]) <= 100.0 else None,
-    lambda p: (np.array([p["delta_mm"], math.log(p["tau_s"])]),
-               (np.array([-100.0, math.log(1.0)]), np.array([100.0, math.log(86400.0)]))),
-    lambda x: {"delta_mm": float(x[0]), "tau_s": float(math.exp(x[1]))},
+    "temperature_drift", ("tof", "stereo"), 2, _drift_grid, _drift_columns, _drift_params, _drift_vector,
+    _drift_from_vector, bind=_bind_drift,
 )
 
 

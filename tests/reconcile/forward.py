@@ -165,3 +165,13 @@ def rewrite_run(source: Path, destination: Path, range_error_mm: RangeError) -> 
                 for d, v in ((x_ds, x), (y_ds, y), (z_ds, z)):
                     d[k] = (v * factor).astype(np.float32)
     return destination
+
+
+def stretch_time(source: Path, destination: Path, factor: float) -> Path:
+    """Copy the run at ``source`` to ``destination`` with every frame's device time multiplied by ``factor``
+    (the same captures spread over a longer run, e.g. to follow a slow warm-up). Returns ``destination``."""
+    shutil.copyfile(source, destination)
+    with h5py.File(destination, "a") as f:
+        for group in f["steps"].values():
+            group["timestamp"][:] = group["timestamp"][:] * factor
+    return destination

@@ -8,7 +8,8 @@ effect would have measured them:
 * 4-tap demodulation of a correlation function with odd harmonics (square-wave
   modulation through a finite bandwidth) -> ``wiggling`` with the period
   c / (8 f_mod) the 4-tap sampling aliases the harmonics to;
-* a warm-up with two thermal time constants -> ``temperature_drift``;
+* a warm-up with two thermal time constants, over a sweep spread in time ->
+  ``temperature_drift`` with both;
 * a specular floor below the camera: the bounce camera -> floor -> target,
   its reflection point found by Fermat's principle, as a second return whose
   phasor adds to the direct one -> ``floor_multipath`` on the floor;
@@ -28,7 +29,7 @@ import pytest
 
 from labctl.reconcile.workflow import reconcile
 from sim.profiles import get_profile
-from tests.reconcile.forward import Pixels, rewrite_run, simulated_run
+from tests.reconcile.forward import Pixels, rewrite_run, simulated_run, stretch_time
 
 C_MM_PER_S = 299_792_458_000.0
 
@@ -77,12 +78,21 @@ def test_four_tap_harmonic_correlation_is_wiggling(plain, tmp_path):
 
 
 def test_two_time_constant_warm_up_is_temperature_drift(plain, tmp_path):
-    def error(px: Pixels):
-        return 3.0 * math.exp(-px.time_s / 30.0) + 2.0 * math.exp(-px.time_s / 150.0)
+    def warm_up(t):  # the die (8 min) and, pulling the other way, the housing and lens mount (50 min)
+        return 5.0 * np.exp(-t / 500.0) - 3.0 * np.exp(-t / 3000.0)
 
-    result, names = _reconciled(plain("blaze101"), tmp_path, error)
+    slow = stretch_time(plain("blaze101"), tmp_path / "slow.h5", 10.0)  # the sweep spread over 32 min
+    result, names = _reconciled(slow, tmp_path, lambda px: warm_up(px.time_s))
     assert names[0] == "temperature_drift", names
     _halved(result)
+    fitted = result.named[0]["parameters"]
+    assert len(fitted.get("terms", [])) == 1  # both time constants are seen
+    # the fitted warm-up follows the true one over the sweep (up to the constant the offsets take)
+    times = np.concatenate([o.times_s for o in result.observations if o.scene.procedure == "depth_sweep"])
+    model = fitted["delta_mm"] * np.exp(-times / fitted["tau_s"]) + sum(
+        term["delta_mm"] * np.exp(-times / term["tau_s"]) for term in fitted["terms"])
+    difference = model - warm_up(times)
+    assert np.ptp(difference) <= 0.3, np.ptp(difference)
 
 
 def test_specular_floor_bounce_is_floor_multipath(plain, tmp_path):
