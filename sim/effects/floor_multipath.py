@@ -28,7 +28,6 @@ construction of a planar specular bounce.
 
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 import numpy as np
@@ -73,7 +72,3 @@ def error_mm(x: np.ndarray, y: np.ndarray, z: np.ndarray, wavenumber: float, p: 
     ratio, half_extra = bounce(x, y, z, p.plane, p.distance_mm)
     return np.angle(1.0 + p.reflectance * ratio * np.exp(1j * wavenumber * half_extra)) / wavenumber
 
-
-def period_mm(wavenumber: float) -> float:
-    """Half extra path per cycle of the bounce's phase."""
-    return 2.0 * math.pi / wavenumber
