@@ -6,9 +6,11 @@ act after the render have closed-form signatures from the base prediction
 (the formulas of their sim/effects modules, linearized where needed); effects
 that move the geometry are differentiated by re-simulating with the effect
 switched on (finite difference). Nonlinear parameters (a wiggling period, a
-drift time constant, a multipath extra path) are searched on a grid, the
-linear ones solved for at each grid point (a ``floor_multipath`` plane and
-its distance, a wiggling period, a drift time constant, a multipath extra path).
+drift time constant, a multipath extra path, a ``floor_multipath`` plane and
+its distance) are searched on a grid, the linear ones solved for at each grid
+point. A candidate with ``bind`` is built from the run itself (its signature
+depends on the run's residual: ``fixed_pattern``; or its form is chosen by
+it: the number of ``temperature_drift`` time constants).
 
 ``fixed_pattern`` has a range offset per pixel: far more parameters than the
 comparison can determine. It is fitted as a column profile (one value per
