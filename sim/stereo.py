@@ -11,6 +11,9 @@ Per step (noise-free, once):
   the projector off, textureless targets (wall, PTFE, the inside of tiles) fail;
 * occlusion: a point the right camera (baseline b to the right) cannot see is
   invalid, as are points outside its view (the left band of D4xx depth maps);
+* ``disparity_bias``: the matcher's sub-pixel bias, periodic in the disparity
+  of the camera's own pixels, moves the noise-free depth (before ``range_scale``
+  and ``range_offset``);
 * disparity d = f b / z with noise s (1 + g theta^2 / (pi/2 - theta)^2) pixels,
   s fixed by ``noise_mm_at_2m`` (so sigma_z = z^2 s / (f b)), the angle term
   adapted from Nguyen, Izadi & Lovell 2012;
@@ -26,7 +29,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from sim.effects import EffectParams, apply_empirical, range_offset, range_scale, temperature_drift, vignetting
+from sim.effects import (
+    EffectParams,
+    apply_empirical,
+    disparity_bias,
+    range_offset,
+    range_scale,
+    temperature_drift,
+    vignetting,
+)
 from sim.geometry import Pose
 from sim.kernels import stereo_frame
 from sim.noise import NoiseBank, make_bank
@@ -78,6 +89,7 @@ class StereoSensor:
         self.effects = effects
         self.geometry = SensorOptics(profile, effects)
         self.focal_baseline = self.geometry.optics.pinhole.fx * profile.baseline_mm
+        self.matching_focal_baseline = self.focal_baseline  # f b in the pixels the matcher works on
         self.subpixel_noise_px = profile.noise_mm_at_2m * self.focal_baseline / REFERENCE_RANGE_MM**2
         self.dots = dot_pattern(profile.height, profile.width)
 
@@ -117,9 +129,11 @@ class StereoSensor:
         return np.maximum(ir, 0.0)
 
     def depth(self, left: Rendered) -> np.ndarray:
-        """Noise-free depth of the left camera's dominant surface after ``range_scale``, ``range_offset`` and the
-        empirical corrections."""
+        """Noise-free depth of the left camera's dominant surface after ``disparity_bias``, ``range_scale``,
+        ``range_offset`` and the empirical corrections."""
         z, fx = left.z_dom, self.effects
+        if "disparity_bias" in fx:
+            z = disparity_bias.apply(z, self.matching_focal_baseline, fx["disparity_bias"])
         if "range_scale" in fx:
             z = range_scale.apply(z, fx["range_scale"])
         if "range_offset" in fx:

@@ -9,8 +9,9 @@ Per step (noise-free, once):
    A_ref is fixed by the profile's ``noise_mm_at_2m`` through eq. 2-9;
 3. range: the dominant surface's range, or with ``flying_pixels`` (or
    ``multipath``) the phase of the blurred phasor sum (plus the multipath
-   return), then the range effects: ``wiggling``, ``range_scale``,
-   ``range_offset``, ``intensity_related_error``, then the empirical
+   return), the bounce off a second surface (``floor_multipath``), then the
+   range effects: ``wiggling``, ``range_scale``, ``range_offset``,
+   ``intensity_related_error``, ``fixed_pattern``, then the empirical
    corrections a reconcile fitted (``empirical_range``,
    ``empirical_pixel_map``); ``material_bias`` lengthens ranges on
    translucent materials;
@@ -34,6 +35,8 @@ import numpy as np
 from sim.effects import (
     EffectParams,
     apply_empirical,
+    fixed_pattern,
+    floor_multipath,
     range_offset,
     range_scale,
     temperature_drift,
@@ -109,6 +112,8 @@ class ToFSensor:
         self.geometry = SensorOptics(profile, effects)
         self.a_ref = reference_amplitude(profile)
         self.wavenumber = 4.0 * math.pi * profile.modulation_mhz * 1e6 / C_MM_PER_S
+        self.pattern_mm = (fixed_pattern.offset_map_mm(profile.width, profile.height, effects["fixed_pattern"])
+                           if "fixed_pattern" in effects else None)
 
     def render_scene(self, scene: Scene, pose: Pose) -> Rendered:
         """The ray-cast light of a scene through this camera's optics (the expensive, geometric part)."""
@@ -163,6 +168,9 @@ class ToFSensor:
             ref = np.nan_to_num(range_dom)
             residual = np.angle(phasor * np.exp(-1j * self.wavenumber * ref))
             range_mm = np.where(np.isfinite(range_dom), ref + residual / self.wavenumber, np.nan)
+        if "floor_multipath" in fx:
+            x, y, z = self.geometry.optics.directions(*self.geometry.optics.pixel_grid()) * range_mm
+            range_mm = range_mm + floor_multipath.error_mm(x, y, z, self.wavenumber, fx["floor_multipath"])
         if "wiggling" in fx:
             range_mm = wiggling.apply(range_mm, fx["wiggling"])
         if "range_scale" in fx:
@@ -171,6 +179,8 @@ class ToFSensor:
             range_mm = range_offset.apply(range_mm, fx["range_offset"])
         if "intensity_related_error" in fx:
             range_mm = range_mm + ire.error_mm(light, self.a_ref, fx["intensity_related_error"])
+        if self.pattern_mm is not None:
+            range_mm = range_mm + self.pattern_mm
         return apply_empirical(range_mm, fx)
 
     def frame(self, prep: ToFPrepared, k: int, t_s: float) -> tuple[np.ndarray, ...]:

@@ -6,8 +6,23 @@ act after the render have closed-form signatures from the base prediction
 (the formulas of their sim/effects modules, linearized where needed); effects
 that move the geometry are differentiated by re-simulating with the effect
 switched on (finite difference). Nonlinear parameters (a wiggling period, a
-drift time constant, a multipath extra path) are searched on a grid, the
-linear ones solved for at each grid point.
+drift time constant, a multipath extra path, a ``floor_multipath`` plane and
+its distance) are searched on a grid, the linear ones solved for at each grid
+point. A candidate with ``bind`` is built from the run itself (its signature
+depends on the run's residual: ``fixed_pattern``; or its form is chosen by
+it: the number of ``temperature_drift`` time constants).
+
+``fixed_pattern`` has a range offset per pixel: far more parameters than the
+comparison can determine. It is fitted as a column profile (one value per
+bin column) plus a row profile (one per bin row), the additive fit of the
+residual over all steps; its mean is the constant offset the nuisance takes.
+A step's signature is the profiles fitted to the other steps (out of sample),
+with two linear parameters, the gains of the two profiles. What it can see:
+the bin means of column and row structure that is the same at every distance
+and pose. What it cannot: a single column's own offset (it averages with the
+other columns of its bin), a per-pixel random map (it averages out within a
+bin), bins never compared (the image border, edges: their offset is left 0),
+and structure that is neither a column nor a row pattern.
 
 Not candidates, because the comparison cannot see them:
 
@@ -33,7 +48,8 @@ import numpy as np
 
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
-from labctl.reconcile.residuals import Layout
+from labctl.reconcile.residuals import Layout, raw_residuals
+from sim.effects import floor_multipath
 from sim.materials import get_material
 from sim.model import SimModel
 from sim.render import C_MM_PER_S
@@ -66,6 +82,19 @@ class Context:
                                                   for p in self.predictions])
         return self._stacks[attr]
 
+    def z_rows_of_map(self, image: np.ndarray) -> np.ndarray:
+        """A map of the bin grid (the same for every step) stacked over the depth rows."""
+        return self.lay.stack_z([np.broadcast_to(image, p.z.shape) for p in self.predictions])
+
+    def points(self) -> np.ndarray:
+        """(3, rows) camera-frame point of every depth row: the predicted range along the bin's ray (cached)."""
+        if "points" not in self._stacks:
+            optics = self.make_predictor(self.model).sensor.geometry.optics
+            rays = optics.directions(*optics.pixel_grid())
+            ranges = np.nan_to_num(self.z_rows("range_mm"))
+            self._stacks["points"] = np.stack([self.z_rows_of_map(rays[i]) * ranges for i in range(3)])
+        return self._stacks["points"]
+
     def per_step(self, values: np.ndarray) -> np.ndarray:
         """One value per step spread over that step's depth rows."""
         return np.asarray(values)[self.lay.z_step]
@@ -96,12 +125,13 @@ class Candidate:
     name: str
     technologies: tuple[str, ...]
     n_params: int  # free parameters (linear and nonlinear), for the BIC penalty
-    grid: Callable[[Context], list[float | None]]
-    columns: Callable[[Context, float | None], list[Column]]
-    to_params: Callable[[Context, np.ndarray, float | None], dict[str, Any] | None]
+    grid: Callable[[Context], list[Any]]  # nonlinear parameter values (None: a purely linear candidate)
+    columns: Callable[[Context, Any], list[Column]]
+    to_params: Callable[[Context, np.ndarray, Any], dict[str, Any] | None]
     vector: Callable[[dict[str, Any]], tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]]
     from_vector: Callable[[np.ndarray], dict[str, Any]]
     applies: Callable[[Context], bool] = field(default=lambda ctx: True)
+    bind: Callable[[Context], Candidate] | None = None  # builds the candidate from the run (its signatures)
 
 
 def _none(_: Context) -> list[float | None]:
@@ -157,23 +187,98 @@ WIGGLING = Candidate(
 )
 
 
-# temperature_drift: dr = delta exp(-t / tau), t since the run's first frame
-def _drift_grid(_: Context) -> list[float | None]:
+# temperature_drift: dr = delta exp(-t / tau) (+ delta_2 exp(-t / tau_2)), t since the run's first frame.
+# A second time constant is scored only where the run asks for it: the candidate is bound to the run by
+# comparing the best one- and two-term fits with Schwarz's criterion over steps (as score.py counts it);
+# if two terms win by TWO_TERM_EVIDENCE (strong evidence on the Kass & Raftery 1995 scale is > 6), the
+# candidate is the two-term form with its 4 parameters, otherwise the one-term form with 2.
+TWO_TERM_EVIDENCE = 10.0
+TWO_TERM_MIN_RATIO = 2.0  # the two time constants must differ by this factor
+DRIFT_LIMIT_MM = 100.0
+TAU_RANGE_S = (1.0, 86400.0)
+
+
+def _drift_grid(_: Context) -> list[Any]:
     return list(np.geomspace(10.0, 86400.0, 48))
 
 
-def _drift_columns(ctx: Context, tau: float | None) -> list[Column]:
+def _drift_rows(ctx: Context, tau: float) -> np.ndarray:
+    """The frames' mean exp(-t / tau) of each step, spread over its depth rows (range -> z)."""
     factor = [float(np.mean(np.exp(-(o.times_s - ctx.t0_s) / float(tau)))) if len(o.times_s) else 0.0
               for o in ctx.observations]
-    return [_depth(ctx, ctx.per_step(factor) * ctx.z_rows("z_per_range"))]
+    return ctx.per_step(factor) * ctx.z_rows("z_per_range")
+
+
+def _drift_columns(ctx: Context, taus: Any) -> list[Column]:
+    return [_depth(ctx, _drift_rows(ctx, tau)) for tau in (taus if isinstance(taus, tuple) else (taus,))]
+
+
+def _drift_params(_: Context, c: np.ndarray, taus: Any) -> dict[str, Any] | None:
+    taus = taus if isinstance(taus, tuple) else (taus,)
+    if np.any(np.abs(c) > DRIFT_LIMIT_MM):
+        return None
+    params: dict[str, Any] = {"delta_mm": float(c[0]), "tau_s": float(taus[0])}
+    if len(taus) > 1:
+        params["terms"] = [{"delta_mm": float(c[1]), "tau_s": float(taus[1])}]
+    return params
+
+
+def _drift_vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    terms = [(p["delta_mm"], p["tau_s"])] + [(t["delta_mm"], t["tau_s"]) for t in p.get("terms", [])]
+    x = np.array([v for delta, tau in terms for v in (delta, math.log(tau))])
+    lo = np.tile([-DRIFT_LIMIT_MM, math.log(TAU_RANGE_S[0])], len(terms))
+    hi = np.tile([DRIFT_LIMIT_MM, math.log(TAU_RANGE_S[1])], len(terms))
+    return x, (lo, hi)
+
+
+def _drift_from_vector(x: np.ndarray) -> dict[str, Any]:
+    params: dict[str, Any] = {"delta_mm": float(x[0]), "tau_s": float(math.exp(x[1]))}
+    if len(x) > 2:
+        params["terms"] = [{"delta_mm": float(x[i]), "tau_s": float(math.exp(x[i + 1]))} for i in range(2, len(x), 2)]
+    return params
+
+
+def _bind_drift(ctx: Context) -> Candidate:
+    """The one- or two-term drift candidate, whichever the run's depth residual supports."""
+    lay = ctx.lay
+    dz, di = raw_residuals(ctx.observations, ctx.predictions)
+    r = np.nan_to_num(lay.profiled(dz, di))[:len(lay.z_step)]  # the depth rows (drift leaves intensity alone)
+    taus = _drift_grid(ctx)
+    cols = np.column_stack([lay.profile_z(_drift_rows(ctx, tau)) * np.sqrt(lay.z_weight) for tau in taus])
+    per_step = [lay.z_step == s for s in range(lay.n_steps)]
+    gram = np.stack([cols[k].T @ cols[k] for k in per_step])
+    cross = np.stack([cols[k].T @ r[k] for k in per_step])
+    rss0 = np.array([r[k] @ r[k] for k in per_step])
+    used = rss0 > 0
+
+    def log_rss(idx: list[int]) -> float | None:
+        """Sum over steps of ln RSS with the drift terms ``idx`` fitted (None: no valid fit)."""
+        g = gram[:, idx][:, :, idx]
+        try:
+            theta = np.linalg.solve(g.sum(0), cross[:, idx].sum(0))
+        except np.linalg.LinAlgError:
+            return None
+        if np.any(np.abs(theta) > DRIFT_LIMIT_MM):
+            return None
+        rss = rss0 - 2 * cross[:, idx] @ theta + np.einsum("i,sij,j->s", theta, g, theta)
+        return float(np.sum(np.log(np.maximum(rss[used], 1e-300))))
+
+    singles = [v for v in (log_rss([i]) for i in range(len(taus))) if v is not None]
+    pairs = [((taus[i], taus[j]), log_rss([i, j])) for i in range(len(taus)) for j in range(i + 1, len(taus))
+             if taus[j] / taus[i] >= TWO_TERM_MIN_RATIO]
+    pairs = [(p, v) for p, v in pairs if v is not None]
+    if singles and pairs:
+        best_pair, best_two = min(pairs, key=lambda pv: pv[1])
+        if min(singles) - best_two - 2 * math.log(max(lay.n_steps, 2)) > TWO_TERM_EVIDENCE:
+            return Candidate("temperature_drift", ("tof", "stereo"), 4, lambda _: [best_pair], _drift_columns,
+                             _drift_params, _drift_vector, _drift_from_vector)
+    return Candidate("temperature_drift", ("tof", "stereo"), 2, _drift_grid, _drift_columns, _drift_params,
+                     _drift_vector, _drift_from_vector)
 
 
 TEMPERATURE_DRIFT = Candidate(
-    "temperature_drift", ("tof", "stereo"), 2, _drift_grid, _drift_columns,
-    lambda ctx, c, tau: {"delta_mm": float(c[0]), "tau_s": float(tau)} if abs(c[0]) <= 100.0 else None,
-    lambda p: (np.array([p["delta_mm"], math.log(p["tau_s"])]),
-               (np.array([-100.0, math.log(1.0)]), np.array([100.0, math.log(86400.0)]))),
-    lambda x: {"delta_mm": float(x[0]), "tau_s": float(math.exp(x[1]))},
+    "temperature_drift", ("tof", "stereo"), 2, _drift_grid, _drift_columns, _drift_params, _drift_vector,
+    _drift_from_vector, bind=_bind_drift,
 )
 
 
@@ -241,6 +346,140 @@ MULTIPATH = Candidate(
 )
 
 
+# fixed_pattern: dr = C(u) + R(v), a column and a row profile at the bin resolution. The profiles are the
+# additive fit of the residual over all steps (what stays the same at every distance); a step's signature is
+# the profiles fitted to the other steps only, so the score is out of sample and its two linear parameters
+# (the column and the row profile's gain) cannot fit a step's own noise.
+PATTERN_GAIN_LIMIT = 10.0
+
+
+def _additive_profiles(res: np.ndarray, weight: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares of res[s, v, u] = C[u] + R[v] by alternating weighted means (both zero-mean)."""
+    col = np.zeros(res.shape[2])
+    row = np.zeros(res.shape[1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for _ in range(iterations):
+            col = np.nan_to_num((weight * (res - row[None, :, None])).sum((0, 1)) / weight.sum((0, 1)))
+            row = np.nan_to_num((weight * (res - col[None, None, :])).sum((0, 2)) / weight.sum((0, 2)))
+    seen_col, seen_row = weight.sum((0, 1)) > 0, weight.sum((0, 2)) > 0
+    col = np.where(seen_col, col - (col[seen_col].mean() if seen_col.any() else 0.0), 0.0)
+    row = np.where(seen_row, row - (row[seen_row].mean() if seen_row.any() else 0.0), 0.0)
+    return col, row
+
+
+def _pattern_residual(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
+    """(steps, h, w) depth residual in range units with the nuisance removed, and its weights (0 where unused)."""
+    dz = [o.z - p.z for o, p in zip(ctx.observations, ctx.predictions, strict=True)]
+    flat = ctx.lay.profile_z(np.nan_to_num(ctx.lay.stack_z(dz))) / ctx.z_rows("z_per_range")
+    res, weight = np.zeros((len(dz),) + dz[0].shape), np.zeros((len(dz),) + dz[0].shape)
+    start = 0
+    for s, mask in enumerate(ctx.lay.z_masks):
+        n = int(mask.sum())
+        res[s][mask] = flat[start:start + n]
+        weight[s][mask] = ctx.lay.z_weight[start:start + n]
+        start += n
+    return res, weight
+
+
+def _bind_pattern(ctx: Context) -> Candidate:
+    """The fixed_pattern candidate with the profiles of this run's residual."""
+    res, weight = _pattern_residual(ctx)
+    col, row = _additive_profiles(res, weight)
+    held_out_col, held_out_row = [], []
+    for s in range(len(res)):
+        keep = np.arange(len(res)) != s
+        c, r = _additive_profiles(res[keep], weight[keep])
+        held_out_col.append(np.broadcast_to(c[None, :], res.shape[1:]))
+        held_out_row.append(np.broadcast_to(r[:, None], res.shape[1:]))
+    norms = (float(col @ col), float(row @ row))
+
+    def columns(c: Context, _: Any) -> list[Column]:
+        ratio = c.z_rows("z_per_range")
+        return [_depth(c, c.lay.stack_z(held_out_col) * ratio), _depth(c, c.lay.stack_z(held_out_row) * ratio)]
+
+    def from_vector(x: np.ndarray) -> dict[str, Any]:
+        return {"column_offsets_mm": [float(v) for v in x[0] * col], "row_offsets_mm": [float(v) for v in x[1] * row]}
+
+    def to_params(_: Context, c: np.ndarray, __: Any) -> dict[str, Any] | None:
+        return from_vector(c) if np.all(np.abs(c) <= PATTERN_GAIN_LIMIT) and min(norms) > 0 else None
+
+    def vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        x = np.array([np.dot(p["column_offsets_mm"], col) / norms[0], np.dot(p["row_offsets_mm"], row) / norms[1]])
+        return x, (np.full(2, -PATTERN_GAIN_LIMIT), np.full(2, PATTERN_GAIN_LIMIT))
+
+    return Candidate("fixed_pattern", ("tof",), 2, _none, columns, to_params, vector, from_vector)
+
+
+FIXED_PATTERN = Candidate(  # bound to a run's residual by candidates_for
+    "fixed_pattern", ("tof",), 2, _none, lambda ctx, _: [], lambda ctx, c, _: None,
+    lambda p: (np.zeros(0), (np.zeros(0), np.zeros(0))), lambda x: {}, bind=_bind_pattern,
+)
+
+
+# floor_multipath: dr ~ q sin(k (R' - r) / 2) / k per unit reflectance (first order), the plane and its
+# distance from the optical axis searched on a grid. The plane is coded into the distance parameter of the
+# refit (PLANE_CODE_MM per plane), whose bounds keep the solver on the plane the grid found.
+PLANE_CODE_MM = 20000.0
+PLANE_NAMES = tuple(floor_multipath.PLANES)
+
+
+def _bounce_grid(_: Context) -> list[Any]:
+    return [(plane, float(d)) for plane in PLANE_NAMES for d in np.geomspace(100.0, 3000.0, 24)]
+
+
+def _bounce_columns(ctx: Context, where: Any) -> list[Column]:
+    plane, distance = where
+    k = _wavenumber(ctx)
+    x, y, z = ctx.points()
+    ratio, half_extra = floor_multipath.bounce(x, y, z, plane, distance)
+    return [_depth(ctx, ratio * np.sin(k * half_extra) / k * ctx.z_rows("z_per_range"))]
+
+
+def _bounce_params(ctx: Context, c: np.ndarray, where: Any) -> dict[str, Any] | None:
+    plane, distance = where
+    return {"plane": plane, "distance_mm": distance, "reflectance": float(c[0])} if 0.0 < c[0] <= 1.0 else None
+
+
+def _bounce_vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    code = PLANE_NAMES.index(p["plane"]) * PLANE_CODE_MM
+    return (np.array([p["reflectance"], code + p["distance_mm"]]),
+            (np.array([0.0, code + 1.0]), np.array([1.0, code + 10000.0])))
+
+
+def _bounce_from_vector(x: np.ndarray) -> dict[str, Any]:
+    index = int(x[1] // PLANE_CODE_MM)
+    return {"plane": PLANE_NAMES[index], "distance_mm": float(x[1] - index * PLANE_CODE_MM),
+            "reflectance": float(x[0])}
+
+
+FLOOR_MULTIPATH = Candidate(
+    "floor_multipath", ("tof",), 3, _bounce_grid, _bounce_columns, _bounce_params, _bounce_vector,
+    _bounce_from_vector,
+)
+
+
+# disparity_bias: dz = -z^2 / (f b) * (a sin(2 pi d) + b cos(2 pi d)), d = f b / z in the matcher's pixels
+def _bias_columns(ctx: Context, _: Any) -> list[Column]:
+    focal_baseline = ctx.make_predictor(ctx.model).sensor.matching_focal_baseline
+    z = np.nan_to_num(ctx.z_rows("z"), nan=1.0)
+    d = focal_baseline / z
+    slope = -z * z / focal_baseline
+    return [_depth(ctx, slope * np.sin(2 * math.pi * d)), _depth(ctx, slope * np.cos(2 * math.pi * d))]
+
+
+def _bias_params(ctx: Context, c: np.ndarray, _: Any) -> dict[str, Any] | None:
+    amplitude = float(np.hypot(c[0], c[1]))
+    return {"amplitude_px": amplitude, "phase_rad": float(math.atan2(c[1], c[0]))} if amplitude <= 0.5 else None
+
+
+DISPARITY_BIAS = Candidate(
+    "disparity_bias", ("stereo",), 2, _none, _bias_columns, _bias_params,
+    lambda p: (np.array([p["amplitude_px"], p["phase_rad"]]),
+               (np.array([0.0, -4 * math.pi]), np.array([0.5, 4 * math.pi]))),
+    lambda x: {"amplitude_px": float(x[0]), "phase_rad": float((x[1] + math.pi) % (2 * math.pi) - math.pi)},
+)
+
+
 # material_bias: translucent materials read scale x their sub-surface bias long (re-simulated)
 def _translucent(o: Observation) -> bool:
     material = o.scene.target if o.scene.target in PLATE_MATERIALS else None
@@ -287,7 +526,8 @@ RADIAL_DISTORTION = Candidate(
 )
 
 CANDIDATES = (RANGE_SCALE, WIGGLING, TEMPERATURE_DRIFT, INTENSITY_RELATED_ERROR, VIGNETTING, MULTIPATH,
-              MATERIAL_BIAS, TARGET_MISALIGNMENT, CAMERA_AXIS_OFFSET, RADIAL_DISTORTION)
+              FIXED_PATTERN, FLOOR_MULTIPATH, DISPARITY_BIAS, MATERIAL_BIAS, TARGET_MISALIGNMENT,
+              CAMERA_AXIS_OFFSET, RADIAL_DISTORTION)
 NOT_IDENTIFIABLE = {
     "range_offset": "absorbed by the offset calibration and the per-group offsets",
     "quantization": "does not move the mean of a noisy stack",
@@ -301,4 +541,4 @@ def candidates_for(ctx: Context) -> Iterator[Candidate]:
     """The candidates that apply to this run and are not yet in the model."""
     for c in CANDIDATES:
         if ctx.technology in c.technologies and c.name not in ctx.model.effects and c.applies(ctx):
-            yield c
+            yield c.bind(ctx) if c.bind is not None else c

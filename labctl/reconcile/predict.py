@@ -68,9 +68,14 @@ def binned_profile(profile: CameraProfile, width: int, height: int, bin_px: int)
     return profile.with_overrides({"width": width // bin_px, "height": height // bin_px, "lens_sigma_px": 0.0})
 
 
-def binned_effects(model: SimModel) -> dict[str, EffectParams]:
-    """The model's effects for the binned camera: all but the blur (``defocus``)."""
-    return {k: v for k, v in model.effect_params().items() if k != "defocus"}
+def binned_effects(model: SimModel, width: int, height: int) -> dict[str, EffectParams]:
+    """The model's effects for the binned camera: all but the blur (``defocus``); a ``fixed_pattern``'s random
+    parts stay drawn on the measured camera's ``width`` x ``height`` grid (each bin takes their bin mean)."""
+    effects = {k: v for k, v in model.effect_params().items() if k != "defocus"}
+    pattern = effects.get("fixed_pattern")
+    if pattern is not None and pattern.grid_px is None:
+        effects["fixed_pattern"] = pattern.model_copy(update={"grid_px": [width, height]})
+    return effects
 
 
 @lru_cache(maxsize=4)
@@ -106,7 +111,7 @@ class Predictor:
         self.full = full
         self.bin_px = bin_px
         self.profile = binned_profile(full, width, height, bin_px)
-        self.effects = binned_effects(model)
+        self.effects = binned_effects(model, width, height)
         defocus = model.effect_params().get("defocus")
         self._coc_hyperfocal = ((defocus.coc_px or default_coc_px(full.lens_sigma_px)) * defocus.hyperfocal_mm
                                 if defocus is not None else 0.0)
@@ -116,6 +121,7 @@ class Predictor:
         else:
             self.sensor = StereoSensor(self.profile, self.effects)
             self.sensor.dots = binned_dots(height, width, full.lens_sigma_px, bin_px)
+            self.sensor.matching_focal_baseline = self.sensor.focal_baseline * bin_px  # the disparity's pixels
         geo = self.sensor.geometry
         tx, ty = np.broadcast_arrays(geo.tx.astype(float), geo.ty.astype(float))
         self.z_per_range = 1.0 / np.sqrt(1.0 + tx**2 + ty**2) if self.technology == "tof" else np.ones_like(tx)

@@ -11,8 +11,11 @@ from pydantic import ValidationError
 from sim.effects import (
     camera_axis_offset,
     defocus,
+    disparity_bias,
     empirical_pixel_map,
     empirical_range,
+    fixed_pattern,
+    floor_multipath,
     flying_pixels,
     fov_error,
     intensity_related_error,
@@ -36,7 +39,8 @@ EFFECTS: dict[str, ModuleType] = {
     for m in (
         range_offset, range_scale, wiggling, temperature_drift, intensity_related_error, vignetting,
         radial_distortion, fov_error, defocus, quantization, flying_pixels, multipath, material_bias,
-        target_misalignment, camera_axis_offset, empirical_range, empirical_pixel_map,
+        target_misalignment, camera_axis_offset, fixed_pattern, floor_multipath, disparity_bias, empirical_range,
+        empirical_pixel_map,
     )
 }
 

@@ -1,5 +1,9 @@
-"""temperature_drift: warm-up drift of the range, Delta r(t) = delta_mm exp(-t / tau_s).
+"""temperature_drift: warm-up drift of the range, Delta r(t) = delta_mm exp(-t / tau_s) + sum_i d_i exp(-t / tau_i).
 
+The optional ``terms`` (each a ``delta_mm`` and a ``tau_s``) add further time
+constants: the sensor die warms within minutes, the housing and lens mount
+within tens of minutes, so a warm-up is a sum of exponentials, one per
+thermal time constant of a lumped thermal network (first-order lag per node).
 t is the device time of the frame (seconds since the camera started). A
 camera reaches its steady state after a few tau; the steady offset itself is
 ``range_offset``. Source: DESIGN "Simulation physics"; self-heating is a
@@ -16,14 +20,21 @@ from sim.effects.base import EffectParams
 
 NAME = "temperature_drift"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Chiabrando et al. 2009; thesis Table 3-2 (self-heating)"
+SOURCE = "Chiabrando et al. 2009; thesis Table 3-2 (self-heating); further terms: one per thermal time constant"
+
+
+class Term(EffectParams):
+    delta_mm: float = Field(ge=-100.0, le=100.0, description="this term's range error at t = 0, mm")
+    tau_s: float = Field(gt=0.0, le=86400.0, description="its time constant, s")
 
 
 class Params(EffectParams):
     delta_mm: float = Field(5.0, ge=-100.0, le=100.0, description="range error at t = 0, mm")
     tau_s: float = Field(600.0, gt=0.0, le=86400.0, description="time constant, s")
+    terms: list[Term] = Field(default_factory=list, description="further exponential terms")
 
 
 def offset_mm(t_s: float, p: Params) -> float:
     """Range error of a frame taken ``t_s`` seconds after start."""
-    return p.delta_mm * math.exp(-max(t_s, 0.0) / p.tau_s)
+    t = max(t_s, 0.0)
+    return p.delta_mm * math.exp(-t / p.tau_s) + sum(term.delta_mm * math.exp(-t / term.tau_s) for term in p.terms)

@@ -20,6 +20,7 @@ removes ``/sim`` so that the reconcile sees only what a measured file holds.
 
 from __future__ import annotations
 
+import math
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -118,6 +119,19 @@ class Pixels:
     time_s: float  # device time of the frame
     frame: int  # frame number within the step
     step: dict[str, Any]  # the step's attributes: target, procedure, distance_mm, robot_angle_deg, ...
+    fov_deg: tuple[float, float] | None = None  # the camera's (horizontal, vertical) field of view
+
+    @property
+    def focal_px(self) -> float:
+        """Pinhole focal length in pixels from the horizontal FOV: (W / 2) / tan(FOV_h / 2)."""
+        if self.fov_deg is None:
+            raise ValueError("the camera's field of view is unknown")
+        return (self.width / 2) / math.tan(math.radians(self.fov_deg[0]) / 2)
+
+    def disparity_px(self, baseline_mm: float) -> np.ndarray:
+        """Stereo disparity of every point: f b / z (NaN where invalid)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.focal_px * baseline_mm / self.z_mm
 
     @property
     def radius(self) -> np.ndarray:
@@ -134,6 +148,7 @@ def rewrite_run(source: Path, destination: Path, range_error_mm: RangeError) -> 
     along its ray by ``range_error_mm(pixels)`` mm (a scalar or an (H, W) array). Returns ``destination``."""
     shutil.copyfile(source, destination)
     with h5py.File(destination, "a") as f:
+        fov = tuple(float(v) for v in f["camera"].attrs["fov_deg"])
         for group in f["steps"].values():
             x_ds, y_ds, z_ds = group["x"], group["y"], group["z"]
             n, h, w = z_ds.shape
@@ -144,9 +159,19 @@ def rewrite_run(source: Path, destination: Path, range_error_mm: RangeError) -> 
                 x, y, z = (np.asarray(d[k], float) for d in (x_ds, y_ds, z_ds))
                 r = np.sqrt(x * x + y * y + z * z)
                 pixels = Pixels(row, col, w, h, x, y, z, r, np.asarray(group["intensity"][k], float),
-                                float(times[k]), k, attrs)
+                                float(times[k]), k, attrs, (fov[0], fov[1]))
                 with np.errstate(invalid="ignore", divide="ignore"):
                     factor = (r + np.broadcast_to(range_error_mm(pixels), r.shape)) / r
                 for d, v in ((x_ds, x), (y_ds, y), (z_ds, z)):
                     d[k] = (v * factor).astype(np.float32)
+    return destination
+
+
+def stretch_time(source: Path, destination: Path, factor: float) -> Path:
+    """Copy the run at ``source`` to ``destination`` with every frame's device time multiplied by ``factor``
+    (the same captures spread over a longer run, e.g. to follow a slow warm-up). Returns ``destination``."""
+    shutil.copyfile(source, destination)
+    with h5py.File(destination, "a") as f:
+        for group in f["steps"].values():
+            group["timestamp"][:] = group["timestamp"][:] * factor
     return destination

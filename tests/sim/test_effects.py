@@ -12,6 +12,7 @@ import pytest
 
 from metrics.sfr import edge_sfr
 from sim.effects import EFFECTS
+from sim.effects.fixed_pattern import Params, cell_average, offset_map_mm
 from sim.geometry import Pose
 from sim.materials import get_material
 from sim.model import default_model_text, parse_model
@@ -41,7 +42,8 @@ def test_vocabulary_is_the_contract():
     assert set(EFFECTS) == {
         "range_offset", "range_scale", "wiggling", "temperature_drift", "intensity_related_error", "vignetting",
         "radial_distortion", "fov_error", "defocus", "quantization", "flying_pixels", "multipath",
-        "material_bias", "target_misalignment", "camera_axis_offset", "empirical_range", "empirical_pixel_map",
+        "material_bias", "target_misalignment", "camera_axis_offset", "fixed_pattern", "floor_multipath",
+        "disparity_bias", "empirical_range", "empirical_pixel_map",
     }
 
 
@@ -103,6 +105,53 @@ def test_temperature_drift_decays_with_time():
         z_off = cam_off.frame(p_off, 4, t)[2]
         dz = cam_on.geometry.cos_alpha  # range shift projected on z
         np.testing.assert_allclose(z_on - z_off, 6 * math.exp(-t / 300) * dz, atol=2e-3)
+
+
+def test_temperature_drift_with_two_time_constants():
+    cam_on = make(effects="[effects.temperature_drift]\ndelta_mm = 6\ntau_s = 60\n"
+                          "terms = [{ delta_mm = -2.5, tau_s = 900 }]\n")
+    cam_off = make()
+    p_on, p_off = prep(cam_on), prep(cam_off)
+    for t in (0.0, 60.0, 900.0):  # at t = tau of each term
+        z_on, z_off = cam_on.frame(p_on, 4, t)[2], cam_off.frame(p_off, 4, t)[2]
+        expected = 6 * math.exp(-t / 60) - 2.5 * math.exp(-t / 900)
+        np.testing.assert_allclose(z_on - z_off, expected * cam_on.geometry.cos_alpha, atol=2e-3)
+
+
+def test_fixed_pattern_column_row_and_pixel_terms():
+    cells = "[effects.fixed_pattern]\ncolumn_offsets_mm = [1.0, -1.0]\nrow_offsets_mm = [0.6, 0.0, -0.3]\n"
+    on, base = prep(make(effects=cells)), prep(make())
+    diff = on.range_mm.astype(float) - base.range_mm
+    np.testing.assert_allclose(diff[:40, :80], 1.6, atol=1e-3)  # 160 columns in 2 cells, 120 rows in 3
+    np.testing.assert_allclose(diff[40:80, 80:], -1.0, atol=1e-3)
+    np.testing.assert_allclose(diff[80:, 80:], -1.3, atol=1e-3)
+    np.testing.assert_array_equal(on.amplitude, base.amplitude)
+    # 3 cells sampled by 4 pixels: pixel 1 covers [1/4, 1/2) = 1/12 of cell a, 1/6 of cell b (by hand)
+    np.testing.assert_allclose(cell_average(3, 4) @ np.array([3.0, 6.0, 9.0]), [3.0, 5.0, 7.0, 9.0])
+    random = Params(column_sigma_mm=2.0, row_sigma_mm=1.0, pixel_sigma_mm=0.5, seed=4)
+    full = offset_map_mm(160, 120, random)
+    columns = full.mean(axis=0) - full.mean()
+    assert 1.6 < columns.std() < 2.4  # one column stripe per column, sigma 2 (+ the averaged rows, pixels)
+    assert 0.4 < np.std(full - full.mean(axis=0) - full.mean(axis=1)[:, None] + full.mean()) < 0.6
+    # a binned camera on the same grid sees exactly the bin means
+    binned = offset_map_mm(40, 30, random.model_copy(update={"grid_px": [160, 120]}))
+    np.testing.assert_allclose(binned, full.reshape(30, 4, 40, 4).mean(axis=(1, 3)), atol=1e-9)
+
+
+def test_floor_multipath_adds_the_mirrored_bounce():
+    on = make(effects='[effects.floor_multipath]\nplane = "floor"\ndistance_mm = 300\nreflectance = 0.5\n')
+    p_on, p_off = prep(on), prep(make())
+    k = on.wavenumber
+    rays = on.geometry.optics.directions(*on.geometry.optics.pixel_grid())
+    r = p_off.range_mm.astype(float)
+    x, y, z = rays * r
+    # explicit bounce camera -> F -> P with F on the floor y = 300 (Fermat: equal heights ratio)
+    t = 300.0 / (600.0 - y)
+    path = np.sqrt((x * t) ** 2 + 300.0**2 + (z * t) ** 2) + np.sqrt((x - x * t) ** 2 + (y - 300) ** 2 + (z - z * t) ** 2)
+    expected = np.angle(1 + 0.5 * (r / path) ** 3 * np.exp(1j * k * (path - r) / 2)) / k
+    expected = np.where(y < 300.0, expected, 0.0)
+    np.testing.assert_allclose(p_on.range_mm - p_off.range_mm, expected, atol=2e-3)
+    assert np.abs(expected).max() > 1.0 and np.any(y >= 300.0)
 
 
 def test_intensity_related_error_grows_as_light_falls():
@@ -255,6 +304,17 @@ def test_stereo_disparity_is_quantized():
     steps = disparity * 32
     tolerance = 32 * cam.focal_baseline / 2000.0**2 * 0.5
     assert np.all(np.abs(steps - np.round(steps)) <= tolerance + 1e-6)
+
+
+def test_disparity_bias_at_known_disparities():
+    biased = make("d455", effects="[effects.disparity_bias]\namplitude_px = 0.1\nphase_rad = 0.0\n")
+    plain = make("d455")
+    fb = biased.focal_baseline
+    for disparity, bias in ((4.0, 0.0), (4.25, 0.1), (4.5, 0.0), (4.75, -0.1)):  # sin(2 pi d)
+        z = fb / disparity
+        on, off = prep(biased, distance=z), prep(plain, distance=z)
+        centre = (slice(58, 62), slice(78, 82))
+        np.testing.assert_allclose(on.disparity[centre] - off.disparity[centre], bias, atol=2e-3)
 
 
 def test_projector_off_fails_on_textureless_wall():
