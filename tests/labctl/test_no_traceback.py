@@ -175,7 +175,9 @@ def test_reconcile_of_a_step_without_valid_points_prints_no_warning_and_no_nan(
 
 
 @pytest.mark.slow
-def test_reconcile_json_is_valid_when_a_score_has_one_usable_step(capsys, tmp_path: Path) -> None:
+def test_reconcile_json_is_valid_when_only_one_step_is_usable(capsys, tmp_path: Path) -> None:
+    """One comparable step cannot score a candidate (its scores were -Infinity once): the answer is
+    ``not_comparable`` with the procedures that would help, in strict JSON on stdout and in the file."""
     run = simulated_run(tmp_path, '[[procedure]]\nkind = "offset_calibration"\nframes = 3\n')
     with h5py.File(run, "r+") as f:
         del f["sim"]
@@ -183,7 +185,8 @@ def test_reconcile_json_is_valid_when_a_score_has_one_usable_step(capsys, tmp_pa
     assert code == 0
     doc = strict_json((tmp_path / "out" / "reconcile.json").read_text())
     assert strict_json(out) == doc
-    assert doc["candidates"] and all(c["score"] is None for c in doc["candidates"])  # one step: no score
+    assert doc["verdict"] == "not_comparable" and doc["named_effects"] == []
+    assert "depth_sweep" in doc["not_comparable"]["procedures_needed"]
 
 
 def test_strict_json_maps_every_non_finite_number_to_null() -> None:
