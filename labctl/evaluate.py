@@ -16,6 +16,8 @@ from typing import Any
 from labctl.errors import InputError
 from labctl.eval_depth_quality import VendorPosition, evaluate_vendor
 from labctl.eval_depth_quality import figure_values as vendor_figures
+from labctl.eval_vdi2634 import AcceptanceResult, evaluate_acceptance
+from labctl.eval_vdi2634 import figure_values as acceptance_figures
 from labctl.eval_geometry import GeometryResult, evaluate_geometry
 from labctl.eval_geometry import figure_values as geometry_figures
 from labctl.eval_remission import RemissionResult, evaluate_remission
@@ -58,6 +60,7 @@ class Evaluation:
     sharpness: SharpnessResult | None = None
     geometry: GeometryResult | None = None
     remission: RemissionResult | None = None
+    acceptance: AcceptanceResult | None = None
     face: FaceMaskResult | None = None
     alignment: AlignmentRecord | None = None
     figures: dict[str, FigureValue] = field(default_factory=dict)
@@ -226,6 +229,12 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
             if evaluation.remission is not None:
                 evaluation.notes.extend(evaluation.remission.notes)
                 evaluation.figures.update(remission_figures(evaluation.remission))
+        artefacts = [s for r in readers for s in r.steps() if s.attrs.get("procedure") in ("sphere_bar", "flatness")]
+        if artefacts:
+            evaluation.acceptance = evaluate_acceptance(artefacts, progress)
+            evaluation.notes.extend(evaluation.acceptance.notes)
+            for name, (value, source) in acceptance_figures(evaluation.acceptance).items():
+                evaluation.figures[name] = FigureValue(value, source)
         masks = [s for r in readers for s in r.steps("face_mask")]
         if masks:
             progress(f"{masks[-1].step_id} face mask")

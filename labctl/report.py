@@ -10,9 +10,11 @@ from typing import Any
 
 from labctl.eval_depth_quality import vendor_table
 from labctl.eval_remission import misalignment_summary, remission_table
+from labctl.eval_vdi2634 import acceptance_table, verdicts
 from labctl.eval_sharpness import resolution_table
 from labctl.evaluate import Evaluation, depth_table
 from labctl.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, clean, keyfigures_document
+from labctl.plot_acceptance import plot_acceptance
 from labctl.plot_depth_quality import plot_vendor_figures
 from labctl.plot_boehler import plot_boehler
 from labctl.plot_distortion import plot_distortion
@@ -90,6 +92,8 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
         table = _rows_table(resolution_table(evaluation.sharpness), "step")
         sections.append(_section("Resolution of the intensity image (thesis 6.3.1)", img, outdir, table))
+    if evaluation.acceptance is not None and evaluation.acceptance.measurements:
+        sections.append(_acceptance_section(evaluation, outdir, plots, doc))
     sections.extend(_geometry_sections(evaluation, outdir, plots, doc))
     sections.extend(_remission_sections(evaluation, outdir, plots, doc))
     if evaluation.face is not None:
@@ -229,6 +233,25 @@ def _vendor_html(evaluation: Evaluation, doc: dict[str, Any]) -> str:
             '<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">definition</th>'
             f'<th class="l">defined by</th></tr>{rows}</table>'
             f"<h3>At every wall distance</h3>{_rows_table(vendor_table(evaluation.vendor), 'step')}")
+
+
+def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> str:
+    """VDI/VDE 2634-2 quantities with their maximum permissible errors and verdicts, and per position."""
+    result = evaluation.acceptance
+    assert result is not None
+    judged = verdicts(result)
+    doc["acceptance_test"] = {name: {k: clean(v) if isinstance(v, float) else v for k, v in row.items()}
+                              for name, row in judged.items()}
+    rows = [{"quantity": name, "value_mm": row["value"], "mpe_mm": row["mpe_mm"] if row["mpe_mm"] is not None
+             else math.nan, "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
+    table = _rows_table(rows, "quantity")
+    per_step = _clean_rows(acceptance_table(result))
+    doc["acceptance_positions"] = per_step
+    img = plot_acceptance(result, plots / "acceptance.png")
+    text = ("<p>Each frame is one measurement; a quantity's figure is the measurement of largest magnitude, "
+            "compared with the campaign's maximum permissible error (MPE).</p>" + table
+            + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(acceptance_table(result), 'step')}")
+    return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
 
 
 def _depth_rows(evaluation: Evaluation) -> str:

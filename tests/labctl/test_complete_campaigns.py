@@ -179,7 +179,10 @@ def test_vendor_figures_follow_the_noise_model(complete):
     plane's 3 parameters); plane-fit RMS is that over the 40 % ROI times the trimmed normal's 0.962, within
     6 %; the fill rate is the model's valid share of the ROI within 1 point; |Z accuracy| < 0.1 % (no
     range offset or scale in the model); the D455's subpixel RMS is the disparity noise
-    sigma f B / z^2 / k^3 (k = |ray|, the tool's ranges) times 0.962, within 6 %."""
+    sigma f B / z^2 / k^3 (k = |ray|, the tool's ranges) times 0.962, within 6 %. Where the noise before
+    quantization is below half the output step (the AM-T100 at 1 m: 0.4 mm against 1 mm), adding
+    step^2 / 12 no longer describes the rounded output (its variance then depends on where the wall falls
+    in the step grid): 12 % there."""
     camera, model, run, evaluation = complete
     p = model.profile()
     with RunReader(run) as reader:
@@ -191,10 +194,12 @@ def test_vendor_figures_follow_the_noise_model(complete):
         sigma = wall_sigma_z(model, distance)[rows, cols]
         window = sigma[centre_window(*sigma.shape)]
         rms = float(np.sqrt(np.nanmean(window**2)))
-        assert value(evaluation, f"temporal_precision_{d}mm_mm") == pytest.approx(rms, rel=0.06), (camera, d)
-        assert value(evaluation, f"spatial_precision_{d}mm_mm") == pytest.approx(rms, rel=0.06), (camera, d)
+        step = model.effect_params()["quantization"].step_mm if "quantization" in model.effect_params() else 0.0
+        rel = 0.06 if math.sqrt(max(rms**2 - step**2 / 12, 0.0)) >= step / 2 else 0.12
+        assert value(evaluation, f"temporal_precision_{d}mm_mm") == pytest.approx(rms, rel=rel), (camera, d)
+        assert value(evaluation, f"spatial_precision_{d}mm_mm") == pytest.approx(rms, rel=rel), (camera, d)
         roi_rms = float(np.sqrt(np.nanmean(sigma**2)))
-        assert value(evaluation, f"plane_fit_rms_{d}mm_mm") == pytest.approx(TRIMMED * roi_rms, rel=0.06), (camera, d)
+        assert value(evaluation, f"plane_fit_rms_{d}mm_mm") == pytest.approx(TRIMMED * roi_rms, rel=rel), (camera, d)
         assert value(evaluation, f"fill_rate_{d}mm_pct") == pytest.approx(
             100 * np.mean(np.isfinite(sigma)), abs=1.0), (camera, d)
         assert abs(value(evaluation, f"z_accuracy_{d}mm_pct")) < 0.1, (camera, d)
@@ -272,9 +277,9 @@ def test_report_has_every_section_and_its_files(complete, tmp_path):
     assert page.open == []
     for title in ("Key figures", "Suitability", "Alignment", "Depth error", "Surface texture", "Sharpness",
                   "Resolution of the intensity image", "Distortion", "Boehler star", "x/y noise",
-                  "Remission and angle", "misalignment", "Face mask"):
+                  "Remission and angle", "misalignment", "Face mask", "Datasheet-comparable figures"):
         assert any(title in h for h in page.headings), title
-    assert len(page.sources) == 10
+    assert len(page.sources) == 11
     for source in page.sources:
         assert plt.imread(tmp_path / source).shape[2] in (3, 4), source
     (pcd,) = [link for link in page.links if link.endswith(".pcd")]
