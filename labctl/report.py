@@ -83,6 +83,8 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         doc["depth_quality"] = _clean_rows(vendor_table(evaluation.vendor))
         img = plot_vendor_figures(evaluation.vendor, plots / "depth_quality.png")
         sections.append(_section("Datasheet-comparable figures", img, outdir, _vendor_html(evaluation, doc)))
+    if evaluation.acceptance is not None and evaluation.acceptance.measurements:
+        sections.append(_acceptance_section(evaluation, outdir, plots, doc))
     if evaluation.surface is not None:
         img = plot_surface_maps(evaluation.surface, plots / "surface_texture.png")
         sections.append(_section("Surface texture (SPEC 2, ISO 25178-2)", img, outdir, ""))
@@ -92,8 +94,6 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
         table = _rows_table(resolution_table(evaluation.sharpness), "step")
         sections.append(_section("Resolution of the intensity image (thesis 6.3.1)", img, outdir, table))
-    if evaluation.acceptance is not None and evaluation.acceptance.measurements:
-        sections.append(_acceptance_section(evaluation, outdir, plots, doc))
     sections.extend(_geometry_sections(evaluation, outdir, plots, doc))
     sections.extend(_remission_sections(evaluation, outdir, plots, doc))
     if evaluation.face is not None:
@@ -245,12 +245,11 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
     rows = [{"quantity": name, "value_mm": row["value"], "mpe_mm": row["mpe_mm"] if row["mpe_mm"] is not None
              else math.nan, "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
     table = _rows_table(rows, "quantity")
-    per_step = _clean_rows(acceptance_table(result))
-    doc["acceptance_positions"] = per_step
+    doc["acceptance_positions"] = per_step = _clean_rows(acceptance_table(result))
     img = plot_acceptance(result, plots / "acceptance.png")
     text = ("<p>Each frame is one measurement; a quantity's figure is the measurement of largest magnitude, "
             "compared with the campaign's maximum permissible error (MPE).</p>" + table
-            + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(acceptance_table(result), 'step')}")
+            + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(per_step, 'step')}")
     return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
 
 

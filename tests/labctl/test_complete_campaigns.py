@@ -34,14 +34,13 @@ from labctl.store import RunReader
 from metrics.depth_quality import centre_window, dqt_roi
 from metrics.sharpness import ied_pixels
 from procedures.remission_angle import SKIN_LIKE
-from sim.geometry import Pose
 from sim.materials import angle_factor, remission
 from sim.model import parse_model
 from sim.optics import pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 from sim.profiles import default_effects, get_profile
-from sim.scenes.targets import build_scene
 from sim.stereo import StereoSensor
-from sim.tof import IRRADIANCE_REF, ToFSensor, range_noise_mm, reference_amplitude
+from sim.tof import IRRADIANCE_REF, range_noise_mm, reference_amplitude
+from tests.noise_model import wall_sigma_z
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 CAMERAS = {"blaze101": (160, 120), "amt100": (160, 120), "flexx2": (224, 172), "d455": (160, 120)}
@@ -129,26 +128,6 @@ def test_geometry_figures_of_an_undistorted_camera(complete):
         assert sensor * 0.999 <= value(evaluation, name) <= 3 * sensor, name
     for axis in "xy":
         assert value(evaluation, f"{axis}_trueness_q90_mm") <= 1.1 * value(evaluation, f"{axis}_accuracy_q90_mm")
-
-
-def wall_sigma_z(model, distance_mm: float) -> np.ndarray:
-    """The model's per-pixel depth noise (mm, NaN invalid) on the wall: eq. 2-9 for ToF along the ray, the
-    disparity noise z^2 / (f B) sigma_d for stereo, plus the output quantization's step^2 / 12."""
-    p, effects = model.profile(), model.effect_params()
-    scene = build_scene("wall", {}, p.wavelength_nm, distance_mm)
-    if p.technology == "tof":
-        sensor = ToFSensor(p, effects)
-        range_mm, amplitude, ambient = sensor.expected(sensor.render_scene(scene, Pose.at_origin()), p.exposure_us)
-        tx, ty = sensor.geometry.tx, sensor.geometry.ty
-        sigma = range_noise_mm(p, amplitude, ambient) / np.sqrt(1 + tx**2 + ty**2)
-        sigma = np.where(np.isfinite(range_mm), sigma, np.nan)
-    else:
-        sensor = StereoSensor(p, effects)
-        z, valid, _, sigma_disp = sensor.expected(sensor.render_scene(scene, Pose.at_origin()), p.exposure_us)
-        disparity = np.sqrt(sigma_disp**2 + p.disparity_step_px**2 / 12)
-        sigma = np.where(valid, z**2 / sensor.focal_baseline * disparity, np.nan)
-    step = effects["quantization"].step_mm if "quantization" in effects else 0.0
-    return np.sqrt(sigma**2 + step**2 / 12)
 
 
 def test_depth_precision_is_the_noise_model(complete):
