@@ -26,10 +26,30 @@ from pydantic import Field
 from procedures.steps import Step, StrictModel
 
 
-class SphereBar(StrictModel):
-    """Campaign entry ``kind = "sphere_bar"``."""
+class _Artefact(StrictModel):
+    """What both artefact procedures share: placements in front of the wall at several distances."""
 
     needs_reference: ClassVar[bool] = False
+
+    kind: str
+    gap_mm: float = Field(500.0, gt=0.0, le=3000.0, description="artefact to wall")
+    frames: int = Field(10, ge=1, le=10000)
+    exposure_us: float | None = Field(None, gt=0)
+    camera_settings: dict[str, object] = Field(default_factory=dict)
+    distances_mm: list[float]
+
+    def stage_distances_mm(self) -> list[float]:
+        """The stage sets the camera-wall distance: artefact distance plus gap."""
+        return [d + self.gap_mm for d in self.distances_mm]
+
+    def _step(self, index: int, distance: float, target: str, params: dict[str, object], prompt: str) -> Step:
+        return Step(index=index, procedure=self.kind, target=target, target_params={"gap_mm": self.gap_mm, **params},
+                    frames=self.frames, distance_mm=distance + self.gap_mm, exposure_us=self.exposure_us,
+                    camera_settings=self.camera_settings, prompt=prompt)
+
+
+class SphereBar(_Artefact):
+    """Campaign entry ``kind = "sphere_bar"``."""
 
     kind: Literal["sphere_bar"]
     sphere_diameter_mm: float = Field(50.0, gt=1.0, le=500.0, description="calibrated diameter of both spheres")
@@ -37,74 +57,39 @@ class SphereBar(StrictModel):
     distances_mm: list[float] = Field([1000.0, 1500.0, 2000.0], min_length=1, description="camera to bar")
     orientations_deg: list[float] = Field([0.0, 45.0, 90.0, 135.0], min_length=1)
     tilt_deg: float = Field(0.0, ge=-60.0, le=60.0, description="bar out of the image plane")
-    gap_mm: float = Field(500.0, gt=0.0, le=3000.0, description="bar centre to wall")
-    frames: int = Field(10, ge=1, le=10000)
     mpe_form_mm: float | None = Field(None, gt=0, description="maximum permissible probing error form")
     mpe_size_mm: float | None = Field(None, gt=0, description="maximum permissible |probing error size|")
     mpe_spacing_mm: float | None = Field(None, gt=0, description="maximum permissible |sphere-spacing error|")
-    exposure_us: float | None = Field(None, gt=0)
-    camera_settings: dict[str, object] = Field(default_factory=dict)
-
-    def stage_distances_mm(self) -> list[float]:
-        """The stage sets the camera-wall distance: bar distance plus gap."""
-        return [d + self.gap_mm for d in self.distances_mm]
 
     def steps(self, first_index: int) -> Iterator[Step]:
-        index = first_index
-        for distance in self.distances_mm:
-            for orientation in self.orientations_deg:
-                yield Step(
-                    index=index,
-                    procedure=self.kind,
-                    target="ball_bar",
-                    target_params={"diameter_mm": self.sphere_diameter_mm, "spacing_mm": self.sphere_spacing_mm,
-                                   "gap_mm": self.gap_mm, "orientation_deg": orientation, "tilt_deg": self.tilt_deg,
-                                   "mpe_form_mm": self.mpe_form_mm, "mpe_size_mm": self.mpe_size_mm,
-                                   "mpe_spacing_mm": self.mpe_spacing_mm},
-                    frames=self.frames,
-                    distance_mm=distance + self.gap_mm,
-                    exposure_us=self.exposure_us,
-                    camera_settings=self.camera_settings,
-                    prompt=f"place the ball bar ({self.sphere_diameter_mm:g} mm spheres, {self.sphere_spacing_mm:g} mm "
-                    f"apart) {self.gap_mm:g} mm in front of the wall, centred on the camera axis, at "
-                    f"{orientation:g} deg from horizontal, tilted {self.tilt_deg:g} deg towards the wall",
-                )
-                index += 1
+        poses = [(d, o) for d in self.distances_mm for o in self.orientations_deg]
+        for n, (distance, orientation) in enumerate(poses):
+            yield self._step(
+                first_index + n, distance, "ball_bar",
+                {"diameter_mm": self.sphere_diameter_mm, "spacing_mm": self.sphere_spacing_mm,
+                 "orientation_deg": orientation, "tilt_deg": self.tilt_deg, "mpe_form_mm": self.mpe_form_mm,
+                 "mpe_size_mm": self.mpe_size_mm, "mpe_spacing_mm": self.mpe_spacing_mm},
+                f"place the ball bar ({self.sphere_diameter_mm:g} mm spheres, {self.sphere_spacing_mm:g} mm apart) "
+                f"{self.gap_mm:g} mm in front of the wall, centred on the camera axis, at {orientation:g} deg from "
+                f"horizontal, tilted {self.tilt_deg:g} deg towards the wall",
+            )
 
 
-class Flatness(StrictModel):
+class Flatness(_Artefact):
     """Campaign entry ``kind = "flatness"``."""
-
-    needs_reference: ClassVar[bool] = False
 
     kind: Literal["flatness"]
     plate_mm: tuple[float, float] = Field((500.0, 400.0), description="width, height of the flat plate")
     distances_mm: list[float] = Field([1000.0, 2000.0], min_length=1, description="camera to plate")
     tilts_deg: list[float] = Field([0.0, 30.0], min_length=1, description="about the vertical axis")
-    gap_mm: float = Field(500.0, gt=0.0, le=3000.0, description="plate to wall")
-    frames: int = Field(10, ge=1, le=10000)
     mpe_flatness_mm: float | None = Field(None, gt=0, description="maximum permissible flatness error")
-    exposure_us: float | None = Field(None, gt=0)
-    camera_settings: dict[str, object] = Field(default_factory=dict)
-
-    def stage_distances_mm(self) -> list[float]:
-        return [d + self.gap_mm for d in self.distances_mm]
 
     def steps(self, first_index: int) -> Iterator[Step]:
-        index = first_index
-        for distance in self.distances_mm:
-            for tilt in self.tilts_deg:
-                yield Step(
-                    index=index,
-                    procedure=self.kind,
-                    target="flat_plate",
-                    target_params={"plate_mm": list(self.plate_mm), "gap_mm": self.gap_mm, "tilt_deg": tilt,
-                                   "mpe_flatness_mm": self.mpe_flatness_mm},
-                    frames=self.frames,
-                    distance_mm=distance + self.gap_mm,
-                    exposure_us=self.exposure_us,
-                    camera_settings=self.camera_settings,
-                    prompt=f"place the {self.plate_mm[0]:g} x {self.plate_mm[1]:g} mm flat plate {self.gap_mm:g} mm "
-                    f"in front of the wall, centred on the camera axis, turned {tilt:g} deg about the vertical",
-                )
-                index += 1
+        poses = [(d, t) for d in self.distances_mm for t in self.tilts_deg]
+        for n, (distance, tilt) in enumerate(poses):
+            yield self._step(
+                first_index + n, distance, "flat_plate",
+                {"plate_mm": list(self.plate_mm), "tilt_deg": tilt, "mpe_flatness_mm": self.mpe_flatness_mm},
+                f"place the {self.plate_mm[0]:g} x {self.plate_mm[1]:g} mm flat plate {self.gap_mm:g} mm in front "
+                f"of the wall, centred on the camera axis, turned {tilt:g} deg about the vertical",
+            )
