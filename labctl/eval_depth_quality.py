@@ -1,7 +1,8 @@
 """Datasheet-comparable figures of the depth-sweep wall (``metrics.depth_quality``).
 
 At every wall position the Depth Quality Tool's ROI (centred 40 % of width and
-height) of the x, y, z stacks is read (only that part of the stack) and the
+height) of the first ``DQT_FRAMES`` frames and Basler's centre 40 x 40 pixels
+of every frame are read from the x, y, z stacks (only those parts) and the
 vendor figures are computed; the key figures take them at the distances the
 vendors quote (1000 mm and 2000 mm, the nearest step within 150 mm). The
 subpixel RMS needs the stereo baseline: it is taken from the camera model's
@@ -16,7 +17,7 @@ from dataclasses import dataclass
 
 from drivers.protocols import CameraInfo
 from labctl.store import StepRecord
-from metrics.depth_quality import VendorFigures, dqt_roi, vendor_figures
+from metrics.depth_quality import DQT_FRAMES, VendorFigures, centre_window, dqt_roi, vendor_figures
 
 #: stereo baseline (mm) by product name (Intel RealSense D400 Series datasheet)
 STEREO_BASELINE_MM = {"D415": 55.0, "D435": 50.0, "D455": 95.0, "D457": 95.0}
@@ -55,13 +56,16 @@ def evaluate_vendor(steps: Sequence[StepRecord], camera: CameraInfo, model: str,
                     progress: Callable[[str], None]) -> list[VendorPosition]:
     """The vendor figures of every wall step (steps with a finite reference distance)."""
     rows, cols = dqt_roi(camera.height, camera.width)
+    w_rows, w_cols = centre_window(camera.height, camera.width)
     focal, baseline = focal_length_px(camera), stereo_baseline_mm(model)
     out = []
     for step in steps:
         progress(f"{step.step_id} vendor figures")
-        x, y, z = (step.group[c][:, rows, cols] for c in ("x", "y", "z"))
+        channels = [step.group[c] for c in ("x", "y", "z")]
+        dqt = tuple(c[:DQT_FRAMES, rows, cols] for c in channels)
+        window = tuple(c[:, w_rows, w_cols] for c in channels)
         out.append(VendorPosition(step.step_id, vendor_figures(
-            x, y, z, step.attrs["reference_distance_mm"], focal, baseline)))
+            dqt, window, step.attrs["reference_distance_mm"], focal, baseline)))  # type: ignore[arg-type]
     return out
 
 

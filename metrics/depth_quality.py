@@ -91,16 +91,25 @@ class Plane:
 
 
 def fit_plane(points: np.ndarray) -> Plane:
-    """Least-squares plane z = a x + b y + c through (n, 3) points (librealsense ``plane_from_points``, z case)."""
+    """Least-squares plane z = a x + b y + c through (n, 3) points (librealsense ``plane_from_points``, z case).
+
+    The normal equations of the centred points, as the tool solves them.
+    """
     if len(points) < 3:
         raise ValueError(f"a plane needs 3 points, got {len(points)}")
     centroid = points.mean(axis=0)
     q = points - centroid
-    design = q[:, :2]
-    (a, b), *_ = np.linalg.lstsq(design, q[:, 2], rcond=None)
+    xx, xy, yy = q[:, 0] @ q[:, 0], q[:, 0] @ q[:, 1], q[:, 1] @ q[:, 1]
+    xz, yz = q[:, 0] @ q[:, 2], q[:, 1] @ q[:, 2]
+    a, b = np.linalg.solve(np.array([[xx, xy], [xy, yy]]), np.array([xz, yz]))
     normal = np.array([-a, -b, 1.0])
     normal /= np.linalg.norm(normal)
     return Plane(normal, -float(normal @ centroid))
+
+
+def _lengths(points: np.ndarray) -> np.ndarray:
+    """Euclidean length of each row of (n, 3) points."""
+    return np.sqrt(np.einsum("ij,ij->i", points, points))
 
 
 def valid_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -110,10 +119,16 @@ def valid_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
 
 
 def trim_by_z(points: np.ndarray) -> np.ndarray:
-    """Drop the ``n // 200`` points of lowest and of highest z (librealsense's 0.5 % outlier trimming)."""
-    order = np.argsort(points[:, 2], kind="stable")
-    cut = len(points) // 200
-    return points[order[cut:len(order) - cut]]
+    """Drop the ``n // 200`` points of lowest and of highest z (librealsense's 0.5 % outlier trimming).
+
+    A partition instead of the tool's full sort: the same points are kept (up to ties), in another order.
+    """
+    n = len(points)
+    cut = n // 200
+    if cut == 0:
+        return points
+    order = np.argpartition(points[:, 2], (cut, n - cut - 1))
+    return points[order[cut:n - cut]]
 
 
 @dataclass(frozen=True)
@@ -147,13 +162,14 @@ def dqt_frame(x: np.ndarray, y: np.ndarray, z: np.ndarray, ground_truth_mm: floa
     distance = -plane.d  # the camera's distance from the plane
     accuracy = math.nan
     if ground_truth_mm > 0:
-        errors = np.sort(plane.z_on_axis() - ground_truth_mm + dist)
-        accuracy = float(100.0 * errors[len(errors) // 2] / ground_truth_mm)
+        middle = len(dist) // 2
+        errors = np.partition(plane.z_on_axis() - ground_truth_mm + dist, middle)
+        accuracy = float(100.0 * errors[middle] / ground_truth_mm)
     subpixel = math.nan
     if focal_px and baseline_mm:
         bf = focal_px * baseline_mm
         projected = kept - dist[:, None] * plane.normal
-        disparity = bf / np.linalg.norm(kept, axis=1) - bf / np.linalg.norm(projected, axis=1)
+        disparity = bf / _lengths(kept) - bf / _lengths(projected)
         subpixel = float(np.sqrt(np.mean(disparity**2)))
     return DqtFrame(fill, accuracy, rms, 100.0 * rms / distance, subpixel, distance)
 
@@ -195,24 +211,32 @@ def _mean(values: list[float]) -> float:
     return float(np.mean(finite)) if finite else math.nan
 
 
-def vendor_figures(x: np.ndarray, y: np.ndarray, z: np.ndarray, reference_mm: float,
-                   focal_px: float | None = None, baseline_mm: float | None = None) -> VendorFigures:
-    """All vendor figures of one wall stack, given as (N, h, w) stacks of the Depth Quality Tool's ROI.
+#: the Depth Quality Tool's figures are averaged over (at most) this many frames of a stack
+DQT_FRAMES = 10
+Cloud = tuple[np.ndarray, np.ndarray, np.ndarray]
 
-    The Basler window is the centred 40 x 40 pixels of that ROI, which is also
-    the centre of the image (``dqt_roi`` and ``centre_window`` are both centred).
+
+def vendor_figures(dqt: Cloud, window: Cloud, reference_mm: float, focal_px: float | None = None,
+                   baseline_mm: float | None = None) -> VendorFigures:
+    """All vendor figures of one wall stack.
+
+    ``dqt``: x, y, z (k, h, w) of the Depth Quality Tool's ROI in the frames
+    to average (the tool shows one frame at a time; labctl takes the mean over
+    the first ``DQT_FRAMES``); ``window``: x, y, z (N, 40, 40) of Basler's
+    centre window in every frame of the stack.
     """
+    x, y, z = dqt
     frames = [dqt_frame(x[k], y[k], z[k], reference_mm, focal_px, baseline_mm) for k in range(len(z))]
-    rows, cols = centre_window(*z.shape[1:])
-    spatial = [spatial_precision_mm(x[k, rows, cols], y[k, rows, cols], z[k, rows, cols]) for k in range(len(z))]
+    wx, wy, wz = window
+    spatial = [spatial_precision_mm(wx[k], wy[k], wz[k]) for k in range(len(wz))]
     return VendorFigures(
         reference_mm=float(reference_mm),
-        n_frames=len(z),
+        n_frames=len(wz),
         fill_rate_pct=_mean([f.fill_rate_pct for f in frames]),
         z_accuracy_pct=_mean([f.z_accuracy_pct for f in frames]),
         plane_fit_rms_mm=_mean([f.plane_fit_rms_mm for f in frames]),
         plane_fit_rms_pct=_mean([f.plane_fit_rms_pct for f in frames]),
         subpixel_rms_px=_mean([f.subpixel_rms_px for f in frames]),
         spatial_precision_mm=_mean(spatial),
-        temporal_precision_mm=temporal_precision_mm(z[:, rows, cols]),
+        temporal_precision_mm=temporal_precision_mm(wz),
     )

@@ -7,6 +7,7 @@ import pytest
 from scipy.stats import norm
 
 from metrics.depth_quality import (
+    DQT_FRAMES,
     centre_window,
     dqt_frame,
     dqt_roi,
@@ -140,14 +141,17 @@ def test_temporal_precision_ignores_fixed_pattern_and_averages_variances():
 
 
 def test_vendor_figures_of_a_stack():
+    """Depth Quality Tool figures from the ROI of the first frames, Basler's from the centre window of all."""
     rng = np.random.default_rng(7)
     x, y, z, f = plane_points(2000.0)
+    n = 12
+    zs = np.stack([z + 2.0 * rng.standard_normal(z.shape) for _ in range(n)])
+    xs, ys = np.broadcast_to(x, zs.shape), np.broadcast_to(y, zs.shape)
     rows, cols = dqt_roi(H, W)
-    n = 10
-    zs = np.stack([z + 2.0 * rng.standard_normal(z.shape) for _ in range(n)])[:, rows, cols]
-    xs = np.broadcast_to(x[rows, cols], zs.shape)
-    ys = np.broadcast_to(y[rows, cols], zs.shape)
-    result = vendor_figures(xs, ys, zs, 2000.0, focal_px=f, baseline_mm=50.0)
+    w_rows, w_cols = centre_window(H, W)
+    result = vendor_figures((xs[:DQT_FRAMES, rows, cols], ys[:DQT_FRAMES, rows, cols], zs[:DQT_FRAMES, rows, cols]),
+                            (xs[:, w_rows, w_cols], ys[:, w_rows, w_cols], zs[:, w_rows, w_cols]),
+                            2000.0, focal_px=f, baseline_mm=50.0)
     assert result.n_frames == n
     assert result.fill_rate_pct == 100.0
     assert result.plane_fit_rms_mm == pytest.approx(trimmed_sigma(2.0), rel=0.01)
