@@ -195,16 +195,19 @@ def test_vendor_figures_follow_the_noise_model(complete):
 
 
 def test_acceptance_figures_follow_the_noise_model(complete):
-    """Ball bar and plate at 1 m: the spacing error within 2 mm (both spheres share the rim bias of the mixed
-    pixels, so it cancels; tens of points per sphere at this resolution); the flatness error, the range of a
-    few thousand deviations after the 0.3 % rule, between 4 and 12 times the model's wall noise at 1 m
-    (about 7 sigma for Gaussian noise, more with the plate's rim)."""
+    """Ball bar and plate at 1 m, against the model's wall noise sigma at 1 m (centre of the image): the
+    spacing error within 5 sigma (a few tens of points per sphere at this resolution, most of them on the
+    rim; the rim bias of the mixed pixels is shared by both spheres and mostly cancels: measured 0.6 to 3.5
+    sigma); the probing error size positive (the rim pixels mix the sphere with the wall behind and lie
+    outside it); the flatness error, the range of a few thousand deviations after the 0.3 % rule, between
+    4.5 and 9 sigma (about 7 sigma for Gaussian noise; measured 5.9 to 6.3)."""
     camera, model, _, evaluation = complete
     sigma = wall_sigma_z(model, 1000.0)
     h, w = sigma.shape
     noise = float(np.sqrt(np.nanmean(sigma[h // 2 - 5:h // 2 + 5, w // 2 - 5:w // 2 + 5] ** 2)))
-    assert abs(value(evaluation, "sphere_spacing_error_mm")) < 2.0, camera
-    assert 4 * noise < value(evaluation, "flatness_error_mm") < 12 * noise, (camera, noise)
+    assert abs(value(evaluation, "sphere_spacing_error_mm")) < 5 * noise, (camera, noise)
+    assert value(evaluation, "probing_error_size_mm") > 0, camera
+    assert 4.5 * noise < value(evaluation, "flatness_error_mm") < 9 * noise, (camera, noise)
 
 
 def test_skin_repeatability_is_the_noise_model_on_the_axis(complete):
