@@ -75,6 +75,8 @@ def _artefact_points(step: StepRecord, k: int, gap_mm: float) -> np.ndarray:
 
 def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any]) -> dict[str, float] | str:
     points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
+    if len(points) < 2 * MIN_POINTS:
+        return f"{len(points)} points on the ball bar"
     phi = math.radians(float(params.get("orientation_deg", 0.0)))
     side = (points[:, :2] - points[:, :2].mean(axis=0)) @ np.array([math.cos(phi), math.sin(phi)]) >= 0
     halves = points[~side], points[side]
