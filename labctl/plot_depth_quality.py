@@ -33,6 +33,8 @@ def plot_vendor_figures(positions: list[VendorPosition], path: Path) -> Path:
     for ax, title, unit, attrs in panels:
         for attr, label in attrs:
             ax.plot(d, series(attr), marker="o", ms=3, label=label)
+            if not np.isfinite(series(attr)).any():
+                ax.text(0.5, 0.5, "not measured (stereo cameras only)", transform=ax.transAxes, ha="center")
         ax.set_title(title)
         ax.set_ylabel(unit)
         ax.grid(alpha=0.3)
