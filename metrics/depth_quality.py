@@ -212,7 +212,7 @@ def _mean(values: list[float]) -> float:
 
 
 #: the Depth Quality Tool's figures are averaged over (at most) this many frames of a stack
-DQT_FRAMES = 10
+DQT_FRAMES = 3
 Cloud = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
