@@ -1,7 +1,7 @@
 """Datasheet-comparable figures of the depth-sweep wall (``metrics.depth_quality``).
 
 At every wall position the Depth Quality Tool's ROI (centred 40 % of width and
-height) of the first ``DQT_FRAMES`` frames and Basler's centre 40 x 40 pixels
+height) of the first ``DQT_FRAMES`` frame(s) and Basler's centre 40 x 40 pixels
 of every frame are read from the x, y, z stacks (only those parts) and the
 vendor figures are computed; the key figures take them at the distances the
 vendors quote (1000 mm and 2000 mm, the nearest step within 150 mm). The

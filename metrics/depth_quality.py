@@ -193,7 +193,7 @@ def temporal_precision_mm(z_stack: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class VendorFigures:
-    """Vendor figures of one wall position (DQT figures: mean over the frames of the stack)."""
+    """Vendor figures of one wall position (DQT figures: mean over the frames given)."""
 
     reference_mm: float
     n_frames: int
@@ -211,8 +211,8 @@ def _mean(values: list[float]) -> float:
     return float(np.mean(finite)) if finite else math.nan
 
 
-#: the Depth Quality Tool's figures are averaged over (at most) this many frames of a stack
-DQT_FRAMES = 3
+#: the Depth Quality Tool's figures are taken from (the mean over) this many frames of a stack: the first
+DQT_FRAMES = 1
 Cloud = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
@@ -221,8 +221,8 @@ def vendor_figures(dqt: Cloud, window: Cloud, reference_mm: float, focal_px: flo
     """All vendor figures of one wall stack.
 
     ``dqt``: x, y, z (k, h, w) of the Depth Quality Tool's ROI in the frames
-    to average (the tool shows one frame at a time; labctl takes the mean over
-    the first ``DQT_FRAMES``); ``window``: x, y, z (N, 40, 40) of Basler's
+    to average (the tool shows one frame at a time; labctl gives it the first
+    ``DQT_FRAMES``); ``window``: x, y, z (N, 40, 40) of Basler's
     centre window in every frame of the stack.
     """
     x, y, z = dqt
