@@ -3,7 +3,9 @@
 Input: the output directories of ``labctl evaluate`` (their ``keyfigures.json``).
 Output: ``compare.json`` (every figure per camera, the suitability verdicts),
 ``compare.html`` with the Fig. 6-12 style chart (all figures, lower is better;
-angular resolutions x 10 as in the thesis so they share the axis), the
+angular resolutions x 10 as in the thesis so they share the axis; fill rates,
+where higher is better, are left out), the datasheet-comparable figures with
+where they are defined, the
 inter-eye-distance coverage per camera against the 90 px requirement, and the
 suitability matrix.
 """
@@ -23,13 +25,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from labctl.errors import InputError  # noqa: E402
-from labctl.keyfigures import FIGURES  # noqa: E402
+from labctl.keyfigures import FIGURES, VENDOR_FIGURES  # noqa: E402
 from labctl.store import labctl_version, now_iso  # noqa: E402
 from labctl.suitability import IED_MIN_PX  # noqa: E402
 from metrics.jsonsafe import dumps_strict  # noqa: E402
 
 #: figures left out of the chart (different scale or "higher is better")
-NOT_CHARTED = {"hyperfocal_distance_mm", "best_focus_distance_mm", "ied_pixels_at_hyperfocal"}
+NOT_CHARTED = {"hyperfocal_distance_mm", "best_focus_distance_mm", "ied_pixels_at_hyperfocal",
+               "fill_rate_1000mm_pct", "fill_rate_2000mm_pct"}
 TIMES_TEN = {"intensity_resolution_h_deg", "intensity_resolution_v_deg", "cloud_resolution_h_deg",
              "cloud_resolution_v_deg"}
 
@@ -140,6 +143,12 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
         + "".join(f"<td>{_fmt(values[label])}</td>" for label in labels) + "</tr>"
         for name, values in result["figures"].items()
     )
+    vendor_rows = "".join(
+        f'<tr><td class="l">{html.escape(f.name)}</td><td class="l">{f.unit}</td>'
+        + "".join(f"<td>{_fmt(result['figures'][f.name][label])}</td>" for label in labels)
+        + f'<td class="l">{html.escape(f.section)}</td></tr>'
+        for f in VENDOR_FIGURES
+    )
     stories = sorted({story for v in result["suitability"].values() for story in v})
     suit_rows = "".join(
         f'<tr><td class="l">{html.escape(story)}</td>'
@@ -158,6 +167,9 @@ th{{background:#f4f4f4}}td.l{{text-align:left}}img{{max-width:100%}}</style></he
 <h2>Inter-eye distance coverage</h2><img src="{ied.as_posix()}" alt="IED coverage">
 <h2>Suitability (SPEC 9)</h2>
 <table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>
+<h2>Datasheet-comparable figures</h2>
+<p>As the camera vendors' tools define them; set them next to the datasheets.</p>
+<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>{vendor_rows}</table>
 <h2>Key figures</h2>
 <table><tr><th class="l">figure</th><th class="l">unit</th>{head}</tr>{rows}</table>
 </body></html>

@@ -14,6 +14,10 @@ from pathlib import Path
 from typing import Any
 
 from labctl.errors import InputError
+from labctl.eval_depth_quality import VendorPosition, evaluate_vendor
+from labctl.eval_depth_quality import figure_values as vendor_figures
+from labctl.eval_vdi2634 import AcceptanceResult, evaluate_acceptance
+from labctl.eval_vdi2634 import figure_values as acceptance_figures
 from labctl.eval_geometry import GeometryResult, evaluate_geometry
 from labctl.eval_geometry import figure_values as geometry_figures
 from labctl.eval_remission import RemissionResult, evaluate_remission
@@ -51,10 +55,12 @@ class Evaluation:
     runs: list[str]
     camera: dict[str, Any]
     depth: list[DepthPosition] = field(default_factory=list)
+    vendor: list[VendorPosition] = field(default_factory=list)
     surface: SurfaceResult | None = None
     sharpness: SharpnessResult | None = None
     geometry: GeometryResult | None = None
     remission: RemissionResult | None = None
+    acceptance: AcceptanceResult | None = None
     face: FaceMaskResult | None = None
     alignment: AlignmentRecord | None = None
     figures: dict[str, FigureValue] = field(default_factory=dict)
@@ -93,14 +99,18 @@ def _key_step(steps: Sequence[StepRecord]) -> StepRecord | None:
 
 
 def evaluate_depth_sweep(
-    steps: Sequence[StepRecord], evaluation: Evaluation, progress: Callable[[str], None]
+    steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None]
 ) -> None:
-    """SPEC §1-2 on the wall steps: curves over distance, key figures, surface at 2000 mm."""
+    """SPEC §1-2 on the wall steps: curves over distance, key figures, surface at 2000 mm; the vendors'
+    depth-quality figures at every distance."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
         evaluation.notes.append(
             f"{len(steps) - len(usable)} depth_sweep step(s) have no reference distance and were skipped"
         )
+    evaluation.vendor = evaluate_vendor(usable, reader.camera, evaluation.camera["model"], progress)
+    for name, (value, source) in vendor_figures(evaluation.vendor).items():
+        evaluation.figures[name] = FigureValue(value, source)
     buffer = None
     for rec in usable:
         progress(rec.step_id)
@@ -200,7 +210,7 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
                 evaluation.notes.append(f"{reader.path} is {reader.attrs.get('status')}: only its complete steps are used")
         sweep = [s for r in readers for s in r.steps("depth_sweep")]
         if sweep:
-            evaluate_depth_sweep(sweep, evaluation, progress)
+            evaluate_depth_sweep(sweep, readers[0], evaluation, progress)
         else:
             evaluation.notes.append("no depth_sweep steps: depth figures are null")
         edges = [s for r in readers for s in r.steps("slanted_edge")]
@@ -219,6 +229,12 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
             if evaluation.remission is not None:
                 evaluation.notes.extend(evaluation.remission.notes)
                 evaluation.figures.update(remission_figures(evaluation.remission))
+        artefacts = [s for r in readers for s in r.steps() if s.attrs.get("procedure") in ("sphere_bar", "flatness")]
+        if artefacts:
+            evaluation.acceptance = evaluate_acceptance(artefacts, progress)
+            evaluation.notes.extend(evaluation.acceptance.notes)
+            for name, (value, source) in acceptance_figures(evaluation.acceptance).items():
+                evaluation.figures[name] = FigureValue(value, source)
         masks = [s for r in readers for s in r.steps("face_mask")]
         if masks:
             progress(f"{masks[-1].step_id} face mask")

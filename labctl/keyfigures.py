@@ -50,6 +50,45 @@ FIGURES: tuple[FigureDef, ...] = (
     FigureDef("repeatability_skin_70deg_mm", "mm", "max repeatability over skin-like materials at 70 deg", "SPEC 7"),
     FigureDef("ied_pixels_at_hyperfocal", "px", "inter-eye distance (62.5 mm) coverage at the hyperfocal distance", "SPEC 9"),
 )
+
+#: where the datasheet-comparable figures are defined
+DQT = "Intel librealsense tools/depth-quality (Depth Quality Tool)"
+BASLER = "Basler blaze docs: Depth Quality Metrics; Accuracy and Precision"
+
+
+def _vendor_figures(distance_mm: int) -> tuple[FigureDef, ...]:
+    d = f"on the wall at {distance_mm} mm"
+    return (
+        FigureDef(f"fill_rate_{distance_mm}mm_pct", "%", f"valid pixels in the centred 40 % ROI, {d}", DQT),
+        FigureDef(f"z_accuracy_{distance_mm}mm_pct", "%",
+                  f"median signed error vs the reference plane, % of distance, 0.5 % trimmed each end, {d}", DQT),
+        FigureDef(f"plane_fit_rms_{distance_mm}mm_mm", "mm",
+                  f"RMS of point-to-plane distances in the 40 % ROI, 0.5 % trimmed each end, {d}", DQT),
+        FigureDef(f"subpixel_rms_{distance_mm}mm_px", "px",
+                  f"RMS of disparity deviations from the fitted plane (stereo only), {d}", DQT),
+        FigureDef(f"spatial_precision_{distance_mm}mm_mm", "mm",
+                  f"RMS of one frame's depth about its plane, centre 40 x 40 px, mean over frames, {d}", BASLER),
+        FigureDef(f"temporal_precision_{distance_mm}mm_mm", "mm",
+                  f"quadratic mean of the per-pixel std over the stack, centre 40 x 40 px, {d}", BASLER),
+    )
+
+
+#: the datasheet-comparable figures, at the distances the vendors quote
+VENDOR_FIGURES: tuple[FigureDef, ...] = _vendor_figures(1000) + _vendor_figures(2000)
+#: figures only a stereo camera has (null for the others)
+STEREO_ONLY = frozenset(f.name for f in VENDOR_FIGURES if f.name.startswith("subpixel_rms_"))
+VDI = "VDI/VDE 2634 Part 2"
+#: the acceptance-test quantities (largest magnitude over all measurements)
+ACCEPTANCE_FIGURES: tuple[FigureDef, ...] = (
+    FigureDef("probing_error_form_mm", "mm", "max over spheres and frames of the range of radial deviations from "
+              "the fitted sphere (P_F)", VDI),
+    FigureDef("probing_error_size_mm", "mm", "fitted minus calibrated sphere diameter, largest magnitude (P_S)", VDI),
+    FigureDef("sphere_spacing_error_mm", "mm", "measured minus calibrated ball-bar centre distance, largest "
+              "magnitude over positions and frames (SD)", VDI),
+    FigureDef("flatness_error_mm", "mm", "max over positions and frames of the range of deviations from the "
+              "least-squares plane of the flat plate (F)", VDI),
+)
+FIGURES = FIGURES + VENDOR_FIGURES + ACCEPTANCE_FIGURES
 FIGURE_BY_NAME = {f.name: f for f in FIGURES}
 
 

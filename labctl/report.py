@@ -7,10 +7,14 @@ import math
 from pathlib import Path
 from typing import Any
 
+from labctl.eval_depth_quality import vendor_table
 from labctl.eval_remission import misalignment_summary, remission_table
+from labctl.eval_vdi2634 import acceptance_table, verdicts
 from labctl.eval_sharpness import resolution_table
 from labctl.evaluate import Evaluation, depth_table
-from labctl.keyfigures import FIGURE_BY_NAME, clean, keyfigures_document
+from labctl.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, clean, keyfigures_document
+from labctl.plot_acceptance import plot_acceptance
+from labctl.plot_depth_quality import plot_vendor_figures
 from labctl.plot_boehler import plot_boehler
 from labctl.plot_distortion import plot_distortion
 from labctl.plot_remission import plot_misalignment_fit, plot_remission
@@ -75,6 +79,12 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
         sections.append(_section("Depth error over distance (SPEC 1)", img, outdir, _depth_rows(evaluation)))
+    if evaluation.vendor:
+        doc["depth_quality"] = _clean_rows(vendor_table(evaluation.vendor))
+        img = plot_vendor_figures(evaluation.vendor, plots / "depth_quality.png")
+        sections.append(_section("Datasheet-comparable figures", img, outdir, _vendor_html(evaluation, doc)))
+    if evaluation.acceptance is not None and evaluation.acceptance.measurements:
+        sections.append(_acceptance_section(evaluation, outdir, plots, doc))
     if evaluation.surface is not None:
         img = plot_surface_maps(evaluation.surface, plots / "surface_texture.png")
         sections.append(_section("Surface texture (SPEC 2, ISO 25178-2)", img, outdir, ""))
@@ -207,6 +217,40 @@ def _rows_table(rows: list[dict[str, Any]], key: str) -> str:
 def _section(title: str, image: Path, outdir: Path, table: str) -> str:
     rel = image.relative_to(outdir).as_posix()
     return f'<h2>{html.escape(title)}</h2>\n<img src="{rel}" alt="{html.escape(title)}">\n{table}'
+
+
+def _vendor_html(evaluation: Evaluation, doc: dict[str, Any]) -> str:
+    """The vendor key figures next to where they are defined, then the figures at every distance."""
+    rows = "".join(
+        f'<tr><td class="l">{html.escape(f.name)}</td><td>{_fmt(doc["figures"][f.name]["value"])}</td>'
+        f'<td class="l">{f.unit}</td><td class="l">{html.escape(f.meaning)}</td>'
+        f'<td class="l src">{html.escape(f.section)}</td></tr>'
+        for f in VENDOR_FIGURES
+    )
+    return ("<p>The figures camera vendors quote in their datasheets, computed as their own tools define them "
+            "(see docs/metrics.md for the choices where a definition is vague); subpixel RMS only for stereo "
+            "cameras.</p>"
+            '<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">definition</th>'
+            f'<th class="l">defined by</th></tr>{rows}</table>'
+            f"<h3>At every wall distance</h3>{_rows_table(vendor_table(evaluation.vendor), 'step')}")
+
+
+def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> str:
+    """VDI/VDE 2634-2 quantities with their maximum permissible errors and verdicts, and per position."""
+    result = evaluation.acceptance
+    assert result is not None
+    judged = verdicts(result)
+    doc["acceptance_test"] = {name: {k: clean(v) if isinstance(v, float) else v for k, v in row.items()}
+                              for name, row in judged.items()}
+    rows = [{"quantity": name, "value_mm": row["value"], "mpe_mm": row["mpe_mm"] if row["mpe_mm"] is not None
+             else math.nan, "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
+    table = _rows_table(rows, "quantity")
+    doc["acceptance_positions"] = per_step = _clean_rows(acceptance_table(result))
+    img = plot_acceptance(result, plots / "acceptance.png")
+    text = ("<p>Each frame is one measurement; a quantity's figure is the measurement of largest magnitude, "
+            "compared with the campaign's maximum permissible error (MPE).</p>" + table
+            + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(per_step, 'step')}")
+    return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
 
 
 def _depth_rows(evaluation: Evaluation) -> str:

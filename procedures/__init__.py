@@ -13,6 +13,7 @@ from procedures.remission_angle import RemissionAngle
 from procedures.slanted_edge import SlantedEdge
 from procedures.steps import Step
 from procedures.targets_at_focus import BoehlerStar, Checkerboard
+from procedures.vdi2634 import Flatness, SphereBar
 
 PROCEDURES = {
     "alignment": Alignment,
@@ -24,11 +25,13 @@ PROCEDURES = {
     "boehler_star": BoehlerStar,
     "remission_angle": RemissionAngle,
     "face_mask": FaceMask,
+    "sphere_bar": SphereBar,
+    "flatness": Flatness,
 }
 
 ProcedureConfig = (
     Alignment | OffsetCalibration | DepthSweep | XYSweep | SlantedEdge | Checkerboard | BoehlerStar
-    | RemissionAngle | FaceMask
+    | RemissionAngle | FaceMask | SphereBar | Flatness
 )
 
 __all__ = ["PROCEDURES", "ProcedureConfig", "Step"]

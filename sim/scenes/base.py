@@ -165,7 +165,41 @@ class HeightFieldSurface:
         return normal * np.where(sign == 0, 1, sign)
 
 
-Surface = PlaneSurface | HeightFieldSurface
+@dataclass(frozen=True)
+class SphereSurface:
+    """A sphere of ``radius`` about ``centre`` seen from outside (e.g. a ball bar's spheres).
+
+    Ray o + t d meets it at the smaller root of |o + t d - c|^2 = r^2; the
+    cosine of incidence is -n.d / |d| with n the outward normal there. The
+    texture is read at the hit point's x, y relative to the centre (a uniform
+    texture for the lab's spheres).
+    """
+
+    centre: np.ndarray
+    radius: float
+    texture: Texture
+    material: str
+
+    def intersect(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, ...]:
+        o = np.asarray(origins, float).reshape(3)
+        rel = o - self.centre
+        a = _dot(np.ones(3), dirs * dirs)
+        b = _dot(rel, dirs)
+        c = float(rel @ rel) - self.radius**2
+        disc = b * b - a * c
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = (-b - np.sqrt(np.maximum(disc, 0.0))) / a
+        t = np.where((disc >= 0) & (t > 0), t, np.inf)
+        finite = np.isfinite(t)
+        tt = np.where(finite, t, 0.0)
+        hit = [rel[i] + tt * dirs[i] for i in range(3)]  # hit point relative to the centre
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = -(hit[0] * dirs[0] + hit[1] * dirs[1] + hit[2] * dirs[2]) / (self.radius * np.sqrt(a))
+        reflectance = np.where(finite, self.texture(hit[0], hit[1]), 0.0)
+        return t, np.where(finite, np.clip(cos, 0.0, 1.0), 0.0), reflectance
+
+
+Surface = PlaneSurface | HeightFieldSurface | SphereSurface
 
 
 @dataclass

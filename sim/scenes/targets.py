@@ -14,7 +14,15 @@ Stage lab (camera at the origin looking along +z, wall at z = D):
   24 of which half are filled, a ``disc_mm`` 10 mm central disc) standing
   ``gap_mm`` in front of the wall, centred ``offset_mm`` off the optical axis
   and turned by ``rotation_deg``;
-* ``face_mask`` — a silicone face mask (height field) ``gap_mm`` in front of the wall.
+* ``face_mask`` — a silicone face mask (height field) ``gap_mm`` in front of the wall;
+* ``ball_bar`` — the VDI/VDE 2634-2 ball bar: two matte white spheres of
+  ``diameter_mm`` whose centres are ``spacing_mm`` apart, the bar's centre
+  ``gap_mm`` in front of the wall and ``offset_mm`` off the optical axis,
+  turned by ``orientation_deg`` in the image plane (0: horizontal) and
+  ``tilt_deg`` out of it (about the bar's perpendicular in the image plane: the
+  far sphere further away); the thin bar between them is not rendered;
+* ``flat_plate`` — a matte white ``plate_mm`` flat plate ``gap_mm`` in front of
+  the wall, tilted by ``tilt_deg`` about the vertical axis.
 
 Robot lab (circle centre at the origin, Fig. 5-15): a ``plate_mm`` square plate
 of a material (``ptfe``, ``molleton``, ``silicone``, ``gelatine``,
@@ -30,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from sim.materials import get_material, remission
-from sim.scenes.base import HeightFieldSurface, PlaneSurface, Scene, uniform
+from sim.scenes.base import HeightFieldSurface, PlaneSurface, Scene, SphereSurface, uniform
 from sim.scenes.patterns import Checker, Rect, Shape, SlantedQuadrant, Star, Texture
 
 A0_MM = (1189.0, 841.0)
@@ -103,6 +111,40 @@ def face_mask_scene(distance_mm: float, wavelength_nm: float, gap_mm: float = 30
     return Scene().add(mask).add(_wall(distance_mm, wavelength_nm))
 
 
+#: material of the ball bar's spheres and of the flat plate (matte white, like the wall's paint)
+ARTEFACT_MATERIAL = "wall"
+
+
+def ball_bar_centres(distance_mm: float, spacing_mm: float, gap_mm: float, orientation_deg: float,
+                     tilt_deg: float, offset_mm: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Centres of the ball bar's two spheres (camera frame, wall at z = distance_mm)."""
+    phi, tilt = np.radians(orientation_deg), np.radians(tilt_deg)
+    axis = np.array([np.cos(phi) * np.cos(tilt), np.sin(phi) * np.cos(tilt), np.sin(tilt)])
+    middle = np.array([offset_mm[0], offset_mm[1], distance_mm - gap_mm])
+    return middle - axis * spacing_mm / 2, middle + axis * spacing_mm / 2
+
+
+def ball_bar_scene(distance_mm: float, wavelength_nm: float, diameter_mm: float = 50.0, spacing_mm: float = 300.0,
+                   gap_mm: float = 500.0, orientation_deg: float = 0.0, tilt_deg: float = 0.0,
+                   offset_mm: tuple[float, float] = (0.0, 0.0), **_: Any) -> Scene:
+    """Ball bar ``gap_mm`` in front of the wall at ``distance_mm``."""
+    texture = uniform(remission(ARTEFACT_MATERIAL, wavelength_nm))
+    scene = Scene()
+    for centre in ball_bar_centres(distance_mm, spacing_mm, gap_mm, orientation_deg, tilt_deg, tuple(offset_mm)):
+        scene.add(SphereSurface(centre, diameter_mm / 2, texture, ARTEFACT_MATERIAL))
+    return scene.add(_wall(distance_mm, wavelength_nm))
+
+
+def flat_plate_scene(distance_mm: float, wavelength_nm: float, plate_mm: tuple[float, float] = (500.0, 400.0),
+                     gap_mm: float = 500.0, tilt_deg: float = 0.0, **_: Any) -> Scene:
+    """Flat plate ``gap_mm`` in front of the wall, tilted about the vertical axis by ``tilt_deg``."""
+    tilt = np.radians(tilt_deg)
+    u_axis = np.array([np.cos(tilt), 0.0, np.sin(tilt)])
+    plate = PlaneSurface(np.array([0.0, 0.0, distance_mm - gap_mm]), u_axis, Y,
+                         uniform(remission(ARTEFACT_MATERIAL, wavelength_nm)), ARTEFACT_MATERIAL, _rect(*plate_mm))
+    return Scene().add(plate).add(_wall(distance_mm, wavelength_nm))
+
+
 def plate_scene(material: str, wavelength_nm: float, plate_mm: float = 200.0, offset_mm: float = 0.0,
                 **_: Any) -> Scene:
     """Robot lab: a material plate at the circle centre (``offset_mm`` behind it), curtains behind."""
@@ -121,6 +163,8 @@ STAGE_TARGETS = {
     "checkerboard": checkerboard_scene,
     "boehler_star": boehler_scene,
     "face_mask": face_mask_scene,
+    "ball_bar": ball_bar_scene,
+    "flat_plate": flat_plate_scene,
 }
 TARGETS = (*STAGE_TARGETS, *PLATE_MATERIALS)
 

@@ -8,7 +8,7 @@ import pytest
 from labctl.cli import main
 from labctl.errors import InputError
 from labctl.evaluate import evaluate_runs
-from labctl.keyfigures import FIGURES
+from labctl.keyfigures import FIGURES, STEREO_ONLY, VENDOR_FIGURES
 
 CONTRACT_NAMES = {
     "z_trueness_q90_mm", "z_accuracy_q90_mm", "z_precision_q90_mm", "z_repeatability_center_mm",
@@ -25,6 +25,8 @@ DEPTH = {"z_trueness_q90_mm", "z_accuracy_q90_mm", "z_precision_q90_mm", "z_repe
          "surface_primary_sq_mm", "surface_waviness_sq_mm", "surface_roughness_sq_mm",
          # the wall stacks of a depth sweep also give the x/y noise when the run has no xy_sweep
          "x_precision_q90_mm", "y_precision_q90_mm", "x_repeatability_center_mm", "y_repeatability_center_mm"}
+#: the datasheet-comparable figures of the wall at 1 m and 2 m (signed: Z accuracy); a ToF camera has no subpixel RMS
+VENDOR = {f.name for f in VENDOR_FIGURES} - STEREO_ONLY
 
 
 def invoke(*args) -> int:
@@ -58,6 +60,8 @@ def test_depth_run_gives_depth_figures_and_nulls_elsewhere(sim_run, tmp_path):
         if name in DEPTH:
             assert f["value"] is not None and f["value"] > 0, name
             assert f["unit"] == "mm"
+        elif name in VENDOR:
+            assert f["value"] is not None, name
         elif name == "pixel_aspect_distortion_pct":  # needs only the camera's FOV and pixels
             assert f["value"] == pytest.approx(100 * ((51 / 90) / (67 / 120) - 1))
         else:

@@ -51,3 +51,35 @@ def test_empty_scene_hits_nothing():
     rays = Pinhole(8, 6, 60.0, 45.0).unit_rays
     hit = Scene().cast(np.zeros(3), rays)
     assert np.isinf(hit.t).all() and (hit.surface == -1).all()
+
+
+def test_ball_bar_spheres_are_exact():
+    """Every ray that hits a sphere ends on it (|p - c| = r) at the near side, the cosine is that of the
+    angle between the ray and the outward normal, the silhouette's half-angle is asin(r / |c|), and the
+    centres are the given spacing apart along the bar's direction."""
+    from sim.scenes.targets import ball_bar_centres
+
+    params = {"diameter_mm": 50.0, "spacing_mm": 300.0, "gap_mm": 500.0, "orientation_deg": 30.0, "tilt_deg": 20.0}
+    scene = build_scene("ball_bar", params, 940.0, 1500.0)
+    first, second = ball_bar_centres(1500.0, 300.0, 500.0, 30.0, 20.0, (0.0, 0.0))
+    assert np.linalg.norm(second - first) == pytest.approx(300.0)
+    assert (second - first)[2] == pytest.approx(300.0 * np.sin(np.radians(20.0)))
+    rays = Pinhole(400, 300, 40.0, 30.0).unit_rays
+    hit = scene.cast(np.zeros(3), rays)
+    for index, centre in enumerate((first, second)):
+        on = hit.surface == index
+        assert on.sum() > 100
+        points = rays[:, on] * hit.t[on]
+        np.testing.assert_allclose(np.linalg.norm(points.T - centre, axis=1), 25.0, atol=1e-9)
+        normals = (points.T - centre) / 25.0
+        np.testing.assert_allclose(hit.cos[on], -(normals * rays[:, on].T).sum(1), atol=1e-9)
+        assert (hit.t[on] <= np.linalg.norm(centre)).all()  # the near side
+        angles = np.arccos(np.clip((rays[:, on].T @ centre) / np.linalg.norm(centre), -1, 1))
+        assert angles.max() <= np.arcsin(25.0 / np.linalg.norm(centre)) + 1e-12
+
+
+def test_flat_plate_is_tilted_about_the_vertical():
+    scene = build_scene("flat_plate", {"tilt_deg": 30.0, "gap_mm": 500.0}, 940.0, 1500.0)
+    plate = scene.surfaces[0]
+    assert abs(plate.normal @ np.array([0.0, 0.0, -1.0])) == pytest.approx(np.cos(np.radians(30.0)))
+    assert abs(plate.normal[1]) < 1e-12

@@ -1,0 +1,242 @@
+"""The depth-quality figures camera vendors quote, defined as their own tools define them.
+
+Intel RealSense Depth Quality Tool (librealsense ``tools/depth-quality``,
+``depth-metrics.h`` and the metric definitions of ``rs-depth-quality.cpp``),
+evaluated on one frame of a flat target:
+
+* ROI: the centred 40 % of the image width and height (the tool's default
+  ``roi_percentage`` 0.4; columns ``int(0.3 W) .. int(0.7 W)``, rows likewise);
+* **fill rate**: valid pixels in the ROI / ROI pixels, in %;
+* plane: least-squares fit to all valid ROI points, as ``plane_from_points``
+  does for a target facing the camera (the regression of z on x and y, whose
+  normal (-a, -b, 1) is normalized, pointing away from the camera);
+* trimming: the points are sorted by z and ``n // 200`` are dropped at each
+  end (the lowest and highest 0.5 %) before the error statistics; the plane is
+  not refitted;
+* **Z accuracy**: per point, (z where the optical axis meets the plane - ground
+  truth) + the signed point-to-plane distance; the element ``n // 2`` of the
+  sorted errors, in % of the ground truth (positive: the plane lies beyond the
+  ground truth);
+* **plane-fit RMS**: RMS of the signed point-to-plane distances, in mm (the
+  tool also shows it in % of the plane distance);
+* **subpixel RMS** (stereo): RMS over the points of BL FL / |p| - BL FL / |p'|,
+  p' the orthogonal projection of p onto the plane, BL the baseline (mm), FL
+  the focal length in pixels. The tool's help text writes Z for "the depth
+  range of the i-th pixel"; its code divides by the Euclidean length of the
+  point (the range), and so does this function.
+
+Basler blaze depth-quality metrics (docs.baslerweb.com "Depth Quality
+Metrics": accuracy as a median deviation, spatial precision as the RMS error of
+the depth data, temporal precision as the uniformity over time; "Accuracy and
+Precision": 40 x 40 pixels in the centre of the sensor, 25 images). The page
+states the quantities in words only; labctl's choices:
+
+* ROI: the centred 40 x 40 pixels (the blaze's test condition);
+* **spatial precision**: per frame, the RMS of the depth (z) residuals from the
+  least-squares plane z = a x + b y + c over the valid ROI pixels, no
+  trimming; the mean over the frames of the stack;
+* **temporal precision**: per ROI pixel the sample standard deviation (n - 1)
+  over the stack (the half-valid rule of ``metrics.stack``), then the quadratic
+  mean over the pixels (so that it estimates the noise sigma without the bias
+  of a median of sample standard deviations).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from metrics.stack import stack_stats
+
+#: the Depth Quality Tool's default ROI: this fraction of width and height, centred
+DQT_ROI_FRACTION = 0.4
+#: the blaze test condition: this many pixels square in the centre of the sensor
+BASLER_ROI_PX = 40
+
+
+def dqt_roi(height: int, width: int, fraction: float = DQT_ROI_FRACTION) -> tuple[slice, slice]:
+    """Rows and columns of the Depth Quality Tool's ROI (``int(dim * (0.5 -+ fraction / 2))``)."""
+    return (slice(int(height * (0.5 - fraction / 2)), int(height * (0.5 + fraction / 2))),
+            slice(int(width * (0.5 - fraction / 2)), int(width * (0.5 + fraction / 2))))
+
+
+def centre_window(height: int, width: int, size: int = BASLER_ROI_PX) -> tuple[slice, slice]:
+    """The centred ``size`` x ``size`` pixels (clipped to the image)."""
+    rh, rw = min(size, height), min(size, width)
+    top, left = (height - rh) // 2, (width - rw) // 2
+    return slice(top, top + rh), slice(left, left + rw)
+
+
+def fill_rate_pct(z: np.ndarray) -> float:
+    """librealsense "Fill-Rate": % of the ROI's pixels with a valid (finite, non-zero) depth."""
+    return float(100.0 * np.count_nonzero(np.isfinite(z) & (z != 0)) / z.size)
+
+
+@dataclass(frozen=True)
+class Plane:
+    """Unit normal n (n_z > 0) and offset d of the plane n . p + d = 0 (mm)."""
+
+    normal: np.ndarray
+    d: float
+
+    def signed_distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance of (n, 3) points from the plane, positive beyond it (away from the camera)."""
+        return points @ self.normal + self.d
+
+    def z_on_axis(self) -> float:
+        """z where the optical axis (x = y = 0) meets the plane."""
+        return -self.d / float(self.normal[2])
+
+
+def fit_plane(points: np.ndarray) -> Plane:
+    """Least-squares plane z = a x + b y + c through (n, 3) points (librealsense ``plane_from_points``, z case).
+
+    The normal equations of the centred points, as the tool solves them.
+    """
+    if len(points) < 3:
+        raise ValueError(f"a plane needs 3 points, got {len(points)}")
+    centroid = points.mean(axis=0)
+    q = points - centroid
+    xx, xy, yy = q[:, 0] @ q[:, 0], q[:, 0] @ q[:, 1], q[:, 1] @ q[:, 1]
+    xz, yz = q[:, 0] @ q[:, 2], q[:, 1] @ q[:, 2]
+    a, b = np.linalg.solve(np.array([[xx, xy], [xy, yy]]), np.array([xz, yz]))
+    normal = np.array([-a, -b, 1.0])
+    normal /= np.linalg.norm(normal)
+    return Plane(normal, -float(normal @ centroid))
+
+
+def _lengths(points: np.ndarray) -> np.ndarray:
+    """Euclidean length of each row of (n, 3) points."""
+    return np.sqrt(np.einsum("ij,ij->i", points, points))
+
+
+def valid_points(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(n, 3) array of the finite, non-zero-depth points of organized x, y, z."""
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & (z != 0)
+    return np.stack([x[ok], y[ok], z[ok]], axis=-1).astype(np.float64)
+
+
+def trim_by_z(points: np.ndarray) -> np.ndarray:
+    """Drop the ``n // 200`` points of lowest and of highest z (librealsense's 0.5 % outlier trimming).
+
+    A partition instead of the tool's full sort: the same points are kept (up to ties), in another order.
+    """
+    n = len(points)
+    cut = n // 200
+    if cut == 0:
+        return points
+    order = np.argpartition(points[:, 2], (cut, n - cut - 1))
+    return points[order[cut:n - cut]]
+
+
+@dataclass(frozen=True)
+class DqtFrame:
+    """The Depth Quality Tool's figures of one frame (NaN where not computable)."""
+
+    fill_rate_pct: float
+    z_accuracy_pct: float
+    plane_fit_rms_mm: float
+    plane_fit_rms_pct: float
+    subpixel_rms_px: float
+    distance_mm: float
+
+
+def dqt_frame(x: np.ndarray, y: np.ndarray, z: np.ndarray, ground_truth_mm: float,
+              focal_px: float | None = None, baseline_mm: float | None = None) -> DqtFrame:
+    """librealsense depth-quality figures of one frame's ROI (x, y, z in mm, NaN or 0 invalid).
+
+    ``ground_truth_mm``: distance of the target plane along the optical axis
+    (Z accuracy is NaN when it is not positive); ``focal_px`` and
+    ``baseline_mm``: the stereo geometry (subpixel RMS is NaN without them).
+    """
+    fill = fill_rate_pct(z)
+    points = valid_points(x, y, z)
+    if len(points) < 3:
+        return DqtFrame(fill, math.nan, math.nan, math.nan, math.nan, math.nan)
+    plane = fit_plane(points)
+    kept = trim_by_z(points)
+    dist = plane.signed_distance(kept)
+    rms = float(np.sqrt(np.mean(dist**2)))
+    distance = -plane.d  # the camera's distance from the plane
+    accuracy = math.nan
+    if ground_truth_mm > 0:
+        middle = len(dist) // 2
+        errors = np.partition(plane.z_on_axis() - ground_truth_mm + dist, middle)
+        accuracy = float(100.0 * errors[middle] / ground_truth_mm)
+    subpixel = math.nan
+    if focal_px and baseline_mm:
+        bf = focal_px * baseline_mm
+        projected = kept - dist[:, None] * plane.normal
+        disparity = bf / _lengths(kept) - bf / _lengths(projected)
+        subpixel = float(np.sqrt(np.mean(disparity**2)))
+    return DqtFrame(fill, accuracy, rms, 100.0 * rms / distance, subpixel, distance)
+
+
+def spatial_precision_mm(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> float:
+    """Basler spatial precision of one frame: RMS of the z residuals from the least-squares plane (NaN < 3 points)."""
+    points = valid_points(x, y, z)
+    if len(points) < 3:
+        return math.nan
+    design = np.column_stack([points[:, 0], points[:, 1], np.ones(len(points))])
+    coef, *_ = np.linalg.lstsq(design, points[:, 2], rcond=None)
+    return float(np.sqrt(np.mean((points[:, 2] - design @ coef) ** 2)))
+
+
+def temporal_precision_mm(z_stack: np.ndarray) -> float:
+    """Basler temporal precision of an (N, h, w) ROI stack: quadratic mean of the per-pixel sample std."""
+    std = stack_stats(z_stack).std
+    std = std[np.isfinite(std)]
+    return float(np.sqrt(np.mean(std**2))) if std.size else math.nan
+
+
+@dataclass(frozen=True)
+class VendorFigures:
+    """Vendor figures of one wall position (DQT figures: mean over the frames given)."""
+
+    reference_mm: float
+    n_frames: int
+    fill_rate_pct: float
+    z_accuracy_pct: float
+    plane_fit_rms_mm: float
+    plane_fit_rms_pct: float
+    subpixel_rms_px: float
+    spatial_precision_mm: float
+    temporal_precision_mm: float
+
+
+def _mean(values: list[float]) -> float:
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+#: the Depth Quality Tool's figures are taken from (the mean over) this many frames of a stack: the first
+DQT_FRAMES = 1
+Cloud = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def vendor_figures(dqt: Cloud, window: Cloud, reference_mm: float, focal_px: float | None = None,
+                   baseline_mm: float | None = None) -> VendorFigures:
+    """All vendor figures of one wall stack.
+
+    ``dqt``: x, y, z (k, h, w) of the Depth Quality Tool's ROI in the frames
+    to average (the tool shows one frame at a time; labctl gives it the first
+    ``DQT_FRAMES``); ``window``: x, y, z (N, 40, 40) of Basler's
+    centre window in every frame of the stack.
+    """
+    x, y, z = dqt
+    frames = [dqt_frame(x[k], y[k], z[k], reference_mm, focal_px, baseline_mm) for k in range(len(z))]
+    wx, wy, wz = window
+    spatial = [spatial_precision_mm(wx[k], wy[k], wz[k]) for k in range(len(wz))]
+    return VendorFigures(
+        reference_mm=float(reference_mm),
+        n_frames=len(wz),
+        fill_rate_pct=_mean([f.fill_rate_pct for f in frames]),
+        z_accuracy_pct=_mean([f.z_accuracy_pct for f in frames]),
+        plane_fit_rms_mm=_mean([f.plane_fit_rms_mm for f in frames]),
+        plane_fit_rms_pct=_mean([f.plane_fit_rms_pct for f in frames]),
+        subpixel_rms_px=_mean([f.subpixel_rms_px for f in frames]),
+        spatial_precision_mm=_mean(spatial),
+        temporal_precision_mm=temporal_precision_mm(wz),
+    )
