@@ -2,8 +2,11 @@
 
 At every wall position the Depth Quality Tool's ROI (centred 40 % of width and
 height) of the first ``DQT_FRAMES`` frame(s) and Basler's centre 40 x 40 pixels
-of every frame are read from the x, y, z stacks (only those parts) and the
-vendor figures are computed; the key figures take them at the distances the
+of every frame give the vendor figures. The z stack is the one the depth
+evaluation reads anyway; of x and y only the first frame is read: a pixel's
+x/z and y/z are those of its ray, the same in every frame (x = z (u - c_x) / f
+for the stereo camera's deprojection, x = r d_x with z = r d_z for a ToF
+camera's), so each frame's window x, y follow from its z; the key figures take them at the distances the
 vendors quote (1000 mm and 2000 mm, the nearest step within 150 mm). The
 subpixel RMS needs the stereo baseline: it is taken from the camera model's
 datasheet (``STEREO_BASELINE_MM``) and is null for other cameras.
@@ -12,8 +15,10 @@ datasheet (``STEREO_BASELINE_MM``) and is null for other cameras.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
+
+import numpy as np
 
 from drivers.protocols import CameraInfo
 from labctl.store import StepRecord
@@ -52,21 +57,18 @@ class VendorPosition:
     figures: VendorFigures
 
 
-def evaluate_vendor(steps: Sequence[StepRecord], camera: CameraInfo, model: str,
-                    progress: Callable[[str], None]) -> list[VendorPosition]:
-    """The vendor figures of every wall step (steps with a finite reference distance)."""
+def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: str) -> VendorPosition:
+    """The vendor figures of one wall step whose (N, H, W) z stack is ``z``."""
     rows, cols = dqt_roi(camera.height, camera.width)
     w_rows, w_cols = centre_window(camera.height, camera.width)
-    focal, baseline = focal_length_px(camera), stereo_baseline_mm(model)
-    out = []
-    for step in steps:
-        progress(f"{step.step_id} vendor figures")
-        channels = [step.group[c] for c in ("x", "y", "z")]
-        dqt = tuple(c[:DQT_FRAMES, rows, cols] for c in channels)
-        window = tuple(c[:, w_rows, w_cols] for c in channels)
-        out.append(VendorPosition(step.step_id, vendor_figures(
-            dqt, window, step.attrs["reference_distance_mm"], focal, baseline)))  # type: ignore[arg-type]
-    return out
+    x0, y0 = (step.group[c][0] for c in ("x", "y"))
+    dqt = (x0[None, rows, cols], y0[None, rows, cols], z[:DQT_FRAMES, rows, cols])
+    wz = z[:, w_rows, w_cols]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope_x, slope_y = x0[w_rows, w_cols] / wz[0], y0[w_rows, w_cols] / wz[0]
+    figures = vendor_figures(dqt, (slope_x * wz, slope_y * wz, wz), step.attrs["reference_distance_mm"],
+                             focal_length_px(camera), stereo_baseline_mm(model))  # type: ignore[arg-type]
+    return VendorPosition(step.step_id, figures)
 
 
 def figure_values(positions: Sequence[VendorPosition]) -> dict[str, tuple[float, list[str]]]:

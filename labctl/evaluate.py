@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from labctl.errors import InputError
-from labctl.eval_depth_quality import VendorPosition, evaluate_vendor
+from labctl.eval_depth_quality import VendorPosition, vendor_position
 from labctl.eval_depth_quality import figure_values as vendor_figures
 from labctl.eval_vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.eval_vdi2634 import figure_values as acceptance_figures
@@ -108,9 +108,6 @@ def evaluate_depth_sweep(
         evaluation.notes.append(
             f"{len(steps) - len(usable)} depth_sweep step(s) have no reference distance and were skipped"
         )
-    evaluation.vendor = evaluate_vendor(usable, reader.camera, evaluation.camera["model"], progress)
-    for name, (value, source) in vendor_figures(evaluation.vendor).items():
-        evaluation.figures[name] = FigureValue(value, source)
     buffer = None
     for rec in usable:
         progress(rec.step_id)
@@ -118,7 +115,10 @@ def evaluate_depth_sweep(
         stats = stack_stats(buffer)
         errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
         evaluation.depth.append(DepthPosition(rec.step_id, errors))
+        evaluation.vendor.append(vendor_position(rec, buffer, reader.camera, evaluation.camera["model"]))
     del buffer
+    for name, (value, source) in vendor_figures(evaluation.vendor).items():
+        evaluation.figures[name] = FigureValue(value, source)
     if not evaluation.depth:
         return
     key = _key_step(usable)
