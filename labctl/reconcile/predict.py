@@ -5,7 +5,11 @@ at the bin grid: ``bin_px`` x ``bin_px`` pixels become one pixel (width,
 height, lens PSF and defocus disc divided by ``bin_px``). The bin's centre
 ray is then exactly the binned pixel's ray (``Pinhole``: c = (W - 1) / 2,
 f = (W / 2) / tan(FOV / 2)), and a smooth surface's bin mean equals the
-value at that ray to second order. Bins that straddle a depth or reflectance
+value at that ray up to its curvature: the mean of a quadratic over the b
+pixel centres of a bin, offset by (i - (b - 1) / 2) / b bins, is the centre
+value plus f'' (b^2 - 1) / (24 b^2) per axis, with f'' the second difference
+over neighbouring bins (``bin_curvature``; 0.2 mm on a plate tilted by 60 deg
+at 850 mm in 16-pixel bins, where z'' = 2 z tan^2(tilt) / f^2). Bins that straddle a depth or reflectance
 edge are flagged (``edge``) and left out of the comparison.
 
 Per step the prediction holds what the candidate effects' signatures are
@@ -18,6 +22,7 @@ a whole run in milliseconds per step.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -158,6 +163,11 @@ class Predictor:
         return float(np.mean([temperature_drift.offset_mm(float(t), fx) for t in times_s]))
 
     def predict(self, step: StepScene, times_s: np.ndarray) -> Prediction:
+        """The step's binned noise-free prediction (``_predict``) with each bin's curvature term added to z."""
+        p = self._predict(step, times_s)
+        return dataclasses.replace(p, z=p.z + bin_curvature(p.z, self.bin_px))
+
+    def _predict(self, step: StepScene, times_s: np.ndarray) -> Prediction:
         """The step's binned noise-free z, intensity and the maps the candidate signatures need."""
         rendered = self._render(step)
         exposure = step.exposure_us or self.profile.exposure_us
@@ -181,3 +191,18 @@ class Predictor:
         ir = self.sensor.ir_image(rendered, exposure, step.projector)
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge)
 
+
+def bin_curvature(z: np.ndarray, bin_px: int) -> np.ndarray:
+    """Bin mean minus centre value of a smooth surface sampled at ``bin_px`` x ``bin_px`` pixel centres:
+    (b^2 - 1) / (24 b^2) times the sum of the second differences along rows and columns over neighbouring
+    bins (0 where a neighbour is missing)."""
+    d2 = np.zeros_like(z)
+    for axis in (0, 1):
+        second = np.full_like(z, np.nan)
+        inner = [slice(None)] * 2
+        inner[axis] = slice(1, -1)
+        before, after = list(inner), list(inner)
+        before[axis], after[axis] = slice(None, -2), slice(2, None)
+        second[tuple(inner)] = z[tuple(before)] - 2 * z[tuple(inner)] + z[tuple(after)]
+        d2 += np.nan_to_num(second)
+    return d2 * (bin_px**2 - 1) / (24 * bin_px**2)
