@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import signal
 import sys
+from types import FrameType
 
 from bench import evaluation, reconcile, recording, sim_capture
 
@@ -10,7 +12,14 @@ BENCHMARKS = {"recording": recording.run, "evaluation": evaluation.run, "sim_cap
               "reconcile": reconcile.run}
 
 
+def _exit_on_term(signum: int, _frame: FrameType | None) -> None:
+    """SIGTERM (a timeout, a closed session) ends like Ctrl-C: the scratch directories (a full campaign is
+    gigabytes) are removed on the way out."""
+    raise SystemExit(128 + signum)
+
+
 def main(names: list[str]) -> int:
+    signal.signal(signal.SIGTERM, _exit_on_term)
     unknown = [n for n in names if n not in BENCHMARKS]
     if unknown:
         print(f"unknown benchmark(s) {', '.join(unknown)}; available: {', '.join(BENCHMARKS)}", file=sys.stderr)
