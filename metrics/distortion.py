@@ -250,6 +250,9 @@ def _unit_steps(image: np.ndarray, grid: Grid, k0: tuple[int, int],
                   None)
     if second is None:
         return None
+    # Lagrange-Gauss reduction: a square board's two unit steps are a reduced basis (|a.b| <= |a|^2 / 2); a
+    # sheared pair such as (a, a + 2 b) is not, and its second step reduces to a step the block check refuses
+    second = second - round(float(second @ first) / float(first @ first)) * first
     a, b = (first, second) if abs(first[0]) > abs(first[1]) else (second, first)
     return a * np.sign(a[0]), b * np.sign(b[1])
 
