@@ -32,8 +32,9 @@ def plot_vendor_figures(positions: list[VendorPosition], path: Path) -> Path:
     ]
     for ax, title, unit, attrs in panels:
         for attr, label in attrs:
-            ax.plot(d, series(attr), marker="o", ms=3, label=label)
-            if not np.isfinite(series(attr)).any():
+            values = series(attr)
+            ax.plot(d, values, marker="o", ms=3, label=label)
+            if not np.isfinite(values).any():
                 ax.text(0.5, 0.5, "not measured (stereo cameras only)", transform=ax.transAxes, ha="center")
         ax.set_title(title)
         ax.set_ylabel(unit)

@@ -6,7 +6,6 @@ stored campaign plans but the file does not hold yet are listed as ``pending``.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -15,16 +14,8 @@ import h5py
 from labctl import compression as codecs
 from labctl.config import parse_campaign
 from labctl.errors import InputError
-from labctl.store import RunReader
+from labctl.store import RunReader, finite_or_none
 
-
-def _finite(value: Any) -> float | None:
-    """A float attribute, None where it is missing or NaN (no position: no stage or robot)."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        return None
-    return number if math.isfinite(number) else None
 
 
 def _text(value: Any) -> str:
@@ -38,9 +29,9 @@ def _step(step_id: str, group: h5py.Group) -> dict[str, Any]:
         "status": "complete" if bool(a.get("complete", False)) else "unfinished",
         "procedure": _text(a.get("procedure", "")),
         "target": _text(a.get("target", "")),
-        "distance_mm": _finite(a.get("distance_mm")),
-        "stage_position_mm": _finite(a.get("stage_position_mm")),
-        "robot_angle_deg": _finite(a.get("robot_angle_deg")),
+        "distance_mm": finite_or_none(a.get("distance_mm")),
+        "stage_position_mm": finite_or_none(a.get("stage_position_mm")),
+        "robot_angle_deg": finite_or_none(a.get("robot_angle_deg")),
         "frames": int(a.get("frames", 0)),
         "started": _text(a.get("started", "")),
         "finished": _text(a.get("finished", "")),

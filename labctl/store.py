@@ -59,6 +59,16 @@ def now_iso() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
+def finite_or_none(value: Any) -> float | None:
+    """A stored attribute as a float, None where it is missing, not a number, or NaN / infinite (the run file's
+    way of saying "none": no stage position on a robot step, no robot angle on a stage step)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
+
+
 def _nan_if_none(value: float | None) -> float:
     return math.nan if value is None else float(value)
 

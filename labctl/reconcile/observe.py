@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from labctl.store import RunReader, StepRecord
+from labctl.store import RunReader, StepRecord, finite_or_none
 from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
 
@@ -53,13 +53,6 @@ class Observation:
     times_s: np.ndarray  # device time of the frames used, s
 
 
-def _finite(value: Any) -> float | None:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
 
 def step_scene(step: StepRecord) -> StepScene | None:
     """The step's scene, or None when the simulator has no scene for its target."""
@@ -69,8 +62,8 @@ def step_scene(step: StepRecord) -> StepScene | None:
         return None
     params = json.loads(a.get("target_json", "{}") or "{}")
     settings = json.loads(a.get("settings_json", "{}") or "{}")
-    reference = _finite(a.get("reference_distance_mm"))
-    nominal = _finite(a.get("distance_mm"))
+    reference = finite_or_none(a.get("reference_distance_mm"))
+    nominal = finite_or_none(a.get("distance_mm"))
     if target in PLATE_MATERIALS:
         group, wall = "robot", None
     elif reference is not None and a.get("reference_source") == "laser":
@@ -86,9 +79,9 @@ def step_scene(step: StepRecord) -> StepScene | None:
         target_params=params,
         wall_distance_mm=wall,
         reference=group,
-        robot_angle_deg=_finite(a.get("robot_angle_deg")),
-        robot_radius_mm=_finite(a.get("robot_radius_mm")) or _finite(params.get("radius_mm")),
-        exposure_us=_finite(a.get("exposure_us")),
+        robot_angle_deg=finite_or_none(a.get("robot_angle_deg")),
+        robot_radius_mm=finite_or_none(a.get("robot_radius_mm")) or finite_or_none(params.get("radius_mm")),
+        exposure_us=finite_or_none(a.get("exposure_us")),
         projector=bool(settings.get("projector", settings.get("emitter", True))),
     )
 
