@@ -114,10 +114,14 @@ def _ensure_room(run_file: Path, campaign: Campaign, compression: str, steps: li
                                     f"with compression {compression}; {format_bytes(raw)} uncompressed)")
 
 
+def _operator(lab: Lab, reporter: Reporter, interactive: bool) -> Operator:
+    """The command's one operator: it answers the connect-time questions and the campaign's prompts."""
+    return Operator(automatic=lab.simulated and not interactive, report=reporter.message)
+
+
 def _execute(
-    campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter, *, interactive: bool, resumed: bool = False
+    campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter, operator: Operator, *, resumed: bool = False
 ) -> None:
-    operator = Operator(automatic=lab.simulated and not interactive, report=reporter.message)
     Runner(campaign, lab, writer, reporter, operator, resumed=resumed).execute()
     reporter.message(f"run complete: {writer.path}")
 
@@ -160,7 +164,8 @@ def run(
     else:
         lab = build_real_lab(config)
         sim_record = None
-    connect_lab(lab, reporter.message, Operator(automatic=lab.simulated, report=reporter.message))
+    operator = _operator(lab, reporter, interactive)
+    connect_lab(lab, reporter.message, operator)
     try:
         _ensure_room(output, config, compression, config.steps(), lab.camera.info())
         writer = RunWriter.create(
@@ -177,7 +182,7 @@ def run(
         close_all(lab, reporter.message)
         raise
     try:
-        _execute(config, lab, writer, reporter, interactive=interactive)
+        _execute(config, lab, writer, reporter, operator)
     finally:
         writer.close()
 
@@ -223,7 +228,8 @@ def resume(run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], inter
             lab = _sim_lab_from(config, model_text, f"{run_file} (stored model)", seed)
         else:
             lab = build_real_lab(config)
-        connect_lab(lab, reporter.message, Operator(automatic=lab.simulated, report=reporter.message))
+        operator = _operator(lab, reporter, interactive)
+        connect_lab(lab, reporter.message, operator)
         if new:
             writer.attrs[OVERRIDES_ATTRIBUTE] = encode_history(history)
         for role, field, value in new:
@@ -232,7 +238,7 @@ def resume(run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], inter
         if dropped:
             reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
         writer.set_status("running")
-        _execute(config, lab, writer, reporter, interactive=interactive, resumed=True)
+        _execute(config, lab, writer, reporter, operator, resumed=True)
     finally:
         writer.close()
 
