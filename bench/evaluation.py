@@ -17,8 +17,8 @@ import numpy as np
 
 from bench.common import Result, best_of, scratch_dir
 from drivers.protocols import CameraInfo, DeviceIdentity
-from labctl.evaluate import evaluate_runs
-from labctl.store import RunWriter
+from labctl.evaluation.evaluate import evaluate_runs
+from labctl.run.store import RunWriter
 from procedures.steps import Step
 
 WIDTH, HEIGHT, FRAMES = 640, 480, 100

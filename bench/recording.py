@@ -19,10 +19,10 @@ from pathlib import Path
 from bench.common import Result, best_of, scratch_dir
 from bench.sim_capture import CAMPAIGN
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
-from labctl.compression import DEFAULT
-from labctl.config import parse_campaign
-from labctl.lab import build_sim_lab
-from labctl.store import RunWriter
+from labctl.run.compression import DEFAULT
+from labctl.run.config import parse_campaign
+from labctl.run.lab import build_sim_lab
+from labctl.run.store import RunWriter
 from procedures.steps import Step
 from sim.model import default_model_text, parse_model
 

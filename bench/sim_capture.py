@@ -22,8 +22,8 @@ import time
 import numpy as np
 
 from bench.common import Result
-from labctl.config import parse_campaign
-from labctl.lab import build_sim_lab
+from labctl.run.config import parse_campaign
+from labctl.run.lab import build_sim_lab
 from procedures.steps import Step
 from sim.model import default_model_text, parse_model
 from sim.profiles import PROFILES

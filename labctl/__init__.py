@@ -1,0 +1,1 @@
+"""labctl: characterize 3D cameras for facial biometrics: run campaigns, evaluate, simulate, reconcile."""

@@ -1,8 +1,8 @@
 """Simulated stage, laser, robot and camera behind the real device protocols.
 
 They run on the world's virtual clock and spend exactly the lab time that
-``labctl.planning`` plans for (motion, measurement, set-up and exposure take
-lab time without sleeping), draw their noise from per-step random streams and
+the campaign planner plans for (motion at the configured speeds; measurement and
+set-up from ``drivers.timing``; all without sleeping), draw their noise from per-step random streams and
 raise the same exceptions as real adapters when the fault injector says so.
 """
 
@@ -20,12 +20,11 @@ from drivers.errors import (
     SerialTimeout,
 )
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
-from labctl.config import RobotConfig, StageConfig
-from labctl.planning import CAPTURE_SETUP_S, LASER_READING_S, ROBOT_SETTLE_S
+from drivers.timing import CAPTURE_SETUP_S, LASER_READING_S, ROBOT_SETTLE_S
 from sim.seeding import stream
 from sim.stereo import StereoSensor
 from sim.tof import ToFSensor
-from sim.world import SimWorld
+from sim.world import RobotSettings, SimWorld, StageSettings
 
 SERIAL_TIMEOUT_S = 1.0
 
@@ -42,7 +41,7 @@ def _serial_exchange(world: SimWorld, device: str) -> None:
 class SimStage:
     """Linear stage with travel limits and a constant speed."""
 
-    def __init__(self, world: SimWorld, config: StageConfig) -> None:
+    def __init__(self, world: SimWorld, config: StageSettings) -> None:
         self.world = world
         self.config = config
         self.name = f"stage (simulated {config.protocol})"
@@ -124,7 +123,7 @@ class SimRobot:
 
     name = "robot (simulated UR5e)"
 
-    def __init__(self, world: SimWorld, config: RobotConfig) -> None:
+    def __init__(self, world: SimWorld, config: RobotSettings) -> None:
         self.world = world
         self.config = config
         self.stopped = False

@@ -23,12 +23,14 @@ from typing import Any
 import tomli_w
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from labctl.errors import InputError
 from procedures.steps import StrictModel
 from sim.effects import EffectParams, parse_effects
 from sim.lab import LabGeometry
 from sim.profiles import PROFILES, CameraProfile, default_effects, get_profile
 
+
+class ModelError(ValueError):
+    """A simulation model (file or text) is invalid; the message names the file and the field."""
 
 class SimModel(StrictModel):
     camera: str
@@ -53,9 +55,9 @@ class SimModel(StrictModel):
         try:
             return get_profile(self.camera).with_overrides(self.camera_overrides)
         except KeyError as exc:
-            raise InputError(f"model camera_overrides: unknown profile field(s): {exc.args[0]}") from None
+            raise ModelError(f"model camera_overrides: unknown profile field(s): {exc.args[0]}") from None
         except TypeError as exc:
-            raise InputError(f"model camera_overrides: {exc}") from None
+            raise ModelError(f"model camera_overrides: {exc}") from None
 
     def effect_params(self) -> dict[str, EffectParams]:
         """Validated parameters of every effect that is on."""
@@ -63,11 +65,11 @@ class SimModel(StrictModel):
 
 
 def parse_model(text: str, source: str = "model") -> SimModel:
-    """Validate model TOML text; InputError names the bad field."""
+    """Validate model TOML text; ModelError names the bad field."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{source}: not valid TOML: {exc}") from None
+        raise ModelError(f"{source}: not valid TOML: {exc}") from None
     try:
         model = SimModel.model_validate(data)
     except ValidationError as exc:
@@ -75,7 +77,7 @@ def parse_model(text: str, source: str = "model") -> SimModel:
             f"{'.'.join(str(p) for p in e['loc']) or 'model'}: {e['msg'].removeprefix('Value error, ')}"
             for e in exc.errors()
         )
-        raise InputError(f"{source} is not a valid simulation model: {problems}") from None
+        raise ModelError(f"{source} is not a valid simulation model: {problems}") from None
     model.profile()
     return model
 
@@ -86,7 +88,7 @@ def load_model(path: str | Path) -> tuple[SimModel, str]:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read model file {path}: {exc}") from None
+        raise ModelError(f"cannot read model file {path}: {exc}") from None
     return parse_model(text, str(path)), text
 
 

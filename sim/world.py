@@ -8,10 +8,9 @@ random stream is keyed by the step, and the operator's target swaps happen).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from drivers.protocols import Clock
-from labctl.config import StageConfig
 from procedures.steps import Step
 from sim.effects import EffectParams
 from sim.faults import FaultInjector
@@ -22,6 +21,25 @@ from sim.scenes.base import Scene
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
 
 
+class StageSettings(Protocol):
+    """What the simulated stage and the world read of a campaign's stage table."""
+
+    protocol: str
+    travel_mm: tuple[float, float]
+    speed_mm_s: float
+    settle_s: float
+    distance_at_zero_mm: float
+    axis_direction: str
+
+
+class RobotSettings(Protocol):
+    """What the simulated robot reads of a campaign's robot table."""
+
+    radius_max_mm: float
+    angle_limits_deg: tuple[float, float]
+    speed_deg_s: float
+
+
 @dataclass
 class SimWorld:
     profile: CameraProfile
@@ -30,7 +48,7 @@ class SimWorld:
     seed: int
     faults: FaultInjector
     clock: Clock
-    stage_config: StageConfig | None = None
+    stage_config: StageSettings | None = None
     stage_position_mm: float = 0.0
     robot_angle_deg: float = 0.0
     robot_radius_mm: float = 0.0

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from labctl.store import RunReader, StepRecord, finite_or_none
+from labctl.run.store import RunReader, StepRecord, finite_or_none
 from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
 

@@ -14,8 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from labctl.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
-from labctl.report import CSS as REPORT_CSS  # noqa: E402
-from labctl.store import labctl_version, now_iso  # noqa: E402
+from labctl.report.html import CSS as REPORT_CSS  # noqa: E402
+from labctl.run.store import labctl_version, now_iso  # noqa: E402
 from metrics.jsonsafe import dumps_strict  # noqa: E402
 
 CSS = REPORT_CSS + ".verdict{font-size:1.3em;font-weight:600}\n"

@@ -103,7 +103,8 @@ def test_move_outside_soft_limits_is_refused_before_anything_moved(
 
 
 def test_move_before_homing_is_refused(stage: GrblStage, grbl_emulator: GrblEmulator) -> None:
-    with pytest.raises(GrblAlarm, match="nothing moved; home .or unlock. first: alarm state: motion locked until homing") as caught:
+    message = "nothing moved; home .or unlock. first: alarm state: motion locked until homing"
+    with pytest.raises(GrblAlarm, match=message) as caught:
         stage.move_to(10.0)
     assert caught.value.code is None
     assert jogs_sent(grbl_emulator) == [] and grbl_emulator.position_mm == 20.0

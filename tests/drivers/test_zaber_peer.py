@@ -25,8 +25,8 @@ from zaber_motion.exceptions import (
 
 from drivers.errors import SerialGarbage
 from drivers.stage import ZaberStage
-from labctl.config import StageConfig
-from labctl.hardware import stage_from_config
+from labctl.run.config import StageConfig
+from labctl.run.hardware import stage_from_config
 from sim.emulators import ZaberEmulator
 
 STEP = 0.000125  # mm per microstep

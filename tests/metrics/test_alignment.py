@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from labctl.config import parse_campaign
-from labctl.lab import build_sim_lab
+from labctl.run.config import parse_campaign
+from labctl.run.lab import build_sim_lab
 from metrics.alignment import alignment_fields, field_slices
 from procedures.steps import Step
 from sim.model import parse_model

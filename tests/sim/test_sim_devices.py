@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from drivers.errors import LimitViolation
-from labctl.config import parse_campaign
-from labctl.lab import build_sim_lab
-from labctl.operator import Operator
-from labctl.planning import schedule
-from labctl.progress import Reporter
-from labctl.runner import Runner
-from labctl.store import RunWriter
+from labctl.run.config import parse_campaign
+from labctl.run.lab import build_sim_lab
+from labctl.run.operator import Operator
+from labctl.run.planning import schedule
+from labctl.run.progress import Reporter
+from labctl.run.runner import Runner
+from labctl.run.store import RunWriter
 from procedures.steps import Step
 from sim.geometry import Pose
 from sim.model import default_model_text, parse_model

@@ -7,7 +7,7 @@ import pytest
 from scipy.optimize import curve_fit
 
 from labctl.cli import main
-from labctl.store import RunReader
+from labctl.run.store import RunReader
 from metrics.stack import stack_stats
 
 PROCEDURES = """

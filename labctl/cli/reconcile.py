@@ -1,0 +1,52 @@
+"""``labctl reconcile``: the simulation-vs-measurement workflow (CONTRACTS §2, §6)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+from labctl.cli.outputs import output_directory
+from labctl.run.progress import Reporter
+from metrics.jsonsafe import dumps_strict
+
+
+@click.command()
+@click.argument("measured", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--model", "model_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="simulation model to correct (default: the camera's built-in model)")
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("--json", "as_json", is_flag=True, help="print reconcile.json on stdout")
+@click.option("--quiet", is_flag=True, help="no progress output")
+def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bool, quiet: bool) -> None:
+    """Find where the simulation disagrees with MEASURED, name the missing effects, fit them and write
+    OUTPUT/reconcile.json, OUTPUT/reconcile.html and the corrected OUTPUT/model.toml."""
+    from labctl.reconcile.report import write_reconcile
+    from labctl.reconcile.workflow import reconcile as run_reconcile
+    from sim.model import load_model
+
+    output_directory(output)
+    reporter = Reporter(quiet=quiet)
+    model = load_model(model_path)[0] if model_path is not None else None
+    start = time.monotonic()
+
+    def progress(what: str) -> None:
+        reporter.message(f"[{time.monotonic() - start:6.1f} s] {what}")
+
+    result = run_reconcile(measured, model, progress=progress)
+    report, model_file, doc = write_reconcile(result, measured, output)
+    if as_json:
+        click.echo(dumps_strict(doc, indent=2))
+        return
+    named = ", ".join(e["name"] for e in result.named) or "nothing significant"
+    if result.not_comparable is not None:
+        reporter.message(f"verdict: not_comparable ({result.not_comparable['reason']}); would need: "
+                         + ", ".join(result.not_comparable["procedures_needed"]))
+    else:
+        reporter.message(f"verdict: {result.verdict} ({named}); gap {result.gap_before:.3f} -> {result.gap_after:.3f} mm"
+                         f" (noise floor {doc['gap_floor']:.3f} mm)")
+    if result.unexplained is not None:
+        reporter.message(result.unexplained["message"])
+    reporter.message(f"corrected model: {model_file}")
+    click.echo(f"report: {report}")

@@ -1,0 +1,272 @@
+"""Evaluation: from run files to metrics and key figures.
+
+Stacks are streamed one step at a time (never a whole run in memory). Several
+run files of the same camera can be evaluated together; each key figure names
+the steps it came from.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from labctl.errors import InputError
+from labctl.evaluation.depth_quality import VendorPosition, vendor_position
+from labctl.evaluation.depth_quality import figure_values as vendor_figures
+from labctl.evaluation.geometry import GeometryResult, evaluate_geometry
+from labctl.evaluation.geometry import figure_values as geometry_figures
+from labctl.evaluation.keyfigures import FigureValue
+from labctl.evaluation.remission import RemissionResult, evaluate_remission
+from labctl.evaluation.remission import figure_values as remission_figures
+from labctl.evaluation.scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
+from labctl.evaluation.sharpness import SharpnessResult, evaluate_slanted_edge
+from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
+from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
+from labctl.run.store import RunReader, StepRecord
+from metrics.depth import DepthErrors, depth_errors
+from metrics.stack import stack_stats
+from metrics.surface import SurfaceTexture, surface_texture
+from sim.optics import pixel_aspect_distortion_pct
+
+#: distance at which the single-position key figures are taken (CONTRACTS §7)
+KEY_DISTANCE_MM = 2000.0
+#: a step counts as "at 2000 mm" when its reference lies within this distance
+KEY_DISTANCE_TOLERANCE_MM = 150.0
+
+
+@dataclass(frozen=True)
+class DepthPosition:
+    step_id: str
+    errors: DepthErrors
+
+
+@dataclass(frozen=True)
+class SurfaceResult:
+    step_id: str
+    reference_mm: float
+    texture: SurfaceTexture
+
+
+@dataclass
+class Evaluation:
+    runs: list[str]
+    camera: dict[str, Any]
+    depth: list[DepthPosition] = field(default_factory=list)
+    vendor: list[VendorPosition] = field(default_factory=list)
+    surface: SurfaceResult | None = None
+    sharpness: SharpnessResult | None = None
+    geometry: GeometryResult | None = None
+    remission: RemissionResult | None = None
+    acceptance: AcceptanceResult | None = None
+    face: FaceMaskResult | None = None
+    alignment: AlignmentRecord | None = None
+    figures: dict[str, FigureValue] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def camera_description(reader: RunReader) -> dict[str, Any]:
+    """What keyfigures.json says about the camera."""
+    dev = reader.devices.get("camera", {})
+    cam = reader.camera
+    return {
+        "model": dev.get("model", "unknown"),
+        "serial": dev.get("serial", "unknown"),
+        "firmware": dev.get("firmware", "unknown"),
+        "backend": dev.get("backend", "unknown"),
+        "width": cam.width,
+        "height": cam.height,
+        "fov_deg": list(cam.fov_deg),
+        "frame_rate_hz": cam.frame_rate_hz,
+        "wavelength_nm": cam.wavelength_nm,
+        "simulated": bool(reader.attrs.get("simulated", False)),
+    }
+
+
+def _same_camera(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    keys = ("model", "serial", "width", "height")
+    return all(a[k] == b[k] for k in keys)
+
+
+def _key_step(steps: Sequence[StepRecord]) -> StepRecord | None:
+    """The step whose reference distance is nearest 2000 mm, if within tolerance."""
+    best = min(steps, key=lambda s: abs(s.attrs["reference_distance_mm"] - KEY_DISTANCE_MM), default=None)
+    if best is None or not abs(best.attrs["reference_distance_mm"] - KEY_DISTANCE_MM) <= KEY_DISTANCE_TOLERANCE_MM:
+        return None
+    return best
+
+
+def evaluate_depth_sweep(
+    steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None]
+) -> None:
+    """SPEC §1-2 on the wall steps: curves over distance, key figures, surface at 2000 mm; the vendors'
+    depth-quality figures at every distance."""
+    usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
+    if len(usable) < len(steps):
+        evaluation.notes.append(
+            f"{len(steps) - len(usable)} depth_sweep step(s) have no reference distance and were skipped"
+        )
+    buffer = None
+    for rec in usable:
+        progress(rec.step_id)
+        buffer = rec.read("z", out=buffer)
+        stats = stack_stats(buffer)
+        errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
+        evaluation.depth.append(DepthPosition(rec.step_id, errors))
+        evaluation.vendor.append(vendor_position(rec, buffer, reader.camera, evaluation.camera["model"]))
+    del buffer
+    for name, (value, source) in vendor_figures(evaluation.vendor).items():
+        evaluation.figures[name] = FigureValue(value, source)
+    if not evaluation.depth:
+        return
+    key = _key_step(usable)
+    figures = evaluation.figures
+    repeat = [p for p in evaluation.depth if math.isfinite(p.errors.repeatability_center_mm)]
+    if repeat:
+        worst = max(repeat, key=lambda p: p.errors.repeatability_center_mm)
+        figures["z_repeatability_center_mm"] = FigureValue(
+            worst.errors.repeatability_center_mm, [p.step_id for p in evaluation.depth]
+        )
+    if key is None:
+        evaluation.notes.append("no depth_sweep step within 150 mm of 2000 mm: single-position figures are null")
+        return
+    at_key = next(p for p in evaluation.depth if p.step_id == key.step_id).errors
+    for name, value in (
+        ("z_trueness_q90_mm", at_key.trueness_q90_mm),
+        ("z_accuracy_q90_mm", at_key.accuracy_q90_mm),
+        ("z_precision_q90_mm", at_key.precision_q90_mm),
+    ):
+        figures[name] = FigureValue(value, [key.step_id])
+    progress(f"{key.step_id} surface")
+    means = {c: stack_stats(key.read(c)) for c in ("x", "y", "z")}
+    valid = means["z"].valid & means["x"].valid & means["y"].valid
+    try:
+        texture = surface_texture(means["x"].mean, means["y"].mean, means["z"].mean, valid)
+    except ValueError as exc:
+        evaluation.notes.append(f"surface texture at {key.step_id} not evaluated: {exc}")
+        return
+    evaluation.surface = SurfaceResult(key.step_id, key.attrs["reference_distance_mm"], texture)
+    for name, value in (
+        ("surface_primary_sq_mm", texture.sq_primary_mm),
+        ("surface_waviness_sq_mm", texture.sq_waviness_mm),
+        ("surface_roughness_sq_mm", texture.sq_roughness_mm),
+    ):
+        figures[name] = FigureValue(value, [key.step_id])
+
+
+def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation,
+                       progress: Callable[[str], None]) -> None:
+    """SPEC §3 figures from the slanted-edge steps."""
+    result = evaluate_slanted_edge(steps, reader.camera, progress)
+    if result is None:
+        evaluation.notes.append("slanted_edge steps without white references: sharpness figures are null")
+        return
+    evaluation.sharpness = result
+    evaluation.notes.extend(result.notes)
+    ids = [p.chart_step for p in result.positions] + [p.white_step for p in result.positions]
+    best = [p.chart_step for p in result.positions if p.distance_mm == result.best_focus_mm]
+    for name, value, source in (
+        ("hyperfocal_distance_mm", result.hyperfocal_mm, ids),
+        ("best_focus_distance_mm", result.best_focus_mm, ids),
+        ("intensity_resolution_h_deg", result.resolution_deg[0], best),
+        ("intensity_resolution_v_deg", result.resolution_deg[1], best),
+        ("ied_pixels_at_hyperfocal", result.ied_px, ids),
+    ):
+        evaluation.figures[name] = FigureValue(value, source)
+
+
+def count_complete_steps(paths: Sequence[str | Path]) -> int:
+    """Complete steps over the run files (the evaluation's unit of progress)."""
+    total = 0
+    for path in paths:
+        with RunReader(path) as reader:
+            total += len(reader.steps())
+    return total
+
+
+def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] = lambda _: None) -> Evaluation:
+    """Every metric the given runs allow (all runs must come from one camera)."""
+    if not paths:
+        raise InputError("no run file given")
+    readers = [RunReader(p) for p in paths]
+    try:
+        camera = camera_description(readers[0])
+        for reader in readers[1:]:
+            other = camera_description(reader)
+            if not _same_camera(camera, other):
+                raise InputError(
+                    f"{reader.path} is from camera {other['model']} {other['serial']}, "
+                    f"{readers[0].path} from {camera['model']} {camera['serial']}: evaluate one camera at a time"
+                )
+        evaluation = Evaluation(runs=[str(r.path) for r in readers], camera=camera)
+        cam = readers[0].camera
+        evaluation.figures["pixel_aspect_distortion_pct"] = FigureValue(
+            pixel_aspect_distortion_pct(cam.fov_deg[0], cam.fov_deg[1], cam.width, cam.height), []
+        )
+        for reader in readers:
+            if reader.attrs.get("status") != "complete":
+                evaluation.notes.append(f"{reader.path} is {reader.attrs.get('status')}: only its complete steps are used")
+        sweep = [s for r in readers for s in r.steps("depth_sweep")]
+        if sweep:
+            evaluate_depth_sweep(sweep, readers[0], evaluation, progress)
+        else:
+            evaluation.notes.append("no depth_sweep steps: depth figures are null")
+        edges = [s for r in readers for s in r.steps("slanted_edge")]
+        if edges:
+            evaluate_sharpness(edges, readers[0], evaluation, progress)
+        geometric = [s for r in readers for s in r.steps()
+                     if s.attrs.get("procedure") in ("checkerboard", "boehler_star", "xy_sweep", "depth_sweep")]
+        if geometric:
+            evaluation.geometry = evaluate_geometry(geometric, readers[0].camera, progress)
+            evaluation.notes.extend(evaluation.geometry.notes)
+            for name, (value, source) in geometry_figures(evaluation.geometry).items():
+                evaluation.figures[name] = FigureValue(value, source)
+        plates = [s for r in readers for s in r.steps("remission_angle")]
+        if plates:
+            evaluation.remission = evaluate_remission(plates, readers[0].camera, progress)
+            if evaluation.remission is not None:
+                evaluation.notes.extend(evaluation.remission.notes)
+                evaluation.figures.update(remission_figures(evaluation.remission))
+        artefacts = [s for r in readers for s in r.steps() if s.attrs.get("procedure") in ("sphere_bar", "flatness")]
+        if artefacts:
+            evaluation.acceptance = evaluate_acceptance(artefacts, progress)
+            evaluation.notes.extend(evaluation.acceptance.notes)
+            for name, (value, source) in acceptance_figures(evaluation.acceptance).items():
+                evaluation.figures[name] = FigureValue(value, source)
+        masks = [s for r in readers for s in r.steps("face_mask")]
+        if masks:
+            progress(f"{masks[-1].step_id} face mask")
+            face = face_mask(masks[-1])
+            if face.invalid_fraction < 1.0:
+                evaluation.face = face
+            else:
+                evaluation.notes.append(f"face mask {face.step_id} has no valid point: no point cloud or rendering")
+        aligned = [a for a in (alignment(s) for r in readers for s in r.steps("alignment")) if a is not None]
+        evaluation.alignment = aligned[-1] if aligned else None
+        return evaluation
+    finally:
+        for reader in readers:
+            reader.close()
+
+
+def depth_table(evaluation: Evaluation) -> list[dict[str, float | str]]:
+    """Per-position depth errors as rows (for the report and JSON consumers)."""
+    rows = []
+    for p in evaluation.depth:
+        e = p.errors
+        rows.append({
+            "step": p.step_id,
+            "reference_mm": e.reference_mm,
+            "trueness_median_mm": e.trueness_median_mm,
+            "trueness_q90_mm": e.trueness_q90_mm,
+            "accuracy_median_mm": e.accuracy_median_mm,
+            "accuracy_q90_mm": e.accuracy_q90_mm,
+            "precision_median_mm": e.precision_median_mm,
+            "precision_q90_mm": e.precision_q90_mm,
+            "repeatability_center_mm": e.repeatability_center_mm,
+            "invalid_fraction": e.invalid_fraction,
+        })
+    return rows
+

@@ -1,0 +1,182 @@
+"""Evaluation of ``slanted_edge`` runs: SFR over distance, hyperfocal distance, intensity resolution.
+
+Per position the stack-mean intensity of the chart is divided pixel-wise by
+the stack mean of the white sheet at the same distance (SPEC §3), the near-
+vertical and near-horizontal edges are found automatically, and the ISO 12233
+e-SFR of each gives SFR10, SFR50 and SFR area. "Horizontal" results come from
+the near-vertical edge (they resolve horizontal detail, with the sensor's
+horizontal angular resolution FOV_h / W), "vertical" ones from the near-
+horizontal edge. A position whose edge was not found, is clipped or has no
+SFR10 is invalid (dashed in the plots, ignored by the distance figures).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.protocols import CameraInfo
+from labctl.run.store import StepRecord
+from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white
+from metrics.sharpness import (
+    best_focus_distance,
+    hyperfocal_distance,
+    ied_pixels,
+    imagery_resolution_deg,
+    lateral_mm,
+    nearest_sharp_distance,
+)
+from metrics.stack import stack_stats
+from sim.optics import sensor_angular_resolution_deg
+
+
+@dataclass(frozen=True)
+class EdgeMeasurement:
+    """SFR of one edge orientation at one distance."""
+
+    sfr10: float
+    sfr50: float
+    sfr_area: float
+    angle_deg: float
+    roi: tuple[int, int, int, int]
+    valid: bool
+    warnings: tuple[str, ...]
+    frequency: np.ndarray = field(repr=False)
+    sfr: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
+class SharpnessPosition:
+    distance_mm: float
+    chart_step: str
+    white_step: str
+    exposure_us: float
+    horizontal: EdgeMeasurement | None
+    vertical: EdgeMeasurement | None
+
+
+@dataclass
+class SharpnessResult:
+    positions: list[SharpnessPosition]
+    sensor_resolution_deg: tuple[float, float]
+    hyperfocal_mm: float = math.nan
+    best_focus_mm: float = math.nan
+    resolution_deg: tuple[float, float] = (math.nan, math.nan)
+    ied_px: float = math.nan
+    notes: list[str] = field(default_factory=list)
+
+    def series(self, orientation: str, attr: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(distances, values, valid) of one orientation's ``attr`` over distance."""
+        d, v, ok = [], [], []
+        for p in self.positions:
+            m = getattr(p, orientation)
+            d.append(p.distance_mm)
+            v.append(getattr(m, attr) if m is not None else math.nan)
+            ok.append(m is not None and m.valid)
+        return np.array(d), np.array(v), np.array(ok)
+
+
+def _measure(image: np.ndarray, roi: tuple[int, int, int, int]) -> EdgeMeasurement:
+    x, y, w, h = roi
+    result: SFRResult = edge_sfr(image[y : y + h, x : x + w])
+    valid = not result.clipped and math.isfinite(result.sfr10) and math.isfinite(result.sfr50)
+    return EdgeMeasurement(result.sfr10, result.sfr50, result.sfr_area, result.angle_deg, roi, valid,
+                           tuple(result.warnings), result.frequency, result.sfr)
+
+
+def measure_position(chart: np.ndarray, white: np.ndarray) -> tuple[EdgeMeasurement | None, EdgeMeasurement | None, list[str]]:
+    """SFR of the near-vertical (horizontal resolution) and near-horizontal edge of one chart image."""
+    image = normalize_by_white(chart, white)
+    notes: list[str] = []
+    found: dict[str, EdgeMeasurement | None] = {"vertical": None, "horizontal": None}
+    try:
+        rois = find_edge_rois(np.nan_to_num(image, nan=0.0))
+    except ValueError as exc:
+        return None, None, [str(exc)]
+    for roi in rois:
+        if found[roi.orientation] is None:
+            try:
+                found[roi.orientation] = _measure(image, (roi.x, roi.y, roi.w, roi.h))
+            except ValueError as exc:
+                notes.append(f"{roi.orientation} edge: {exc}")
+    # a near-vertical edge resolves horizontal detail and vice versa
+    return found["vertical"], found["horizontal"], notes
+
+
+def _mean_image(step: StepRecord, channel: str = "intensity") -> np.ndarray:
+    return stack_stats(step.read(channel)).mean
+
+
+def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
+                          progress: Callable[[str], None]) -> SharpnessResult | None:
+    """SPEC §3 over every chart position that has a white reference at the same distance."""
+    charts = {s.attrs["distance_mm"]: s for s in steps if s.attrs.get("target") == "slanted_edge"}
+    whites = {s.attrs["distance_mm"]: s for s in steps if s.attrs.get("target") == "white_sheet"}
+    sensor = (sensor_angular_resolution_deg(camera.fov_deg[0], camera.width),
+              sensor_angular_resolution_deg(camera.fov_deg[1], camera.height))
+    result = SharpnessResult(positions=[], sensor_resolution_deg=sensor)
+    missing = sorted(set(charts) - set(whites))
+    if missing:
+        result.notes.append(f"no white reference at {', '.join(f'{d:g}' for d in missing)} mm: positions skipped")
+    for distance in sorted(set(charts) & set(whites)):
+        chart, white = charts[distance], whites[distance]
+        progress(f"{chart.step_id} slanted edge")
+        h, v, notes = measure_position(_mean_image(chart), _mean_image(white))
+        result.notes.extend(f"{chart.step_id}: {n}" for n in notes)
+        result.positions.append(SharpnessPosition(float(distance), chart.step_id, white.step_id,
+                                                  float(chart.attrs.get("exposure_us", math.nan)), h, v))
+    if not result.positions:
+        return None
+    _summarize(result)
+    return result
+
+
+def _summarize(result: SharpnessResult) -> None:
+    """Hyperfocal and best focus from the SFR area of both orientations; resolution at best focus."""
+    d, area_h, ok_h = result.series("horizontal", "sfr_area")
+    _, area_v, ok_v = result.series("vertical", "sfr_area")
+    both = ok_h & ok_v
+    area = np.where(both, (area_h + area_v) / 2, np.nan)
+    if not both.any():
+        result.notes.append("no position with both edges valid: sharpness figures are null")
+        return
+    result.hyperfocal_mm = hyperfocal_distance(d, area, both)
+    result.best_focus_mm = best_focus_distance(d, area, both)
+    best = next(p for p in result.positions if p.distance_mm == result.best_focus_mm)
+    result.resolution_deg = (
+        imagery_resolution_deg(result.sensor_resolution_deg[0], best.horizontal.sfr10),
+        imagery_resolution_deg(result.sensor_resolution_deg[1], best.vertical.sfr10),
+    )
+    if math.isfinite(result.hyperfocal_mm):
+        result.ied_px = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
+
+
+def target_distance(result: SharpnessResult) -> float:
+    """Where a sharp target goes: the nearest distance within 5 % of the best SFR area (thesis 5.2.1)."""
+    d, area_h, ok_h = result.series("horizontal", "sfr_area")
+    _, area_v, ok_v = result.series("vertical", "sfr_area")
+    both = ok_h & ok_v
+    return nearest_sharp_distance(d, np.where(both, (area_h + area_v) / 2, np.nan), both)
+
+
+def resolution_table(result: SharpnessResult) -> list[dict[str, float | str]]:
+    """Per position: SFR figures, imagery resolution (angular and lateral) per orientation."""
+    rows = []
+    for p in result.positions:
+        row: dict[str, float | str] = {"distance_mm": p.distance_mm, "step": p.chart_step}
+        for name, m, sensor in (("h", p.horizontal, result.sensor_resolution_deg[0]),
+                                ("v", p.vertical, result.sensor_resolution_deg[1])):
+            angular = imagery_resolution_deg(sensor, m.sfr10) if m is not None else math.nan
+            row.update({
+                f"sfr10_{name}": m.sfr10 if m else math.nan,
+                f"sfr50_{name}": m.sfr50 if m else math.nan,
+                f"sfr_area_{name}": m.sfr_area if m else math.nan,
+                f"valid_{name}": bool(m and m.valid),
+                f"resolution_{name}_deg": angular,
+                f"resolution_{name}_mm": lateral_mm(angular, p.distance_mm) if math.isfinite(angular) else math.nan,
+            })
+        rows.append(row)
+    return rows

@@ -1,0 +1,157 @@
+"""Evaluation of the VDI/VDE 2634-2 procedures (``sphere_bar``, ``flatness``) with ``metrics.vdi2634``.
+
+Every frame of a step is one measurement. The artefact's points are those
+nearer than the wall minus half the artefact's gap (the wall: the step's
+reference distance, else the stage's nominal distance); a ball bar's points are
+split between its two spheres by the side of their centroid they lie on along
+the bar's nominal direction. Per quantity the key figure is the measurement of
+largest magnitude over all frames and positions (what the guideline compares
+with the maximum permissible error): P_F and F their maximum, P_S and SD
+signed. With a maximum permissible error in the campaign, the verdict is pass
+when that magnitude does not exceed it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from labctl.run.store import StepRecord
+from metrics.vdi2634 import (
+    fit_flat,
+    fit_sphere,
+    flatness_error,
+    probing_error_form,
+    probing_error_size,
+    sphere_spacing_error,
+)
+
+#: fewer artefact points than this in a frame: the frame is not evaluated
+MIN_POINTS = 10
+#: key figure -> (maximum permissible error parameter, how the measurements reduce)
+QUANTITIES = {
+    "probing_error_form_mm": ("mpe_form_mm", "max"),
+    "probing_error_size_mm": ("mpe_size_mm", "signed"),
+    "sphere_spacing_error_mm": ("mpe_spacing_mm", "signed"),
+    "flatness_error_mm": ("mpe_flatness_mm", "max"),
+}
+
+
+@dataclass(frozen=True)
+class Measurement:
+    step_id: str
+    frame: int
+    distance_mm: float
+    pose_deg: float  # the bar's orientation or the plate's tilt
+    values: dict[str, float]  # figure name -> value of this measurement
+
+
+@dataclass
+class AcceptanceResult:
+    measurements: list[Measurement] = field(default_factory=list)
+    mpe_mm: dict[str, float | None] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def _params(step: StepRecord) -> dict[str, Any]:
+    return json.loads(step.attrs.get("target_json", "{}") or "{}")
+
+
+def _wall_mm(step: StepRecord) -> float:
+    reference = float(step.attrs.get("reference_distance_mm", math.nan))
+    return reference if math.isfinite(reference) else float(step.attrs.get("distance_mm", math.nan))
+
+
+def _artefact_points(step: StepRecord, k: int, gap_mm: float) -> np.ndarray:
+    cloud = np.stack([step.frame(c, k) for c in ("x", "y", "z")], axis=-1).reshape(-1, 3).astype(np.float64)
+    cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
+    return cloud[cloud[:, 2] < _wall_mm(step) - gap_mm / 2]
+
+
+def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any]) -> dict[str, float] | str:
+    points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
+    if len(points) < 2 * MIN_POINTS:
+        return f"{len(points)} points on the ball bar"
+    phi = math.radians(float(params.get("orientation_deg", 0.0)))
+    side = (points[:, :2] - points[:, :2].mean(axis=0)) @ np.array([math.cos(phi), math.sin(phi)]) >= 0
+    halves = points[~side], points[side]
+    if min(len(h) for h in halves) < MIN_POINTS:
+        return f"{min(len(h) for h in halves)} points on a sphere"
+    fits = [fit_sphere(h) for h in halves]
+    sizes = [probing_error_size(f, float(params["diameter_mm"])) for f in fits]
+    return {
+        "probing_error_form_mm": max(probing_error_form(f) for f in fits),
+        "probing_error_size_mm": max(sizes, key=abs),
+        "sphere_spacing_error_mm": sphere_spacing_error(fits[0], fits[1], float(params["spacing_mm"])),
+    }
+
+
+def _flatness(step: StepRecord, k: int, params: dict[str, Any]) -> dict[str, float] | str:
+    points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
+    if len(points) < MIN_POINTS:
+        return f"{len(points)} points on the plate"
+    return {"flatness_error_mm": flatness_error(fit_flat(points))}
+
+
+def evaluate_acceptance(steps: Sequence[StepRecord], progress: Callable[[str], None]) -> AcceptanceResult:
+    """Every measurement of the ``sphere_bar`` and ``flatness`` steps, and the campaign's MPEs."""
+    result = AcceptanceResult()
+    for step in steps:
+        kind = step.attrs.get("procedure")
+        params = _params(step)
+        progress(f"{step.step_id} {kind}")
+        for name, (mpe, _) in QUANTITIES.items():
+            if mpe in params:
+                result.mpe_mm[name] = params[mpe]
+        evaluate = _sphere_bar if kind == "sphere_bar" else _flatness
+        pose = float(params.get("orientation_deg" if kind == "sphere_bar" else "tilt_deg", 0.0))
+        distance = _wall_mm(step) - float(params.get("gap_mm", 500.0))
+        for k in range(step.group["z"].shape[0]):
+            values = evaluate(step, k, params)
+            if isinstance(values, str):
+                result.notes.append(f"{step.step_id} frame {k}: {values}, not evaluated")
+                continue
+            result.measurements.append(Measurement(step.step_id, k, distance, pose, values))
+    return result
+
+
+def figure_values(result: AcceptanceResult) -> dict[str, tuple[float, list[str]]]:
+    """Key figures: per quantity the measurement of largest magnitude, with the steps measured."""
+    figures: dict[str, tuple[float, list[str]]] = {}
+    for name, (_, reduce) in QUANTITIES.items():
+        rows = [m for m in result.measurements if name in m.values]
+        if not rows:
+            continue
+        worst = max(rows, key=lambda m: abs(m.values[name]))
+        value = worst.values[name] if reduce == "signed" else max(m.values[name] for m in rows)
+        figures[name] = (value, sorted({m.step_id for m in rows}))
+    return figures
+
+
+def verdicts(result: AcceptanceResult) -> dict[str, dict[str, Any]]:
+    """Per quantity: the figure, its maximum permissible error and pass / fail (``no_mpe`` without one)."""
+    out = {}
+    for name, (value, _) in figure_values(result).items():
+        mpe = result.mpe_mm.get(name)
+        verdict = "no_mpe" if mpe is None else ("pass" if abs(value) <= mpe else "fail")
+        out[name] = {"value": value, "mpe_mm": mpe, "verdict": verdict}
+    return out
+
+
+def acceptance_table(result: AcceptanceResult) -> list[dict[str, float | str]]:
+    """Per step: the worst measurement of each quantity over its frames, NaN where not measured (report, JSON)."""
+    rows: list[dict[str, float | str]] = []
+    for step_id in dict.fromkeys(m.step_id for m in result.measurements):
+        ms = [m for m in result.measurements if m.step_id == step_id]
+        row: dict[str, float | str] = {"step": step_id, "distance_mm": ms[0].distance_mm, "pose_deg": ms[0].pose_deg,
+                                       "frames": float(len(ms))}
+        for name in QUANTITIES:
+            values = [m.values[name] for m in ms if name in m.values]
+            row[name] = max(values, key=abs) if values else math.nan
+        rows.append(row)
+    return rows

@@ -1,0 +1,176 @@
+"""Side-by-side comparison of cameras from their evaluations (thesis 6.6, Fig. 6-12; CONTRACTS §2).
+
+Input: the output directories of ``labctl evaluate`` (their ``keyfigures.json``).
+Output: ``compare.json`` (every figure per camera, the suitability verdicts),
+``compare.html`` with the Fig. 6-12 style chart (all figures, lower is better;
+angular resolutions x 10 as in the thesis so they share the axis; fill rates,
+where higher is better, are left out), the datasheet-comparable figures with
+where they are defined, the
+inter-eye-distance coverage per camera against the 90 px requirement, and the
+suitability matrix.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from labctl.errors import InputError  # noqa: E402
+from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES  # noqa: E402
+from labctl.evaluation.suitability import IED_MIN_PX  # noqa: E402
+from labctl.run.store import labctl_version, now_iso  # noqa: E402
+from metrics.jsonsafe import dumps_strict  # noqa: E402
+
+#: figures left out of the chart (different scale or "higher is better")
+NOT_CHARTED = {"hyperfocal_distance_mm", "best_focus_distance_mm", "ied_pixels_at_hyperfocal",
+               "fill_rate_1000mm_pct", "fill_rate_2000mm_pct"}
+TIMES_TEN = {"intensity_resolution_h_deg", "intensity_resolution_v_deg", "cloud_resolution_h_deg",
+             "cloud_resolution_v_deg"}
+
+
+def load_evaluation(directory: Path) -> dict[str, Any]:
+    path = Path(directory) / "keyfigures.json"
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{directory} has no keyfigures.json: give output directories of 'labctl evaluate'") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(doc, dict) or "figures" not in doc or "camera" not in doc:
+        raise InputError(f"{path} is not a labctl keyfigures.json (no 'camera'/'figures')")
+    return doc
+
+
+def camera_label(doc: dict[str, Any]) -> str:
+    cam = doc["camera"]
+    label = str(cam.get("model", "camera"))
+    return label.replace(" (simulated)", "*")
+
+
+def compare(directories: list[Path], outdir: Path) -> Path:
+    """Write compare.json, compare.html and their plots; returns the HTML path."""
+    if len(directories) < 1:
+        raise InputError("give at least one evaluation directory")
+    docs = [load_evaluation(d) for d in directories]
+    labels = _unique([camera_label(d) for d in docs])
+    outdir.mkdir(parents=True, exist_ok=True)
+    plots = outdir / "plots"
+    plots.mkdir(exist_ok=True)
+    table = {fig.name: {label: doc["figures"].get(fig.name, {}).get("value") for label, doc in zip(labels, docs)}
+             for fig in FIGURES}
+    verdicts = {label: {k: v["verdict"] for k, v in doc.get("suitability", {}).get("stories", {}).items()}
+                for label, doc in zip(labels, docs)}
+    result = {"cameras": labels, "sources": [str(d) for d in directories], "figures": table, "suitability": verdicts}
+    (outdir / "compare.json").write_text(dumps_strict(result, indent=2) + "\n")
+    chart = _chart(table, labels, plots / "comparison.png")
+    ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")
+    page = outdir / "compare.html"
+    page.write_text(_page(result, chart.relative_to(outdir), ied.relative_to(outdir)))
+    return page
+
+
+def _unique(labels: list[str]) -> list[str]:
+    seen: dict[str, int] = {}
+    out = []
+    for label in labels:
+        seen[label] = seen.get(label, 0) + 1
+        out.append(label if seen[label] == 1 else f"{label} ({seen[label]})")
+    return out
+
+
+def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: Path) -> Path:
+    names = [f.name for f in FIGURES if f.name not in NOT_CHARTED]
+    fig, ax = plt.subplots(figsize=(14, 6))
+    width = 0.8 / max(len(labels), 1)
+    x = np.arange(len(names))
+    for k, label in enumerate(labels):
+        values = []
+        for name in names:
+            v = table[name][label]
+            v = abs(v) * (10 if name in TIMES_TEN else 1) if v is not None and math.isfinite(v) else np.nan
+            values.append(v)
+        ax.bar(x + (k - (len(labels) - 1) / 2) * width, values, width, label=label)
+    ax.set_xticks(x)
+    ax.set_xticklabels([n + (" x10" if n in TIMES_TEN else "") for n in names], rotation=70, ha="right", fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel("value (mm, %, deg x10); lower is better")
+    ax.set_title("Key figures of the cameras (thesis Fig. 6-12); missing bars: not measured, or 0", pad=28)
+    ax.grid(axis="y", alpha=0.3, which="both")
+    ax.legend(ncol=max(len(labels), 1), loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=9, frameon=False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(7, 3.8))
+    values = [ied[label] if ied[label] is not None else np.nan for label in labels]
+    ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
+    ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
+    ax.set_ylabel("px across 62.5 mm at the hyperfocal distance")
+    ax.set_title("Inter-eye distance coverage (thesis eq. 6-2)")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _fmt(value: Any) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return '<span style="color:#999">n/a</span>'
+    if isinstance(value, float):
+        return f"{value:.0f}" if abs(value) >= 100 else f"{value:.3g}"
+    return html.escape(str(value))
+
+
+def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
+    labels = result["cameras"]
+    head = "".join(f"<th>{html.escape(label)}</th>" for label in labels)
+    units = {f.name: f.unit for f in FIGURES}
+    rows = "".join(
+        f'<tr><td class="l">{html.escape(name)}</td><td class="l">{units[name]}</td>'
+        + "".join(f"<td>{_fmt(values[label])}</td>" for label in labels) + "</tr>"
+        for name, values in result["figures"].items()
+    )
+    vendor_rows = "".join(
+        f'<tr><td class="l">{html.escape(f.name)}</td><td class="l">{f.unit}</td>'
+        + "".join(f"<td>{_fmt(result['figures'][f.name][label])}</td>" for label in labels)
+        + f'<td class="l">{html.escape(f.section)}</td></tr>'
+        for f in VENDOR_FIGURES
+    )
+    stories = sorted({story for v in result["suitability"].values() for story in v})
+    suit_rows = "".join(
+        f'<tr><td class="l">{html.escape(story)}</td>'
+        + "".join(f"<td>{html.escape(result['suitability'][label].get(story, 'n/a').replace('_', ' '))}</td>"
+                  for label in labels) + "</tr>"
+        for story in stories
+    )
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>labctl camera comparison</title>
+<style>body{{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;color:#222}}
+table{{border-collapse:collapse;font-size:.9em}}td,th{{border:1px solid #ddd;padding:.3em .6em;text-align:right}}
+th{{background:#f4f4f4}}td.l{{text-align:left}}img{{max-width:100%}}</style></head><body>
+<h1>Camera comparison</h1>
+<p>labctl {labctl_version()}, {now_iso()}. Cameras marked * were simulated.</p>
+<img src="{chart.as_posix()}" alt="key figures per camera">
+<h2>Inter-eye distance coverage</h2><img src="{ied.as_posix()}" alt="IED coverage">
+<h2>Suitability (SPEC 9)</h2>
+<table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>
+<h2>Datasheet-comparable figures</h2>
+<p>As the camera vendors' tools define them; set them next to the datasheets.</p>
+<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>{vendor_rows}</table>
+<h2>Key figures</h2>
+<table><tr><th class="l">figure</th><th class="l">unit</th>{head}</tr>{rows}</table>
+</body></html>
+"""

@@ -1,0 +1,305 @@
+"""keyfigures.json and the self-describing HTML report."""
+
+from __future__ import annotations
+
+import html
+import math
+from pathlib import Path
+from typing import Any
+
+from labctl.evaluation.depth_quality import vendor_table
+from labctl.evaluation.evaluate import Evaluation, depth_table
+from labctl.evaluation.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, clean, keyfigures_document
+from labctl.evaluation.remission import misalignment_summary, remission_table
+from labctl.evaluation.sharpness import resolution_table
+from labctl.evaluation.suitability import suitability
+from labctl.evaluation.vdi2634 import acceptance_table, verdicts
+from labctl.report.plots.acceptance import plot_acceptance
+from labctl.report.plots.boehler import plot_boehler
+from labctl.report.plots.depth_quality import plot_vendor_figures
+from labctl.report.plots.distortion import plot_distortion
+from labctl.report.plots.figures import (
+    plot_depth_curves,
+    plot_face_mask,
+    plot_resolution,
+    plot_sharpness,
+    plot_surface_maps,
+    plot_xy_noise,
+)
+from labctl.report.plots.remission import plot_misalignment_fit, plot_remission
+from labctl.report.pointcloud_io import write_pcd
+from labctl.run.store import labctl_version, now_iso
+from metrics.jsonsafe import dumps_strict
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1150px;color:#222}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
+table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ddd;padding:.3em .6em;text-align:right}
+th{background:#f4f4f4}td.l,th.l{text-align:left}.null{color:#999}.note{color:#a15c00}
+img{max-width:100%;border:1px solid #eee}td.src{font-size:.85em;color:#555}
+"""
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return '<span class="null">n/a</span>'
+    if isinstance(value, float):
+        return f"{value:.0f}" if abs(value) >= 10 ** (digits - 1) else f"{value:.{digits}g}"
+    return html.escape(str(value))
+
+
+def _sources(source: str) -> str:
+    """Source steps, runs of one procedure shortened to 'first ... last procedure (n steps)'."""
+    ids = [s for s in (source or "").split(",") if s]
+    groups: list[list[str]] = []
+    for step in ids:
+        kind = step.split("_", 1)[-1]
+        if groups and groups[-1][-1].split("_", 1)[-1] == kind:
+            groups[-1].append(step)
+        else:
+            groups.append([step])
+    parts = [", ".join(g) if len(g) < 3 else f"{g[0].split('_', 1)[0]} ... {g[-1]} ({len(g)} steps)" for g in groups]
+    return html.escape(", ".join(parts))
+
+
+def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
+    """Write keyfigures.json, the plots and report.html into ``outdir``."""
+    outdir.mkdir(parents=True, exist_ok=True)
+    plots = outdir / "plots"
+    plots.mkdir(exist_ok=True)
+    values = {name: clean(f.value) for name, f in evaluation.figures.items()}
+    doc = keyfigures_document(evaluation.camera, evaluation.figures, suitability(values))
+    doc["runs"] = evaluation.runs
+    doc["notes"] = evaluation.notes
+    doc["depth_sweep"] = _clean_rows(depth_table(evaluation))
+    if evaluation.sharpness is not None:
+        doc["slanted_edge"] = _clean_rows(resolution_table(evaluation.sharpness))
+
+    sections: list[str] = _alignment_section(evaluation)
+    if evaluation.depth:
+        img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
+        sections.append(_section("Depth error over distance (SPEC 1)", img, outdir, _depth_rows(evaluation)))
+    if evaluation.vendor:
+        doc["depth_quality"] = _clean_rows(vendor_table(evaluation.vendor))
+        img = plot_vendor_figures(evaluation.vendor, plots / "depth_quality.png")
+        sections.append(_section("Datasheet-comparable figures", img, outdir, _vendor_html(evaluation, doc)))
+    if evaluation.acceptance is not None and evaluation.acceptance.measurements:
+        sections.append(_acceptance_section(evaluation, outdir, plots, doc))
+    if evaluation.surface is not None:
+        img = plot_surface_maps(evaluation.surface, plots / "surface_texture.png")
+        sections.append(_section("Surface texture (SPEC 2, ISO 25178-2)", img, outdir, ""))
+    if evaluation.sharpness is not None:
+        img = plot_sharpness(evaluation.sharpness, plots / "sharpness.png")
+        sections.append(_section("Sharpness over distance (SPEC 3, ISO 12233)", img, outdir, ""))
+        img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
+        table = _rows_table(resolution_table(evaluation.sharpness), "step")
+        sections.append(_section("Resolution of the intensity image (thesis 6.3.1)", img, outdir, table))
+    sections.extend(_geometry_sections(evaluation, outdir, plots, doc))
+    sections.extend(_remission_sections(evaluation, outdir, plots, doc))
+    if evaluation.face is not None:
+        face = evaluation.face
+        pcd = outdir / f"face_mask_{face.step_id}.pcd"
+        write_pcd(pcd, face.cloud, face.intensity)
+        img = plot_face_mask(face.cloud, face.intensity, f"Face mask at {face.distance_mm:.0f} mm ({face.step_id})",
+                             plots / "face_mask.png")
+        link = f'<p>Organized point cloud for CloudCompare / Open3D: <a href="{pcd.name}">{pcd.name}</a> ' \
+               f"({face.invalid_fraction:.1%} invalid points).</p>"
+        sections.append(_section("Face mask (SPEC 8, thesis 6.7)", img, outdir, link))
+        doc["face_mask"] = {"step": face.step_id, "pcd": pcd.name, "invalid_fraction": face.invalid_fraction}
+    json_path = outdir / "keyfigures.json"
+    json_path.write_text(dumps_strict(doc, indent=2) + "\n")
+    report = outdir / "report.html"
+    report.write_text(_page(evaluation, doc, sections))
+    return json_path, report
+
+
+def _alignment_section(evaluation: Evaluation) -> list[str]:
+    a = evaluation.alignment
+    if a is None:
+        return []
+    fields = ", ".join(f"{name.replace('_', ' ')} {xyz[2]:.1f} mm" for name, xyz in a.fields_mm.items())
+    return [f"<h2>Alignment (thesis 4.1.2)</h2><p>Accepted in {html.escape(a.step_id)}: corner fields {fields}; "
+            f"residual tilt {a.tilt_x_deg:+.3f} deg about x (up), {a.tilt_y_deg:+.3f} deg about y (right).</p>"]
+
+
+def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+    """Checkerboard distortion, Boehler star and x/y noise sections (SPEC 4-6)."""
+    geo = evaluation.geometry
+    sections: list[str] = []
+    if geo is None:
+        return sections
+    board = geo.checkerboard
+    if board is not None:
+        r = board.intensity
+        img = plot_distortion(board.image, r, plots / "distortion.png", cloud=board.cloud_distortion,
+                              title=f"Checkerboard at {board.distance_mm:.0f} mm ({board.step_id})")
+        rows = [
+            {"image": "intensity", "raw_w_pct": r.raw_distortion_w_pct, "raw_h_pct": r.raw_distortion_h_pct,
+             "radial_w_pct": r.radial_distortion_w_pct, "radial_h_pct": r.radial_distortion_h_pct,
+             "median_w_pct": r.radial_median_w_pct, "median_h_pct": r.radial_median_h_pct,
+             "fov_estimate_h_deg": r.fov_estimate_deg[0], "fov_estimate_v_deg": r.fov_estimate_deg[1], "k1": r.k1,
+             "corners": r.n_corners},
+        ]
+        if board.cloud_distortion is not None:
+            c = board.cloud_distortion
+            rows.append({"image": "point cloud", "raw_w_pct": c.distortion_w_pct, "raw_h_pct": c.distortion_h_pct,
+                         "radial_w_pct": c.distortion_w_pct, "radial_h_pct": c.distortion_h_pct,
+                         "median_w_pct": c.median_w_pct, "median_h_pct": c.median_h_pct,
+                         "fov_estimate_h_deg": math.nan, "fov_estimate_v_deg": math.nan, "k1": math.nan,
+                         "corners": c.n_corners})
+        doc["checkerboard"] = _clean_rows(rows)
+        sections.append(_section("Distortion (SPEC 5, EBU Tech 3249 / ISO 17850)", img, outdir, _rows_table(rows, "image")))
+    if geo.chosen_star is not None:
+        star = geo.chosen_star
+        img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
+        rows = [{"star": f"{s.segments} segments ({s.step_id})", "resolution_h_mm": s.result.resolution_h_mm,
+                 "resolution_v_mm": s.result.resolution_v_mm, "angular_h_deg": s.result.angular_h_deg,
+                 "angular_v_deg": s.result.angular_v_deg, "distance_mm": s.result.distance_mm} for s in geo.stars]
+        doc["boehler_star"] = _clean_rows(rows)
+        sections.append(_section("Resolution of the point cloud: Boehler star (SPEC 4)", img, outdir,
+                                 _rows_table(rows, "star")))
+    if geo.precision:
+        rows = [{"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
+                 "repeatability_center_y_mm": p.repeatability_center_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
+                 "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
+        doc["xy_noise"] = _clean_rows(rows)
+        img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
+        sections.append(_section("x/y noise on the wall (SPEC 6)", img, outdir, _rows_table(rows, "step")))
+    return sections
+
+
+def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+    """Repeatability and trueness over angle per material, and the misalignment fit (SPEC 7)."""
+    result = evaluation.remission
+    if result is None:
+        return []
+    rows = remission_table(result)
+    doc["remission_angle"] = _clean_rows(rows)
+    angles = sorted({r["angle_deg"] for r in rows})
+    pivots = []
+    for key, title in (("repeatability_mm", "repeatability (mm)"), ("trueness_geometric_mm", "trueness vs geometry (mm)")):
+        table = [{"material": m, **{f"{a:g} deg": next((r[key] for r in rows if r["material"] == m and r["angle_deg"] == a
+                                                         and r["on_target"]), math.nan) for a in angles}}
+                 for m in sorted({r["material"] for r in rows})]
+        pivots.append(f"<h3>{html.escape(title)}</h3>{_rows_table(table, 'material')}")
+    img = plot_remission(result, plots / "remission_angle.png")
+    sections = [_section("Remission and angle of incidence (SPEC 7, thesis Fig. 6-11)", img, outdir, "".join(pivots))]
+    summary = misalignment_summary(result)
+    if summary is not None:
+        doc["misalignment"] = {k: clean(v) if isinstance(v, float) else v for k, v in summary.items()}
+        img = plot_misalignment_fit(result, plots / "misalignment_fit.png")
+        text = (f"<p>Fitted to {html.escape(str(summary['material']))} over {summary['angles']} angles: target "
+                f"offset delta = {_fmt(summary['target_offset_mm'])} &plusmn; {_fmt(summary['target_offset_se_mm'], 2)} mm, "
+                f"camera axis offset e = {_fmt(summary['camera_axis_offset_mm'])} &plusmn; "
+                f"{_fmt(summary['camera_axis_offset_se_mm'], 2)} mm, level b = {_fmt(summary['bias_mm'])} mm, residual "
+                f"RMS {_fmt(summary['residual_rms_mm'], 2)} mm. The geometric reference R + delta / cos(theta) - "
+                "e tan(theta) removes the set-up from the trueness above.</p>")
+        sections.append(_section("Target and camera misalignment (thesis 5.4.2)", img, outdir, text))
+    return sections
+
+
+def _clean_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [{k: clean(v) if isinstance(v, float) else v for k, v in row.items()} for row in rows]
+
+
+def _rows_table(rows: list[dict[str, Any]], key: str) -> str:
+    if not rows:
+        return ""
+    cols = [c for c in rows[0] if c != key]
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    body = "".join(
+        f'<tr><td class="l">{html.escape(str(r[key]))}</td>' + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
+        for r in rows
+    )
+    return f'<table><tr><th class="l">{html.escape(key)}</th>{head}</tr>{body}</table>'
+
+
+def _section(title: str, image: Path, outdir: Path, table: str) -> str:
+    rel = image.relative_to(outdir).as_posix()
+    return f'<h2>{html.escape(title)}</h2>\n<img src="{rel}" alt="{html.escape(title)}">\n{table}'
+
+
+def _vendor_html(evaluation: Evaluation, doc: dict[str, Any]) -> str:
+    """The vendor key figures next to where they are defined, then the figures at every distance."""
+    rows = "".join(
+        f'<tr><td class="l">{html.escape(f.name)}</td><td>{_fmt(doc["figures"][f.name]["value"])}</td>'
+        f'<td class="l">{f.unit}</td><td class="l">{html.escape(f.meaning)}</td>'
+        f'<td class="l src">{html.escape(f.section)}</td></tr>'
+        for f in VENDOR_FIGURES
+    )
+    return ("<p>The figures camera vendors quote in their datasheets, computed as their own tools define them "
+            "(see docs/metrics.md for the choices where a definition is vague); subpixel RMS only for stereo "
+            "cameras.</p>"
+            '<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">definition</th>'
+            f'<th class="l">defined by</th></tr>{rows}</table>'
+            f"<h3>At every wall distance</h3>{_rows_table(vendor_table(evaluation.vendor), 'step')}")
+
+
+def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> str:
+    """VDI/VDE 2634-2 quantities with their maximum permissible errors and verdicts, and per position."""
+    result = evaluation.acceptance
+    assert result is not None
+    judged = verdicts(result)
+    doc["acceptance_test"] = {name: {k: clean(v) if isinstance(v, float) else v for k, v in row.items()}
+                              for name, row in judged.items()}
+    rows = [{"quantity": name, "value_mm": row["value"], "mpe_mm": row["mpe_mm"] if row["mpe_mm"] is not None
+             else math.nan, "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
+    table = _rows_table(rows, "quantity")
+    doc["acceptance_positions"] = per_step = _clean_rows(acceptance_table(result))
+    img = plot_acceptance(result, plots / "acceptance.png")
+    text = ("<p>Each frame is one measurement; a quantity's figure is the measurement of largest magnitude, "
+            "compared with the campaign's maximum permissible error (MPE).</p>" + table
+            + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(per_step, 'step')}")
+    return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
+
+
+def _depth_rows(evaluation: Evaluation) -> str:
+    return _rows_table(depth_table(evaluation), "step")
+
+
+VERDICT_COLOUR = {"pass": "#1a7f37", "fail": "#cf222e", "not_evaluated": "#9a6700", "no_numeric_requirement": "#57606a"}
+
+
+def _suitability_html(suit: dict[str, Any]) -> str:
+    rows = []
+    for story in suit["stories"].values():
+        colour = VERDICT_COLOUR[story["verdict"]]
+        checks = "<br>".join(
+            f'{html.escape(c["requirement"])}: <b>{c["status"].replace("_", " ")}</b> ('
+            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c["values"].items()) + ")"
+            for c in story["checks"]
+        ) or "; ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in story["figures"].items())
+        rows.append(f'<tr><td class="l">{html.escape(story["description"])}</td>'
+                    f'<td class="l" style="color:{colour}"><b>{story["verdict"].replace("_", " ")}</b></td>'
+                    f'<td class="l">{checks}</td></tr>')
+    return (f'<p>{html.escape(suit["standard"])}</p><table><tr><th class="l">user story</th><th class="l">verdict</th>'
+            f'<th class="l">checks (values)</th></tr>{"".join(rows)}</table>')
+
+
+def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> str:
+    cam = evaluation.camera
+    fig_rows = "".join(
+        f'<tr><td class="l">{html.escape(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
+        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td>'
+        f'<td class="l src">{_sources(f["source"])}</td></tr>'
+        for name, f in doc["figures"].items()
+    )
+    notes = "".join(f'<li class="note">{html.escape(n)}</li>' for n in evaluation.notes)
+    runs = "".join(f"<li>{html.escape(r)}</li>" for r in evaluation.runs)
+    simulated = " (simulated)" if cam.get("simulated") and "simulated" not in cam["model"] else ""
+    suit_html = _suitability_html(doc["suitability"])
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>labctl report: {html.escape(cam['model'])}</title>
+<style>{CSS}</style></head><body>
+<h1>Characterization of {html.escape(cam['model'])}{simulated}</h1>
+<p>Serial {html.escape(str(cam['serial']))}, {cam['width']}&times;{cam['height']} px,
+FOV {cam['fov_deg'][0]:g}&times;{cam['fov_deg'][1]:g}&deg;. Report by labctl {labctl_version()} on {now_iso()}.</p>
+<ul>{runs}</ul>
+{f'<ul>{notes}</ul>' if notes else ''}
+<h2>Key figures</h2>
+<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">meaning</th>
+<th class="l">source steps</th></tr>{fig_rows}</table>
+<h2>Suitability (SPEC 9)</h2>{suit_html}
+{''.join(sections)}
+</body></html>
+"""

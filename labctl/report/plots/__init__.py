@@ -1,0 +1,1 @@
+"""The report's figures (matplotlib, Agg backend), one module per figure family."""

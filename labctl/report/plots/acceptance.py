@@ -1,0 +1,35 @@
+"""Report plot of the VDI/VDE 2634-2 measurements against their maximum permissible errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from labctl.evaluation.vdi2634 import QUANTITIES, AcceptanceResult  # noqa: E402
+
+
+def plot_acceptance(result: AcceptanceResult, path: Path) -> Path:
+    """Each measurement of each quantity over the positions (steps), the MPE as dashed lines."""
+    names = [n for n in QUANTITIES if any(n in m.values for m in result.measurements)]
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.8), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        rows = [m for m in result.measurements if name in m.values]
+        steps = list(dict.fromkeys(m.step_id for m in rows))
+        ax.plot([steps.index(m.step_id) for m in rows], [m.values[name] for m in rows], "o", ms=3, alpha=0.6)
+        mpe = result.mpe_mm.get(name)
+        if mpe is not None:
+            for level in ((mpe,) if QUANTITIES[name][1] == "max" else (mpe, -mpe)):
+                ax.axhline(level, color="tab:red", linestyle="--", label="MPE")
+        ax.set_xticks(range(len(steps)))
+        ax.set_xticklabels([f"{m.distance_mm:.0f} mm\n{m.pose_deg:g} deg" for m in
+                            (next(r for r in rows if r.step_id == s) for s in steps)], fontsize=7)
+        ax.set_title(name.replace("_mm", " (mm)").replace("_", " "))
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,48 @@
+"""Report plot of the vendors' depth-quality figures over the wall distance."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from labctl.evaluation.depth_quality import VendorPosition  # noqa: E402
+
+
+def plot_vendor_figures(positions: list[VendorPosition], path: Path) -> Path:
+    """Fill rate, Z accuracy, plane-fit RMS / spatial / temporal precision and subpixel RMS over distance."""
+    rows = sorted(positions, key=lambda p: p.figures.reference_mm)
+    d = np.array([p.figures.reference_mm for p in rows])
+
+    def series(attr: str) -> np.ndarray:
+        return np.array([getattr(p.figures, attr) for p in rows])
+
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    panels = [
+        (axes[0, 0], "Fill rate (Depth Quality Tool ROI)", "%", [("fill_rate_pct", "fill rate")]),
+        (axes[0, 1], "Z accuracy (median signed error)", "% of distance", [("z_accuracy_pct", "Z accuracy")]),
+        (axes[1, 0], "Spatial and temporal noise", "mm", [("plane_fit_rms_mm", "plane-fit RMS (Intel)"),
+                                                          ("spatial_precision_mm", "spatial precision (Basler)"),
+                                                          ("temporal_precision_mm", "temporal precision (Basler)")]),
+        (axes[1, 1], "Subpixel RMS (stereo)", "px", [("subpixel_rms_px", "subpixel RMS")]),
+    ]
+    for ax, title, unit, attrs in panels:
+        for attr, label in attrs:
+            values = series(attr)
+            ax.plot(d, values, marker="o", ms=3, label=label)
+            if not np.isfinite(values).any():
+                ax.text(0.5, 0.5, "not measured (stereo cameras only)", transform=ax.transAxes, ha="center")
+        ax.set_title(title)
+        ax.set_ylabel(unit)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    for ax in axes[1]:
+        ax.set_xlabel("reference distance (mm)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,83 @@
+"""Plots of the remission-and-angle evaluation (thesis Fig. 6-11, Fig. 5-15), matplotlib Agg, PNG out."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from labctl.evaluation.remission import RemissionResult  # noqa: E402
+
+COLORS = {"ptfe": "tab:blue", "molleton": "black", "silicone": "tab:orange", "gelatine": "tab:green",
+          "collagen": "tab:red"}
+
+
+def plot_remission(result: RemissionResult, path: Path) -> Path:
+    """Per material over the robot angle: repeatability, trueness vs 0 deg and vs the geometric reference.
+
+    Steps whose ROI is not on the target are left out (thesis 6.5.1).
+    """
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), sharex=True)
+    panels = [
+        (axes[0], "Repeatability (pooled std over the ROI)", lambda r: r.roi.repeatability_mm),
+        (axes[1], "Trueness vs the material's 0 deg distance", lambda r: r.trueness_zero_mm),
+        (axes[2], "Trueness vs the geometric reference", lambda r: r.trueness_geometric_mm),
+    ]
+    for material in result.materials:
+        rows = [r for r in result.material_rows(material) if r.roi.on_target]
+        angles = [r.angle_deg for r in rows]
+        for ax, _, value in panels:
+            ax.plot(angles, [value(r) for r in rows], marker="o", ms=3, label=material,
+                    color=COLORS.get(material))
+    for ax, title, _ in panels:
+        ax.set_title(title)
+        ax.set_xlabel("robot angle (deg)")
+        ax.set_ylabel("mm")
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fit = result.fit
+    reference = (f"{result.fit_material} fit: target {fit.delta_mm:+.1f} mm, camera axis {fit.e_mm:+.1f} mm"
+                 if fit else "no misalignment fit: reference = commanded radius")
+    fig.suptitle(f"Remission and angle, ROI {result.roi[2]}x{result.roi[3]} px on the optical axis; {reference}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_misalignment_fit(result: RemissionResult, path: Path) -> Path:
+    """Measured axis distance minus radius of the fit material against b + delta/cos - e tan, and residuals."""
+    fit = result.fit
+    if fit is None:
+        raise ValueError("the result has no misalignment fit to plot")
+    rows = [r for r in result.material_rows(result.fit_material) if r.roi.on_target]
+    angles = np.array([r.angle_deg for r in rows])
+    measured = np.array([r.roi.distance_mm - r.radius_mm for r in rows])
+    se = np.array([r.roi.distance_se_mm for r in rows])
+    grid = np.linspace(angles.min(), angles.max(), 200)
+    t = np.radians(grid)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 7), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    top.errorbar(angles, measured, yerr=se, fmt="o", ms=4, color="tab:blue", label=f"{result.fit_material} measured")
+    top.plot(grid, fit.bias_mm + fit.delta_mm / np.cos(t) - fit.e_mm * np.tan(t), color="tab:red",
+             label=f"fit: b {fit.bias_mm:+.1f} + {fit.delta_mm:.1f}/cos - ({fit.e_mm:.1f}) tan")
+    top.plot(grid, fit.bias_mm + fit.delta_mm / np.cos(t), ls="--", color="tab:purple", label="target term")
+    top.plot(grid, fit.bias_mm + fit.delta_mm - fit.e_mm * np.tan(t), ls=":", color="tab:green",
+             label="camera-axis term")
+    top.set_ylabel("axis distance - radius (mm)")
+    top.set_title(f"Misalignment (thesis Fig. 5-15): target {fit.delta_mm:+.2f} +- {fit.delta_se_mm:.2f} mm, "
+                  f"camera axis {fit.e_mm:+.2f} +- {fit.e_se_mm:.2f} mm", fontsize=10)
+    top.grid(alpha=0.3)
+    top.legend(fontsize=8)
+    bottom.plot(fit.angles_deg, fit.residuals_mm, marker="o", ms=4, color="tab:blue")
+    bottom.axhline(0.0, color="grey", lw=0.8)
+    bottom.set_ylabel(f"residual (mm)\nRMS {fit.residual_rms_mm:.2f}")
+    bottom.set_xlabel("robot angle (deg)")
+    bottom.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

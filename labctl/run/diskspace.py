@@ -1,0 +1,64 @@
+"""Run-file size estimates and free-space checks, so a run stops safely before the disk fills.
+
+A frame stores x, y, z, intensity (float32) and confidence (uint16 or float32): W x H x
+(16 + confidence bytes) raw. ``plan`` divides by the compression's planning ratio; the
+checks before a run and before each step do not rely on compression (incompressible noise
+stores at the raw size) and keep a margin for HDF5 metadata and the rest of the system.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from labctl.errors import RunAborted
+from labctl.run.compression import ESTIMATED_RATIO
+
+MARGIN_BYTES = 64 * 2**20
+"""Kept free beyond a step's raw size (itself 1.7x the compressed size it will take): HDF5 metadata,
+the operating system, other programs."""
+
+
+class DiskSpaceLow(RunAborted, OSError):
+    """Not enough free space for a run or its next step: nothing of it is written (exit 1).
+    An OSError too, so the runner treats it as a failure: devices safe, run aborted, resumable."""
+
+
+def frame_bytes(width: int, height: int, confidence_dtype: str) -> int:
+    """Raw bytes of one frame (five channels)."""
+    return width * height * (4 * 4 + np.dtype(confidence_dtype).itemsize)
+
+
+def expected_file_bytes(frames: int, width: int, height: int, confidence_dtype: str, compression: str) -> int:
+    """Planning estimate of a run file holding ``frames`` frames."""
+    return int(frames * frame_bytes(width, height, confidence_dtype) / ESTIMATED_RATIO[compression])
+
+
+def free_bytes(path: Path) -> int:
+    """Bytes available to this user on the file system holding ``path`` (statvfs(3): f_bavail x f_frsize)."""
+    stat = os.statvfs(path)
+    return stat.f_bavail * stat.f_frsize
+
+
+def format_bytes(n: float) -> str:
+    """``1.23 GB`` style (powers of 1000)."""
+    for unit in ("B", "kB", "MB", "GB"):
+        if abs(n) < 1000:
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.2f} {unit}"
+        n /= 1000
+    return f"{n:.2f} TB"
+
+
+def ensure_free(run_file: Path, needed: int, what: str) -> None:
+    """DiskSpaceLow unless the run file's file system has ``needed`` + :data:`MARGIN_BYTES` free."""
+    directory = Path(run_file).resolve().parent
+    free = free_bytes(directory)
+    if free < needed + MARGIN_BYTES:
+        raise DiskSpaceLow(
+            f"not enough free space in {directory} for {what}: it needs {format_bytes(needed)} plus a "
+            f"{format_bytes(MARGIN_BYTES)} margin, {format_bytes(free)} are free; free space (or move the run file), "
+            f"then continue"
+        )
+

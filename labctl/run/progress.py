@@ -1,0 +1,139 @@
+"""Progress on stderr (rich): steps, frames and planned lab time left of a run, steps of an evaluation; log lines."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Collection, Sequence
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from labctl.run.planning import PlannedStep, format_duration
+
+
+class Reporter:
+    """Progress of a run: the step (k of n) and steps done, frames captured out of the plan's total,
+    and the lab time left as planned (labctl.run.planning: moves, settling, laser readings, operator
+    prompts and captures of the current and the remaining steps), not a frame-rate extrapolation,
+    so a run waiting at a prompt shows the time the rest of the campaign still needs.
+
+    On a terminal a live bar; otherwise (log file, pipe) one line per step event and no wrapping.
+    """
+
+    def __init__(self, quiet: bool = False, console: Console | None = None) -> None:
+        self.console = console or Console(stderr=True, quiet=quiet, highlight=False, soft_wrap=True)
+        self.live = self.console.is_terminal
+        self.progress = Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("frames"),
+            TimeElapsedColumn(),
+            TextColumn("lab time left {task.fields[left]}"),
+            console=self.console,
+            transient=False,
+            disable=not self.live,
+        )
+        self._task: TaskID | None = None
+        self._plan: list[PlannedStep] = []
+        self._done: set[str] = set()
+        self._current: PlannedStep | None = None
+        self._captured = 0
+        self._frames_done = 0
+
+    def start(self, plan: Sequence[PlannedStep], done: Collection[str]) -> None:
+        """Begin a run of ``plan`` whose steps ``done`` are already complete (resume)."""
+        self._plan = list(plan)
+        self._done = {p.step.step_id for p in self._plan} & set(done)
+        self._frames_done = sum(p.step.frames for p in self._plan if p.step.step_id in self._done)
+        total = sum(p.step.frames for p in self._plan)
+        self.progress.start()
+        self._task = self.progress.add_task("run", total=total, completed=self._frames_done, left=self._left_text())
+        if not self.live:
+            self.message(f"run: {len(self._plan)} steps ({len(self._done)} done), frames {self._frames_done}/{total}, "
+                         f"lab time left {self._left_text()}")
+
+    def lab_time_left_s(self) -> float:
+        """Planned lab time of the steps not done: the current one pro rata of its frames, the rest in full."""
+        left = 0.0
+        for p in self._plan:
+            if p.step.step_id in self._done:
+                continue
+            if self._current is not None and p.step.step_id == self._current.step.step_id:
+                left += p.duration_s * (1.0 - min(self._captured, p.step.frames) / max(p.step.frames, 1))
+            else:
+                left += p.duration_s
+        return left
+
+    def _left_text(self) -> str:
+        return format_duration(self.lab_time_left_s())
+
+    def step(self, planned: PlannedStep) -> None:
+        """A step starts (its prompt, moves and capture follow)."""
+        if self._current is not None:
+            self._done.add(self._current.step.step_id)
+        self._current, self._captured = planned, 0
+        ids = [p.step.step_id for p in self._plan]
+        position = ids.index(planned.step.step_id) + 1 if planned.step.step_id in ids else len(ids)
+        description = f"step {position}/{len(ids)} {planned.step.step_id} ({len(self._done)} done)"
+        if self._task is not None:
+            self.progress.update(self._task, description=description, left=self._left_text())
+        if not self.live:
+            total = sum(p.step.frames for p in self._plan)
+            self.message(f"{description}: target {planned.step.target}, "
+                         f"{planned.step.frames} frames; frames {self._frames_done}/{total}; "
+                         f"lab time left {self._left_text()}")
+
+    def frames(self, n: int = 1) -> None:
+        self._captured += n
+        self._frames_done += n
+        if self._task is not None:
+            self.progress.update(self._task, advance=n, left=self._left_text())
+
+    def message(self, text: str) -> None:
+        self.console.print(text, markup=False)
+        if not self.console.is_terminal:
+            sys.stderr.flush()
+
+    def stop(self) -> None:
+        self.progress.stop()
+
+
+class EvaluationProgress:
+    """Steps of the run files evaluated so far out of their complete steps, with the ETA.
+
+    ``__call__`` takes the evaluation's progress text, which starts with the
+    step id; a step counts once, on its first mention (a second pass over it,
+    e.g. its x/y noise, shows in the description only).
+    """
+
+    def __init__(self, total_steps: int, quiet: bool = False) -> None:
+        self.console = Console(stderr=True, quiet=quiet, highlight=False)
+        self.progress = Progress(
+            TextColumn("{task.description:<40.40}"), BarColumn(), MofNCompleteColumn(), TextColumn("steps"),
+            TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), console=self.console, transient=False,
+        )
+        self._task = self.progress.add_task("evaluate", total=max(total_steps, 1))
+        self._seen: set[str] = set()
+
+    def __enter__(self) -> EvaluationProgress:
+        self.progress.start()
+        return self
+
+    def __call__(self, what: str) -> None:
+        step = what.split(" ", 1)[0]
+        advance = 0 if step in self._seen else 1
+        self._seen.add(step)
+        self.progress.update(self._task, description=what, advance=advance)
+
+    def __exit__(self, *exc: object) -> None:
+        self.progress.update(self._task, description="evaluated", completed=self.progress.tasks[0].total)
+        self.progress.stop()
