@@ -27,7 +27,7 @@ from metrics.sharpness import (
     ied_pixels,
     imagery_resolution_deg,
     lateral_mm,
-    nearest_sharp_distance,
+    sharpness_peak_at_sweep_end,
 )
 from metrics.stack import stack_stats
 from sim.optics import sensor_angular_resolution_deg
@@ -66,6 +66,8 @@ class SharpnessResult:
     best_focus_mm: float = math.nan
     resolution_deg: tuple[float, float] = (math.nan, math.nan)
     ied_px: float = math.nan
+    #: set when the sharpness peaks at an end of the sweep (best focus is then a bound)
+    focus_warning: str | None = None
     notes: list[str] = field(default_factory=list)
 
     def series(self, orientation: str, attr: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -134,6 +136,14 @@ def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
     return result
 
 
+def _sweep_end_warning(end: str, distances: np.ndarray) -> str:
+    """The warning for a sharpness peak at the ``end`` ("near" or "far") of the valid positions."""
+    edge = float(distances.max() if end == "far" else distances.min())
+    beyond = "farther" if end == "far" else "nearer"
+    return (f"the sharpness peaks at the {end} end of the sweep ({edge:g} mm): the sharpest distance may lie "
+            f"{beyond}; extend the slanted_edge sweep to locate best focus")
+
+
 def _summarize(result: SharpnessResult) -> None:
     """Hyperfocal and best focus from the SFR area of both orientations; resolution at best focus."""
     d, area_h, ok_h = result.series("horizontal", "sfr_area")
@@ -145,6 +155,10 @@ def _summarize(result: SharpnessResult) -> None:
         return
     result.hyperfocal_mm = hyperfocal_distance(d, area, both)
     result.best_focus_mm = best_focus_distance(d, area, both)
+    end = sharpness_peak_at_sweep_end(d, area, both)
+    if end is not None:
+        result.focus_warning = _sweep_end_warning(end, d[both])
+        result.notes.append(f"warning: {result.focus_warning}")
     best = next(p for p in result.positions if p.distance_mm == result.best_focus_mm)
     result.resolution_deg = (
         imagery_resolution_deg(result.sensor_resolution_deg[0], best.horizontal.sfr10),
@@ -152,14 +166,6 @@ def _summarize(result: SharpnessResult) -> None:
     )
     if math.isfinite(result.hyperfocal_mm):
         result.ied_px = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
-
-
-def target_distance(result: SharpnessResult) -> float:
-    """Where a sharp target goes: the nearest distance within 5 % of the best SFR area (thesis 5.2.1)."""
-    d, area_h, ok_h = result.series("horizontal", "sfr_area")
-    _, area_v, ok_v = result.series("vertical", "sfr_area")
-    both = ok_h & ok_v
-    return nearest_sharp_distance(d, np.where(both, (area_h + area_v) / 2, np.nan), both)
 
 
 def resolution_table(result: SharpnessResult) -> list[dict[str, float | str]]:

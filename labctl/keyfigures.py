@@ -28,7 +28,8 @@ FIGURES: tuple[FigureDef, ...] = (
     FigureDef("surface_waviness_sq_mm", "mm", "ISO 25178 Sq of the waviness surface at 2000 mm", "SPEC 2"),
     FigureDef("surface_roughness_sq_mm", "mm", "ISO 25178 Sq of the roughness surface at 2000 mm", "SPEC 2"),
     FigureDef("hyperfocal_distance_mm", "mm", "left edge of the sharpness plateau", "SPEC 3"),
-    FigureDef("best_focus_distance_mm", "mm", "distance of highest sharpness", "SPEC 3"),
+    FigureDef("best_focus_distance_mm", "mm", "distance of highest sharpness: the nearest within 5 % of the "
+              "highest smoothed SFR area, where sharp targets are placed", "SPEC 3"),
     FigureDef("intensity_resolution_h_deg", "deg", "imagery resolution of the intensity image, horizontal (SFR10)", "SPEC 3"),
     FigureDef("intensity_resolution_v_deg", "deg", "imagery resolution of the intensity image, vertical (SFR10)", "SPEC 3"),
     FigureDef("cloud_resolution_h_deg", "deg", "imagery resolution of the point cloud, horizontal (Boehler star)", "SPEC 4"),

@@ -132,7 +132,8 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
     if board is not None:
         r = board.intensity
         img = plot_distortion(board.image, r, plots / "distortion.png", cloud=board.cloud_distortion,
-                              title=f"Checkerboard at {board.distance_mm:.0f} mm ({board.step_id})")
+                              title=f"Checkerboard placed at {board.placed_mm:.0f} mm, laser reference "
+                                    f"{board.distance_mm:.0f} mm ({board.step_id})")
         rows = [
             {"image": "intensity", "raw_w_pct": r.raw_distortion_w_pct, "raw_h_pct": r.raw_distortion_h_pct,
              "radial_w_pct": r.radial_distortion_w_pct, "radial_h_pct": r.radial_distortion_h_pct,
@@ -152,7 +153,7 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
     if geo.chosen_star is not None:
         star = geo.chosen_star
         img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
-        rows = [{"star": f"{s.segments} segments ({s.step_id})", "resolution_h_mm": s.result.resolution_h_mm,
+        rows = [{"star": f"{s.segments} segments ({s.step_id})", "placed_mm": s.placed_mm, "resolution_h_mm": s.result.resolution_h_mm,
                  "resolution_v_mm": s.result.resolution_v_mm, "angular_h_deg": s.result.angular_h_deg,
                  "angular_v_deg": s.result.angular_v_deg, "distance_mm": s.result.distance_mm} for s in geo.stars]
         doc["boehler_star"] = _clean_rows(rows)

@@ -1,11 +1,14 @@
 """checkerboard / boehler_star / xy_sweep plans; distance_mm = "best_focus" resolved at run time."""
 
+import re
+
 import h5py
 import pytest
 
 from labctl.cli import main
 from labctl.config import parse_campaign
 from labctl.errors import InputError
+from labctl.evaluate import evaluate_runs
 from tests.conftest import campaign_text
 
 EDGE = """
@@ -67,14 +70,23 @@ def test_xy_sweep_is_a_wall_sweep_without_reference():
         ("xy_sweep", "wall", 1000), ("xy_sweep", "wall", 1500), ("xy_sweep", "wall", 2000)]
 
 
-def test_best_focus_is_resolved_from_the_run_and_recorded(tmp_path, write_campaign, small_model):
+def test_best_focus_is_resolved_from_the_run_and_recorded(tmp_path, write_campaign, small_model, capsys):
+    """One best focus: the run log, the key figure and the distance the board and the stars are placed at."""
     campaign = write_campaign(procedures=EDGE + BOARD + STARS)
     out = tmp_path / "r.h5"
     model = small_model(width=192, height=144)
     model.write_text(model.read_text().replace("[camera_overrides]", "[effects.defocus]\nhyperfocal_mm = 400\n"
                                                                       "[camera_overrides]"))
-    assert invoke("run", campaign, "--sim", "--model", model, "-o", out, "--quiet") == 0
+    assert invoke("run", campaign, "--sim", "--model", model, "-o", out) == 0
+    logged = capsys.readouterr()
+    focus = re.search(r"best focus: (\d+) mm", logged.out + logged.err)
+    assert focus is not None
+    evaluation = evaluate_runs([out])
+    assert evaluation.figures["best_focus_distance_mm"].value == float(focus.group(1))
+    assert evaluation.geometry.checkerboard.placed_mm == float(focus.group(1))
+    assert {s.placed_mm for s in evaluation.geometry.stars} == {float(focus.group(1))}
     with h5py.File(out, "r") as f:
+        assert f["steps/00026_checkerboard"].attrs["distance_mm"] == float(focus.group(1))
         board = dict(f["steps/00026_checkerboard"].attrs)
         star = dict(f["steps/00027_boehler_star"].attrs)
         assert board["distance_source"] == "best_focus" and star["distance_source"] == "best_focus"
