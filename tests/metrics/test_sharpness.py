@@ -7,12 +7,12 @@ import pytest
 
 from metrics.sharpness import (
     best_focus_distance,
-    sharpness_peak_at_sweep_end,
     hyperfocal_distance,
     ied_pixels,
     imagery_resolution_deg,
     lateral_mm,
     plateau,
+    sharpness_peak_at_sweep_end,
 )
 
 
