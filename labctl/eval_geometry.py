@@ -153,10 +153,10 @@ def figure_values(result: GeometryResult) -> dict[str, tuple[float, list[str]]]:
         figures["cloud_resolution_v_deg"] = (star.result.angular_v_deg, [star.step_id])
     if result.precision:
         ids = [sid for sid, _, _ in result.precision]
-        figures["x_repeatability_center_mm"] = (
-            float(np.nanmax([p.repeatability_center_x_mm for _, _, p in result.precision])), ids)
-        figures["y_repeatability_center_mm"] = (
-            float(np.nanmax([p.repeatability_center_y_mm for _, _, p in result.precision])), ids)
+        for axis in "xy":
+            for where in ("center", "off_axis"):
+                worst = np.nanmax([getattr(p, f"repeatability_{where}_{axis}_mm") for _, _, p in result.precision])
+                figures[f"{axis}_repeatability_{where}_mm"] = (float(worst), ids)
         near = min(result.precision, key=lambda item: abs(item[1] - KEY_DISTANCE_MM))
         if abs(near[1] - KEY_DISTANCE_MM) <= KEY_TOLERANCE_MM:
             figures["x_precision_q90_mm"] = (near[2].precision_q90_x_mm, [near[0]])

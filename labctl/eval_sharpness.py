@@ -25,6 +25,7 @@ from metrics.sharpness import (
     best_focus_distance,
     hyperfocal_distance,
     ied_pixels,
+    ied_pixels_at_centre,
     imagery_resolution_deg,
     lateral_mm,
     sharpness_peak_at_sweep_end,
@@ -65,7 +66,8 @@ class SharpnessResult:
     hyperfocal_mm: float = math.nan
     best_focus_mm: float = math.nan
     resolution_deg: tuple[float, float] = (math.nan, math.nan)
-    ied_px: float = math.nan
+    ied_px: float = math.nan  # a face at the image centre (pinhole model)
+    ied_px_angular: float = math.nan  # with the mean angular pixel size FOV / pixels (thesis eq. 6-2)
     #: set when the sharpness peaks at an end of the sweep (best focus is then a bound)
     focus_warning: str | None = None
     notes: list[str] = field(default_factory=list)
@@ -133,6 +135,9 @@ def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
     if not result.positions:
         return None
     _summarize(result)
+    if math.isfinite(result.hyperfocal_mm):
+        result.ied_px = ied_pixels_at_centre(camera.fov_deg[0], camera.width, result.hyperfocal_mm)
+        result.ied_px_angular = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
     return result
 
 
@@ -164,8 +169,6 @@ def _summarize(result: SharpnessResult) -> None:
         imagery_resolution_deg(result.sensor_resolution_deg[0], best.horizontal.sfr10),
         imagery_resolution_deg(result.sensor_resolution_deg[1], best.vertical.sfr10),
     )
-    if math.isfinite(result.hyperfocal_mm):
-        result.ied_px = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
 
 
 def resolution_table(result: SharpnessResult) -> list[dict[str, float | str]]:

@@ -22,11 +22,13 @@ from labctl.eval_geometry import GeometryResult, evaluate_geometry
 from labctl.eval_geometry import figure_values as geometry_figures
 from labctl.eval_remission import RemissionResult, evaluate_remission
 from labctl.eval_remission import figure_values as remission_figures
+from labctl.eval_plausibility import PlausibilityInputs, plausibility_flags
 from labctl.eval_scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
 from labctl.eval_sharpness import SharpnessResult, evaluate_slanted_edge
 from labctl.keyfigures import FigureValue
 from labctl.store import RunReader, StepRecord
 from metrics.depth import DepthErrors, depth_errors
+from metrics.plausibility import quantization_step
 from metrics.stack import stack_stats
 from metrics.surface import SurfaceTexture, surface_texture
 from sim.optics import pixel_aspect_distortion_pct
@@ -64,6 +66,10 @@ class Evaluation:
     face: FaceMaskResult | None = None
     alignment: AlignmentRecord | None = None
     figures: dict[str, FigureValue] = field(default_factory=dict)
+    #: quantization step (mm) of the x, y and z output on the wall, NaN where continuous
+    quantization_mm: dict[str, float] = field(default_factory=dict)
+    #: plausibility flags per figure name (labctl/eval_plausibility.py)
+    flags: dict[str, list[dict[str, str]]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
 
@@ -112,6 +118,9 @@ def evaluate_depth_sweep(
     for rec in usable:
         progress(rec.step_id)
         buffer = rec.read("z", out=buffer)
+        if not evaluation.quantization_mm:
+            evaluation.quantization_mm = {"z": quantization_step(buffer), "x": quantization_step(rec.frame("x", 0)),
+                                          "y": quantization_step(rec.frame("y", 0))}
         stats = stack_stats(buffer)
         errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
         evaluation.depth.append(DepthPosition(rec.step_id, errors))
@@ -173,6 +182,7 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
         ("intensity_resolution_h_deg", result.resolution_deg[0], best),
         ("intensity_resolution_v_deg", result.resolution_deg[1], best),
         ("ied_pixels_at_hyperfocal", result.ied_px, ids),
+        ("ied_pixels_at_hyperfocal_angular", result.ied_px_angular, ids),
     ):
         evaluation.figures[name] = FigureValue(value, source)
 
@@ -245,6 +255,14 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
                 evaluation.notes.append(f"face mask {face.step_id} has no valid point: no point cloud or rendering")
         aligned = [a for a in (alignment(s) for r in readers for s in r.steps("alignment")) if a is not None]
         evaluation.alignment = aligned[-1] if aligned else None
+        inputs = PlausibilityInputs(evaluation.sharpness, evaluation.quantization_mm,
+                                    evaluation.geometry.precision if evaluation.geometry else [])
+        evaluation.flags = plausibility_flags({n: f.value for n, f in evaluation.figures.items()}, inputs)
+        steps = {c: q for c, q in evaluation.quantization_mm.items() if math.isfinite(q)}
+        if steps:
+            evaluation.notes.append("the wall data are quantized (" + ", ".join(
+                f"{c} in steps of {q:g} mm" for c, q in sorted(steps.items())) + "): spreads and errors below a "
+                "step show the step, not the noise (see the flags)")
         return evaluation
     finally:
         for reader in readers:

@@ -28,7 +28,7 @@ from labctl.plots import (
 )
 from labctl.pointcloud_io import write_pcd
 from labctl.store import labctl_version, now_iso
-from labctl.suitability import suitability
+from labctl.suitability import face_depth_values, suitability
 from metrics.jsonsafe import dumps_strict
 
 CSS = """
@@ -68,7 +68,8 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     plots = outdir / "plots"
     plots.mkdir(exist_ok=True)
     values = {name: clean(f.value) for name, f in evaluation.figures.items()}
-    doc = keyfigures_document(evaluation.camera, evaluation.figures, suitability(values))
+    face = face_depth_values(values, _clean_rows(depth_table(evaluation)))
+    doc = keyfigures_document(evaluation.camera, evaluation.figures, suitability({**values, **face}), evaluation.flags)
     doc["runs"] = evaluation.runs
     doc["notes"] = evaluation.notes
     doc["depth_sweep"] = _clean_rows(depth_table(evaluation))
@@ -161,7 +162,9 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                                  _rows_table(rows, "star")))
     if geo.precision:
         rows = [{"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
-                 "repeatability_center_y_mm": p.repeatability_center_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
+                 "repeatability_center_y_mm": p.repeatability_center_y_mm,
+                 "repeatability_off_axis_x_mm": p.repeatability_off_axis_x_mm,
+                 "repeatability_off_axis_y_mm": p.repeatability_off_axis_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
                  "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
         doc["xy_noise"] = _clean_rows(rows)
         img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
@@ -267,21 +270,29 @@ def _suitability_html(suit: dict[str, Any]) -> str:
         colour = VERDICT_COLOUR[story["verdict"]]
         checks = "<br>".join(
             f'{html.escape(c["requirement"])}: <b>{c["status"].replace("_", " ")}</b> ('
-            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c["values"].items()) + ")"
+            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c["values"].items())
+            + f')<br><small>{html.escape(c["source"])}</small>'
             for c in story["checks"]
         ) or "; ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in story["figures"].items())
         rows.append(f'<tr><td class="l">{html.escape(story["description"])}</td>'
-                    f'<td class="l" style="color:{colour}"><b>{story["verdict"].replace("_", " ")}</b></td>'
+                    f'<td class="l" style="color:{colour}"><b>{story["verdict"].replace("_", " ")}</b><br>'
+                    f'{html.escape(story["summary"])}</td>'
                     f'<td class="l">{checks}</td></tr>')
     return (f'<p>{html.escape(suit["standard"])}</p><table><tr><th class="l">user story</th><th class="l">verdict</th>'
             f'<th class="l">checks (values)</th></tr>{"".join(rows)}</table>')
+
+
+def _flags_html(flags: list[dict[str, str]]) -> str:
+    """A figure's plausibility flags, one warning line each."""
+    return "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))}: '
+                   f'{html.escape(f["message"])}</span>' for f in flags)
 
 
 def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> str:
     cam = evaluation.camera
     fig_rows = "".join(
         f'<tr><td class="l">{html.escape(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
-        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td>'
+        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}{_flags_html(f["flags"])}</td>'
         f'<td class="l src">{_sources(f["source"])}</td></tr>'
         for name, f in doc["figures"].items()
     )

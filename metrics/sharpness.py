@@ -9,7 +9,9 @@
   where sharp targets are placed;
 * imagery resolution (thesis 6.3.1): angular = sensor angular resolution /
   SFR10 (eq. 5-1), lateral = the size that angle covers at the distance (eq. 5-2);
-* inter-eye distance coverage (thesis eq. 6-2): px = IED / (tan(res) d).
+* inter-eye distance coverage at the image centre (pinhole): px = IED f / d
+  with f = (W / 2) / tan(FOV / 2); thesis eq. 6-2's px = IED / (tan(res) d)
+  with the mean angular pixel size res = FOV / W over-counts there.
 """
 
 from __future__ import annotations
@@ -105,5 +107,19 @@ def lateral_mm(angular_deg: float, distance_mm: float) -> float:
 
 
 def ied_pixels(resolution_deg: float, distance_mm: float, ied_mm: float = IED_MM) -> float:
-    """Pixels across the inter-eye distance at ``distance_mm`` (thesis eq. 6-2)."""
+    """Pixels across the inter-eye distance at ``distance_mm`` with the mean angular pixel size FOV / pixels
+    (thesis eq. 6-2). It over-counts at the image centre, where a pixel subtends more than the mean angle."""
     return ied_mm / (math.tan(math.radians(resolution_deg)) * distance_mm)
+
+
+def ied_pixels_at_centre(fov_deg: float, pixels: int, distance_mm: float, ied_mm: float = IED_MM) -> float:
+    """Pixels across the inter-eye distance of a face at the image centre, ``distance_mm`` away (pinhole model).
+
+    A rectilinear (pinhole) lens maps x = f tan(theta) with the focal length in
+    pixels f = (pixels / 2) / tan(FOV / 2); a length L at distance d on the axis
+    spans L f / d pixels. Near the axis a pixel subtends 1 / f rad, more than
+    the mean FOV / pixels, so the centre is where the face gets the fewest
+    pixels (Hartley & Zisserman, Multiple View Geometry, 2nd ed., 6.1).
+    """
+    focal_px = (pixels / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+    return ied_mm * focal_px / distance_mm

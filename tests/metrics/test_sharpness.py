@@ -9,6 +9,7 @@ from metrics.sharpness import (
     best_focus_distance,
     hyperfocal_distance,
     ied_pixels,
+    ied_pixels_at_centre,
     imagery_resolution_deg,
     lateral_mm,
     plateau,
@@ -85,3 +86,12 @@ def test_imagery_resolution_and_lateral_size():
 ])
 def test_ied_coverage_of_thesis_6_6(res, distance, pixels):
     assert ied_pixels(res, distance) == pytest.approx(pixels, abs=1.0)
+
+
+def test_ied_at_the_image_centre_with_the_pinhole_model():
+    """blaze-101 (640 px, 67 deg) at 400 mm: f = 320 / tan(33.5 deg) = 483.5 px, so 62.5 mm span 75.5 px,
+    where the mean angular pixel size (67 / 640 deg) gives 85.5 px."""
+    assert ied_pixels_at_centre(67.0, 640, 400.0) == pytest.approx(75.5, abs=0.1)
+    assert ied_pixels(67.0 / 640, 400.0) == pytest.approx(85.5, abs=0.1)
+    # a narrow field of view: both agree (tan x ~ x)
+    assert ied_pixels_at_centre(2.0, 1000, 5000.0) == pytest.approx(ied_pixels(2.0 / 1000, 5000.0), rel=1e-3)
