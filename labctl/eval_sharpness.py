@@ -7,7 +7,8 @@ e-SFR of each gives SFR10, SFR50 and SFR area. "Horizontal" results come from
 the near-vertical edge (they resolve horizontal detail, with the sensor's
 horizontal angular resolution FOV_h / W), "vertical" ones from the near-
 horizontal edge. A position whose edge was not found, is clipped or has no
-SFR10 is invalid (dashed in the plots, ignored by the distance figures).
+SFR10 or SFR50 is invalid (hollow in the plots, ignored by the distance figures; the table's note
+gives the reason).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 from drivers.protocols import CameraInfo
 from labctl.store import StepRecord
+from metrics.plausibility import above_nyquist
 from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white
 from metrics.sharpness import (
     best_focus_distance,
@@ -47,6 +49,8 @@ class EdgeMeasurement:
     warnings: tuple[str, ...]
     frequency: np.ndarray = field(repr=False)
     sfr: np.ndarray = field(repr=False)
+    #: why the measurement is invalid ("" when valid)
+    reason: str = ""
 
 
 @dataclass(frozen=True)
@@ -86,9 +90,29 @@ class SharpnessResult:
 def _measure(image: np.ndarray, roi: tuple[int, int, int, int]) -> EdgeMeasurement:
     x, y, w, h = roi
     result: SFRResult = edge_sfr(image[y : y + h, x : x + w])
-    valid = not result.clipped and math.isfinite(result.sfr10) and math.isfinite(result.sfr50)
-    return EdgeMeasurement(result.sfr10, result.sfr50, result.sfr_area, result.angle_deg, roi, valid,
-                           tuple(result.warnings), result.frequency, result.sfr)
+    reason = _invalid_reason(result)
+    return EdgeMeasurement(result.sfr10, result.sfr50, result.sfr_area, result.angle_deg, roi, not reason,
+                           tuple(result.warnings), result.frequency, result.sfr, reason)
+
+
+def _invalid_reason(result: SFRResult) -> str:
+    """Why an edge's SFR is not used for the distance figures ("" when it is)."""
+    if result.clipped:
+        return next((w for w in result.warnings if w.startswith("clipping")), "clipped ESF")
+    if not math.isfinite(result.sfr10):
+        return "no SFR10: the SFR does not fall to 10 % within the evaluated frequencies"
+    if not math.isfinite(result.sfr50):
+        return "no SFR50: the SFR does not fall to 50 % within the evaluated frequencies"
+    return ""
+
+
+def edge_note(edge: EdgeMeasurement | None) -> str:
+    """The table's note on one edge: why it is invalid, or the Nyquist warning of a valid one."""
+    if edge is None:
+        return "edge not found"
+    if edge.reason:
+        return edge.reason
+    return "SFR10 above Nyquist (0.5 cy/px): aliasing" if above_nyquist(edge.sfr10) else ""
 
 
 def measure_position(chart: np.ndarray, white: np.ndarray) -> tuple[EdgeMeasurement | None, EdgeMeasurement | None, list[str]]:
@@ -186,6 +210,7 @@ def resolution_table(result: SharpnessResult) -> list[dict[str, float | str]]:
                 f"valid_{name}": bool(m and m.valid),
                 f"resolution_{name}_deg": angular,
                 f"resolution_{name}_mm": lateral_mm(angular, p.distance_mm) if math.isfinite(angular) else math.nan,
+                f"note_{name}": edge_note(m),
             })
         rows.append(row)
     return rows

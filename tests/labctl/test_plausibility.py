@@ -79,3 +79,27 @@ def test_keyfigures_json_carries_the_flags():
                               {"z_precision_q90_mm": [{"check": "quantization_limited", "message": "m"}]})
     assert doc["figures"]["z_precision_q90_mm"]["flags"] == [{"check": "quantization_limited", "message": "m"}]
     assert doc["figures"]["z_trueness_q90_mm"]["flags"] == []
+
+
+def test_sfr_notes_give_the_reason_and_the_table_matches_the_validity():
+    """A sharp edge (sigma 0.3 px: exp(-2 pi^2 sigma^2 f^2) |sinc f| = 0.1 at f ~ 0.76 cy/px) is valid but above
+    Nyquist; a blurred one (sigma 0.8 px) is valid without a note; a noise-free step has flat ESF ends (invalid:
+    clipping); a missing edge is invalid with its reason."""
+    from labctl.eval_sharpness import _measure, edge_note, resolution_table
+    from tests.metrics.test_sfr import render_edge
+
+    noise = np.random.default_rng(2).normal(0.0, 1e-4, (80, 60))  # no exactly flat ESF ends
+    sharp = _measure(render_edge(80, 60, 5.0, 0.3) + noise, (0, 0, 60, 80))
+    blurred = _measure(render_edge(80, 60, 5.0, 0.8) + noise, (0, 0, 60, 80))
+    step = _measure(render_edge(80, 60, 5.0, 0.05), (0, 0, 60, 80))
+    assert sharp.valid and 0.7 < sharp.sfr10 < 0.82 and "above Nyquist" in edge_note(sharp)
+    assert not step.valid and edge_note(step).startswith("clipping")
+    assert blurred.valid and blurred.sfr10 < 0.5 and edge_note(blurred) == "" and blurred.reason == ""
+    assert edge_note(None) == "edge not found"
+    result = SharpnessResult([SharpnessPosition(300.0, "00001_slanted_edge", "w", 1.0, blurred, None),
+                              SharpnessPosition(400.0, "00003_slanted_edge", "w", 1.0, sharp, blurred)], (0.1, 0.1))
+    rows = resolution_table(result)
+    for orientation, key in (("horizontal", "h"), ("vertical", "v")):
+        _, _, ok = result.series(orientation, "sfr10")
+        assert [r[f"valid_{key}"] for r in rows] == list(ok)
+    assert [r["note_v"] for r in rows] == ["edge not found", ""]
