@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from labctl.errors import InputError
+from labctl.eval_capture import CaptureResult, evaluate_captures
 from labctl.eval_depth_quality import VendorPosition, vendor_position
 from labctl.eval_depth_quality import figure_values as vendor_figures
 from labctl.eval_vdi2634 import AcceptanceResult, evaluate_acceptance
@@ -65,6 +66,7 @@ class Evaluation:
     acceptance: AcceptanceResult | None = None
     face: FaceMaskResult | None = None
     alignment: AlignmentRecord | None = None
+    captures: list[CaptureResult] = field(default_factory=list)
     figures: dict[str, FigureValue] = field(default_factory=dict)
     #: quantization step (mm) of the x, y and z output on the wall, NaN where continuous
     quantization_mm: dict[str, float] = field(default_factory=dict)
@@ -218,9 +220,15 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         for reader in readers:
             if reader.attrs.get("status") != "complete":
                 evaluation.notes.append(f"{reader.path} is {reader.attrs.get('status')}: only its complete steps are used")
+        captures = [s for r in readers for s in r.steps("capture")]
+        if captures:
+            evaluation.captures = evaluate_captures(captures, progress)
         sweep = [s for r in readers for s in r.steps("depth_sweep")]
         if sweep:
             evaluate_depth_sweep(sweep, readers[0], evaluation, progress)
+        elif captures:
+            evaluation.notes.append("capture steps only (no reference distance): the key figures are null; see "
+                                    "the capture section for depth, noise, validity and the plane fit")
         else:
             evaluation.notes.append("no depth_sweep steps: depth figures are null")
         edges = [s for r in readers for s in r.steps("slanted_edge")]

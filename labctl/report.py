@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from labctl.eval_capture import capture_table
 from labctl.eval_depth_quality import vendor_table
 from labctl.eval_remission import misalignment_summary, remission_table
 from labctl.eval_vdi2634 import acceptance_table, verdicts
@@ -14,6 +15,7 @@ from labctl.eval_sharpness import resolution_table
 from labctl.evaluate import Evaluation, depth_table
 from labctl.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, clean, keyfigures_document
 from labctl.plot_acceptance import plot_acceptance
+from labctl.plot_capture import plot_capture
 from labctl.plot_depth_quality import plot_vendor_figures
 from labctl.plot_boehler import plot_boehler
 from labctl.plot_distortion import plot_distortion
@@ -77,6 +79,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         doc["slanted_edge"] = _clean_rows(resolution_table(evaluation.sharpness))
 
     sections: list[str] = _alignment_section(evaluation)
+    sections.extend(_capture_sections(evaluation, outdir, plots, doc))
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
         sections.append(_section("Depth error over distance (SPEC 1)", img, outdir, _depth_rows(evaluation)))
@@ -199,6 +202,24 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
                 f"RMS {_fmt(summary['residual_rms_mm'], 2)} mm. The geometric reference R + delta / cos(theta) - "
                 "e tan(theta) removes the set-up from the trueness above.</p>")
         sections.append(_section("Target and camera misalignment (thesis 5.4.2)", img, outdir, text))
+    return sections
+
+
+def _capture_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+    """Maps, temporal noise and plane fit of each single capture (``labctl device camera``)."""
+    if not evaluation.captures:
+        return []
+    rows = capture_table(evaluation.captures)
+    doc["capture"] = _clean_rows(rows)
+    sections = []
+    for result, row in zip(evaluation.captures, rows):
+        img = plot_capture(result, plots / f"capture_{result.step_id}.png")
+        plane = ("<p>The scene is not planar: " if not row["planar"] else "<p>Planar scene: ") + (
+            f'{_fmt(row["plane_inlier_fraction"] * 100)} % of the points within '
+            f"{_fmt(result.summary.plane.tolerance_mm)} mm of the least-squares plane.</p>"
+            if result.summary.plane is not None else "no plane (fewer than 3 valid points).</p>")
+        sections.append(_section(f"Single capture {result.step_id}", img, outdir,
+                                 plane + _rows_table([row], "step")))
     return sections
 
 
