@@ -99,7 +99,7 @@ def plot_surface_maps(surface: SurfaceResult, path: Path) -> Path:
     return path
 
 
-def _valid_and_dashed(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: str, color: str) -> None:
+def _valid_and_invalid(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: str, color: str) -> None:
     """A solid line through the valid points only; invalid points hollow, invalid positions without a value
     as crosses along the bottom: the same valid/invalid split as the table (whose note gives the reason)."""
     finite = np.isfinite(v)
@@ -118,7 +118,7 @@ def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
     for ax, attr, title in zip(axes, ("sfr10", "sfr50", "sfr_area"), ("SFR10", "SFR50", "SFR area")):
         for orientation, color in (("horizontal", "tab:blue"), ("vertical", "tab:orange")):
             d, v, ok = result.series(orientation, attr)
-            _valid_and_dashed(ax, d, v, ok, orientation, color)
+            _valid_and_invalid(ax, d, v, ok, orientation, color)
         ax.set_title(title)
         ax.set_xlabel("distance (mm)")
         ax.set_ylabel("cy/px" if attr != "sfr_area" else "")
@@ -143,7 +143,7 @@ def plot_resolution(result: SharpnessResult, path: Path) -> Path:
         d, sfr10, ok = result.series(orientation, "sfr10")
         with np.errstate(divide="ignore", invalid="ignore"):
             res = np.where(sfr10 > 0, sensor / sfr10, np.nan)
-        _valid_and_dashed(ax, d, res, ok, f"imagery, {orientation}", color)
+        _valid_and_invalid(ax, d, res, ok, f"imagery, {orientation}", color)
         ax.axhline(sensor, color=color, linestyle=":", label=f"sensor, {orientation} ({sensor:.3f} deg)")
     ax.set_xlabel("distance (mm)")
     ax.set_ylabel("angular resolution (deg)")

@@ -1,5 +1,6 @@
 """checkerboard / boehler_star / xy_sweep plans; distance_mm = "best_focus" resolved at run time."""
 
+import dataclasses
 import re
 
 import h5py
@@ -101,3 +102,26 @@ def test_best_focus_is_resolved_from_the_run_and_recorded(tmp_path, write_campai
     assert invoke("resume", out, "--quiet") == 0
     with h5py.File(out, "r") as f:
         assert f["steps/00028_boehler_star"].attrs["distance_mm"] == star["distance_mm"]
+
+
+def test_a_sharpness_peak_at_the_end_of_the_sweep_is_a_warning():
+    """The AM-T100 case: SFR area still rising at the last position. Best focus is the nearest position within
+    5 % of the highest (smoothed) area, and the warning says the sharpest distance may lie farther."""
+    from labctl.eval_sharpness import SharpnessPosition, SharpnessResult, _summarize
+    from tests.labctl.test_plausibility import edge
+
+    def position(distance, area):
+        measured = dataclasses.replace(edge(0.3), sfr_area=area)
+        return SharpnessPosition(distance, f"{int(distance)}", "w", 1.0, measured, measured)
+
+    areas = [0.20, 0.25, 0.30, 0.35, 0.40, 0.43, 0.44, 0.45]  # smoothed max 0.445: 0.95 x -> 0.4228
+    result = SharpnessResult([position(500.0 + 100 * i, a) for i, a in enumerate(areas)], (0.1, 0.1))
+    _summarize(result)
+    assert result.best_focus_mm == 1000.0
+    assert result.focus_warning.startswith("the sharpness peaks at the far end of the sweep (1200 mm)")
+    assert any(n.startswith("warning: the sharpness peaks") for n in result.notes)
+    peaked = SharpnessResult([position(500.0 + 100 * i, a) for i, a in enumerate([0.2, 0.4, 0.5, 0.4, 0.3])],
+                             (0.1, 0.1))
+    _summarize(peaked)
+    # smoothed: 0.2, 0.4, 0.4, 0.4, 0.3: the peak is inside the sweep, its nearest position is best focus
+    assert peaked.best_focus_mm == 600.0 and peaked.focus_warning is None
