@@ -6,7 +6,11 @@ list of ``keyfigures.json`` and beside the figure in the report:
 * ``above_nyquist``: the intensity resolution comes from an SFR10 above
   0.5 cy/px at best focus;
 * ``quantization_limited``: a spread or error in mm below one quantization
-  step of the coordinate it is computed from (x, y or z);
+  step of the coordinate it is computed from (x, y or z). A figure of stack
+  means (trueness, surface Sq) is exempt when that coordinate's per-pixel
+  noise is at least half a step: the noise then dithers the quantizer and a
+  mean of many frames resolves below the step (Widrow & Kollar, Quantization
+  Noise, 2008, ch. 4-5);
 * ``near_axis``: an x or y repeatability taken at a pixel whose coordinate is
   ~0 (within 1 % of the distance), where the depth noise does not reach it.
 """
@@ -35,6 +39,12 @@ class PlausibilityInputs:
     quantization_mm: dict[str, float] = field(default_factory=dict)
     #: the wall steps' x/y noise: (step id, distance mm, precision)
     xy_noise: list[tuple[str, float, XYPrecision]] = field(default_factory=list)
+    #: per coordinate, the median per-pixel noise (mm) where the stack-mean figures are taken
+    noise_mm: dict[str, float] = field(default_factory=dict)
+
+
+def _of_stack_means(name: str) -> bool:
+    return "trueness" in name or name.startswith("surface_")
 
 
 def _channel(name: str) -> str | None:
@@ -85,7 +95,8 @@ def plausibility_flags(values: Mapping[str, float | None], inputs: PlausibilityI
     for name, value in values.items():
         channel = _channel(name)
         step = inputs.quantization_mm.get(channel, math.nan) if channel else math.nan
-        if value is not None and at_quantization_step(value, step):
+        dithered = _of_stack_means(name) and inputs.noise_mm.get(channel or "", math.nan) >= step / 2
+        if value is not None and at_quantization_step(value, step) and not dithered:
             add({name: {"check": "quantization_limited", "message": (
                 f"{value:.3g} mm is below the {channel} output's quantization step ({step:g} mm): the figure "
                 "shows the step, not the noise or error")}})

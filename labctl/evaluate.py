@@ -264,7 +264,7 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         aligned = [a for a in (alignment(s) for r in readers for s in r.steps("alignment")) if a is not None]
         evaluation.alignment = aligned[-1] if aligned else None
         inputs = PlausibilityInputs(evaluation.sharpness, evaluation.quantization_mm,
-                                    evaluation.geometry.precision if evaluation.geometry else [])
+                                    evaluation.geometry.precision if evaluation.geometry else [], _noise(evaluation))
         evaluation.flags = plausibility_flags({n: f.value for n, f in evaluation.figures.items()}, inputs)
         steps = {c: q for c, q in evaluation.quantization_mm.items() if math.isfinite(q)}
         if steps:
@@ -275,6 +275,21 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
     finally:
         for reader in readers:
             reader.close()
+
+
+def _noise(evaluation: Evaluation) -> dict[str, float]:
+    """Median per-pixel noise where the stack-mean figures are taken: z on the wall at 2000 mm, x and y on
+    the wall step nearest the checkerboard (for the plausibility of stack means, labctl/eval_plausibility.py)."""
+    noise: dict[str, float] = {}
+    at_key = [p for p in evaluation.depth if abs(p.errors.reference_mm - KEY_DISTANCE_MM) <= KEY_DISTANCE_TOLERANCE_MM]
+    if at_key:
+        noise["z"] = min(at_key, key=lambda p: abs(p.errors.reference_mm - KEY_DISTANCE_MM)).errors.precision_median_mm
+    geo = evaluation.geometry
+    if geo is not None and geo.precision and geo.checkerboard is not None:
+        board = geo.checkerboard.distance_mm
+        _, _, near = min(geo.precision, key=lambda item: abs(item[1] - board))
+        noise.update(x=near.precision_median_x_mm, y=near.precision_median_y_mm)
+    return noise
 
 
 def depth_table(evaluation: Evaluation) -> list[dict[str, float | str]]:

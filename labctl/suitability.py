@@ -146,7 +146,7 @@ def _summary(verdict: str, results: list[dict[str, Any]], informative: dict[str,
     if verdict == "no_numeric_requirement":
         return "no numeric requirement; relies on " + ", ".join(informative)
     if verdict == "pass":
-        return f"meets all {len(results)} requirements"
+        return "meets its requirement" if len(results) == 1 else f"meets all {len(results)} requirements"
     wanted = "fail" if verdict == "fail" else "not_evaluated"
     parts = []
     for r in results:

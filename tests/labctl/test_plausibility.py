@@ -103,3 +103,13 @@ def test_sfr_notes_give_the_reason_and_the_table_matches_the_validity():
         _, _, ok = result.series(orientation, "sfr10")
         assert [r[f"valid_{key}"] for r in rows] == list(ok)
     assert [r["note_v"] for r in rows] == ["edge not found", ""]
+
+
+def test_stack_means_below_the_step_are_plausible_when_the_noise_dithers_the_quantizer():
+    """With 1 mm steps, a trueness of 0.4 mm is an artefact of a noise-free quantizer (noise 0.1 mm) but a
+    resolved mean where the noise (0.8 mm) spans the steps; a precision of 0.4 mm is flagged either way."""
+    values = {"z_trueness_q90_mm": 0.4, "surface_waviness_sq_mm": 0.1, "z_precision_q90_mm": 0.4}
+    quiet = PlausibilityInputs(quantization_mm={"z": 1.0}, noise_mm={"z": 0.1})
+    noisy = PlausibilityInputs(quantization_mm={"z": 1.0}, noise_mm={"z": 0.8})
+    assert set(plausibility_flags(values, quiet)) == set(values)
+    assert set(plausibility_flags(values, noisy)) == {"z_precision_q90_mm"}
