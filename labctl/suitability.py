@@ -107,11 +107,12 @@ STORIES: dict[str, tuple[str, list[Check], tuple[str, ...]]] = {
 
 def face_depth_values(values: Mapping[str, float | None], depth_rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """Depth precision and trueness on the face: from the first wall step at or beyond the face distance
-    (the hyperfocal distance, where the IED is counted). Empty when either is missing."""
+    (the hyperfocal distance, where the IED is counted) that has valid pixels. Empty when there is none."""
     face = values.get("hyperfocal_distance_mm")
     if face is None or not math.isfinite(face):
         return {}
-    beyond = [r for r in depth_rows if r["reference_mm"] is not None and r["reference_mm"] >= face]
+    beyond = [r for r in depth_rows if r["reference_mm"] is not None and r["reference_mm"] >= face
+              and r["precision_q90_mm"] is not None]  # a wall step with no valid pixel says nothing
     if not beyond:
         return {}
     row = min(beyond, key=lambda r: r["reference_mm"])

@@ -96,6 +96,8 @@ def test_face_depth_comes_from_the_first_wall_step_at_or_beyond_the_face():
     assert face == pytest.approx({"face_distance_mm": 400.0, "face_wall_step_mm": 500.0, FACE_PRECISION: 0.4,
                                   FACE_TRUENESS: 1.0})
     assert face_depth_values({"hyperfocal_distance_mm": 1200.0}, rows) == {}
+    blind = [{"reference_mm": 450.0, "precision_q90_mm": None, "trueness_q90_mm": None}, *rows]  # below min range
+    assert face_depth_values({"hyperfocal_distance_mm": 400.0}, blind)["face_wall_step_mm"] == 500.0
     assert face_depth_values({"hyperfocal_distance_mm": None}, rows) == {}
     requirement = next(c["requirement"] for c in suitability({**GOOD, **face})["stories"]["pad_light"]["checks"])
     assert requirement.endswith("(wall at 500 mm, face at 400 mm)")
