@@ -98,6 +98,6 @@ def plausibility_flags(values: Mapping[str, float | None], inputs: PlausibilityI
         dithered = _of_stack_means(name) and inputs.noise_mm.get(channel or "", math.nan) >= step / 2
         if value is not None and at_quantization_step(value, step) and not dithered:
             add({name: {"check": "quantization_limited", "message": (
-                f"{value:.3g} mm is below the {channel} output's quantization step ({step:g} mm): the figure "
-                "shows the step, not the noise or error")}})
+                f"{value:.3g} mm is below the {channel} output's quantization step ({step:g} mm): rounding to "
+                "whole steps (variance step^2 / 12, jumps of a step) is a large part of the figure")}})
     return flags
