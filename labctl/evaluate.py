@@ -270,7 +270,7 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         if steps:
             evaluation.notes.append("the wall data are quantized (" + ", ".join(
                 f"{c} in steps of {q:g} mm" for c, q in sorted(steps.items())) + "): spreads and errors below a "
-                "step show the step, not the noise (see the flags)")
+                "step are largely rounding (see the flags)")
         return evaluation
     finally:
         for reader in readers:
