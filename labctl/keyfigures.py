@@ -50,15 +50,15 @@ FIGURES: tuple[FigureDef, ...] = (
     FigureDef("y_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's std of y (y ~ 0 there: "
               "lateral jitter only)", "SPEC 6"),
     FigureDef("x_repeatability_off_axis_mm", "mm", "max over the sweep of the std of x halfway from the centre to "
-              "the right edge, where x carries the depth noise", "SPEC 6"),
+              "the right edge, where x carries the depth noise", "docs/metrics.md, x/y noise"),
     FigureDef("y_repeatability_off_axis_mm", "mm", "max over the sweep of the std of y halfway from the centre to "
-              "the bottom edge, where y carries the depth noise", "SPEC 6"),
+              "the bottom edge, where y carries the depth noise", "docs/metrics.md, x/y noise"),
     FigureDef("repeatability_skin_40deg_mm", "mm", "max repeatability over skin-like materials at 40 deg", "SPEC 7"),
     FigureDef("repeatability_skin_70deg_mm", "mm", "max repeatability over skin-like materials at 70 deg", "SPEC 7"),
     FigureDef("ied_pixels_at_hyperfocal", "px", "inter-eye distance (62.5 mm) coverage at the hyperfocal distance, "
               "face at the image centre (pinhole: 62.5 mm x f / d, f = (W / 2) / tan(FOV_h / 2))", "SPEC 9"),
     FigureDef("ied_pixels_at_hyperfocal_angular", "px", "the same with the mean angular pixel size FOV_h / W "
-              "(thesis eq. 6-2); over-counts at the image centre", "SPEC 9"),
+              "(thesis eq. 6-2); over-counts at the image centre", "docs/suitability.md"),
 )
 
 #: where the datasheet-comparable figures are defined
