@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from labctl.errors import InputError
 from labctl.eval_capture import CaptureResult, evaluate_captures
 from labctl.eval_depth_quality import VendorPosition, vendor_position
@@ -106,6 +108,14 @@ def _key_step(steps: Sequence[StepRecord]) -> StepRecord | None:
     return best
 
 
+def _detect_quantization(found: dict[str, float], rec: StepRecord, z: np.ndarray) -> None:
+    """Fill in the quantization step of x, y and z from this wall step where no earlier step showed one
+    (a step without valid pixels, e.g. below a camera's minimum range, shows none)."""
+    for channel in ("x", "y", "z"):
+        if not math.isfinite(found.get(channel, math.nan)):
+            found[channel] = quantization_step(z if channel == "z" else rec.frame(channel, 0))
+
+
 def evaluate_depth_sweep(
     steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None]
 ) -> None:
@@ -120,9 +130,7 @@ def evaluate_depth_sweep(
     for rec in usable:
         progress(rec.step_id)
         buffer = rec.read("z", out=buffer)
-        if not evaluation.quantization_mm:
-            evaluation.quantization_mm = {"z": quantization_step(buffer), "x": quantization_step(rec.frame("x", 0)),
-                                          "y": quantization_step(rec.frame("y", 0))}
+        _detect_quantization(evaluation.quantization_mm, rec, buffer)
         stats = stack_stats(buffer)
         errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
         evaluation.depth.append(DepthPosition(rec.step_id, errors))

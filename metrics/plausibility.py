@@ -20,8 +20,10 @@ import numpy as np
 
 #: cycles per pixel: the highest frequency a sampled image holds
 NYQUIST_CY_PX = 0.5
-#: a step below this is float rounding (float32 steps below 4096 mm are <= 0.5 um), not an output resolution
-MIN_QUANTIZATION_MM = 1e-3
+#: a finer step is float rounding (float32 steps below 4096 mm are <= 0.5 um) or the lattice z (u - cx) / f
+#: of x and y back-projected from whole-millimetre depth (1 / (2 f) <= 2.5 um for f >= 200 px), not an
+#: output resolution; the figures are never that small
+MIN_QUANTIZATION_MM = 0.01
 #: |coordinate| / distance below which a pixel counts as on the principal axis (0.57 deg)
 NEAR_AXIS_RATIO = 0.01
 
@@ -31,7 +33,7 @@ def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
 
     The step is the smallest difference between distinct values of a sample;
     the values count as quantized when every one is a whole number of steps
-    from the smallest (within 0.1 % of a step) and the step is at least 1 um.
+    from the smallest (within 0.1 % of a step) and the step is at least 10 um.
     """
     finite = np.asarray(values, dtype=float)
     finite = finite[np.isfinite(finite)]

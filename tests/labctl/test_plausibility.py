@@ -113,3 +113,24 @@ def test_stack_means_below_the_step_are_plausible_when_the_noise_dithers_the_qua
     noisy = PlausibilityInputs(quantization_mm={"z": 1.0}, noise_mm={"z": 0.8})
     assert set(plausibility_flags(values, quiet)) == set(values)
     assert set(plausibility_flags(values, noisy)) == {"z_precision_q90_mm"}
+
+
+def test_quantization_is_detected_on_the_first_wall_step_with_valid_pixels():
+    """A stereo camera's first wall step below its minimum range holds no valid pixel: the step comes from
+    the next one (z16 depth in whole millimetres, x and y continuous)."""
+    from labctl.evaluate import _detect_quantization
+
+    class Step:
+        def __init__(self, z):
+            self.z = z
+
+        def frame(self, channel, k):  # pinhole back-projection: x = z (u - cx) / f, continuous
+            v, u = np.mgrid[0:4, 0:5]
+            return self.z[k] * ((u - 2.0) if channel == "x" else (v - 1.5)) / 377.7  # a 2.6 um lattice
+
+    blind = Step(np.full((2, 4, 5), np.nan))
+    seen = Step(np.round(1000 + np.random.default_rng(0).normal(0, 3, (2, 4, 5))))
+    found = {}
+    for step in (blind, seen):
+        _detect_quantization(found, step, step.z)
+    assert found["z"] == 1.0 and math.isnan(found["x"]) and math.isnan(found["y"])
