@@ -159,7 +159,8 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
         img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
         rows = [{"star": f"{s.segments} segments ({s.step_id})", "placed_mm": s.placed_mm,
                  "resolution_h_mm": s.result.resolution_h_mm, "resolution_v_mm": s.result.resolution_v_mm,
-                 "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg, "distance_mm": s.result.distance_mm} for s in geo.stars]
+                 "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg,
+                 "distance_mm": s.result.distance_mm} for s in geo.stars]
         doc["boehler_star"] = _clean_rows(rows)
         sections.append(_section("Resolution of the point cloud: Boehler star (SPEC 4)", img, outdir,
                                  _rows_table(rows, "star")))
