@@ -3,12 +3,15 @@
 * hyperfocal distance: the nearest distance from which the SFR area stays at
   or above 90 % of its plateau, the plateau being the median over the far half
   of the sweep (SPEC §3);
-* best focus: the distance of the highest SFR area after a 3-point moving
-  median (SPEC §3 "argmax of a smoothed SFRarea"), ties going to the higher
-  unsmoothed value;
+* best focus: the nearest distance whose SFR area, after a 3-point moving
+  median, is within 5 % of the highest (thesis 5.2.1: of several distances of
+  high focus the smallest is chosen); the same distance is the key figure and
+  where sharp targets are placed;
 * imagery resolution (thesis 6.3.1): angular = sensor angular resolution /
   SFR10 (eq. 5-1), lateral = the size that angle covers at the distance (eq. 5-2);
-* inter-eye distance coverage (thesis eq. 6-2): px = IED / (tan(res) d).
+* inter-eye distance coverage at the image centre (pinhole): px = IED f / d
+  with f = (W / 2) / tan(FOV / 2); thesis eq. 6-2's px = IED / (tan(res) d)
+  with the mean angular pixel size res = FOV / W over-counts there.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from collections.abc import Sequence
 import numpy as np
 
 PLATEAU_FRACTION = 0.9
+#: SFR areas within this fraction of the highest count as equally sharp (best focus)
+BEST_FOCUS_TOLERANCE = 0.05
 IED_MM = 62.5  # average adult inter-eye distance (Yildirim et al. 2015, thesis 6.6)
 
 
@@ -52,31 +57,41 @@ def hyperfocal_distance(distances: Sequence[float], sfr_area: Sequence[float], v
     return nearest
 
 
-def best_focus_distance(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool]) -> float:
-    """Distance of the highest 3-point-median-smoothed SFR area among valid positions."""
+def _smoothed(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool]) -> tuple[np.ndarray, np.ndarray]:
+    """Valid positions by distance and their SFR area after a 3-point moving median (ends repeated)."""
     d, v = _sorted_valid(distances, sfr_area, valid)
-    if not d.size:
-        return math.nan
     padded = np.concatenate([v[:1], v, v[-1:]])
-    smoothed = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
-    tied = np.flatnonzero(smoothed == smoothed.max())
-    return float(d[tied[np.argmax(v[tied])]])  # ties (common with medians) go to the higher raw value
+    return d, np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0) if d.size else v
 
 
-def nearest_sharp_distance(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool],
-                           tolerance: float = 0.05) -> float:
-    """Nearest distance whose 3-point-median SFR area is within ``tolerance`` of the best.
+def best_focus_distance(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool],
+                        tolerance: float = BEST_FOCUS_TOLERANCE) -> float:
+    """Best focus: the nearest distance whose 3-point-median SFR area is within ``tolerance`` of the highest.
 
-    Where to put a target that must be sharp and large in the image: "if there
+    One definition for the key figure and for where sharp targets go: "if there
     are multiple distances with high focus, the smallest distance is chosen"
-    (thesis 5.2.1).
+    (thesis 5.2.1), which keeps checkerboard tiles and star segments large.
     """
-    d, v = _sorted_valid(distances, sfr_area, valid)
+    d, smoothed = _smoothed(distances, sfr_area, valid)
     if not d.size:
         return math.nan
-    padded = np.concatenate([v[:1], v, v[-1:]])
-    smoothed = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
     return float(d[np.argmax(smoothed >= (1.0 - tolerance) * smoothed.max())])
+
+
+def sharpness_peak_at_sweep_end(distances: Sequence[float], sfr_area: Sequence[float],
+                                valid: Sequence[bool]) -> str | None:
+    """``"far"`` or ``"near"`` when the smoothed SFR area peaks at that end of the valid positions, else None.
+
+    A peak at an end of the sweep means the true maximum may lie beyond it: the
+    best focus is then a bound, not a measurement.
+    """
+    d, smoothed = _smoothed(distances, sfr_area, valid)
+    if d.size < 2:
+        return None
+    peak = np.flatnonzero(smoothed == smoothed.max())
+    if peak[-1] == d.size - 1:
+        return "far"
+    return "near" if peak[0] == 0 else None
 
 
 def imagery_resolution_deg(sensor_resolution_deg: float, sfr10_cy_px: float) -> float:
@@ -92,5 +107,19 @@ def lateral_mm(angular_deg: float, distance_mm: float) -> float:
 
 
 def ied_pixels(resolution_deg: float, distance_mm: float, ied_mm: float = IED_MM) -> float:
-    """Pixels across the inter-eye distance at ``distance_mm`` (thesis eq. 6-2)."""
+    """Pixels across the inter-eye distance at ``distance_mm`` with the mean angular pixel size FOV / pixels
+    (thesis eq. 6-2). It over-counts at the image centre, where a pixel subtends more than the mean angle."""
     return ied_mm / (math.tan(math.radians(resolution_deg)) * distance_mm)
+
+
+def ied_pixels_at_centre(fov_deg: float, pixels: int, distance_mm: float, ied_mm: float = IED_MM) -> float:
+    """Pixels across the inter-eye distance of a face at the image centre, ``distance_mm`` away (pinhole model).
+
+    A rectilinear (pinhole) lens maps x = f tan(theta) with the focal length in
+    pixels f = (pixels / 2) / tan(FOV / 2); a length L at distance d on the axis
+    spans L f / d pixels. Near the axis a pixel subtends 1 / f rad, more than
+    the mean FOV / pixels, so the centre is where the face gets the fewest
+    pixels (Hartley & Zisserman, Multiple View Geometry, 2nd ed., 6.1).
+    """
+    focal_px = (pixels / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+    return ied_mm * focal_px / distance_mm

@@ -16,6 +16,15 @@ Statistical error on the white wall (thesis 5.3, Fig. 5-12): the per-pixel
 standard deviation of x and y over a stack; repeatability is the centre
 pixel's (the caller takes the maximum over the distance sweep), precision the
 90 % quantile over the valid pixels (reported at 2000 mm).
+
+The centre pixel sits on the principal point, where x = y = 0 whatever the
+depth noise (x = z (u - cx) / fx): its std of x and y only shows lateral
+jitter. The off-axis repeatability is therefore taken where the coordinate
+carries the depth noise too: the std of x at the pixel halfway from the centre
+to the right edge on the centre row (row H // 2, column W // 2 + W // 4), the
+std of y halfway to the bottom edge on the centre column (row H // 2 + H // 4,
+column W // 2). There |x| / z = tan(about a quarter of the FOV), so a depth
+noise sigma_z adds about sigma_z |x| / z to the std of x.
 """
 
 from __future__ import annotations
@@ -55,6 +64,11 @@ class XYPrecision:
 
     repeatability_center_x_mm: float
     repeatability_center_y_mm: float
+    repeatability_off_axis_x_mm: float
+    repeatability_off_axis_y_mm: float
+    #: mean x and y at the pixels of the repeatabilities (centre and off-axis), to judge what they measure
+    center_xy_mm: tuple[float, float]
+    off_axis_xy_mm: tuple[float, float]
     precision_median_x_mm: float
     precision_median_y_mm: float
     precision_q90_x_mm: float
@@ -90,11 +104,21 @@ def xy_errors(mean_cloud: np.ndarray, frame_cloud: np.ndarray, corners: Corners,
     return XYErrors(spacing_errors(mean_cloud, corners, tile_mm), spacing_errors(frame_cloud, corners, tile_mm))
 
 
+def off_axis_pixels(shape: tuple[int, int]) -> tuple[tuple[int, int], tuple[int, int]]:
+    """(row, column) of the x and the y off-axis repeatability pixels (see the module docstring)."""
+    row, col = center_pixel(shape)
+    return (row, col + shape[1] // 4), (row + shape[0] // 4, col)
+
+
 def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray) -> XYPrecision:
-    """Repeatability (centre pixel) and precision (median, Q90) of x and y over an (N, H, W) wall stack."""
+    """Repeatability (centre and off-axis pixels) and precision (median, Q90) of x and y over an (N, H, W)
+    wall stack."""
     sx, sy = stack_stats(np.asarray(x_stack)), stack_stats(np.asarray(y_stack))
     centre = center_pixel(sx.std.shape)
+    at_x, at_y = off_axis_pixels(sx.std.shape)
     mx, qx = median_q90_abs(sx.std)
     my, qy = median_q90_abs(sy.std)
     invalid = float(np.mean(~(sx.valid & sy.valid)))
-    return XYPrecision(float(sx.std[centre]), float(sy.std[centre]), mx, my, qx, qy, invalid)
+    return XYPrecision(float(sx.std[centre]), float(sy.std[centre]), float(sx.std[at_x]), float(sy.std[at_y]),
+                       (float(sx.mean[centre]), float(sy.mean[centre])), (float(sx.mean[at_x]), float(sy.mean[at_y])),
+                       mx, my, qx, qy, invalid)

@@ -13,12 +13,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from labctl.errors import InputError
+from labctl.evaluation.capture import CaptureResult, evaluate_captures
 from labctl.evaluation.depth_quality import VendorPosition, vendor_position
 from labctl.evaluation.depth_quality import figure_values as vendor_figures
 from labctl.evaluation.geometry import GeometryResult, evaluate_geometry
 from labctl.evaluation.geometry import figure_values as geometry_figures
 from labctl.evaluation.keyfigures import FigureValue
+from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flags
 from labctl.evaluation.remission import RemissionResult, evaluate_remission
 from labctl.evaluation.remission import figure_values as remission_figures
 from labctl.evaluation.scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
@@ -27,6 +31,7 @@ from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
 from labctl.run.store import RunReader, StepRecord
 from metrics.depth import DepthErrors, depth_errors
+from metrics.plausibility import quantization_step
 from metrics.stack import stack_stats
 from metrics.surface import SurfaceTexture, surface_texture
 from sim.optics import pixel_aspect_distortion_pct
@@ -63,7 +68,12 @@ class Evaluation:
     acceptance: AcceptanceResult | None = None
     face: FaceMaskResult | None = None
     alignment: AlignmentRecord | None = None
+    captures: list[CaptureResult] = field(default_factory=list)
     figures: dict[str, FigureValue] = field(default_factory=dict)
+    #: quantization step (mm) of the x, y and z output on the wall, NaN where continuous
+    quantization_mm: dict[str, float] = field(default_factory=dict)
+    #: plausibility flags per figure name (labctl/evaluation/plausibility.py)
+    flags: dict[str, list[dict[str, str]]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
 
@@ -98,6 +108,14 @@ def _key_step(steps: Sequence[StepRecord]) -> StepRecord | None:
     return best
 
 
+def _detect_quantization(found: dict[str, float], rec: StepRecord, z: np.ndarray) -> None:
+    """Fill in the quantization step of x, y and z from this wall step where no earlier step showed one
+    (a step without valid pixels, e.g. below a camera's minimum range, shows none)."""
+    for channel in ("x", "y", "z"):
+        if not math.isfinite(found.get(channel, math.nan)):
+            found[channel] = quantization_step(z if channel == "z" else rec.frame(channel, 0))
+
+
 def evaluate_depth_sweep(
     steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None]
 ) -> None:
@@ -112,6 +130,7 @@ def evaluate_depth_sweep(
     for rec in usable:
         progress(rec.step_id)
         buffer = rec.read("z", out=buffer)
+        _detect_quantization(evaluation.quantization_mm, rec, buffer)
         stats = stack_stats(buffer)
         errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
         evaluation.depth.append(DepthPosition(rec.step_id, errors))
@@ -173,6 +192,7 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
         ("intensity_resolution_h_deg", result.resolution_deg[0], best),
         ("intensity_resolution_v_deg", result.resolution_deg[1], best),
         ("ied_pixels_at_hyperfocal", result.ied_px, ids),
+        ("ied_pixels_at_hyperfocal_angular", result.ied_px_angular, ids),
     ):
         evaluation.figures[name] = FigureValue(value, source)
 
@@ -208,9 +228,15 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         for reader in readers:
             if reader.attrs.get("status") != "complete":
                 evaluation.notes.append(f"{reader.path} is {reader.attrs.get('status')}: only its complete steps are used")
+        captures = [s for r in readers for s in r.steps("capture")]
+        if captures:
+            evaluation.captures = evaluate_captures(captures, progress)
         sweep = [s for r in readers for s in r.steps("depth_sweep")]
         if sweep:
             evaluate_depth_sweep(sweep, readers[0], evaluation, progress)
+        elif captures:
+            evaluation.notes.append("capture steps only (no reference distance): the key figures are null; see "
+                                    "the capture section for depth, noise, validity and the plane fit")
         else:
             evaluation.notes.append("no depth_sweep steps: depth figures are null")
         edges = [s for r in readers for s in r.steps("slanted_edge")]
@@ -245,10 +271,33 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
                 evaluation.notes.append(f"face mask {face.step_id} has no valid point: no point cloud or rendering")
         aligned = [a for a in (alignment(s) for r in readers for s in r.steps("alignment")) if a is not None]
         evaluation.alignment = aligned[-1] if aligned else None
+        inputs = PlausibilityInputs(evaluation.sharpness, evaluation.quantization_mm,
+                                    evaluation.geometry.precision if evaluation.geometry else [], _noise(evaluation))
+        evaluation.flags = plausibility_flags({n: f.value for n, f in evaluation.figures.items()}, inputs)
+        steps = {c: q for c, q in evaluation.quantization_mm.items() if math.isfinite(q)}
+        if steps:
+            evaluation.notes.append("the wall data are quantized (" + ", ".join(
+                f"{c} in steps of {q:g} mm" for c, q in sorted(steps.items())) + "): spreads and errors below a "
+                "step are largely rounding (see the flags)")
         return evaluation
     finally:
         for reader in readers:
             reader.close()
+
+
+def _noise(evaluation: Evaluation) -> dict[str, float]:
+    """Median per-pixel noise where the stack-mean figures are taken: z on the wall at 2000 mm, x and y on
+    the wall step nearest the checkerboard (for the plausibility of stack means, labctl/evaluation/plausibility.py)."""
+    noise: dict[str, float] = {}
+    at_key = [p for p in evaluation.depth if abs(p.errors.reference_mm - KEY_DISTANCE_MM) <= KEY_DISTANCE_TOLERANCE_MM]
+    if at_key:
+        noise["z"] = min(at_key, key=lambda p: abs(p.errors.reference_mm - KEY_DISTANCE_MM)).errors.precision_median_mm
+    geo = evaluation.geometry
+    if geo is not None and geo.precision and geo.checkerboard is not None:
+        board = geo.checkerboard.distance_mm
+        _, _, near = min(geo.precision, key=lambda item: abs(item[1] - board))
+        noise.update(x=near.precision_median_x_mm, y=near.precision_median_y_mm)
+    return noise
 
 
 def depth_table(evaluation: Evaluation) -> list[dict[str, float | str]]:

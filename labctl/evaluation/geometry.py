@@ -42,10 +42,17 @@ def _distance(step: StepRecord) -> float:
     return float(reference) if math.isfinite(reference) else float(step.attrs.get("distance_mm", math.nan))
 
 
+def _placed(step: StepRecord, gap_mm: float = 0.0) -> float:
+    """Where the procedure put the target: the step's camera-wall distance less the target's gap to the wall
+    (for ``distance_mm = "best_focus"`` this is the best focus distance)."""
+    return float(step.attrs.get("distance_mm", math.nan)) - gap_mm
+
+
 @dataclass(frozen=True)
 class CheckerboardResult:
     step_id: str
-    distance_mm: float
+    distance_mm: float  # the measured reference (laser) where there is one
+    placed_mm: float  # where the procedure put the board
     tile_mm: float
     image: np.ndarray
     cloud: np.ndarray
@@ -59,6 +66,7 @@ class CheckerboardResult:
 class StarResult:
     step_id: str
     segments: int
+    placed_mm: float  # where the procedure put the star
     cloud: np.ndarray
     result: BoehlerResult
 
@@ -82,8 +90,8 @@ def evaluate_checkerboard(step: StepRecord, camera: CameraInfo) -> CheckerboardR
     intensity = distortion(corners, tile, distance, camera.fov_deg)
     cloud_result = cloud_distortion(cloud, intensity.corners, tile, camera.fov_deg)
     first = np.stack([step.frame(c, 0) for c in ("x", "y", "z")], axis=-1)
-    return CheckerboardResult(step.step_id, distance, tile, image, cloud, intensity.corners, intensity, cloud_result,
-                              xy_errors(cloud, first, intensity.corners, tile))
+    return CheckerboardResult(step.step_id, distance, _placed(step), tile, image, cloud, intensity.corners, intensity,
+                              cloud_result, xy_errors(cloud, first, intensity.corners, tile))
 
 
 def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
@@ -100,11 +108,13 @@ def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
         except ValueError as exc:
             out.notes.append(f"{step.step_id}: checkerboard not evaluated: {exc}")
     for step in (s for s in steps if s.attrs.get("procedure") == "boehler_star"):
-        segments = int(json.loads(step.attrs.get("target_json", "{}") or "{}").get("segments", 72))
+        target = json.loads(step.attrs.get("target_json", "{}") or "{}")
+        segments = int(target.get("segments", 72))
         progress(f"{step.step_id} Boehler star ({segments})")
         cloud = _mean_cloud(step)
         try:
-            out.stars.append(StarResult(step.step_id, segments, cloud,
+            placed = _placed(step, float(target.get("gap_mm", 0.0)))
+            out.stars.append(StarResult(step.step_id, segments, placed, cloud,
                                         analyze_boehler(cloud, segments, binning=None, fov_deg=camera.fov_deg)))
         except ValueError as exc:
             out.notes.append(f"{step.step_id}: Boehler star not evaluated: {exc}")
@@ -143,10 +153,10 @@ def figure_values(result: GeometryResult) -> dict[str, tuple[float, list[str]]]:
         figures["cloud_resolution_v_deg"] = (star.result.angular_v_deg, [star.step_id])
     if result.precision:
         ids = [sid for sid, _, _ in result.precision]
-        figures["x_repeatability_center_mm"] = (
-            float(np.nanmax([p.repeatability_center_x_mm for _, _, p in result.precision])), ids)
-        figures["y_repeatability_center_mm"] = (
-            float(np.nanmax([p.repeatability_center_y_mm for _, _, p in result.precision])), ids)
+        for axis in "xy":
+            for where in ("center", "off_axis"):
+                worst = np.nanmax([getattr(p, f"repeatability_{where}_{axis}_mm") for _, _, p in result.precision])
+                figures[f"{axis}_repeatability_{where}_mm"] = (float(worst), ids)
         near = min(result.precision, key=lambda item: abs(item[1] - KEY_DISTANCE_MM))
         if abs(near[1] - KEY_DISTANCE_MM) <= KEY_TOLERANCE_MM:
             figures["x_precision_q90_mm"] = (near[2].precision_q90_x_mm, [near[0]])

@@ -28,7 +28,8 @@ FIGURES: tuple[FigureDef, ...] = (
     FigureDef("surface_waviness_sq_mm", "mm", "ISO 25178 Sq of the waviness surface at 2000 mm", "SPEC 2"),
     FigureDef("surface_roughness_sq_mm", "mm", "ISO 25178 Sq of the roughness surface at 2000 mm", "SPEC 2"),
     FigureDef("hyperfocal_distance_mm", "mm", "left edge of the sharpness plateau", "SPEC 3"),
-    FigureDef("best_focus_distance_mm", "mm", "distance of highest sharpness", "SPEC 3"),
+    FigureDef("best_focus_distance_mm", "mm", "distance of highest sharpness: the nearest within 5 % of the "
+              "highest smoothed SFR area, where sharp targets are placed", "SPEC 3"),
     FigureDef("intensity_resolution_h_deg", "deg", "imagery resolution of the intensity image, horizontal (SFR10)", "SPEC 3"),
     FigureDef("intensity_resolution_v_deg", "deg", "imagery resolution of the intensity image, vertical (SFR10)", "SPEC 3"),
     FigureDef("cloud_resolution_h_deg", "deg", "imagery resolution of the point cloud, horizontal (Boehler star)", "SPEC 4"),
@@ -44,11 +45,20 @@ FIGURES: tuple[FigureDef, ...] = (
     FigureDef("y_accuracy_q90_mm", "mm", "checkerboard corner spacing vs tile size, y, single frame", "SPEC 6"),
     FigureDef("x_precision_q90_mm", "mm", "Q90 of the per-pixel std of x on the wall at 2000 mm", "SPEC 6"),
     FigureDef("y_precision_q90_mm", "mm", "Q90 of the per-pixel std of y on the wall at 2000 mm", "SPEC 6"),
-    FigureDef("x_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's std of x", "SPEC 6"),
-    FigureDef("y_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's std of y", "SPEC 6"),
+    FigureDef("x_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's std of x (x ~ 0 there: "
+              "lateral jitter only)", "SPEC 6"),
+    FigureDef("y_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's std of y (y ~ 0 there: "
+              "lateral jitter only)", "SPEC 6"),
+    FigureDef("x_repeatability_off_axis_mm", "mm", "max over the sweep of the std of x halfway from the centre to "
+              "the right edge, where x carries the depth noise", "docs/metrics.md, x/y noise"),
+    FigureDef("y_repeatability_off_axis_mm", "mm", "max over the sweep of the std of y halfway from the centre to "
+              "the bottom edge, where y carries the depth noise", "docs/metrics.md, x/y noise"),
     FigureDef("repeatability_skin_40deg_mm", "mm", "max repeatability over skin-like materials at 40 deg", "SPEC 7"),
     FigureDef("repeatability_skin_70deg_mm", "mm", "max repeatability over skin-like materials at 70 deg", "SPEC 7"),
-    FigureDef("ied_pixels_at_hyperfocal", "px", "inter-eye distance (62.5 mm) coverage at the hyperfocal distance", "SPEC 9"),
+    FigureDef("ied_pixels_at_hyperfocal", "px", "inter-eye distance (62.5 mm) coverage at the hyperfocal distance, "
+              "face at the image centre (pinhole: 62.5 mm x f / d, f = (W / 2) / tan(FOV_h / 2))", "SPEC 9"),
+    FigureDef("ied_pixels_at_hyperfocal_angular", "px", "the same with the mean angular pixel size FOV_h / W "
+              "(thesis eq. 6-2); over-counts at the image centre", "docs/suitability.md"),
 )
 
 #: where the datasheet-comparable figures are defined
@@ -106,9 +116,11 @@ def clean(value: float | None) -> float | None:
 
 
 def keyfigures_document(
-    camera: dict[str, Any], values: dict[str, FigureValue], suitability: dict[str, Any]
+    camera: dict[str, Any], values: dict[str, FigureValue], suitability: dict[str, Any],
+    flags: dict[str, list[dict[str, str]]] | None = None,
 ) -> dict[str, Any]:
-    """The ``keyfigures.json`` document: every defined figure, null where not measured."""
+    """The ``keyfigures.json`` document: every defined figure, null where not measured, with its
+    plausibility flags (an empty list where it passes every check)."""
     unknown = set(values) - set(FIGURE_BY_NAME)
     if unknown:
         raise KeyError(f"undefined key figures: {sorted(unknown)}")
@@ -120,5 +132,6 @@ def keyfigures_document(
             "unit": fig.unit,
             "source": ",".join(v.source),
             "meaning": fig.meaning,
+            "flags": list((flags or {}).get(fig.name, [])),
         }
     return {"camera": camera, "figures": figures, "suitability": suitability}

@@ -7,7 +7,8 @@ e-SFR of each gives SFR10, SFR50 and SFR area. "Horizontal" results come from
 the near-vertical edge (they resolve horizontal detail, with the sensor's
 horizontal angular resolution FOV_h / W), "vertical" ones from the near-
 horizontal edge. A position whose edge was not found, is clipped or has no
-SFR10 is invalid (dashed in the plots, ignored by the distance figures).
+SFR10 or SFR50 is invalid (hollow in the plots, ignored by the distance figures; the table's note
+gives the reason).
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ import numpy as np
 
 from drivers.protocols import CameraInfo
 from labctl.run.store import StepRecord
+from metrics.plausibility import above_nyquist
 from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white
 from metrics.sharpness import (
     best_focus_distance,
     hyperfocal_distance,
     ied_pixels,
+    ied_pixels_at_centre,
     imagery_resolution_deg,
     lateral_mm,
-    nearest_sharp_distance,
+    sharpness_peak_at_sweep_end,
 )
 from metrics.stack import stack_stats
 from sim.optics import sensor_angular_resolution_deg
@@ -46,6 +49,8 @@ class EdgeMeasurement:
     warnings: tuple[str, ...]
     frequency: np.ndarray = field(repr=False)
     sfr: np.ndarray = field(repr=False)
+    #: why the measurement is invalid ("" when valid)
+    reason: str = ""
 
 
 @dataclass(frozen=True)
@@ -65,7 +70,10 @@ class SharpnessResult:
     hyperfocal_mm: float = math.nan
     best_focus_mm: float = math.nan
     resolution_deg: tuple[float, float] = (math.nan, math.nan)
-    ied_px: float = math.nan
+    ied_px: float = math.nan  # a face at the image centre (pinhole model)
+    ied_px_angular: float = math.nan  # with the mean angular pixel size FOV / pixels (thesis eq. 6-2)
+    #: set when the sharpness peaks at an end of the sweep (best focus is then a bound)
+    focus_warning: str | None = None
     notes: list[str] = field(default_factory=list)
 
     def series(self, orientation: str, attr: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -82,9 +90,29 @@ class SharpnessResult:
 def _measure(image: np.ndarray, roi: tuple[int, int, int, int]) -> EdgeMeasurement:
     x, y, w, h = roi
     result: SFRResult = edge_sfr(image[y : y + h, x : x + w])
-    valid = not result.clipped and math.isfinite(result.sfr10) and math.isfinite(result.sfr50)
-    return EdgeMeasurement(result.sfr10, result.sfr50, result.sfr_area, result.angle_deg, roi, valid,
-                           tuple(result.warnings), result.frequency, result.sfr)
+    reason = _invalid_reason(result)
+    return EdgeMeasurement(result.sfr10, result.sfr50, result.sfr_area, result.angle_deg, roi, not reason,
+                           tuple(result.warnings), result.frequency, result.sfr, reason)
+
+
+def _invalid_reason(result: SFRResult) -> str:
+    """Why an edge's SFR is not used for the distance figures ("" when it is)."""
+    if result.clipped:
+        return next((w for w in result.warnings if w.startswith("clipping")), "clipped ESF")
+    if not math.isfinite(result.sfr10):
+        return "no SFR10: the SFR does not fall to 10 % within the evaluated frequencies"
+    if not math.isfinite(result.sfr50):
+        return "no SFR50: the SFR does not fall to 50 % within the evaluated frequencies"
+    return ""
+
+
+def edge_note(edge: EdgeMeasurement | None) -> str:
+    """The table's note on one edge: why it is invalid, or the Nyquist warning of a valid one."""
+    if edge is None:
+        return "edge not found"
+    if edge.reason:
+        return edge.reason
+    return "SFR10 above Nyquist (0.5 cy/px): aliasing" if above_nyquist(edge.sfr10) else ""
 
 
 def measure_position(chart: np.ndarray, white: np.ndarray) -> tuple[EdgeMeasurement | None, EdgeMeasurement | None, list[str]]:
@@ -131,7 +159,18 @@ def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
     if not result.positions:
         return None
     _summarize(result)
+    if math.isfinite(result.hyperfocal_mm):
+        result.ied_px = ied_pixels_at_centre(camera.fov_deg[0], camera.width, result.hyperfocal_mm)
+        result.ied_px_angular = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
     return result
+
+
+def _sweep_end_warning(end: str, distances: np.ndarray) -> str:
+    """The warning for a sharpness peak at the ``end`` ("near" or "far") of the valid positions."""
+    edge = float(distances.max() if end == "far" else distances.min())
+    beyond = "farther" if end == "far" else "nearer"
+    return (f"the sharpness peaks at the {end} end of the sweep ({edge:g} mm): the sharpest distance may lie "
+            f"{beyond}; extend the slanted_edge sweep to locate best focus")
 
 
 def _summarize(result: SharpnessResult) -> None:
@@ -145,21 +184,15 @@ def _summarize(result: SharpnessResult) -> None:
         return
     result.hyperfocal_mm = hyperfocal_distance(d, area, both)
     result.best_focus_mm = best_focus_distance(d, area, both)
+    end = sharpness_peak_at_sweep_end(d, area, both)
+    if end is not None:
+        result.focus_warning = _sweep_end_warning(end, d[both])
+        result.notes.append(f"warning: {result.focus_warning}")
     best = next(p for p in result.positions if p.distance_mm == result.best_focus_mm)
     result.resolution_deg = (
         imagery_resolution_deg(result.sensor_resolution_deg[0], best.horizontal.sfr10),
         imagery_resolution_deg(result.sensor_resolution_deg[1], best.vertical.sfr10),
     )
-    if math.isfinite(result.hyperfocal_mm):
-        result.ied_px = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
-
-
-def target_distance(result: SharpnessResult) -> float:
-    """Where a sharp target goes: the nearest distance within 5 % of the best SFR area (thesis 5.2.1)."""
-    d, area_h, ok_h = result.series("horizontal", "sfr_area")
-    _, area_v, ok_v = result.series("vertical", "sfr_area")
-    both = ok_h & ok_v
-    return nearest_sharp_distance(d, np.where(both, (area_h + area_v) / 2, np.nan), both)
 
 
 def resolution_table(result: SharpnessResult) -> list[dict[str, float | str]]:
@@ -177,6 +210,7 @@ def resolution_table(result: SharpnessResult) -> list[dict[str, float | str]]:
                 f"valid_{name}": bool(m and m.valid),
                 f"resolution_{name}_deg": angular,
                 f"resolution_{name}_mm": lateral_mm(angular, p.distance_mm) if math.isfinite(angular) else math.nan,
+                f"note_{name}": edge_note(m),
             })
         rows.append(row)
     return rows

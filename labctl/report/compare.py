@@ -32,7 +32,10 @@ from metrics.jsonsafe import dumps_strict  # noqa: E402
 
 #: figures left out of the chart (different scale or "higher is better")
 NOT_CHARTED = {"hyperfocal_distance_mm", "best_focus_distance_mm", "ied_pixels_at_hyperfocal",
-               "fill_rate_1000mm_pct", "fill_rate_2000mm_pct"}
+               "ied_pixels_at_hyperfocal_angular",
+               "fill_rate_1000mm_pct", "fill_rate_2000mm_pct",
+               # ~0 at the principal point whatever the noise (the off-axis figures are charted instead)
+               "x_repeatability_center_mm", "y_repeatability_center_mm"}
 TIMES_TEN = {"intensity_resolution_h_deg", "intensity_resolution_v_deg", "cloud_resolution_h_deg",
              "cloud_resolution_v_deg"}
 

@@ -7,15 +7,17 @@ import math
 from pathlib import Path
 from typing import Any
 
+from labctl.evaluation.capture import capture_table
 from labctl.evaluation.depth_quality import vendor_table
 from labctl.evaluation.evaluate import Evaluation, depth_table
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, clean, keyfigures_document
 from labctl.evaluation.remission import misalignment_summary, remission_table
 from labctl.evaluation.sharpness import resolution_table
-from labctl.evaluation.suitability import suitability
+from labctl.evaluation.suitability import face_depth_values, suitability
 from labctl.evaluation.vdi2634 import acceptance_table, verdicts
 from labctl.report.plots.acceptance import plot_acceptance
 from labctl.report.plots.boehler import plot_boehler
+from labctl.report.plots.capture import plot_capture
 from labctl.report.plots.depth_quality import plot_vendor_figures
 from labctl.report.plots.distortion import plot_distortion
 from labctl.report.plots.figures import (
@@ -68,7 +70,8 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     plots = outdir / "plots"
     plots.mkdir(exist_ok=True)
     values = {name: clean(f.value) for name, f in evaluation.figures.items()}
-    doc = keyfigures_document(evaluation.camera, evaluation.figures, suitability(values))
+    face = face_depth_values(values, _clean_rows(depth_table(evaluation)))
+    doc = keyfigures_document(evaluation.camera, evaluation.figures, suitability({**values, **face}), evaluation.flags)
     doc["runs"] = evaluation.runs
     doc["notes"] = evaluation.notes
     doc["depth_sweep"] = _clean_rows(depth_table(evaluation))
@@ -76,6 +79,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         doc["slanted_edge"] = _clean_rows(resolution_table(evaluation.sharpness))
 
     sections: list[str] = _alignment_section(evaluation)
+    sections.extend(_capture_sections(evaluation, outdir, plots, doc))
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
         sections.append(_section("Depth error over distance (SPEC 1)", img, outdir, _depth_rows(evaluation)))
@@ -132,7 +136,8 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
     if board is not None:
         r = board.intensity
         img = plot_distortion(board.image, r, plots / "distortion.png", cloud=board.cloud_distortion,
-                              title=f"Checkerboard at {board.distance_mm:.0f} mm ({board.step_id})")
+                              title=f"Checkerboard placed at {board.placed_mm:.0f} mm, laser reference "
+                                    f"{board.distance_mm:.0f} mm ({board.step_id})")
         rows = [
             {"image": "intensity", "raw_w_pct": r.raw_distortion_w_pct, "raw_h_pct": r.raw_distortion_h_pct,
              "radial_w_pct": r.radial_distortion_w_pct, "radial_h_pct": r.radial_distortion_h_pct,
@@ -152,15 +157,18 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
     if geo.chosen_star is not None:
         star = geo.chosen_star
         img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
-        rows = [{"star": f"{s.segments} segments ({s.step_id})", "resolution_h_mm": s.result.resolution_h_mm,
-                 "resolution_v_mm": s.result.resolution_v_mm, "angular_h_deg": s.result.angular_h_deg,
-                 "angular_v_deg": s.result.angular_v_deg, "distance_mm": s.result.distance_mm} for s in geo.stars]
+        rows = [{"star": f"{s.segments} segments ({s.step_id})", "placed_mm": s.placed_mm,
+                 "resolution_h_mm": s.result.resolution_h_mm, "resolution_v_mm": s.result.resolution_v_mm,
+                 "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg,
+                 "distance_mm": s.result.distance_mm} for s in geo.stars]
         doc["boehler_star"] = _clean_rows(rows)
         sections.append(_section("Resolution of the point cloud: Boehler star (SPEC 4)", img, outdir,
                                  _rows_table(rows, "star")))
     if geo.precision:
         rows = [{"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
-                 "repeatability_center_y_mm": p.repeatability_center_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
+                 "repeatability_center_y_mm": p.repeatability_center_y_mm,
+                 "repeatability_off_axis_x_mm": p.repeatability_off_axis_x_mm,
+                 "repeatability_off_axis_y_mm": p.repeatability_off_axis_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
                  "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
         doc["xy_noise"] = _clean_rows(rows)
         img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
@@ -195,6 +203,24 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
                 f"RMS {_fmt(summary['residual_rms_mm'], 2)} mm. The geometric reference R + delta / cos(theta) - "
                 "e tan(theta) removes the set-up from the trueness above.</p>")
         sections.append(_section("Target and camera misalignment (thesis 5.4.2)", img, outdir, text))
+    return sections
+
+
+def _capture_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+    """Maps, temporal noise and plane fit of each single capture (``labctl device camera``)."""
+    if not evaluation.captures:
+        return []
+    rows = capture_table(evaluation.captures)
+    doc["capture"] = _clean_rows(rows)
+    sections = []
+    for result, row in zip(evaluation.captures, rows):
+        img = plot_capture(result, plots / f"capture_{result.step_id}.png")
+        plane = ("<p>The scene is not planar: " if not row["planar"] else "<p>Planar scene: ") + (
+            f'{_fmt(row["plane_inlier_fraction"] * 100)} % of the points within '
+            f"{_fmt(result.summary.plane.tolerance_mm)} mm of the least-squares plane.</p>"
+            if result.summary.plane is not None else "no plane (fewer than 3 valid points).</p>")
+        sections.append(_section(f"Single capture {result.step_id}", img, outdir,
+                                 plane + _rows_table([row], "step")))
     return sections
 
 
@@ -266,21 +292,29 @@ def _suitability_html(suit: dict[str, Any]) -> str:
         colour = VERDICT_COLOUR[story["verdict"]]
         checks = "<br>".join(
             f'{html.escape(c["requirement"])}: <b>{c["status"].replace("_", " ")}</b> ('
-            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c["values"].items()) + ")"
+            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c["values"].items())
+            + f')<br><small>{html.escape(c["source"])}</small>'
             for c in story["checks"]
         ) or "; ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in story["figures"].items())
         rows.append(f'<tr><td class="l">{html.escape(story["description"])}</td>'
-                    f'<td class="l" style="color:{colour}"><b>{story["verdict"].replace("_", " ")}</b></td>'
+                    f'<td class="l" style="color:{colour}"><b>{story["verdict"].replace("_", " ")}</b><br>'
+                    f'{html.escape(story["summary"])}</td>'
                     f'<td class="l">{checks}</td></tr>')
     return (f'<p>{html.escape(suit["standard"])}</p><table><tr><th class="l">user story</th><th class="l">verdict</th>'
             f'<th class="l">checks (values)</th></tr>{"".join(rows)}</table>')
+
+
+def _flags_html(flags: list[dict[str, str]]) -> str:
+    """A figure's plausibility flags, one warning line each."""
+    return "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))}: '
+                   f'{html.escape(f["message"])}</span>' for f in flags)
 
 
 def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> str:
     cam = evaluation.camera
     fig_rows = "".join(
         f'<tr><td class="l">{html.escape(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
-        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td>'
+        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}{_flags_html(f["flags"])}</td>'
         f'<td class="l src">{_sources(f["source"])}</td></tr>'
         for name, f in doc["figures"].items()
     )

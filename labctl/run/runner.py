@@ -188,15 +188,17 @@ class Runner:
     def _resolved_distance(self, step: Any) -> float:
         """Camera-wall distance of a ``distance_from`` step: the sharp distance of the run's slanted-edge steps."""
         if self._focus_mm is None:
-            from labctl.evaluation.sharpness import evaluate_slanted_edge, target_distance
+            from labctl.evaluation.sharpness import evaluate_slanted_edge
 
             result = evaluate_slanted_edge(self.run.steps("slanted_edge"), self.run.camera_info(), lambda _: None)
-            focus = target_distance(result) if result is not None else math.nan
+            focus = result.best_focus_mm if result is not None else math.nan
             if not math.isfinite(focus):
                 raise DeviceError("runner", "cannot resolve distance_mm = best_focus: the run's slanted-edge steps "
                                   "have no valid sharpness (see labctl evaluate)")
             self._focus_mm = focus
-            self.reporter.message(f"best focus for sharp targets: {focus:g} mm (from the slanted-edge steps)")
+            self.reporter.message(f"best focus: {focus:g} mm (from the slanted-edge steps; sharp targets go there)")
+            if result is not None and result.focus_warning:
+                self.reporter.message(f"warning: {result.focus_warning}")
         return self._focus_mm + step.distance_offset_mm
 
     def _stage_position(self, distance_mm: float) -> float:

@@ -9,9 +9,11 @@ from metrics.sharpness import (
     best_focus_distance,
     hyperfocal_distance,
     ied_pixels,
+    ied_pixels_at_centre,
     imagery_resolution_deg,
     lateral_mm,
     plateau,
+    sharpness_peak_at_sweep_end,
 )
 
 
@@ -47,12 +49,27 @@ def test_invalid_positions_are_ignored():
     assert math.isnan(hyperfocal_distance(d, area, np.zeros(d.size, bool)))
 
 
-def test_best_focus_is_the_smoothed_maximum():
+def test_best_focus_is_the_nearest_distance_within_5_pct_of_the_smoothed_maximum():
     d = np.arange(100, 1601, 100)
     area = np.linspace(0.2, 0.4, d.size)
     area[8] = 0.5  # a lone spike is smoothed away
     area[12:15] = [0.44, 0.47, 0.46]
-    assert best_focus_distance(d, area, np.ones(d.size, bool)) == 1400
+    # smoothed: ... 0.44 at 1300, 0.46 at 1400, 0.46 at 1500: 0.95 * 0.46 = 0.437 -> 1300 is the nearest
+    assert best_focus_distance(d, area, np.ones(d.size, bool)) == 1300
+    # with no tolerance only the maximum counts (1400 and 1500 tie; the nearer wins)
+    assert best_focus_distance(d, area, np.ones(d.size, bool), tolerance=0.0) == 1400
+
+
+def test_a_peak_at_the_end_of_the_sweep_is_reported():
+    d = np.arange(100, 1501, 100)
+    rising = np.linspace(0.1, 0.5, d.size)
+    ok = np.ones(d.size, bool)
+    assert sharpness_peak_at_sweep_end(d, rising, ok) == "far"
+    assert sharpness_peak_at_sweep_end(d, rising[::-1], ok) == "near"
+    assert sharpness_peak_at_sweep_end(d, focus_curve(d, 400) * np.r_[np.ones(10), np.linspace(1, 0.7, 5)], ok) is None
+    far_invalid = ok.copy()
+    far_invalid[-3:] = False  # the last valid position counts as the end
+    assert sharpness_peak_at_sweep_end(d, rising, far_invalid) == "far"
 
 
 def test_imagery_resolution_and_lateral_size():
@@ -69,3 +86,12 @@ def test_imagery_resolution_and_lateral_size():
 ])
 def test_ied_coverage_of_thesis_6_6(res, distance, pixels):
     assert ied_pixels(res, distance) == pytest.approx(pixels, abs=1.0)
+
+
+def test_ied_at_the_image_centre_with_the_pinhole_model():
+    """blaze-101 (640 px, 67 deg) at 400 mm: f = 320 / tan(33.5 deg) = 483.5 px, so 62.5 mm span 75.5 px,
+    where the mean angular pixel size (67 / 640 deg) gives 85.5 px."""
+    assert ied_pixels_at_centre(67.0, 640, 400.0) == pytest.approx(75.5, abs=0.1)
+    assert ied_pixels(67.0 / 640, 400.0) == pytest.approx(85.5, abs=0.1)
+    # a narrow field of view: both agree (tan x ~ x)
+    assert ied_pixels_at_centre(2.0, 1000, 5000.0) == pytest.approx(ied_pixels(2.0 / 1000, 5000.0), rel=1e-3)

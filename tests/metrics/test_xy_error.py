@@ -207,3 +207,24 @@ def test_precision_and_repeatability_of_x_and_y():
         assert centre_sigma * factor[1e-4] < value < centre_sigma * factor[1 - 1e-4]
     assert result.invalid_fraction == pytest.approx(9 / h)
     assert stack_stats(x).valid.sum() == (h - 9) * w
+
+
+def test_off_axis_repeatability_carries_the_depth_noise():
+    """A noise-free pinhole camera on a wall with depth noise sigma_z: x = z (u - cx) / f is 0 at the
+    principal point whatever the noise, while halfway to the edge std(x) = |u - cx| / f * sigma_z."""
+    n, h, w, f, sigma_z = 60, 80, 120, 100.0, 2.0
+    rng = np.random.default_rng(5)
+    z = 2000.0 + rng.standard_normal((n, h, w)) * sigma_z
+    u = np.arange(w) - w // 2  # principal point at the centre pixel
+    v = np.arange(h) - h // 2
+    x = z * u[None, None, :] / f
+    y = z * v[None, :, None] / f
+    result = xy_precision(x, y)
+    assert result.repeatability_center_x_mm == result.repeatability_center_y_mm == 0.0
+    assert result.center_xy_mm == (0.0, 0.0)
+    bounds = [math.sqrt(chi2.ppf(q, n - 1) / (n - 1)) for q in (1e-4, 1 - 1e-4)]
+    expected_x, expected_y = (w // 4) / f * sigma_z, (h // 4) / f * sigma_z
+    assert expected_x * bounds[0] < result.repeatability_off_axis_x_mm < expected_x * bounds[1]
+    assert expected_y * bounds[0] < result.repeatability_off_axis_y_mm < expected_y * bounds[1]
+    assert result.off_axis_xy_mm[0] == pytest.approx(2000.0 * (w // 4) / f, rel=0.01)
+    assert result.off_axis_xy_mm[1] == pytest.approx(2000.0 * (h // 4) / f, rel=0.01)

@@ -99,14 +99,17 @@ def plot_surface_maps(surface: SurfaceResult, path: Path) -> Path:
     return path
 
 
-def _valid_and_dashed(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: str, color: str) -> None:
-    """Solid line through valid points, dashed through every finite point (invalid ones hollow)."""
+def _valid_and_invalid(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: str, color: str) -> None:
+    """A solid line through the valid points only; invalid points hollow, invalid positions without a value
+    as crosses along the bottom: the same valid/invalid split as the table (whose note gives the reason)."""
     finite = np.isfinite(v)
-    ax.plot(d[finite], v[finite], linestyle="--", color=color, alpha=0.6, linewidth=1)
-    solid = np.where(ok, v, np.nan)
-    ax.plot(d, solid, marker="o", ms=3, color=color, label=label)
+    good = ok & finite
+    ax.plot(d[good], v[good], marker="o", ms=3, color=color, label=label)
     bad = finite & ~ok
-    ax.plot(d[bad], v[bad], linestyle="none", marker="o", ms=4, mfc="none", color=color)
+    ax.plot(d[bad], v[bad], linestyle="none", marker="o", ms=5, mfc="none", color=color)
+    missing = ~finite
+    ax.plot(d[missing], np.full(int(missing.sum()), 0.03), linestyle="none", marker="x", color=color,
+            transform=ax.get_xaxis_transform())
 
 
 def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
@@ -115,7 +118,7 @@ def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
     for ax, attr, title in zip(axes, ("sfr10", "sfr50", "sfr_area"), ("SFR10", "SFR50", "SFR area")):
         for orientation, color in (("horizontal", "tab:blue"), ("vertical", "tab:orange")):
             d, v, ok = result.series(orientation, attr)
-            _valid_and_dashed(ax, d, v, ok, orientation, color)
+            _valid_and_invalid(ax, d, v, ok, orientation, color)
         ax.set_title(title)
         ax.set_xlabel("distance (mm)")
         ax.set_ylabel("cy/px" if attr != "sfr_area" else "")
@@ -123,7 +126,7 @@ def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
         for x, name in ((result.hyperfocal_mm, "hyperfocal"), (result.best_focus_mm, "best focus")):
             if math.isfinite(x):
                 ax.axvline(x, color="gray", linestyle=":" if name == "hyperfocal" else "-.", linewidth=1)
-    axes[0].legend(title="dashed / hollow: invalid")
+    axes[0].legend(title="hollow, x at the bottom: invalid\n(reason: the table's note)")
     fig.suptitle(f"Slanted-edge sharpness over distance: hyperfocal {result.hyperfocal_mm:.0f} mm, "
                  f"best focus {result.best_focus_mm:.0f} mm")
     fig.tight_layout()
@@ -140,7 +143,7 @@ def plot_resolution(result: SharpnessResult, path: Path) -> Path:
         d, sfr10, ok = result.series(orientation, "sfr10")
         with np.errstate(divide="ignore", invalid="ignore"):
             res = np.where(sfr10 > 0, sensor / sfr10, np.nan)
-        _valid_and_dashed(ax, d, res, ok, f"imagery, {orientation}", color)
+        _valid_and_invalid(ax, d, res, ok, f"imagery, {orientation}", color)
         ax.axhline(sensor, color=color, linestyle=":", label=f"sensor, {orientation} ({sensor:.3f} deg)")
     ax.set_xlabel("distance (mm)")
     ax.set_ylabel("angular resolution (deg)")

@@ -107,15 +107,19 @@ def test_sharpness_figures_follow_the_lens(complete):
     """Hyperfocal distance within one 100 mm step of the profile's; SFR10 at best focus gives the imagery
     resolution of the calibrated lens, sensor resolution / f10 with |sinc f| exp(-2 pi^2 sigma^2 f^2) = 0.1
     at f10 (within 20 %: one position's SFR10 from a 4-frame stack across a ROI of 20..60 px; the
-    lens blur applied to pixel values instead of sub-pixels read 35..50 % finer); IED per eq. 6-2."""
+    lens blur applied to pixel values instead of sub-pixels read 35..50 % finer); IED at the image centre
+    (pinhole) and per eq. 6-2 (mean angular pixel size)."""
     camera, model, _, evaluation = complete
     p = model.profile()
     assert value(evaluation, "hyperfocal_distance_mm") == pytest.approx(p.hyperfocal_mm, abs=100.0)
     f10 = optimize.brentq(lambda f: np.sinc(f) * np.exp(-2 * np.pi**2 * p.lens_sigma_px**2 * f**2) - 0.1, 0.05, 1.5)
     for name, sensor in zip(("intensity_resolution_h_deg", "intensity_resolution_v_deg"), sensor_resolution(model)):
         assert value(evaluation, name) == pytest.approx(sensor / f10, rel=0.2), name
-    assert value(evaluation, "ied_pixels_at_hyperfocal") == pytest.approx(
-        ied_pixels(sensor_resolution(model)[0], value(evaluation, "hyperfocal_distance_mm")))
+    hyperfocal = value(evaluation, "hyperfocal_distance_mm")
+    focal_px = p.width / 2 / math.tan(math.radians(p.fov_h_deg / 2))  # pinhole at the image centre
+    assert value(evaluation, "ied_pixels_at_hyperfocal") == pytest.approx(62.5 * focal_px / hyperfocal)
+    assert value(evaluation, "ied_pixels_at_hyperfocal_angular") == pytest.approx(
+        ied_pixels(sensor_resolution(model)[0], hyperfocal))
     assert value(evaluation, "pixel_aspect_distortion_pct") == pytest.approx(
         pixel_aspect_distortion_pct(p.fov_h_deg, p.fov_v_deg, p.width, p.height))
 

@@ -24,7 +24,8 @@ CONTRACT_NAMES = {
 DEPTH = {"z_trueness_q90_mm", "z_accuracy_q90_mm", "z_precision_q90_mm", "z_repeatability_center_mm",
          "surface_primary_sq_mm", "surface_waviness_sq_mm", "surface_roughness_sq_mm",
          # the wall stacks of a depth sweep also give the x/y noise when the run has no xy_sweep
-         "x_precision_q90_mm", "y_precision_q90_mm", "x_repeatability_center_mm", "y_repeatability_center_mm"}
+         "x_precision_q90_mm", "y_precision_q90_mm", "x_repeatability_center_mm", "y_repeatability_center_mm",
+         "x_repeatability_off_axis_mm", "y_repeatability_off_axis_mm"}
 #: the datasheet-comparable figures of the wall at 1 m and 2 m (signed: Z accuracy); a ToF camera has no subpixel RMS
 VENDOR = {f.name for f in VENDOR_FIGURES} - STEREO_ONLY
 

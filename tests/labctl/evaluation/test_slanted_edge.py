@@ -80,8 +80,10 @@ def test_simulated_sweep_finds_the_profiles_hyperfocal_distance(profile, tmp_pat
     sensor_h = PROFILES[profile].fov_h_deg / 192
     res_h = evaluation.figures["intensity_resolution_h_deg"].value
     assert sensor_h < res_h < 4 * sensor_h  # imagery resolution is worse than the sensor's, not absurdly
-    ied = evaluation.figures["ied_pixels_at_hyperfocal"].value
-    assert ied == pytest.approx(62.5 / (math.tan(math.radians(sensor_h)) * found), rel=1e-9)
+    ied = evaluation.figures["ied_pixels_at_hyperfocal"].value  # pinhole: f = (W / 2) / tan(FOV / 2)
+    assert ied == pytest.approx(62.5 * 96 / math.tan(math.radians(PROFILES[profile].fov_h_deg / 2)) / found, rel=1e-9)
+    angular = evaluation.figures["ied_pixels_at_hyperfocal_angular"].value
+    assert angular == pytest.approx(62.5 / (math.tan(math.radians(sensor_h)) * found), rel=1e-9) and angular > ied
 
 
 def test_evaluate_writes_sharpness_report(tmp_path, write_campaign, small_model):

@@ -1,0 +1,65 @@
+"""Plausibility of a measured figure: limits a figure cannot cross without measuring something else.
+
+* Nyquist: a sampled image holds no frequency above 0.5 cycles per pixel
+  (Nyquist-Shannon; ISO 12233:2017 reports the e-SFR up to it). An SFR10
+  above 0.5 cy/px is aliasing, sharpening or a noisy edge, not resolution.
+* Quantization: a camera that outputs coordinates in steps of q (the
+  AM-T100's integer millimetres, the RealSense z16 depth unit) cannot show a
+  spread or error below q reliably: the std of a quantized signal follows the
+  true one only when the noise exceeds about half a step (Sheppard's
+  correction, q^2 / 12), and a noise below that reads 0 or jumps by whole steps.
+* Coordinate near zero: the std of x = z (u - cx) / f at a pixel on the
+  principal axis carries no depth noise (x ~ 0 whatever z does).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: cycles per pixel: the highest frequency a sampled image holds
+NYQUIST_CY_PX = 0.5
+#: a finer step is float rounding (float32 steps below 4096 mm are <= 0.5 um) or the lattice z (u - cx) / f
+#: of x and y back-projected from whole-millimetre depth (1 / (2 f) <= 2.5 um for f >= 200 px), not an
+#: output resolution; the figures are never that small
+MIN_QUANTIZATION_MM = 0.01
+#: |coordinate| / distance below which a pixel counts as on the principal axis (0.57 deg)
+NEAR_AXIS_RATIO = 0.01
+
+
+def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
+    """The common step of the finite ``values`` (e.g. 1.0 for integer-millimetre output), NaN if continuous.
+
+    The step is the smallest difference between distinct values of a sample;
+    the values count as quantized when every one is a whole number of steps
+    from the smallest (within 0.1 % of a step) and the step is at least 10 um.
+    """
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if finite.size > sample:
+        finite = finite[np.linspace(0, finite.size - 1, sample).astype(int)]
+    distinct = np.unique(finite)
+    if distinct.size < 2:
+        return math.nan
+    step = float(np.min(np.diff(distinct)))
+    if step < MIN_QUANTIZATION_MM:
+        return math.nan
+    multiples = (distinct - distinct[0]) / step
+    return step if bool(np.all(np.abs(multiples - np.round(multiples)) < 1e-3)) else math.nan
+
+
+def above_nyquist(sfr10_cy_px: float) -> bool:
+    """True when an SFR10 lies above the Nyquist frequency (0.5 cy/px)."""
+    return math.isfinite(sfr10_cy_px) and sfr10_cy_px > NYQUIST_CY_PX
+
+
+def at_quantization_step(value_mm: float, step_mm: float) -> bool:
+    """True when a spread or error (mm) is below one quantization step of the output."""
+    return math.isfinite(value_mm) and math.isfinite(step_mm) and 0.0 <= abs(value_mm) < step_mm
+
+
+def near_axis(coordinate_mm: float, distance_mm: float) -> bool:
+    """True when a pixel's x (or y) is within 1 % of the distance of 0: on the principal axis."""
+    return math.isfinite(coordinate_mm) and math.isfinite(distance_mm) and \
+        abs(coordinate_mm) < NEAR_AXIS_RATIO * abs(distance_mm)
