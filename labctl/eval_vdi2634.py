@@ -91,7 +91,7 @@ def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any], focal_px: floa
     incidence = float(params.get("max_incidence_deg", MAX_INCIDENCE_DEG))
     margin = float(params.get("rim_margin_px", RIM_MARGIN_PX)) / focal_px
     try:
-        fits = [fit_sphere_cap(h, incidence, margin) for h in halves]
+        fits = [fit_sphere_cap(h, float(params["diameter_mm"]) / 2, incidence, margin) for h in halves]
     except ValueError as error:  # fewer than 4 points inside a rim
         return str(error)
     if min(f.n_points - f.n_rim for f in fits) < MIN_POINTS:

@@ -13,11 +13,12 @@
   their points lie off the sphere and bias its size (outwards where the
   background is mixed in). The guideline itself knows only the 0.3 % rule
   above; labctl additionally keeps only the points whose line of sight (from
-  the camera at the origin) meets the fitted sphere at an incidence of at most
+  the camera at the origin) meets the sphere (fitted centre, calibrated
+  radius) at an incidence of at most
   ``max_incidence_deg`` (60 deg: the 120 deg cone about the line from the
   sphere's centre to the instrument of the ASTM E3125-17 sphere-centre
   algorithm, Rachakonda et al. 2018, J. Res. NIST 123:006) and passes at least
-  ``margin_rad`` inside the fitted sphere's silhouette (one pixel: a pixel
+  ``margin_rad`` inside its silhouette (one pixel: a pixel
   whose centre lies one pixel inside has its whole footprint, half-diagonal
   0.71 px, on the sphere). The selection depends only on the points'
   directions, not on their measured ranges, so it does not select noise; it
@@ -121,16 +122,18 @@ def cap_mask(points: np.ndarray, centre: np.ndarray, radius: float, max_incidenc
     return inside & steep & (cos_gamma > 0)
 
 
-def fit_sphere_cap(points: np.ndarray, max_incidence_deg: float = 60.0, margin_rad: float = 0.0,
-                   iterations: int = 10) -> SphereFit:
+def fit_sphere_cap(points: np.ndarray, calibrated_radius: float, max_incidence_deg: float = 60.0,
+                   margin_rad: float = 0.0, iterations: int = 10) -> SphereFit:
     """Robust sphere through the points an area sensor saw (camera at the origin), with the rim rule of the
-    module docstring: fit, keep the points ``cap_mask`` selects, refit, until the kept points stay the same."""
+    module docstring: fit, keep the points ``cap_mask`` selects about the fitted centre (the cap drawn with the
+    artefact's ``calibrated_radius``, so a noisy radius cannot shrink it), refit, until the kept points stay
+    the same."""
     points = np.asarray(points, float)
     points = points[np.all(np.isfinite(points), axis=1)]
     fit = fit_sphere(points)
     keep = np.ones(len(points), bool)
     for _ in range(iterations):
-        selected = cap_mask(points, fit.centre, fit.radius, max_incidence_deg, margin_rad)
+        selected = cap_mask(points, fit.centre, calibrated_radius, max_incidence_deg, margin_rad)
         if np.array_equal(selected, keep):
             break
         keep = selected

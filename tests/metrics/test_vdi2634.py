@@ -166,7 +166,7 @@ def test_rim_rule_removes_the_mixed_rim():
     tangent = math.sqrt(np.linalg.norm(centre) ** 2 - 25.0**2)
     mixed = np.vstack([points, rays[missing] * tangent])
     assert probing_error_size(fit_sphere(mixed), 50.0) > 1.0
-    fit = fit_sphere_cap(mixed, 60.0, pixel)
+    fit = fit_sphere_cap(mixed, 25.0, 60.0, pixel)
     assert probing_error_size(fit, 50.0) == pytest.approx(0.0, abs=1e-6)
     assert fit.centre == pytest.approx(centre, abs=1e-6)
     assert fit.n_rim == len(mixed) - cap_mask(mixed, centre, 25.0, 60.0, pixel).sum() > len(mixed) - len(points)
