@@ -31,11 +31,11 @@ FOOTPRINT = 8
 ARTEFACT_MATERIAL = "wall"  # the ball bar's matte white paint
 
 
-def ball_bar_centres(wall_mm: float, params: dict) -> list[np.ndarray]:
+def ball_bar_centres(wall_distance_mm: float, params: dict) -> list[np.ndarray]:
     """The two sphere centres: the bar's middle on the axis ``gap_mm`` in front of the wall, along its direction."""
     phi, tilt = math.radians(params["orientation_deg"]), math.radians(params["tilt_deg"])
     axis = np.array([math.cos(phi) * math.cos(tilt), math.sin(phi) * math.cos(tilt), math.sin(tilt)])
-    middle = np.array([0.0, 0.0, wall_mm - params["gap_mm"]])
+    middle = np.array([0.0, 0.0, wall_distance_mm - params["gap_mm"]])
     return [middle - axis * params["spacing_mm"] / 2, middle + axis * params["spacing_mm"] / 2]
 
 
@@ -179,7 +179,7 @@ def rule_range(deviations: np.ndarray) -> float:
     return float(kept.max() - kept.min())
 
 
-def _wall_mm(step) -> float:
+def wall_mm(step) -> float:
     """The camera-wall distance: the laser's reference where the run has one, else the stage's."""
     reference = float(step.attrs.get("reference_distance_mm", math.nan))
     return reference if math.isfinite(reference) else float(step.attrs["distance_mm"])
@@ -193,12 +193,12 @@ def predicted_acceptance(model, reader, rng: np.random.Generator, n_draws: int) 
     for step in reader.steps("sphere_bar"):
         params = json.loads(step.attrs["target_json"])
         radius = params["diameter_mm"] / 2
-        pixels = [sphere_pixels(model, c, radius) for c in ball_bar_centres(_wall_mm(step), params)]
+        pixels = [sphere_pixels(model, c, radius) for c in ball_bar_centres(wall_mm(step), params)]
         bars.append((params, pixels, [np.isfinite(step.frame("z", k)) for k in range(step.group["z"].shape[0])]))
     plates = []
     for step in reader.steps("flatness"):
         params = json.loads(step.attrs["target_json"])
-        wall = _wall_mm(step)
+        wall = wall_mm(step)
         plate = plate_model(model, wall - params["gap_mm"], params["tilt_deg"])
         masks = [np.isfinite(z) & (z < wall - params["gap_mm"] / 2)
                  for z in (step.frame("z", k) for k in range(step.group["z"].shape[0]))]
