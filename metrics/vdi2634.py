@@ -7,6 +7,22 @@
   points, and only points whose |deviation| from the first fit exceeds three
   times the RMS deviation (largest first), then refits; nothing is left out of
   a clean measurement;
+* rim rule (``fit_sphere_cap``): an area sensor's pixels on a sphere's rim see
+  the sphere and what lies behind it at once (the pixel footprint, the lens
+  blur, a stereo matcher's window) and the sphere itself at grazing incidence;
+  their points lie off the sphere and bias its size (outwards where the
+  background is mixed in). The guideline itself knows only the 0.3 % rule
+  above; labctl additionally keeps only the points whose line of sight (from
+  the camera at the origin) meets the sphere (fitted centre, calibrated
+  radius) at an incidence of at most
+  ``max_incidence_deg`` (60 deg: the 120 deg cone about the line from the
+  sphere's centre to the instrument of the ASTM E3125-17 sphere-centre
+  algorithm, Rachakonda et al. 2018, J. Res. NIST 123:006) and passes at least
+  ``margin_rad`` inside its silhouette (one pixel: a pixel
+  whose centre lies one pixel inside has its whole footprint, half-diagonal
+  0.71 px, on the sphere). The selection depends only on the points'
+  directions, not on their measured ranges, so it does not select noise; it
+  is iterated with the refit until the kept points no longer change;
 * probing error form P_F: range (max - min) of the radial deviations from the
   fitted sphere;
 * probing error size P_S: fitted diameter minus calibrated diameter;
@@ -38,6 +54,7 @@ class SphereFit:
     deviations: np.ndarray  # radial deviations of the points kept (mm, positive outside)
     n_points: int
     n_excluded: int
+    n_rim: int = 0  # points left out by the rim rule (``fit_sphere_cap``)
 
     @property
     def diameter(self) -> float:
@@ -84,6 +101,44 @@ def fit_sphere(points: np.ndarray) -> SphereFit:
         centre, radius = _sphere_least_squares(points[~excluded])
     kept = points[~excluded]
     return SphereFit(centre, radius, np.linalg.norm(kept - centre, axis=1) - radius, len(points), int(excluded.sum()))
+
+
+def cap_mask(points: np.ndarray, centre: np.ndarray, radius: float, max_incidence_deg: float,
+             margin_rad: float) -> np.ndarray:
+    """Points whose line of sight from the origin meets the sphere (``centre``, ``radius``) at an incidence of at
+    most ``max_incidence_deg`` and passes at least ``margin_rad`` inside its silhouette (rim rule, module docstring).
+
+    A ray at angle gamma from the direction of the centre (distance D) passes the centre at b = D sin gamma
+    and meets the sphere at the incidence asin(b / r); the silhouette lies at gamma_s = asin(r / D).
+    """
+    points = np.asarray(points, float)
+    distance = float(np.linalg.norm(centre))
+    if distance <= radius:
+        raise ValueError("the camera lies inside the fitted sphere")
+    cos_gamma = points @ (centre / distance) / np.linalg.norm(points, axis=1)
+    gamma = np.arccos(np.clip(cos_gamma, -1.0, 1.0))
+    inside = gamma <= math.asin(radius / distance) - margin_rad
+    steep = distance * np.sin(gamma) <= radius * math.sin(math.radians(max_incidence_deg))
+    return inside & steep & (cos_gamma > 0)
+
+
+def fit_sphere_cap(points: np.ndarray, calibrated_radius: float, max_incidence_deg: float = 60.0,
+                   margin_rad: float = 0.0, iterations: int = 10) -> SphereFit:
+    """Robust sphere through the points an area sensor saw (camera at the origin), with the rim rule of the
+    module docstring: fit, keep the points ``cap_mask`` selects about the fitted centre (the cap drawn with the
+    artefact's ``calibrated_radius``, so a noisy radius cannot shrink it), refit, until the kept points stay
+    the same."""
+    points = np.asarray(points, float)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    fit = fit_sphere(points)
+    keep = np.ones(len(points), bool)
+    for _ in range(iterations):
+        selected = cap_mask(points, fit.centre, calibrated_radius, max_incidence_deg, margin_rad)
+        if np.array_equal(selected, keep):
+            break
+        keep = selected
+        fit = fit_sphere(points[keep])
+    return SphereFit(fit.centre, fit.radius, fit.deviations, len(points), fit.n_excluded, int((~keep).sum()))
 
 
 def probing_error_form(fit: SphereFit) -> float:

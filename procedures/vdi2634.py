@@ -7,7 +7,8 @@
   direction in the image plane: 0 horizontal, 90 vertical, 45 / 135 the
   diagonals), each with ``tilt_deg`` out of the image plane, so that the
   positions span the measuring volume's width, height and depth as the
-  guideline asks;
+  guideline asks; each sphere is fitted with the rim rule of
+  ``metrics.vdi2634`` (``max_incidence_deg``, ``rim_margin_px``);
 * ``flatness``: a flat plate of ``plate_mm`` placed ``gap_mm`` in front of the
   wall at each distance, tilted about the vertical axis by each of ``tilts_deg``.
 
@@ -57,6 +58,8 @@ class SphereBar(_Artefact):
     distances_mm: list[float] = Field([1000.0, 1500.0, 2000.0], min_length=1, description="camera to bar")
     orientations_deg: list[float] = Field([0.0, 45.0, 90.0, 135.0], min_length=1)
     tilt_deg: float = Field(0.0, ge=-60.0, le=60.0, description="bar out of the image plane")
+    max_incidence_deg: float = Field(60.0, gt=0.0, le=90.0, description="rim rule: steepest incidence kept")
+    rim_margin_px: float = Field(1.0, ge=0.0, le=20.0, description="rim rule: pixels kept inside the silhouette")
     mpe_form_mm: float | None = Field(None, gt=0, description="maximum permissible probing error form")
     mpe_size_mm: float | None = Field(None, gt=0, description="maximum permissible |probing error size|")
     mpe_spacing_mm: float | None = Field(None, gt=0, description="maximum permissible |sphere-spacing error|")
@@ -67,7 +70,8 @@ class SphereBar(_Artefact):
             yield self._step(
                 first_index + n, distance, "ball_bar",
                 {"diameter_mm": self.sphere_diameter_mm, "spacing_mm": self.sphere_spacing_mm,
-                 "orientation_deg": orientation, "tilt_deg": self.tilt_deg, "mpe_form_mm": self.mpe_form_mm,
+                 "orientation_deg": orientation, "tilt_deg": self.tilt_deg, "max_incidence_deg": self.max_incidence_deg,
+                 "rim_margin_px": self.rim_margin_px, "mpe_form_mm": self.mpe_form_mm,
                  "mpe_size_mm": self.mpe_size_mm, "mpe_spacing_mm": self.mpe_spacing_mm},
                 f"place the ball bar ({self.sphere_diameter_mm:g} mm spheres, {self.sphere_spacing_mm:g} mm apart) "
                 f"{self.gap_mm:g} mm in front of the wall, centred on the camera axis, at {orientation:g} deg from "

@@ -257,7 +257,7 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
                 evaluation.figures.update(remission_figures(evaluation.remission))
         artefacts = [s for r in readers for s in r.steps() if s.attrs.get("procedure") in ("sphere_bar", "flatness")]
         if artefacts:
-            evaluation.acceptance = evaluate_acceptance(artefacts, progress)
+            evaluation.acceptance = evaluate_acceptance(artefacts, readers[0].camera, progress)
             evaluation.notes.extend(evaluation.acceptance.notes)
             for name, (value, source) in acceptance_figures(evaluation.acceptance).items():
                 evaluation.figures[name] = FigureValue(value, source)

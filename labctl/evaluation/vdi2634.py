@@ -4,7 +4,9 @@ Every frame of a step is one measurement. The artefact's points are those
 nearer than the wall minus half the artefact's gap (the wall: the step's
 reference distance, else the stage's nominal distance); a ball bar's points are
 split between its two spheres by the side of their centroid they lie on along
-the bar's nominal direction. Per quantity the key figure is the measurement of
+the bar's nominal direction, and each sphere is fitted with the rim rule of
+``metrics.vdi2634`` (``max_incidence_deg``, ``rim_margin_px`` of the step,
+the margin turned into an angle with the camera's focal length). Per quantity the key figure is the measurement of
 largest magnitude over all frames and positions (what the guideline compares
 with the maximum permissible error): P_F and F their maximum, P_S and SD
 signed. With a maximum permissible error in the campaign, the verdict is pass
@@ -21,18 +23,22 @@ from typing import Any
 
 import numpy as np
 
+from drivers.protocols import CameraInfo
+from labctl.evaluation.depth_quality import focal_length_px
 from labctl.run.store import StepRecord
 from metrics.vdi2634 import (
     fit_flat,
-    fit_sphere,
+    fit_sphere_cap,
     flatness_error,
     probing_error_form,
     probing_error_size,
     sphere_spacing_error,
 )
 
-#: fewer artefact points than this in a frame: the frame is not evaluated
+#: fewer artefact points than this in a frame (or on a sphere inside its rim): the frame is not evaluated
 MIN_POINTS = 10
+#: rim rule of the sphere fit when the step does not give one (metrics.vdi2634)
+MAX_INCIDENCE_DEG, RIM_MARGIN_PX = 60.0, 1.0
 #: key figure -> (maximum permissible error parameter, how the measurements reduce)
 QUANTITIES = {
     "probing_error_form_mm": ("mpe_form_mm", "max"),
@@ -73,7 +79,7 @@ def _artefact_points(step: StepRecord, k: int, gap_mm: float) -> np.ndarray:
     return cloud[cloud[:, 2] < _wall_mm(step) - gap_mm / 2]
 
 
-def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any]) -> dict[str, float] | str:
+def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any], focal_px: float) -> dict[str, float] | str:
     points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
     if len(points) < 2 * MIN_POINTS:
         return f"{len(points)} points on the ball bar"
@@ -82,7 +88,14 @@ def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any]) -> dict[str, f
     halves = points[~side], points[side]
     if min(len(h) for h in halves) < MIN_POINTS:
         return f"{min(len(h) for h in halves)} points on a sphere"
-    fits = [fit_sphere(h) for h in halves]
+    incidence = float(params.get("max_incidence_deg", MAX_INCIDENCE_DEG))
+    margin = float(params.get("rim_margin_px", RIM_MARGIN_PX)) / focal_px
+    try:
+        fits = [fit_sphere_cap(h, float(params["diameter_mm"]) / 2, incidence, margin) for h in halves]
+    except ValueError as error:  # fewer than 4 points inside a rim
+        return str(error)
+    if min(f.n_points - f.n_rim for f in fits) < MIN_POINTS:
+        return f"{min(f.n_points - f.n_rim for f in fits)} points on a sphere inside its rim"
     sizes = [probing_error_size(f, float(params["diameter_mm"])) for f in fits]
     return {
         "probing_error_form_mm": max(probing_error_form(f) for f in fits),
@@ -91,16 +104,18 @@ def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any]) -> dict[str, f
     }
 
 
-def _flatness(step: StepRecord, k: int, params: dict[str, Any]) -> dict[str, float] | str:
+def _flatness(step: StepRecord, k: int, params: dict[str, Any], _: float) -> dict[str, float] | str:
     points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
     if len(points) < MIN_POINTS:
         return f"{len(points)} points on the plate"
     return {"flatness_error_mm": flatness_error(fit_flat(points))}
 
 
-def evaluate_acceptance(steps: Sequence[StepRecord], progress: Callable[[str], None]) -> AcceptanceResult:
+def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
+                        progress: Callable[[str], None]) -> AcceptanceResult:
     """Every measurement of the ``sphere_bar`` and ``flatness`` steps, and the campaign's MPEs."""
     result = AcceptanceResult()
+    focal_px = focal_length_px(camera)
     for step in steps:
         kind = step.attrs.get("procedure")
         params = _params(step)
@@ -112,7 +127,7 @@ def evaluate_acceptance(steps: Sequence[StepRecord], progress: Callable[[str], N
         pose = float(params.get("orientation_deg" if kind == "sphere_bar" else "tilt_deg", 0.0))
         distance = _wall_mm(step) - float(params.get("gap_mm", 500.0))
         for k in range(step.group["z"].shape[0]):
-            values = evaluate(step, k, params)
+            values = evaluate(step, k, params, focal_px)
             if isinstance(values, str):
                 result.notes.append(f"{step.step_id} frame {k}: {values}, not evaluated")
                 continue

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from metrics.vdi2634 import (
+    cap_mask,
     fit_flat,
     fit_sphere,
+    fit_sphere_cap,
     flatness_error,
     probing_error_form,
     probing_error_size,
@@ -104,3 +106,67 @@ def test_flatness_of_a_known_peak_to_valley():
     fit = fit_flat(points)
     assert flatness_error(fit) == pytest.approx(0.4, abs=1e-3)
     assert abs(fit.normal @ n) == pytest.approx(1.0, abs=1e-9)
+
+
+def pinhole_view(centre, radius: float, pixel_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A camera at the origin with square pixels of ``pixel_rad`` looking at a sphere: per pixel whose ray meets
+    it, the exact hit point, the incidence (deg) and how far (rad) the ray passes inside the silhouette."""
+    centre = np.asarray(centre, float)
+    distance = np.linalg.norm(centre)
+    n = int(math.ceil(math.asin(radius / distance) / pixel_rad)) + 3
+    a = np.arange(-n, n + 1) * pixel_rad
+    ax, ay = np.meshgrid(a, a)
+    rays = np.stack([np.tan(ax), np.tan(ay), np.ones_like(ax)], -1).reshape(-1, 3)
+    rays = rays / np.linalg.norm(rays, axis=1)[:, None]
+    rays = rays @ _rotation_to(centre / distance).T
+    b = rays @ centre
+    disc = b**2 - (distance**2 - radius**2)
+    hit = disc >= 0
+    t = b[hit] - np.sqrt(disc[hit])
+    gamma = np.arccos(np.clip(b[hit] / distance, -1, 1))
+    incidence = np.degrees(np.arcsin(np.clip(distance * np.sin(gamma) / radius, 0, 1)))
+    return rays[hit] * t[:, None], incidence, math.asin(radius / distance) - gamma
+
+
+def _rotation_to(axis: np.ndarray) -> np.ndarray:
+    """Rotation taking +z onto ``axis`` (Rodrigues)."""
+    z = np.array([0.0, 0.0, 1.0])
+    v, c = np.cross(z, axis), float(z @ axis)
+    if np.linalg.norm(v) < 1e-12:
+        return np.eye(3)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1 + c)
+
+
+def test_rim_rule_keeps_the_cap_of_its_definition():
+    """cap_mask on the exact hits of a 25 mm sphere at 1 m off the axis, 0.1 deg pixels: exactly the pixels
+    whose incidence is at most 60 deg and whose ray passes at least one pixel inside the silhouette."""
+    pixel = math.radians(0.1)
+    centre = np.array([150.0, -80.0, 1000.0])
+    points, incidence, inside = pinhole_view(centre, 25.0, pixel)
+    kept = cap_mask(points, centre, 25.0, 60.0, pixel)
+    assert np.array_equal(kept, (incidence <= 60.0) & (inside >= pixel))
+    assert 0 < kept.sum() < len(points)
+
+
+def test_rim_rule_removes_the_mixed_rim():
+    """The rim pixels of an area sensor mix the sphere with the wall behind it: here each pixel within one pixel
+    outside the silhouette reports the sphere's tangent range along its own ray (outside the sphere), and the
+    free fit's size error is positive by millimetres; the rim rule recovers the exact sphere (no noise: to
+    1e-6 mm) and counts the points it left out."""
+    pixel = math.radians(0.42)  # a 160 px wide sensor behind a 67 deg lens
+    centre = np.array([-150.0, 20.0, 1000.0])
+    points, _, _ = pinhole_view(centre, 25.0, pixel)
+    rays = np.array([[math.tan(x), math.tan(y), 1.0] for x in np.arange(-40, 41) * pixel
+                     for y in np.arange(-40, 41) * pixel])
+    rays = rays / np.linalg.norm(rays, axis=1)[:, None]
+    gamma = np.arccos(rays @ centre / np.linalg.norm(centre))
+    silhouette = math.asin(25.0 / np.linalg.norm(centre))
+    missing = (gamma > silhouette) & (gamma < silhouette + pixel)
+    tangent = math.sqrt(np.linalg.norm(centre) ** 2 - 25.0**2)
+    mixed = np.vstack([points, rays[missing] * tangent])
+    assert probing_error_size(fit_sphere(mixed), 50.0) > 1.0
+    fit = fit_sphere_cap(mixed, 25.0, 60.0, pixel)
+    assert probing_error_size(fit, 50.0) == pytest.approx(0.0, abs=1e-6)
+    assert fit.centre == pytest.approx(centre, abs=1e-6)
+    assert fit.n_rim == len(mixed) - cap_mask(mixed, centre, 25.0, 60.0, pixel).sum() > len(mixed) - len(points)

@@ -4,7 +4,8 @@ Every key figure of CONTRACTS §7 comes out (none null), and each sits where the
 camera's profile puts it. To keep the suite fast the campaigns keep every
 position but take 10 frames per depth-sweep stack and 4 elsewhere, the 640 x 480
 cameras run at 160 x 120 (the flexx2 at its own 224 x 172), the ball bar and the
-flat plate stand at 1000 mm only, in two poses, and the checkerboard
+flat plate stand at 1000 mm only, in two poses, the ball bar's spheres are 100 mm
+(about 80 pixels each inside the rim rule at 160 x 120), and the checkerboard
 has 60 mm tiles (about 7 px at the best-focus distance, as the 19 mm board gives
 at full resolution). The model is the profile's built-in one (defocus, output
 quantization) with that sensor size. Each camera's tests run on one pytest-xdist
@@ -41,11 +42,13 @@ from sim.optics import pixel_aspect_distortion_pct, sensor_angular_resolution_de
 from sim.profiles import default_effects, get_profile
 from sim.stereo import StereoSensor
 from sim.tof import IRRADIANCE_REF, range_noise_mm, reference_amplitude
+from tests.artefact_model import predicted_acceptance
 from tests.noise_model import wall_sigma_z
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 CAMERAS = {"blaze101": (160, 120), "amt100": (160, 120), "flexx2": (224, 172), "d455": (160, 120)}
 DEPTH_FRAMES, FRAMES = 10, 4
+ACCEPTANCE_DRAWS = 100
 
 
 def reduced_campaign(camera: str, directory: Path) -> tuple[Path, Path]:
@@ -56,6 +59,8 @@ def reduced_campaign(camera: str, directory: Path) -> tuple[Path, Path]:
             procedure["tile_mm"] = 60.0
         if procedure["kind"] in ("sphere_bar", "flatness"):  # one distance, two poses
             procedure["distances_mm"] = [1000.0]
+        if procedure["kind"] == "sphere_bar":  # about 80 pixels per sphere inside the rim at 160 x 120
+            procedure["sphere_diameter_mm"] = 100.0
             procedure["orientations_deg" if procedure["kind"] == "sphere_bar" else "tilts_deg"] = [0.0, 30.0]
     profile = get_profile(camera)
     width, height = CAMERAS[camera]
@@ -199,19 +204,32 @@ def test_vendor_figures_follow_the_noise_model(complete):
 
 
 def test_acceptance_figures_follow_the_noise_model(complete):
-    """Ball bar and plate at 1 m, against the model's wall noise sigma at 1 m (centre of the image): the
-    spacing error within 5 sigma (a few tens of points per sphere at this resolution, most of them on the
-    rim; the rim bias of the mixed pixels is shared by both spheres and mostly cancels: measured 0.6 to 3.5
-    sigma); the probing error size positive (the rim pixels mix the sphere with the wall behind and lie
-    outside it); the flatness error, the range of a few thousand deviations after the 0.3 % rule, between
-    4.5 and 9 sigma (about 7 sigma for Gaussian noise; measured 5.9 to 6.3)."""
-    camera, model, _, evaluation = complete
-    sigma = wall_sigma_z(model, 1000.0)
-    h, w = sigma.shape
-    noise = float(np.sqrt(np.nanmean(sigma[h // 2 - 5:h // 2 + 5, w // 2 - 5:w // 2 + 5] ** 2)))
-    assert abs(value(evaluation, "sphere_spacing_error_mm")) < 5 * noise, (camera, noise)
-    assert value(evaluation, "probing_error_size_mm") > 0, camera
-    assert 4.5 * noise < value(evaluation, "flatness_error_mm") < 9 * noise, (camera, noise)
+    """Ball bar (100 mm spheres: about 80 pixels each inside the rim at 160 x 120 and 1 m) and plate against
+    tests/artefact_model's prediction (``predicted_acceptance``: ACCEPTANCE_DRAWS repetitions of all 8 ball-bar
+    and 8 plate measurements). Per quantity: the mean of the measurements within 4 standard errors of the
+    predicted mean (the predicted spread over sqrt(n)), plus 0.05 mm for what the prediction leaves out (the
+    renderer's 2 x 2 sub-pixel sampling of interior pixels, the wall's light blurred onto the amplitude); the
+    free fit without the rim rule misses it by 3 to 8 standard errors (size +2.2 mm on the blaze-101 against
+    +0.3 mm predicted, +2.3 mm on the D455 against -2.9 mm). The key figure (the largest magnitude, as the
+    guideline compares it with the MPE) lies within the predicted 1..99 % band, widened by 10 %. Measured
+    means against predicted: form 2.18 / 2.20 mm (blaze-101), 2.31 / 2.22 (AM-T100), 5.04 / 5.05 (flexx2),
+    9.9 / 10.1 (D455); flatness 2.86 / 2.79, 2.42 / 2.36, 5.74 / 5.64, 14.6 / 15.1."""
+    camera, model, run, evaluation = complete
+    with RunReader(run) as reader:
+        draws = predicted_acceptance(model, reader, np.random.default_rng(1), ACCEPTANCE_DRAWS)
+    measured = evaluation.acceptance.measurements
+    for name in draws[0]:
+        values = np.array([m.values[name] for m in measured if name in m.values])
+        predicted = np.array([d[name] for d in draws])
+        assert values.size == predicted.shape[1], (camera, name)
+        standard_error = predicted.std() / math.sqrt(values.size)
+        assert abs(values.mean() - predicted.mean()) <= 4 * standard_error + 0.05, (
+            camera, name, values.mean(), predicted.mean(), standard_error)
+        signed = name in ("probing_error_size_mm", "sphere_spacing_error_mm")
+        worst = np.abs(predicted).max(axis=1) if signed else predicted.max(axis=1)
+        low, high = np.quantile(worst, [0.01, 0.99])
+        figure = abs(value(evaluation, name))
+        assert 0.9 * low <= figure <= 1.1 * high, (camera, name, figure, low, high)
 
 
 def test_skin_repeatability_is_the_noise_model_on_the_axis(complete):
