@@ -1,9 +1,9 @@
-"""Side-by-side comparison of cameras from their evaluations (thesis 6.6, Fig. 6-12; CONTRACTS §2).
+"""Side-by-side comparison of cameras from their evaluations (Thesis 2024, 6.6, Fig. 6-12; README.md, Command line).
 
 Input: the output directories of ``labctl evaluate`` (their ``keyfigures.json``).
 Output: ``compare.json`` (every figure per camera, the suitability verdicts),
 ``compare.html`` with the Fig. 6-12 style chart (all figures, lower is better;
-angular resolutions x 10 as in the thesis so they share the axis; fill rates,
+angular resolutions x 10 as in Thesis 2024 so they share the axis; fill rates,
 where higher is better, are left out), the datasheet-comparable figures with
 where they are defined, the
 inter-eye-distance coverage per camera against the 90 px requirement, and the
@@ -103,7 +103,7 @@ def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: P
     ax.set_xticklabels([n + (" x10" if n in TIMES_TEN else "") for n in names], rotation=70, ha="right", fontsize=8)
     ax.set_yscale("log")
     ax.set_ylabel("value (mm, %, deg x10); lower is better")
-    ax.set_title("Key figures of the cameras (thesis Fig. 6-12); missing bars: not measured, or 0", pad=28)
+    ax.set_title("Key figures of the cameras (Thesis 2024, Fig. 6-12); missing bars: not measured, or 0", pad=28)
     ax.grid(axis="y", alpha=0.3, which="both")
     ax.legend(ncol=max(len(labels), 1), loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=9, frameon=False)
     fig.tight_layout()
@@ -118,7 +118,7 @@ def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> P
     ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
     ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
     ax.set_ylabel("px across 62.5 mm at the hyperfocal distance")
-    ax.set_title("Inter-eye distance coverage (thesis eq. 6-2)")
+    ax.set_title("Inter-eye distance coverage (Thesis 2024, eq. 6-2)")
     ax.legend(loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -165,7 +165,7 @@ th{{background:#f4f4f4}}td.l{{text-align:left}}img{{max-width:100%}}</style></he
 <p>labctl {labctl_version()}, {now_iso()}. Cameras marked * were simulated.</p>
 <img src="{chart.as_posix()}" alt="key figures per camera">
 <h2>Inter-eye distance coverage</h2><img src="{ied.as_posix()}" alt="IED coverage">
-<h2>Suitability (SPEC 9)</h2>
+<h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>
 <table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>
 <h2>Datasheet-comparable figures</h2>
 <p>As the camera vendors' tools define them; set them next to the datasheets.</p>

@@ -1,4 +1,4 @@
-"""Plots of the remission-and-angle evaluation (thesis Fig. 6-11, Fig. 5-15), matplotlib Agg, PNG out."""
+"""Plots of the remission-and-angle evaluation (Thesis 2024, Fig. 6-11, Fig. 5-15), matplotlib Agg, PNG out."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ COLORS = {"ptfe": "tab:blue", "molleton": "black", "silicone": "tab:orange", "ge
 def plot_remission(result: RemissionResult, path: Path) -> Path:
     """Per material over the robot angle: repeatability, trueness vs 0 deg and vs the geometric reference.
 
-    Steps whose ROI is not on the target are left out (thesis 6.5.1).
+    Steps whose ROI is not on the target are left out (Thesis 2024, 6.5.1).
     """
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), sharex=True)
     panels = [
@@ -68,7 +68,7 @@ def plot_misalignment_fit(result: RemissionResult, path: Path) -> Path:
     top.plot(grid, fit.bias_mm + fit.delta_mm - fit.e_mm * np.tan(t), ls=":", color="tab:green",
              label="camera-axis term")
     top.set_ylabel("axis distance - radius (mm)")
-    top.set_title(f"Misalignment (thesis Fig. 5-15): target {fit.delta_mm:+.2f} +- {fit.delta_se_mm:.2f} mm, "
+    top.set_title(f"Misalignment (Thesis 2024, Fig. 5-15): target {fit.delta_mm:+.2f} +- {fit.delta_se_mm:.2f} mm, "
                   f"camera axis {fit.e_mm:+.2f} +- {fit.e_se_mm:.2f} mm", fontsize=10)
     top.grid(alpha=0.3)
     top.legend(fontsize=8)

@@ -54,7 +54,7 @@ def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
 
 
 def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -> Path:
-    """x and y precision (Q90 of the per-pixel std) and the centre pixel's repeatability over distance (SPEC 6)."""
+    """x and y precision (Q90 of the per-pixel std) and the centre pixel's repeatability over distance (Thesis 2024, 5.3)."""
     rows = sorted(precision, key=lambda item: item[1])
     d = np.array([distance for _, distance, _ in rows])
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
@@ -110,7 +110,7 @@ def _valid_and_dashed(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: s
 
 
 def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
-    """SFR10, SFR50 and SFR area over distance, horizontal and vertical (thesis Fig. 6-3)."""
+    """SFR10, SFR50 and SFR area over distance, horizontal and vertical (Thesis 2024, Fig. 6-3)."""
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), sharex=True)
     for ax, attr, title in zip(axes, ("sfr10", "sfr50", "sfr_area"), ("SFR10", "SFR50", "SFR area")):
         for orientation, color in (("horizontal", "tab:blue"), ("vertical", "tab:orange")):
@@ -166,7 +166,7 @@ def shaded_relief(cloud: np.ndarray) -> np.ndarray:
 
 
 def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, title: str, path: Path) -> Path:
-    """The face mask as the camera sees it: shaded relief of the point cloud, depth and intensity (thesis 6.7)."""
+    """The face mask as the camera sees it: shaded relief of the point cloud, depth and intensity (Thesis 2024, 6.7)."""
     z = cloud[..., 2]
     finite = z[np.isfinite(z)]
     if finite.size == 0:

@@ -78,7 +78,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     sections: list[str] = _alignment_section(evaluation)
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
-        sections.append(_section("Depth error over distance (SPEC 1)", img, outdir, _depth_rows(evaluation)))
+        sections.append(_section("Depth error over distance (Thesis 2024, 4.2.1)", img, outdir, _depth_rows(evaluation)))
     if evaluation.vendor:
         doc["depth_quality"] = _clean_rows(vendor_table(evaluation.vendor))
         img = plot_vendor_figures(evaluation.vendor, plots / "depth_quality.png")
@@ -87,13 +87,13 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         sections.append(_acceptance_section(evaluation, outdir, plots, doc))
     if evaluation.surface is not None:
         img = plot_surface_maps(evaluation.surface, plots / "surface_texture.png")
-        sections.append(_section("Surface texture (SPEC 2, ISO 25178-2)", img, outdir, ""))
+        sections.append(_section("Surface texture (Thesis 2024, 4.2.2, ISO 25178-2)", img, outdir, ""))
     if evaluation.sharpness is not None:
         img = plot_sharpness(evaluation.sharpness, plots / "sharpness.png")
-        sections.append(_section("Sharpness over distance (SPEC 3, ISO 12233)", img, outdir, ""))
+        sections.append(_section("Sharpness over distance (Thesis 2024, 5.1.2, ISO 12233)", img, outdir, ""))
         img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
         table = _rows_table(resolution_table(evaluation.sharpness), "step")
-        sections.append(_section("Resolution of the intensity image (thesis 6.3.1)", img, outdir, table))
+        sections.append(_section("Resolution of the intensity image (Thesis 2024, 6.3.1)", img, outdir, table))
     sections.extend(_geometry_sections(evaluation, outdir, plots, doc))
     sections.extend(_remission_sections(evaluation, outdir, plots, doc))
     if evaluation.face is not None:
@@ -104,7 +104,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
                              plots / "face_mask.png")
         link = f'<p>Organized point cloud for CloudCompare / Open3D: <a href="{pcd.name}">{pcd.name}</a> ' \
                f"({face.invalid_fraction:.1%} invalid points).</p>"
-        sections.append(_section("Face mask (SPEC 8, thesis 6.7)", img, outdir, link))
+        sections.append(_section("Face mask (Thesis 2024, 6.7)", img, outdir, link))
         doc["face_mask"] = {"step": face.step_id, "pcd": pcd.name, "invalid_fraction": face.invalid_fraction}
     json_path = outdir / "keyfigures.json"
     json_path.write_text(dumps_strict(doc, indent=2) + "\n")
@@ -118,12 +118,12 @@ def _alignment_section(evaluation: Evaluation) -> list[str]:
     if a is None:
         return []
     fields = ", ".join(f"{name.replace('_', ' ')} {xyz[2]:.1f} mm" for name, xyz in a.fields_mm.items())
-    return [f"<h2>Alignment (thesis 4.1.2)</h2><p>Accepted in {html.escape(a.step_id)}: corner fields {fields}; "
+    return [f"<h2>Alignment (Thesis 2024, 4.1.2)</h2><p>Accepted in {html.escape(a.step_id)}: corner fields {fields}; "
             f"residual tilt {a.tilt_x_deg:+.3f} deg about x (up), {a.tilt_y_deg:+.3f} deg about y (right).</p>"]
 
 
 def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
-    """Checkerboard distortion, Boehler star and x/y noise sections (SPEC 4-6)."""
+    """Checkerboard distortion, Boehler star and x/y noise sections (Thesis 2024, 5.1.3-5.3)."""
     geo = evaluation.geometry
     sections: list[str] = []
     if geo is None:
@@ -148,7 +148,7 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                          "fov_estimate_h_deg": math.nan, "fov_estimate_v_deg": math.nan, "k1": math.nan,
                          "corners": c.n_corners})
         doc["checkerboard"] = _clean_rows(rows)
-        sections.append(_section("Distortion (SPEC 5, EBU Tech 3249 / ISO 17850)", img, outdir, _rows_table(rows, "image")))
+        sections.append(_section("Distortion (Thesis 2024, 5.2, EBU Tech 3249 / ISO 17850)", img, outdir, _rows_table(rows, "image")))
     if geo.chosen_star is not None:
         star = geo.chosen_star
         img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
@@ -156,7 +156,7 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                  "resolution_v_mm": s.result.resolution_v_mm, "angular_h_deg": s.result.angular_h_deg,
                  "angular_v_deg": s.result.angular_v_deg, "distance_mm": s.result.distance_mm} for s in geo.stars]
         doc["boehler_star"] = _clean_rows(rows)
-        sections.append(_section("Resolution of the point cloud: Boehler star (SPEC 4)", img, outdir,
+        sections.append(_section("Resolution of the point cloud: Boehler star (Thesis 2024, 5.1.3)", img, outdir,
                                  _rows_table(rows, "star")))
     if geo.precision:
         rows = [{"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
@@ -164,12 +164,12 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                  "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
         doc["xy_noise"] = _clean_rows(rows)
         img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
-        sections.append(_section("x/y noise on the wall (SPEC 6)", img, outdir, _rows_table(rows, "step")))
+        sections.append(_section("x/y noise on the wall (Thesis 2024, 5.3)", img, outdir, _rows_table(rows, "step")))
     return sections
 
 
 def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
-    """Repeatability and trueness over angle per material, and the misalignment fit (SPEC 7)."""
+    """Repeatability and trueness over angle per material, and the misalignment fit (Thesis 2024, 5.4)."""
     result = evaluation.remission
     if result is None:
         return []
@@ -183,7 +183,7 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
                  for m in sorted({r["material"] for r in rows})]
         pivots.append(f"<h3>{html.escape(title)}</h3>{_rows_table(table, 'material')}")
     img = plot_remission(result, plots / "remission_angle.png")
-    sections = [_section("Remission and angle of incidence (SPEC 7, thesis Fig. 6-11)", img, outdir, "".join(pivots))]
+    sections = [_section("Remission and angle of incidence (Thesis 2024, 5.4, Fig. 6-11)", img, outdir, "".join(pivots))]
     summary = misalignment_summary(result)
     if summary is not None:
         doc["misalignment"] = {k: clean(v) if isinstance(v, float) else v for k, v in summary.items()}
@@ -194,7 +194,7 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
                 f"{_fmt(summary['camera_axis_offset_se_mm'], 2)} mm, level b = {_fmt(summary['bias_mm'])} mm, residual "
                 f"RMS {_fmt(summary['residual_rms_mm'], 2)} mm. The geometric reference R + delta / cos(theta) - "
                 "e tan(theta) removes the set-up from the trueness above.</p>")
-        sections.append(_section("Target and camera misalignment (thesis 5.4.2)", img, outdir, text))
+        sections.append(_section("Target and camera misalignment (Thesis 2024, 5.4.2)", img, outdir, text))
     return sections
 
 
@@ -299,7 +299,7 @@ FOV {cam['fov_deg'][0]:g}&times;{cam['fov_deg'][1]:g}&deg;. Report by labctl {la
 <h2>Key figures</h2>
 <table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">meaning</th>
 <th class="l">source steps</th></tr>{fig_rows}</table>
-<h2>Suitability (SPEC 9)</h2>{suit_html}
+<h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>{suit_html}
 {''.join(sections)}
 </body></html>
 """

@@ -1,6 +1,6 @@
-"""Suitability of a camera for facial biometrics (SPEC §9; thesis Ch. 3, Table 3-1, 6.6; ISO/IEC 39794-5 Annex D).
+"""Suitability of a camera for facial biometrics (Thesis 2024, Ch. 3, 6.6, Table 3-1; ISO/IEC 39794-5 Annex D).
 
-Requirements (thesis Table 3-1, from ISO/IEC 39794-5 for 2D face images):
+Requirements (Thesis 2024, Table 3-1, from ISO/IEC 39794-5 for 2D face images):
 
 * radial distortion <= 5 % for 1:N and <= 7 % for 1:1 face recognition;
 * inter-eye distance >= 90 px (62.5 mm IED at the hyperfocal distance, eq. 6-2);
@@ -25,7 +25,7 @@ from typing import Any
 IED_MIN_PX = 90.0
 DISTORTION_1_TO_N_PCT = 5.0
 DISTORTION_1_TO_1_PCT = 7.0
-PIXEL_ASPECT_MAX_PCT = 10.0
+PIXEL_AR_LIMIT_PCT = 10.0  # pixel aspect ratio: within +-10 %
 
 
 @dataclass(frozen=True)
@@ -41,8 +41,8 @@ def _checks(distortion_figures: tuple[str, ...], distortion_limit: float) -> lis
         Check(f"radial distortion <= {distortion_limit:g} %", distortion_figures, distortion_limit, "max_abs"),
         Check(f"inter-eye distance >= {IED_MIN_PX:g} px at the hyperfocal distance", ("ied_pixels_at_hyperfocal",),
               IED_MIN_PX, "min"),
-        Check(f"pixel aspect ratio within +-{PIXEL_ASPECT_MAX_PCT:g} %", ("pixel_aspect_distortion_pct",),
-              PIXEL_ASPECT_MAX_PCT, "max_abs"),
+        Check(f"pixel aspect ratio within +-{PIXEL_AR_LIMIT_PCT:g} %", ("pixel_aspect_distortion_pct",),
+              PIXEL_AR_LIMIT_PCT, "max_abs"),
     ]
 
 
@@ -95,4 +95,4 @@ def suitability(values: Mapping[str, float | None]) -> dict[str, Any]:
             "checks": results,
             "figures": {name: values.get(name) for name in informative},
         }
-    return {"standard": "ISO/IEC 39794-5 Annex D via thesis Table 3-1", "stories": stories}
+    return {"standard": "ISO/IEC 39794-5 Annex D via Thesis 2024, Table 3-1", "stories": stories}

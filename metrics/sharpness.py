@@ -1,14 +1,14 @@
-"""Sharpness over distance and imagery resolution (thesis 5.1, 6.2-6.3, 6.6; SPEC §3, §9).
+"""Sharpness over distance and imagery resolution (Thesis 2024, 5.1, 6.2-6.3, 6.6, 5.1.2, §9).
 
 * hyperfocal distance: the nearest distance from which the SFR area stays at
   or above 90 % of its plateau, the plateau being the median over the far half
-  of the sweep (SPEC §3);
+  of the sweep (Thesis 2024, 5.1.2);
 * best focus: the distance of the highest SFR area after a 3-point moving
-  median (SPEC §3 "argmax of a smoothed SFRarea"), ties going to the higher
+  median (Thesis 2024, 5.1.2 "argmax of a smoothed SFRarea"), ties going to the higher
   unsmoothed value;
-* imagery resolution (thesis 6.3.1): angular = sensor angular resolution /
+* imagery resolution (Thesis 2024, 6.3.1): angular = sensor angular resolution /
   SFR10 (eq. 5-1), lateral = the size that angle covers at the distance (eq. 5-2);
-* inter-eye distance coverage (thesis eq. 6-2): px = IED / (tan(res) d).
+* inter-eye distance coverage (Thesis 2024, eq. 6-2): px = IED / (tan(res) d).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 PLATEAU_FRACTION = 0.9
-IED_MM = 62.5  # average adult inter-eye distance (Yildirim et al. 2015, thesis 6.6)
+IED_MM = 62.5  # average adult inter-eye distance (Yildirim et al. 2015, Thesis 2024, 6.6)
 
 
 def _sorted_valid(distances: Sequence[float], values: Sequence[float], valid: Sequence[bool]) -> tuple[np.ndarray, np.ndarray]:
@@ -30,7 +30,7 @@ def _sorted_valid(distances: Sequence[float], values: Sequence[float], valid: Se
 
 
 def plateau(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool]) -> float:
-    """Median SFR area over the far half of the valid positions (SPEC §3)."""
+    """Median SFR area over the far half of the valid positions (Thesis 2024, 5.1.2)."""
     d, v = _sorted_valid(distances, sfr_area, valid)
     if not d.size:
         return math.nan
@@ -39,7 +39,7 @@ def plateau(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequen
 
 def hyperfocal_distance(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool],
                         fraction: float = PLATEAU_FRACTION) -> float:
-    """Nearest distance from which every valid SFR area stays >= ``fraction`` x plateau (SPEC §3)."""
+    """Nearest distance from which every valid SFR area stays >= ``fraction`` x plateau (Thesis 2024, 5.1.2)."""
     d, v = _sorted_valid(distances, sfr_area, valid)
     if not d.size:
         return math.nan
@@ -69,7 +69,7 @@ def nearest_sharp_distance(distances: Sequence[float], sfr_area: Sequence[float]
 
     Where to put a target that must be sharp and large in the image: "if there
     are multiple distances with high focus, the smallest distance is chosen"
-    (thesis 5.2.1).
+    (Thesis 2024, 5.2.1).
     """
     d, v = _sorted_valid(distances, sfr_area, valid)
     if not d.size:
@@ -80,17 +80,17 @@ def nearest_sharp_distance(distances: Sequence[float], sfr_area: Sequence[float]
 
 
 def imagery_resolution_deg(sensor_resolution_deg: float, sfr10_cy_px: float) -> float:
-    """Angular imagery resolution: sensor angular resolution divided by SFR10 (thesis 6.3.1)."""
+    """Angular imagery resolution: sensor angular resolution divided by SFR10 (Thesis 2024, 6.3.1)."""
     if not sfr10_cy_px > 0:
         return math.nan
     return sensor_resolution_deg / sfr10_cy_px
 
 
 def lateral_mm(angular_deg: float, distance_mm: float) -> float:
-    """Size covered by ``angular_deg`` at ``distance_mm`` (thesis eq. 5-2)."""
+    """Size covered by ``angular_deg`` at ``distance_mm`` (Thesis 2024, eq. 5-2)."""
     return 2.0 * distance_mm * math.tan(math.radians(angular_deg) / 2.0)
 
 
 def ied_pixels(resolution_deg: float, distance_mm: float, ied_mm: float = IED_MM) -> float:
-    """Pixels across the inter-eye distance at ``distance_mm`` (thesis eq. 6-2)."""
+    """Pixels across the inter-eye distance at ``distance_mm`` (Thesis 2024, eq. 6-2)."""
     return ied_mm / (math.tan(math.radians(resolution_deg)) * distance_mm)

@@ -1,4 +1,4 @@
-"""Suitability checks (SPEC §9, thesis Table 3-1)."""
+"""Suitability checks (Thesis 2024, Ch. 3, 6.6, Table 3-1)."""
 
 from labctl.suitability import STORIES, suitability
 
@@ -20,7 +20,7 @@ def test_all_requirements_met():
 
 
 def test_blaze_like_camera_fails_on_ied_only():
-    """Thesis 6.6: the Blaze101 covers the IED with 88 px, below the 90 px required."""
+    """Thesis 2024, 6.6: the Blaze101 covers the IED with 88 px, below the 90 px required."""
     values = dict(GOOD, ied_pixels_at_hyperfocal=88.0)
     result = suitability(values)["stories"]["3d_face_recognition_1_to_n"]
     assert result["verdict"] == "fail"
