@@ -91,6 +91,18 @@ ACCEPTANCE_FIGURES: tuple[FigureDef, ...] = (
 FIGURES = FIGURES + VENDOR_FIGURES + ACCEPTANCE_FIGURES
 FIGURE_BY_NAME = {f.name: f for f in FIGURES}
 
+#: figures where a larger value is better (coverage and fill rates)
+HIGHER_IS_BETTER = frozenset({"ied_pixels_at_hyperfocal"} | {f.name for f in VENDOR_FIGURES if f.name.startswith("fill_rate_")})
+#: figures that are neither better high nor low: the distance the camera is sharpest at
+NO_BETTER_DIRECTION = frozenset({"best_focus_distance_mm"})
+
+
+def better_direction(name: str) -> str:
+    """How a figure improves: "higher", "none", or "lower" (of its magnitude, for signed figures)."""
+    if name in HIGHER_IS_BETTER:
+        return "higher"
+    return "none" if name in NO_BETTER_DIRECTION else "lower"
+
 
 @dataclass(frozen=True)
 class FigureValue:

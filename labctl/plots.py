@@ -41,9 +41,11 @@ def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
         ax.grid(alpha=0.3)
         ax.legend()
     ax = axes[1, 1]
-    ax.plot(d, 100 * series("invalid_fraction"), marker="o", ms=3, color="tab:red")
+    invalid_pct = 100 * series("invalid_fraction")
+    ax.plot(d, invalid_pct, marker="o", ms=3, color="tab:red")
+    ax.set_ylim(*percent_axis_limits(invalid_pct))
     ax.set_title("Invalid pixels")
-    ax.set_ylabel("%")
+    ax.set_ylabel("% of the image")
     ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("reference distance (mm)")
@@ -51,6 +53,13 @@ def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def percent_axis_limits(values_pct: np.ndarray) -> tuple[float, float]:
+    """A percentage axis from 0 to at least 1 % (so all-zero data sits on the floor, not mid-axis), 10 % headroom."""
+    finite = values_pct[np.isfinite(values_pct)]
+    top = float(finite.max()) if finite.size else 0.0
+    return 0.0, min(100.0, max(1.0, 1.1 * top))
 
 
 def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -> Path:
@@ -165,14 +174,29 @@ def shaded_relief(cloud: np.ndarray) -> np.ndarray:
     return np.clip(normal @ light, 0.0, 1.0)
 
 
-def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, title: str, path: Path) -> Path:
-    """The face mask as the camera sees it: shaded relief of the point cloud, depth and intensity (Thesis 2024, 6.7)."""
-    z = cloud[..., 2]
+def face_mask_region(z: np.ndarray) -> np.ndarray:
+    """Pixels of the mask and its surroundings: within 150 mm behind the nearest 0.5 % of the points (not the
+    wall). The mask may fill only a few % of a small image, so the quantile stays well below that."""
     finite = z[np.isfinite(z)]
     if finite.size == 0:
         raise ValueError("the face mask cloud has no valid point")
-    near = np.quantile(finite, 0.02)
-    mask = np.isfinite(z) & (z < near + 150.0)  # the mask and its surroundings, not the wall behind
+    near = np.quantile(finite, 0.005)
+    return np.isfinite(z) & (z < near + 150.0)
+
+
+def face_mask_title(z: np.ndarray, wall_distance_mm: float, step_id: str) -> str:
+    """Title naming the depth range the picture shows (the mask's), and the wall distance of the step apart."""
+    shown = z[face_mask_region(z)]
+    lo, hi = float(np.min(shown)), float(np.max(shown))
+    wall = f", wall at {wall_distance_mm:.0f} mm" if math.isfinite(wall_distance_mm) else ""
+    return f"Face mask {lo:.0f}-{hi:.0f} mm from the camera (depth shown){wall} ({step_id})"
+
+
+def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, wall_distance_mm: float, step_id: str,
+                   path: Path) -> Path:
+    """The face mask as the camera sees it: shaded relief of the point cloud, depth and intensity (Thesis 2024, 6.7)."""
+    z = cloud[..., 2]
+    mask = face_mask_region(z)
     rows, cols = np.where(mask)
     crop = (slice(max(rows.min() - 10, 0), rows.max() + 11), slice(max(cols.min() - 10, 0), cols.max() + 11))
     fig, axes = plt.subplots(1, 3, figsize=(13, 5))
@@ -186,7 +210,7 @@ def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, title: str, path: P
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.suptitle(title)
+    fig.suptitle(face_mask_title(z, wall_distance_mm, step_id))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
