@@ -204,7 +204,8 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
 {wrap_table(f'<table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>')}
 <h2>Datasheet-comparable figures</h2>
 <p>As the camera vendors' tools define them; set them next to the datasheets.</p>
-{wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>{vendor_rows}</table>')}
+{wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>'
+             f'{vendor_rows}</table>')}
 <h2>Key figures</h2>
 {wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}</tr>{rows}</table>')}
 {references_html()}

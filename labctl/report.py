@@ -168,7 +168,8 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                          "fov_estimate_h_deg": math.nan, "fov_estimate_v_deg": math.nan, "k1": math.nan,
                          "corners": c.n_corners})
         doc["checkerboard"] = _clean_rows(rows)
-        sections.append(_section("Distortion (Thesis 2024, 5.2, EBU Tech 3249 / ISO 17850)", img, outdir, _rows_table(rows, "image")))
+        sections.append(_section("Distortion (Thesis 2024, 5.2, EBU Tech 3249 / ISO 17850)", img, outdir,
+                                 _rows_table(rows, "image")))
     if geo.chosen_star is not None:
         star = geo.chosen_star
         img = plot_boehler(star.result, star.cloud, plots / "boehler.png")

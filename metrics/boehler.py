@@ -161,7 +161,7 @@ def _ring_cluster_labels(ring: np.ndarray, theta: np.ndarray, gap_rad: float) ->
 
 
 def sector_bounds(segments: int, phase_rad: float) -> np.ndarray:
-    """The four sector boundaries (rad), each at the slot centre nearest to 45, 135, 225, 315 deg (docs/metrics.md, Böhler star step 6);
+    """The four sector boundaries (rad), each at the slot centre nearest to 45, 135, 225, 315 deg (docs/metrics.md Böhler step 6);
     ``phase_rad``: a filled segment's centre angle."""
     pair = 4 * math.pi / segments
     slot = phase_rad + pair / 2
@@ -226,7 +226,7 @@ def evaluate_rings(radius_mm: np.ndarray, angle_rad: np.ndarray, inlier: np.ndar
 
 
 def resolution_radius(radii_mm: np.ndarray, resolved: np.ndarray) -> float:
-    """Smallest radius from which every larger ring is resolved (docs/metrics.md, Böhler star step 7); NaN if the outermost is not."""
+    """Smallest radius from which every larger ring is resolved (docs/metrics.md, Böhler step 7); NaN if the outermost isn't."""
     resolved = np.asarray(resolved, bool)
     if not resolved.size or not resolved[-1]:
         return math.nan
@@ -417,7 +417,7 @@ def _median_spacing(a: np.ndarray, b: np.ndarray, inlier: np.ndarray, axis: int)
 
 
 def star_coordinates(cloud: np.ndarray, result: BoehlerResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(radius mm, angle rad, inlier) per pixel of ``cloud`` in the star plane of ``result`` (docs/metrics.md, Böhler star step 3).
+    """(radius mm, angle rad, inlier) per pixel of ``cloud`` in the star plane of ``result`` (docs/metrics.md, Böhler step 3).
 
     Angles run counter-clockwise as seen by the camera from the camera's x axis.
     """
