@@ -50,15 +50,15 @@ def plot_remission(result: RemissionResult, path: Path) -> Path:
 
 
 def _signed_term(value: float, text: str) -> str:
-    """`` + 1.2 text`` or `` - 1.2 text``; a value that rounds to 0.0 gets a plus (never "-0.0")."""
-    rounded = round(value, 1) or 0.0
-    return f" {'-' if rounded < 0 else '+'} {abs(rounded):.1f}{text}"
+    """`` + 1.23 text`` or `` - 1.23 text``; a value that rounds to 0.00 gets a plus (never "-0.00")."""
+    rounded = round(value, 2) or 0.0
+    return f" {'-' if rounded < 0 else '+'} {abs(rounded):.2f}{text}"
 
 
 def misalignment_label(bias_mm: float, delta_mm: float, e_mm: float) -> str:
     """Legend of the fitted curve b + delta / cos(theta) - e tan(theta) with its numbers, signs folded in."""
-    b, d, e = (round(v, 1) or 0.0 for v in (bias_mm, delta_mm, e_mm))  # "or 0.0": -0.0 prints as 0.0
-    return f"fit: {b:.1f}{_signed_term(d, '/cos θ')}{_signed_term(-e, ' tan θ')} mm\n(b {b:+.1f}, δ {d:+.1f}, e {e:+.1f} mm)"
+    b, d, e = (round(v, 2) or 0.0 for v in (bias_mm, delta_mm, e_mm))  # "or 0.0": -0.0 prints as 0.0
+    return f"fit: {b:.2f}{_signed_term(d, '/cos θ')}{_signed_term(-e, ' tan θ')} mm\n(b {b:+.2f}, δ {d:+.2f}, e {e:+.2f} mm)"
 
 
 def plot_misalignment_fit(result: RemissionResult, path: Path) -> Path:

@@ -170,10 +170,11 @@ def test_face_mask_title_of_a_simulated_mask(report):
 
 
 def test_misalignment_legend_reads_as_an_equation():
-    assert misalignment_label(10.2, 19.8, 14.9).splitlines()[0] == "fit: 10.2 + 19.8/cos θ - 14.9 tan θ mm"
-    assert misalignment_label(-3.0, -20.0, -15.0).splitlines()[0] == "fit: -3.0 - 20.0/cos θ + 15.0 tan θ mm"
-    label = misalignment_label(0.0, -0.0, 0.04)  # the "b +0.0 + -0.0/cos - (0.0) tan"
-    assert "+ -" not in label and "-0.0" not in label and "(0.0)" not in label
+    assert misalignment_label(10.2, 19.8, 14.9).splitlines()[0] == "fit: 10.20 + 19.80/cos θ - 14.90 tan θ mm"
+    assert misalignment_label(-3.0, -20.0, -15.0).splitlines()[0] == "fit: -3.00 - 20.00/cos θ + 15.00 tan θ mm"
+    assert misalignment_label(0.028, -0.02, 0.017).splitlines()[0] == "fit: 0.03 - 0.02/cos θ - 0.02 tan θ mm"
+    label = misalignment_label(0.0, -0.0, 0.004)  # the "b +0.0 + -0.0/cos - (0.0) tan"
+    assert "+ -" not in label and "-0.0" not in label and "(0.0" not in label
 
 
 def test_invalid_pixel_axis_starts_at_zero_percent():
