@@ -9,13 +9,14 @@ from typing import Any
 
 from labctl.eval_depth_quality import vendor_table
 from labctl.eval_remission import misalignment_summary, remission_table
-from labctl.eval_vdi2634 import acceptance_table, verdicts
+from labctl.eval_scenes import AlignmentRecord
 from labctl.eval_sharpness import resolution_table
+from labctl.eval_vdi2634 import acceptance_table, verdicts
 from labctl.evaluate import Evaluation, depth_table
 from labctl.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, better_direction, clean, keyfigures_document
 from labctl.plot_acceptance import plot_acceptance
-from labctl.plot_depth_quality import plot_vendor_figures
 from labctl.plot_boehler import plot_boehler
+from labctl.plot_depth_quality import plot_vendor_figures
 from labctl.plot_distortion import plot_distortion
 from labctl.plot_remission import plot_misalignment_fit, plot_remission
 from labctl.plots import (
@@ -97,6 +98,8 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         doc["slanted_edge"] = _clean_rows(resolution_table(evaluation.sharpness))
 
     sections: list[str] = _alignment_section(evaluation)
+    if evaluation.alignment is not None:
+        doc["alignment"] = alignment_document(evaluation.alignment)
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
         sections.append(_section("Depth error over distance (Thesis 2024, 4.2.1)", img, outdir, _depth_rows(evaluation)))
@@ -131,6 +134,12 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     report = outdir / "report.html"
     report.write_text(_page(evaluation, doc, sections))
     return json_path, report
+
+
+def alignment_document(a: AlignmentRecord) -> dict[str, Any]:
+    """The ``alignment`` section of keyfigures.json: the accepted corner fields (x, y, z in mm) and residual tilt."""
+    return {"step": a.step_id, "fields_mm": {name: [clean(float(v)) for v in xyz] for name, xyz in a.fields_mm.items()},
+            "tilt_x_deg": clean(a.tilt_x_deg), "tilt_y_deg": clean(a.tilt_y_deg)}
 
 
 def _alignment_section(evaluation: Evaluation) -> list[str]:

@@ -28,6 +28,12 @@ from tests.conftest import campaign_text
 
 RUN = """
 [[procedure]]
+kind = "alignment"
+distance_mm = 1500
+frames = 2
+field_px = 4
+
+[[procedure]]
 kind = "offset_calibration"
 frames = 3
 
@@ -229,3 +235,35 @@ def test_chart_foot_lies_below_every_bar_so_zero_and_missing_are_labelled_there(
     table = {"a_mm": {"A": 0.0, "B": 0.03}, "b_deg": {"A": None, "B": 2.0}}
     assert _chart_floor(table, ["a_mm", "b_deg"], ["A", "B"]) == pytest.approx(0.001)
     assert _chart_floor({"a_mm": {"A": 0.0}}, ["a_mm"], ["A"]) == pytest.approx(0.001)
+
+
+def documented_keys() -> tuple[set[str], str]:
+    """Top-level keys of the keyfigures.json example in docs/keyfigures.md, and the example's text."""
+    text = (Path(__file__).parents[2] / "docs" / "keyfigures.md").read_text()
+    example = text[text.index("```json"):text.index("```", text.index("```json") + 7)]
+    return {line.split('"')[1] for line in example.splitlines() if line.startswith('  "')}, example
+
+
+def test_keyfigures_json_has_the_shape_docs_keyfigures_md_shows(report):
+    _, doc, _ = report
+    keys, example = documented_keys()
+    assert set(doc) <= keys  # nothing undocumented
+    assert {"camera", "figures", "suitability", "runs", "notes", "depth_sweep", "alignment", "face_mask"} <= set(doc)
+    assert set(doc["suitability"]) == {"standard", "stories"}
+    assert '"suitability": {"standard": ' in example and '"evaluated"' not in example
+    story = next(iter(doc["suitability"]["stories"].values()))
+    assert {"description", "verdict", "checks", "figures"} <= set(story)
+    for name, figure in doc["figures"].items():
+        assert set(figure) >= {"value", "unit", "source", "meaning"}, name
+
+
+def test_alignment_result_is_in_keyfigures_json(report):
+    """The simulated camera is mounted square to the wall at 1500 mm: every corner field reads about 1500 mm
+    (plus the camera-laser offset, a few mm at most) and the residual tilt is about 0."""
+    _, doc, _ = report
+    a = doc["alignment"]
+    assert a["step"] == "00000_alignment"
+    assert set(a["fields_mm"]) == {"top_left", "top_right", "bottom_left", "bottom_right"}
+    for x, y, z in a["fields_mm"].values():
+        assert z == pytest.approx(1500, abs=15) and abs(x) > 100 and abs(y) > 100
+    assert abs(a["tilt_x_deg"]) < 0.2 and abs(a["tilt_y_deg"]) < 0.2
