@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 
 from labctl.errors import InputError  # noqa: E402
 from labctl.keyfigures import FIGURES, VENDOR_FIGURES  # noqa: E402
-from labctl.report import CSS, references_html, verdict_cell, wrap_table  # noqa: E402
+from labctl.report import CSS, references_html, verdict_cell, wrap_table, wrappable  # noqa: E402
 from labctl.store import labctl_version, now_iso  # noqa: E402
 from labctl.suitability import IED_MIN_PX  # noqa: E402
 from metrics.jsonsafe import dumps_strict  # noqa: E402
@@ -178,12 +178,12 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
     head = "".join(f"<th>{html.escape(label)}</th>" for label in labels)
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
-        f'<tr><td class="l">{html.escape(name)}</td><td class="l">{units[name]}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td>'
         + "".join(f"<td>{_fmt(values[label])}</td>" for label in labels) + "</tr>"
         for name, values in result["figures"].items()
     )
     vendor_rows = "".join(
-        f'<tr><td class="l">{html.escape(f.name)}</td><td class="l">{f.unit}</td>'
+        f'<tr><td class="l">{wrappable(f.name)}</td><td class="l">{f.unit}</td>'
         + "".join(f"<td>{_fmt(result['figures'][f.name][label])}</td>" for label in labels)
         + f'<td class="l">{html.escape(f.section)}</td></tr>'
         for f in VENDOR_FIGURES

@@ -47,7 +47,7 @@ img{max-width:100%;height:auto;border:1px solid #eee}td.src{font-size:.85em;colo
 .summary{border:1px solid #ccc;border-radius:6px;padding:.2em 1em 1em;background:#fafafa}
 .summary h2{margin-top:.6em}
 @media print{body{max-width:none;margin:0;padding:0;font-size:9pt}.tablewrap{overflow:visible}
-table{font-size:7.5pt;width:100%;table-layout:auto}td,th{padding:.15em .3em;overflow-wrap:anywhere}
+table{font-size:7.5pt;width:100%}td,th{padding:.15em .3em;overflow-wrap:break-word}
 img{break-inside:avoid}h2,h3{break-after:avoid}tr{break-inside:avoid}}
 """
 
@@ -57,8 +57,8 @@ def wrap_table(table_html: str) -> str:
     return f'<div class="tablewrap">{table_html}</div>'
 
 
-def header(name: str) -> str:
-    """A column name that may wrap after its underscores (``<wbr>``), escaped."""
+def wrappable(name: str) -> str:
+    """A name (column, figure, step) that may wrap after its underscores (``<wbr>``), escaped."""
     return html.escape(name).replace("_", "_<wbr>")
 
 
@@ -236,12 +236,12 @@ def _rows_table(rows: list[dict[str, Any]], key: str) -> str:
     if not rows:
         return ""
     cols = [c for c in rows[0] if c != key]
-    head = "".join(f"<th>{header(c)}</th>" for c in cols)
+    head = "".join(f"<th>{wrappable(c)}</th>" for c in cols)
     body = "".join(
-        f'<tr><td class="l">{html.escape(str(r[key]))}</td>' + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
+        f'<tr><td class="l">{wrappable(str(r[key]))}</td>' + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
         for r in rows
     )
-    return wrap_table(f'<table><tr><th class="l">{header(key)}</th>{head}</tr>{body}</table>')
+    return wrap_table(f'<table><tr><th class="l">{wrappable(key)}</th>{head}</tr>{body}</table>')
 
 
 def _section(title: str, image: Path, outdir: Path, table: str) -> str:
@@ -252,7 +252,7 @@ def _section(title: str, image: Path, outdir: Path, table: str) -> str:
 def _vendor_html(evaluation: Evaluation, doc: dict[str, Any]) -> str:
     """The vendor key figures next to where they are defined, then the figures at every distance."""
     rows = "".join(
-        f'<tr><td class="l">{html.escape(f.name)}</td><td>{_fmt(doc["figures"][f.name]["value"])}</td>'
+        f'<tr><td class="l">{wrappable(f.name)}</td><td>{_fmt(doc["figures"][f.name]["value"])}</td>'
         f'<td class="l">{f.unit}</td><td class="l">{html.escape(f.meaning)}</td>'
         f'<td class="l src">{html.escape(f.section)}</td></tr>'
         for f in VENDOR_FIGURES
@@ -348,7 +348,7 @@ def _summary_html(cam: dict[str, Any], doc: dict[str, Any]) -> str:
                      f'{html.escape(s["verdict"].replace("_", " "))}</b></span> {html.escape(s["description"])}</li>'
                      for s in judged.values())
     rows = "".join(
-        f'<tr><td class="l">{html.escape(name)}</td><td>{_fmt(doc["figures"][name]["value"])}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc["figures"][name]["value"])}</td>'
         f'<td class="l">{doc["figures"][name]["unit"]}</td><td class="l">{better_direction(name)}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td></tr>'
         for name in SUMMARY_FIGURES
@@ -362,7 +362,7 @@ def _summary_html(cam: dict[str, Any], doc: dict[str, Any]) -> str:
 def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> str:
     cam = evaluation.camera
     fig_rows = "".join(
-        f'<tr><td class="l">{html.escape(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td><td class="l">{better_direction(name)}</td>'
         f'<td class="l src">{_sources(f["source"])}</td></tr>'
         for name, f in doc["figures"].items()
