@@ -42,7 +42,11 @@ def _echo_err(message: str) -> None:
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(labctl_version(), prog_name="labctl")
 def cli() -> None:
-    """Characterize 3D cameras: run campaigns, evaluate runs, simulate the lab."""
+    """Characterize 3D cameras: run campaigns, evaluate runs, simulate the lab.
+
+    Sources cited in the help texts and reports (Thesis 2024 with a section number, ISO 12233:2023, ...)
+    are listed in full in docs/references.md.
+    """
 
 
 # ---------------------------------------------------------------------- plan
