@@ -25,7 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from labctl.errors import InputError  # noqa: E402
-from labctl.keyfigures import FIGURES, VENDOR_FIGURES  # noqa: E402
+from labctl.keyfigures import FIGURES, VENDOR_FIGURES, better_direction  # noqa: E402
 from labctl.report import CSS, references_html, verdict_cell, wrap_table, wrappable  # noqa: E402
 from labctl.store import labctl_version, now_iso  # noqa: E402
 from labctl.suitability import IED_MIN_PX  # noqa: E402
@@ -119,8 +119,8 @@ def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: P
         colour = bars.patches[0].get_facecolor() if bars.patches else None
         for pos, v in zip(positions, values):
             if v == 0 or not math.isfinite(v):  # a log axis cannot draw 0: say it instead of leaving a gap
-                ax.text(pos, floor, "0" if v == 0 else "n/a", rotation=90, ha="center", va="bottom", fontsize=7,
-                        color=colour)
+                ax.text(pos, floor, "0" if v == 0 else "n/a", rotation=90, ha="center", va="bottom", fontsize=8,
+                        fontweight="bold", color=colour)
     ax.set_xticks(x)
     ax.set_xticklabels([n + (" x10" if n in TIMES_TEN else "") for n in names], rotation=70, ha="right", fontsize=8)
     ax.set_yscale("log")
@@ -154,7 +154,8 @@ def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> P
     fig, ax = plt.subplots(figsize=(7, 3.8))
     values = [ied[label] if ied[label] is not None else np.nan for label in labels]
     bars = ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
-    ax.bar_label(bars, labels=[f"{v:.0f} px" if math.isfinite(v) else "n/a" for v in values], fontsize=8)
+    ax.bar_label(bars, labels=[f"{v:.0f} px" if math.isfinite(v) else "n/a" for v in values], label_type="center",
+                 color="white", fontsize=9, fontweight="bold")  # inside the bars: clear of the required line
     ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
     ax.set_ylabel("px across 62.5 mm\nat the hyperfocal distance")
     ax.set_title("Inter-eye distance coverage (Thesis 2024, eq. 6-2)", pad=24)
@@ -178,7 +179,7 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
     head = "".join(f"<th>{html.escape(label)}</th>" for label in labels)
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
-        f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_direction(name)}</td>'
         + "".join(f"<td>{_fmt(values[label])}</td>" for label in labels) + "</tr>"
         for name, values in result["figures"].items()
     )
@@ -207,7 +208,7 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
 {wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>'
              f'{vendor_rows}</table>')}
 <h2>Key figures</h2>
-{wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}</tr>{rows}</table>')}
+{wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th><th class="l">better</th>{head}</tr>{rows}</table>')}
 {references_html()}
 </body></html>
 """
