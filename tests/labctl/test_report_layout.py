@@ -149,13 +149,12 @@ def test_summary_comes_first_with_camera_verdict_and_six_figures(report):
 def test_report_cites_what_a_reader_can_follow(report):
     page, *_ = report
     text = "".join(parse(page).text)
-    assert "SPEC" not in page and "CONTRACTS" not in page
     assert "References" in text and "Thesis 2024" in text and "docs/references.md" in text
     assert "Depth error over distance (Thesis 2024, 4.2.1)" in text
 
 
 def test_face_mask_title_names_the_depth_shown_not_the_wall():
-    """The issue's case: mask 572-607 mm in front of a wall at 900 mm; the title gave 900 mm."""
+    """The demo's blaze-101: mask 572-607 mm from the camera, wall at 900 mm; the title once said "at 900 mm"."""
     z = np.full((60, 80), 900.0)
     z[20:40, 30:50] = np.linspace(572.0, 607.0, 400).reshape(20, 20)
     title = face_mask_title(z, 900.0, "00090_face_mask")
@@ -180,7 +179,7 @@ def test_misalignment_legend_reads_as_an_equation():
     assert misalignment_label(10.2, 19.8, 14.9).splitlines()[0] == "fit: 10.20 + 19.80/cos θ - 14.90 tan θ mm"
     assert misalignment_label(-3.0, -20.0, -15.0).splitlines()[0] == "fit: -3.00 - 20.00/cos θ + 15.00 tan θ mm"
     assert misalignment_label(0.028, -0.02, 0.017).splitlines()[0] == "fit: 0.03 - 0.02/cos θ - 0.02 tan θ mm"
-    label = misalignment_label(0.0, -0.0, 0.004)  # the issue's "b +0.0 + -0.0/cos - (0.0) tan"
+    label = misalignment_label(0.0, -0.0, 0.004)  # once printed as "b +0.0 + -0.0/cos - (0.0) tan"
     assert "+ -" not in label and "-0.0" not in label and "(0.0" not in label
 
 
