@@ -17,7 +17,7 @@ CHROMIUM=${CHROMIUM:-chromium}
 PYTHON=${PYTHON:-.venv/bin/python}
 WIDTH=1400
 REPORT_HEIGHT=2400    # the first read: summary, key figures, suitability
-COMPARE_HEIGHT=4200   # the comparison page in full
+COMPARE_HEIGHT=6000   # the comparison page in full (the blank space below it is cut)
 
 if ! command -v "$CHROMIUM" >/dev/null 2>&1; then
     echo "screenshots.sh needs chromium: apt-get install chromium (or set CHROMIUM=/path/to/chromium)" >&2
@@ -39,8 +39,11 @@ shot() {  # page.html output.png height
     fi
     "$CHROMIUM" --headless --no-sandbox --disable-gpu --disable-background-networking --no-first-run \
         --hide-scrollbars --window-size="$WIDTH,$3" --screenshot="$2" "file://$(realpath "$1")" >/dev/null 2>&1
-    "$PYTHON" -c 'import sys; from PIL import Image
-Image.open(sys.argv[1]).convert("RGB").quantize(256).save(sys.argv[1], optimize=True)' "$2"
+    "$PYTHON" -c 'import sys; from PIL import Image, ImageOps
+image = Image.open(sys.argv[1]).convert("RGB")
+box = ImageOps.invert(image).getbbox()  # blank space below the page: cut 40 px under the last content
+image = image.crop((0, 0, image.width, min(image.height, box[3] + 40))) if box else image
+image.quantize(256).save(sys.argv[1], optimize=True)' "$2"
     echo "$2"
 }
 
