@@ -1,5 +1,5 @@
 """Evaluation budget: a full 0-4 m depth sweep (37 positions, 640 x 480 x 100 frames)
-evaluates within 2x the time it takes just to read those arrays (DESIGN "Budgets").
+evaluates within 2x the time it takes just to read those arrays (docs/benchmarks.md).
 
 The run file holds synthetic wall stacks (x, y and z written: depth figures
 read z, surface texture x, y, z at 2000 mm, x/y repeatability and precision

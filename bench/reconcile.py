@@ -1,4 +1,4 @@
-"""Reconcile budget: a full campaign reconciles in under a minute (DESIGN "Budgets").
+"""Reconcile budget: a full campaign reconciles in under a minute (docs/benchmarks.md).
 
 The measured run is the blaze-101's complete campaign (examples/blaze101.toml:
 offset calibration, 0.4-4 m depth sweep, slanted edge with its white sheets,

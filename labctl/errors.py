@@ -1,4 +1,4 @@
-"""Errors that the command line turns into exit codes (CONTRACTS §2).
+"""Errors that the command line turns into exit codes (README.md, Command line).
 
 * :class:`InputError` — bad configuration, arguments or files: exit 2, one
   paragraph naming the offending field or file, no traceback.

@@ -1,4 +1,4 @@
-"""Camera alignment to the wall (thesis 4.1.2, SPEC "Lab and hardware").
+"""Camera alignment to the wall (Thesis 2024, 4.1.2).
 
 Ten frames are averaged; four fields of 10 x 10 px near the image corners are
 averaged; the camera is tilted until opposite fields agree. labctl reports the

@@ -1,7 +1,7 @@
-"""Automated Böhler-star resolution of an organized point cloud (SPEC §4; thesis 5.1.3, 6.3.2, eq. 5-4).
+"""Automated Böhler-star resolution of an organized point cloud (Thesis 2024, 5.1.3, 6.3.2, eq. 5-4).
 
 The star (N wedges, every other one filled, 400 mm across) stands in front of
-the wall; the cloud is usually the stack mean. Steps (SPEC §4):
+the wall; the cloud is usually the stack mean. Steps (Thesis 2024, 5.1.3):
 
 1. the star plane is the nearest large planar region facing the camera
    (sequential RANSAC: the wall behind the star is usually the largest plane);
@@ -13,13 +13,13 @@ the wall; the cloud is usually the stack mean. Steps (SPEC §4):
 2. inliers: points within +-``inlier_mm`` of the plane;
 3. polar coordinates in the plane. Every valid point is projected along its
    own ray onto the plane, so the wall seen through a slot lands in that slot
-   (thesis 5.1.3: "points lying in the slots ... might have larger x- and
+   (Thesis 2024, 5.1.3: "points lying in the slots ... might have larger x- and
    y-coordinates") and counts as a sample of its ring, and depth noise does
    not move points sideways;
 4. rings of ``ring_mm`` (1 mm) binned by ``binning`` (2) into 2 mm rings;
 5. per ring the inliers are sorted by angle and split into clusters where two
    neighbours are more than half a segment's angle apart; the cluster running
-   across 0/2 pi is one cluster (the thesis counted it twice, 6.3.3);
+   across 0/2 pi is one cluster (Thesis 2024 counted it twice, 6.3.3);
 6. a ring is resolved in an orientation when its inlier clusters in that
    orientation's sectors number exactly the filled segments there, and the
    ring holds at least 2 samples per segment there (sparse rings fall apart
@@ -34,7 +34,7 @@ the wall; the cloud is usually the stack mean. Steps (SPEC §4):
    resolution = 2 pi r / N (eq. 5-4), angular = atan(lateral / distance) with
    the camera-to-centre distance.
 
-A result finer than the sensor can sample is not credible (thesis 5.1.3 on
+A result finer than the sensor can sample is not credible (Thesis 2024, 5.1.3 on
 Song 2021): the lateral resolution is clamped to the sensor resolution at the
 star -- the measured point spacing on the star and, when FOV and pixel counts
 are given, FOV / pixels (eq. 5-1) -- and flagged. In the horizontal sectors
@@ -72,7 +72,7 @@ _RIM_MARGIN = 0.03  # rings this share of the radius inside the rim are not eval
 
 @dataclass(frozen=True)
 class BoehlerResult:
-    """Böhler-star evaluation of one point cloud (SPEC §4).
+    """Böhler-star evaluation of one point cloud (Thesis 2024, 5.1.3).
 
     Ring arrays run over the evaluated 2 mm rings, ``radii_mm`` being their
     inner edges. ``clusters`` counts the inlier clusters of the whole ring
@@ -126,7 +126,7 @@ class BoehlerResult:
 
 @dataclass(frozen=True)
 class RingTable:
-    """Cluster counts and sample counts per ring (SPEC §4 steps 4-6)."""
+    """Cluster counts and sample counts per ring (docs/metrics.md, Böhler star steps 4-6)."""
 
     radii_mm: np.ndarray
     width_mm: float
@@ -143,7 +143,7 @@ class RingTable:
 
 # ---------------------------------------------------------------------- step 5: clusters
 def _ring_cluster_labels(ring: np.ndarray, theta: np.ndarray, gap_rad: float) -> np.ndarray:
-    """Cluster labels of inliers sorted by (ring, angle in [0, 2 pi)) (SPEC §4 step 5).
+    """Cluster labels of inliers sorted by (ring, angle in [0, 2 pi)) (docs/metrics.md, Böhler star step 5).
 
     A cluster starts at a new ring or where neighbours are more than
     ``gap_rad`` apart; per ring, the last cluster is the first one continued
@@ -161,7 +161,7 @@ def _ring_cluster_labels(ring: np.ndarray, theta: np.ndarray, gap_rad: float) ->
 
 
 def sector_bounds(segments: int, phase_rad: float) -> np.ndarray:
-    """The four sector boundaries (rad), each at the slot centre nearest to 45, 135, 225, 315 deg (SPEC §4 step 6);
+    """The four sector boundaries (rad), each at the slot centre nearest to 45, 135, 225, 315 deg (docs/metrics.md Böhler step 6);
     ``phase_rad``: a filled segment's centre angle."""
     pair = 4 * math.pi / segments
     slot = phase_rad + pair / 2
@@ -170,7 +170,7 @@ def sector_bounds(segments: int, phase_rad: float) -> np.ndarray:
 
 def sectors(angle_rad: np.ndarray, segments: int, phase_rad: float) -> tuple[np.ndarray, np.ndarray]:
     """Sector index (0-3, counted from the boundary near 45 deg) of each angle, and the filled segments of each
-    sector (SPEC §4 step 6). Sectors 0 and 2 are vertical (around 90 and 270 deg), 1 and 3 horizontal; every
+    sector (docs/metrics.md, Böhler star step 6). Sectors 0 and 2 are vertical (around 90 and 270 deg), 1 and 3 horizontal; every
     boundary lies at the slot centre nearest to its nominal 45 + k 90 deg, ``phase_rad`` being a filled
     segment's centre angle."""
     bounds = sector_bounds(segments, phase_rad)
@@ -183,7 +183,7 @@ def sectors(angle_rad: np.ndarray, segments: int, phase_rad: float) -> tuple[np.
 def evaluate_rings(radius_mm: np.ndarray, angle_rad: np.ndarray, inlier: np.ndarray, segments: int,
                    max_radius_mm: float, phase_rad: float, *, ring_mm: float = DEFAULT_RING_MM,
                    binning: int = DEFAULT_BINNING) -> RingTable:
-    """Clusters and samples per ring and orientation, and which rings are resolved (SPEC §4 steps 4-6).
+    """Clusters and samples per ring and orientation, and which rings are resolved (docs/metrics.md, Böhler star steps 4-6).
 
     ``radius_mm``, ``angle_rad``: polar coordinates in the star plane of every
     valid sample (1-D); ``inlier``: on the star. ``phase_rad``: the angle of a
@@ -226,7 +226,7 @@ def evaluate_rings(radius_mm: np.ndarray, angle_rad: np.ndarray, inlier: np.ndar
 
 
 def resolution_radius(radii_mm: np.ndarray, resolved: np.ndarray) -> float:
-    """Smallest radius from which every larger ring is resolved (SPEC §4 step 7); NaN if the outermost is not."""
+    """Smallest radius from which every larger ring is resolved (docs/metrics.md, Böhler step 7); NaN if the outermost isn't."""
     resolved = np.asarray(resolved, bool)
     if not resolved.size or not resolved[-1]:
         return math.nan
@@ -262,7 +262,7 @@ def _ransac(points: np.ndarray, tolerance_mm: float, rng: np.random.Generator) -
 
 
 def find_star_plane(points: np.ndarray, tolerance_mm: float) -> tuple[np.ndarray, float]:
-    """The star plane: the nearest large plane facing the camera (SPEC §4 step 1).
+    """The star plane: the nearest large plane facing the camera (docs/metrics.md, Böhler star step 1).
 
     ``points``: (M, 3) valid points. Sequential RANSAC extracts up to four
     planes, each holding at least 0.5 % of the points within
@@ -381,7 +381,7 @@ def _symmetric_centre(a: np.ndarray, b: np.ndarray, centre: np.ndarray, outer_mm
 
 def find_centre(a: np.ndarray, b: np.ndarray, inlier: np.ndarray, weight: np.ndarray, start: np.ndarray,
                 width_mm: float, border_mm: np.ndarray, segments: int) -> tuple[np.ndarray, float, float]:
-    """Centre of the star's rotational symmetry in the plane (SPEC §4 step 1).
+    """Centre of the star's rotational symmetry in the plane (docs/metrics.md, Böhler star step 1).
 
     First the centroid: from ``start`` (where the optical axis meets the
     plane), repeatedly the area-weighted centroid of the inliers within the
@@ -417,7 +417,7 @@ def _median_spacing(a: np.ndarray, b: np.ndarray, inlier: np.ndarray, axis: int)
 
 
 def star_coordinates(cloud: np.ndarray, result: BoehlerResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(radius mm, angle rad, inlier) per pixel of ``cloud`` in the star plane of ``result`` (SPEC §4 step 3).
+    """(radius mm, angle rad, inlier) per pixel of ``cloud`` in the star plane of ``result`` (docs/metrics.md, Böhler step 3).
 
     Angles run counter-clockwise as seen by the camera from the camera's x axis.
     """
@@ -433,12 +433,12 @@ def star_coordinates(cloud: np.ndarray, result: BoehlerResult) -> tuple[np.ndarr
 
 # ---------------------------------------------------------------------- the whole evaluation
 def auto_binning(spacing_mm: float, ring_mm: float = DEFAULT_RING_MM) -> int:
-    """Rings binned together so that a ring is at least two point spacings wide (SPEC §4 steps 4-6).
+    """Rings binned together so that a ring is at least two point spacings wide (docs/metrics.md, Böhler star steps 4-6).
 
     A ring narrower than that holds a filled segment's points only here and
     there, so it falls apart into too many clusters well outside the sampling
     limit; two spacings put about two points across the ring at every angle.
-    Never less than the default 2 (thesis: 2 mm rings).
+    Never less than the default 2 (Thesis 2024, 5.1.3: 2 mm rings).
     """
     if not math.isfinite(spacing_mm):
         return DEFAULT_BINNING
@@ -447,7 +447,7 @@ def auto_binning(spacing_mm: float, ring_mm: float = DEFAULT_RING_MM) -> int:
 
 def _orientation(name: str, rings: RingTable, segments: int, floor_mm: float, distance_mm: float
                  ) -> tuple[float, float, float, bool, list[str]]:
-    """(radius, lateral, angular, clamped, warnings) of one orientation (SPEC §4 step 7, eq. 5-4)."""
+    """(radius, lateral, angular, clamped, warnings) of one orientation (docs/metrics.md, Böhler star step 7, eq. 5-4)."""
     resolved, points, expected = ((rings.resolved_h, rings.points_h, rings.expected_h) if name == "h"
                                   else (rings.resolved_v, rings.points_v, rings.expected_v))
     radius = resolution_radius(rings.radii_mm, resolved)
@@ -474,7 +474,7 @@ def _orientation(name: str, rings: RingTable, segments: int, floor_mm: float, di
 def analyze_boehler(cloud: np.ndarray, segments: int, *, inlier_mm: float = DEFAULT_INLIER_MM,
                     ring_mm: float = DEFAULT_RING_MM, binning: int | None = DEFAULT_BINNING,
                     fov_deg: tuple[float, float] | None = None) -> BoehlerResult:
-    """Böhler-star resolution of an organized cloud (SPEC §4; thesis 5.1.3, 6.3.2, eq. 5-4).
+    """Böhler-star resolution of an organized cloud (Thesis 2024, 5.1.3, 6.3.2, eq. 5-4).
 
     ``cloud``: H x W x 3 (mm, camera frame, NaN = invalid), usually the stack
     mean; ``segments``: N of the star (72 or 24); ``fov_deg``: the camera's

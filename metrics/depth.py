@@ -1,4 +1,4 @@
-"""Depth measurement error on a flat target (thesis 4.2.1, SPEC §1, ISO 5725-2 terms).
+"""Depth measurement error on a flat target (Thesis 2024, 4.2.1, ISO 5725-2 terms).
 
 * repeatability: per-pixel standard deviation over the stack (centre pixel reported);
 * precision: 90 % quantile of the per-pixel standard deviations of one position;
@@ -53,7 +53,7 @@ class DepthErrors:
 
 
 def depth_errors(stats: StackStats, first_frame: np.ndarray, reference_mm: float) -> DepthErrors:
-    """All SPEC §1 figures of one stack of a flat target at ``reference_mm``.
+    """All Thesis 2024, 4.2.1 figures of one stack of a flat target at ``reference_mm``.
 
     ``stats`` are the stack statistics of z, ``first_frame`` its frame 0 (for
     accuracy, evaluated on the pixels valid in that frame and in the stack).

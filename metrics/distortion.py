@@ -1,11 +1,11 @@
-"""Geometric distortion and pixel aspect ratio from a checkerboard (thesis 5.2, 6.4; SPEC §5).
+"""Geometric distortion and pixel aspect ratio from a checkerboard (Thesis 2024, 5.2, 6.4).
 
 Distortion is the displacement of a flat target's features from where an ideal
 pinhole camera would image them (ISO 17850:2015, EBU Tech 3249-E). The target
 is a checkerboard parallel to the sensor; its inner corners are the features.
 
-* Pixel aspect ratio: angular pixel height / angular pixel width (thesis
-  eq. 5-1, Table 6-2) and the distortion it causes, in % of the width (Table
+* Pixel aspect ratio: angular pixel height / angular pixel width (Thesis
+  2024, eq. 5-1, Table 6-2) and the distortion it causes, in % of the width (Table
   6-5 row 1).
 * Corners: OpenCV's classic detector when the board's size is given (a board
   wholly in view); otherwise, or when it fails, the sector-based detector
@@ -16,9 +16,9 @@ is a checkerboard parallel to the sensor; its inner corners are the features.
   corner to the image border: each new corner is predicted from its row or
   column, refined, and kept only as a saddle of the right colour parity. So a
   board cut by the image border or smaller than the view gives its largest
-  grid, and blurred border corners are not lost (thesis 6.4.2). Indices
+  grid, and blurred border corners are not lost (Thesis 2024, 6.4.2). Indices
   (i, j) count from the corner nearest the image centre.
-* Expected grid (thesis 5.2.1): centred on the corner nearest the image
+* Expected grid (Thesis 2024, 5.2.1): centred on the corner nearest the image
   centre, spacing tile · f / distance with f_x = (W/2) / tan(FOV_h/2) and
   f_y = (H/2) / tan(FOV_v/2), the lateral pixel size at the image centre. The
   angular pixel size FOV/W would overstate the spacing by 13 % at 67 deg over
@@ -29,16 +29,16 @@ is a checkerboard parallel to the sensor; its inner corners are the features.
   cut by the board's edge, refined off its true place; the EBU maximum would
   otherwise report it as distortion). The radial model absorbs smooth
   distortion, so real distortion is not left out.
-* Raw distortion (EBU Tech 3249-E, ISO 17850, thesis Table 6-5): max
+* Raw distortion (EBU Tech 3249-E, ISO 17850, Thesis 2024, Table 6-5): max
   |found - expected| in % of the image width (x) and height (y), with the
   median so that noise at the border does not dominate.
-* Linear and radial distortion separated (thesis 6.4.2's open point): a least
+* Linear and radial distortion separated (Thesis 2024, 6.4.2's open point): a least
   squares fit of board position, in-plane rotation, scale per axis (the
   effective FOV, cf. eq. 6-1) and k1 of eq. 5-5,
   r_d = r_u (1 + k1 (r_u / R)^2) about the image centre, R = half the image
   diagonal. The radial distortion is what remains of found - fitted linear
   grid.
-* Point cloud (thesis 5.2.1): the same corners' x, y read bilinearly at their
+* Point cloud (Thesis 2024, 5.2.1): the same corners' x, y read bilinearly at their
   sub-pixel positions against a grid of the tile size in mm centred on the
   centre corner, in % of the lateral extent of the view at the centre corner's
   depth, 2 z tan(FOV/2) with the given FOV: one pixel of displacement at the
@@ -87,7 +87,7 @@ Grid = dict[tuple[int, int], np.ndarray]
 
 
 def pixel_aspect_ratio(fov_h_deg: float, fov_v_deg: float, width: int, height: int) -> float:
-    """Angular pixel height / angular pixel width (thesis eq. 5-1, Table 6-2 "1 : ratio")."""
+    """Angular pixel height / angular pixel width (Thesis 2024, eq. 5-1, Table 6-2 "1 : ratio")."""
     return sensor_angular_resolution_deg(fov_v_deg, height) / sensor_angular_resolution_deg(fov_h_deg, width)
 
 
@@ -332,7 +332,7 @@ def _median_spacing(uv: np.ndarray, ij: np.ndarray) -> tuple[float, float]:
 
 
 def detect_corners(image: np.ndarray, pattern: tuple[int, int] | None = None) -> Corners:
-    """Inner checkerboard corners of an intensity image (thesis 5.2.1, improved per 6.4.2).
+    """Inner checkerboard corners of an intensity image (Thesis 2024, 5.2.1, improved per 6.4.2).
 
     ``pattern`` = (columns, rows) of inner corners of a board wholly in view
     selects OpenCV's classic detector first; otherwise, or when it fails, the
@@ -377,8 +377,8 @@ def detect_corners(image: np.ndarray, pattern: tuple[int, int] | None = None) ->
 class DistortionResult:
     """Distortion of the intensity image (percentages of the image width w and height h).
 
-    ``raw_*``: found - expected grid of the given FOV (EBU Tech 3249-E, thesis
-    Table 6-5), signed max and median of |.|; ``radial_*``: found - fitted
+    ``raw_*``: found - expected grid of the given FOV (EBU Tech 3249-E; Thesis
+    2024, Table 6-5), signed max and median of |.|; ``radial_*``: found - fitted
     linear grid, the radial part; ``fov_estimate_deg``: effective [h, v] FOV
     from the fitted scale (cf. eq. 6-1); ``linear_scale``: fitted / expected
     corner spacing per axis; ``k1``: eq. 5-5 with R = half the image diagonal.
@@ -441,7 +441,7 @@ def _fit(found: np.ndarray, ij: np.ndarray, centre: np.ndarray, big_r: float,
 
 def distortion(corners: Corners, tile_mm: float, distance_mm: float,
                fov_deg: tuple[float, float]) -> DistortionResult:
-    """Distortion of the intensity image from its checkerboard corners (SPEC §5, thesis 5.2.1, 6.4).
+    """Distortion of the intensity image from its checkerboard corners (Thesis 2024, 5.2, 5.2.1, 6.4).
 
     ``distance_mm``: camera - board distance; ``fov_deg``: the given
     (datasheet) [h, v] field of view. The principal point and the centre of
@@ -509,7 +509,7 @@ def distortion(corners: Corners, tile_mm: float, distance_mm: float,
 # -------------------------------------------------------------------------------------- point cloud
 def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear (N, 3) samples of an organized (H, W, 3) cloud at sub-pixel (u, v) (not rounded, cf.
-    thesis 5.2.2); NaN where one of the four neighbouring points is invalid (any NaN) or outside."""
+    Thesis 2024, 5.2.2); NaN where one of the four neighbouring points is invalid (any NaN) or outside."""
     cloud = np.asarray(cloud, dtype=float)
     cloud = np.where(np.isfinite(cloud).all(axis=2, keepdims=True), cloud, np.nan)
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
@@ -528,7 +528,7 @@ def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class CloudDistortion:
-    """Distortion of the point cloud at the checkerboard corners (thesis 5.2.1, Table 6-5 row 3).
+    """Distortion of the point cloud at the checkerboard corners (Thesis 2024, 5.2.1, Table 6-5 row 3).
 
     ``distortion_*_pct``: signed max |found - expected| in % of ``extent_mm``
     (the lateral extent of the view at the centre corner's depth,

@@ -1,6 +1,6 @@
-"""Remission and angle: a small ROI on the optical axis, trueness and the misalignment fit (SPEC §7).
+"""Remission and angle: a small ROI on the optical axis, trueness and the misalignment fit (Thesis 2024, 5.4).
 
-Thesis 5.4 evaluates the centre pixel of a plate seen from a camera that the
+Thesis 2024, 5.4 evaluates the centre pixel of a plate seen from a camera that the
 robot carries around a circle of radius R in 10 deg steps (Fig. 5-14), 6.5
 reports repeatability and trueness over the angle per material (Fig. 6-11).
 labctl evaluates a small ROI instead and corrects for misalignment:
@@ -39,16 +39,16 @@ off, too few pixels to be told apart as outliers), and is not an outlier of
 the plane fit (more than ``outlier_sigmas`` robust standard deviations,
 MAD-based). A step is evaluated only when more than half of
 the ROI is on target: a straight plate edge crossing the ROI then leaves the
-ROI's centre, the optical axis, on the plate (the thesis drops positions whose
+ROI's centre, the optical axis, on the plate (Thesis 2024 drops positions whose
 centre pixel is off the target, 6.5.1); with exactly half, the axis may lie up
 to half a pixel beyond the edge.
 
-Repeatability. Per-pixel standard deviation over the stack (thesis 5.4.1),
+Repeatability. Per-pixel standard deviation over the stack (Thesis 2024, 5.4.1),
 pooled over the on-target ROI pixels as the root of the mean variance: the
 estimate of a common pixel's std with n_pixels (N - 1) degrees of freedom,
 where a single centre pixel has only N - 1.
 
-Misalignment (thesis 5.4.2, Fig. 5-15). A target plane delta behind the circle
+Misalignment (Thesis 2024, 5.4.2, Fig. 5-15). A target plane delta behind the circle
 centre and a camera whose optical axis passes the robot axis at e along the
 camera's +x (image right) give the axis distance
 
@@ -60,7 +60,7 @@ material's sub-surface bias. :func:`fit_misalignment` fits b, delta and e
 linearly in (1, 1 / cos theta, tan theta) to the curve of a good target (PTFE);
 the geometric reference of any material is then R + delta / cos - e tan
 (:func:`geometric_reference`). For 20 mm the target term adds 95 mm at 80 deg
-relative to 0 deg and the camera term 113 mm at 80 deg (the thesis's text says
+relative to 0 deg and the camera term 113 mm at 80 deg (Thesis 2024's text says
 "about 20 cm" for both; the geometry gives these values).
 """
 
@@ -74,7 +74,7 @@ import numpy as np
 
 from metrics.stack import stack_stats
 
-#: default ROI size (SPEC §7), raised by one where the image size has the other parity
+#: default ROI size (Thesis 2024, 5.4), raised by one where the image size has the other parity
 ROI_SIZE_PX = 5
 #: largest plausible misalignment of target, camera axis and range offset (sets the target window)
 MAX_OFFSET_MM = 100.0
@@ -231,14 +231,14 @@ def measure_roi(x: np.ndarray, y: np.ndarray, z: np.ndarray,
 
 def geometric_reference(angle_deg: float | np.ndarray, radius_mm: float | np.ndarray,
                         delta_mm: float = 0.0, e_mm: float = 0.0) -> np.ndarray:
-    """Axis distance from the pose: R + delta / cos(theta) - e tan(theta) (thesis Fig. 5-15)."""
+    """Axis distance from the pose: R + delta / cos(theta) - e tan(theta) (Thesis 2024, Fig. 5-15)."""
     t = np.radians(np.asarray(angle_deg, float))
     return np.asarray(radius_mm, float) + delta_mm / np.cos(t) - e_mm * np.tan(t)
 
 
 def trueness_vs_zero(angles_deg: Sequence[float], distances_mm: Sequence[float],
                      tolerance_deg: float = 0.5) -> np.ndarray:
-    """Distance minus the mean distance at 0 deg of the same curve (thesis 5.4.1); NaN without 0 deg."""
+    """Distance minus the mean distance at 0 deg of the same curve (Thesis 2024, 5.4.1); NaN without 0 deg."""
     a, d = np.asarray(angles_deg, float), np.asarray(distances_mm, float)
     zero = (np.abs(a) <= tolerance_deg) & np.isfinite(d)
     if not zero.any():
@@ -274,7 +274,7 @@ class MisalignmentFit:
 def fit_misalignment(angles_deg: Sequence[float], distances_mm: Sequence[float],
                      radius_mm: float | Sequence[float], distance_se_mm: Sequence[float] | None = None,
                      min_se_mm: float = MIN_DISTANCE_SE_MM) -> MisalignmentFit:
-    """Fit b, delta and e to a distance-vs-angle curve (thesis 5.4.2, SPEC §7).
+    """Fit b, delta and e to a distance-vs-angle curve (Thesis 2024, 5.4.2, 5.4).
 
     Non-finite distances are skipped. Weights are 1 / se^2 with each step's
     standard error raised to at least ``min_se_mm`` (unit weights without

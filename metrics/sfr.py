@@ -1,8 +1,8 @@
 """Edge-based spatial frequency response (e-SFR) of a slanted edge, ISO 12233:2023.
 
-Follows the e-SFR method of ISO 12233:2023 (pp. 11-13, thesis 5.1.2) as
+Follows the e-SFR method of ISO 12233:2023 (pp. 11-13, Thesis 2024, 5.1.2) as
 implemented by sfrmat5 (P. D. Burns, its reference implementation), in the steps
-of SPEC §3; "sfrmat5 step N" refers to the step numbers in sfrmat5's source:
+of Thesis 2024, 5.1.2; "sfrmat5 step N" refers to the step numbers in sfrmat5's source:
 
 3-5. per-row derivative [-0.5, +0.5] of the (dark-to-bright) edge, windowed
      centroid, polynomial fit of edge position against row (order 5; order 1 when
@@ -53,7 +53,7 @@ _DERIVATIVE_CORRECTION_CAP = 10.0
 # Edge angles (deg) that ISO 12233 slanted-edge analysis handles poorly.
 _NEAR_ZERO_DEG = 2.0
 _NEAR_45_DEG = 40.0
-# SPEC §3 step 6: a run of >= 4 zero derivatives at an ESF end means clipping.
+# docs/metrics.md, "Sharpness over distance": a run of >= 4 zero derivatives at an ESF end means clipping.
 _CLIP_RUN = 4
 # sfrmat5 clipping(): warn when more than 0.5 % of the ROI is at a sensor limit.
 _CLIP_FRACTION = 0.005
@@ -84,7 +84,7 @@ class SFRResult:
     angle_deg: edge angle from the pixel axis;
     orientation: "vertical" or "horizontal"; esf: supersampled edge profile in the
     image's units (1/oversampling px horizontal bins); lsf: its derivative, made
-    positive (dark-to-bright), centred, before windowing; clipped: SPEC §3 step 6
+    positive (dark-to-bright), centred, before windowing; clipped: docs/metrics.md, "Sharpness over distance"
     criterion met; warnings: human-readable reasons to distrust the result.
     """
 
@@ -381,7 +381,7 @@ def _first_crossing(frequency: np.ndarray, sfr: np.ndarray, level: float) -> flo
 
 
 def _sfr_area(frequency: np.ndarray, sfr: np.ndarray) -> float:
-    """Area under the SFR over 0 ... 1 cy/px (SPEC §3 step 5, thesis 5.1.2): the sum
+    """Area under the SFR over 0 ... 1 cy/px (docs/metrics.md, "Sharpness over distance", Thesis 2024, 5.1.2): the sum
     of the samples times the frequency step, the two end samples weighted 1/2
     (trapezoid rule). With full weights the DC sample alone would add step/2, which
     depends on the ROI length (1-3 % between 100 and 400 px wide ROIs)."""
@@ -390,7 +390,7 @@ def _sfr_area(frequency: np.ndarray, sfr: np.ndarray) -> float:
 
 
 def _clipping(roi: np.ndarray, esf: np.ndarray, sensor_max: float | None) -> tuple[bool, list[str]]:
-    """SPEC §3 step 6: a run of >= 4 zero derivatives (steps below 1e-9 of the ESF
+    """docs/metrics.md, "Sharpness over distance": a run of >= 4 zero derivatives (steps below 1e-9 of the ESF
     range, i.e. zero up to rounding) at either end of the ESF (its measured bins),
     or more than 0.5 % of the ROI at a sensor limit (0, ``sensor_max``; threshold
     of sfrmat5 clipping()). A noise-free rendering has perfectly flat plateaus and
@@ -420,7 +420,7 @@ def find_edge_rois(
     max_angle_deg: float = 20.0,
 ) -> list[EdgeROI]:
     """Find ROIs around the slanted vertical and horizontal edges of a chart image;
-    ISO 12233:2023 (p. 12, thesis 5.1.2) asks for 100-400 px across the edge.
+    ISO 12233:2023 (p. 12, Thesis 2024, 5.1.2) asks for 100-400 px across the edge.
 
     Straight edges are connected runs of strong gradient (>= 30 % of the strongest,
     after a 3x3 median and a Gaussian of 1.5 px) whose fitted line is slanted by
@@ -562,7 +562,7 @@ def _roi_around(
 
 def normalize_by_white(image: np.ndarray, white: np.ndarray) -> np.ndarray:
     """Pixel-wise division by a white-reference image (white sheet over the chart),
-    thesis 5.1.2 / SPEC §3: removes the illumination fall-off of active cameras so
+    Thesis 2024, 5.1.2: removes the illumination fall-off of active cameras so
     the ESF only changes at the edge. Pixels whose reference is not positive and
     finite become NaN. Result: reflectance relative to the white sheet."""
     a = _as_image(image, "image")

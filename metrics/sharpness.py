@@ -1,4 +1,4 @@
-"""Sharpness over distance and imagery resolution (thesis 5.1, 6.2-6.3, 6.6; SPEC §3, §9).
+"""Sharpness over distance and imagery resolution (Thesis 2024, 5.1, 6.2-6.3, 6.6, 5.1.2, §9).
 
 * hyperfocal distance: the nearest distance from which the SFR area stays at
   or above 90 % of its plateau, the plateau being the median over the far half
@@ -35,7 +35,7 @@ def _sorted_valid(distances: Sequence[float], values: Sequence[float], valid: Se
 
 
 def plateau(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool]) -> float:
-    """Median SFR area over the far half of the valid positions (SPEC §3)."""
+    """Median SFR area over the far half of the valid positions (Thesis 2024, 5.1.2)."""
     d, v = _sorted_valid(distances, sfr_area, valid)
     if not d.size:
         return math.nan
@@ -44,7 +44,7 @@ def plateau(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequen
 
 def hyperfocal_distance(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool],
                         fraction: float = PLATEAU_FRACTION) -> float:
-    """Nearest distance from which every valid SFR area stays >= ``fraction`` x plateau (SPEC §3)."""
+    """Nearest distance from which every valid SFR area stays >= ``fraction`` x plateau (Thesis 2024, 5.1.2)."""
     d, v = _sorted_valid(distances, sfr_area, valid)
     if not d.size:
         return math.nan
@@ -95,14 +95,14 @@ def sharpness_peak_at_sweep_end(distances: Sequence[float], sfr_area: Sequence[f
 
 
 def imagery_resolution_deg(sensor_resolution_deg: float, sfr10_cy_px: float) -> float:
-    """Angular imagery resolution: sensor angular resolution divided by SFR10 (thesis 6.3.1)."""
+    """Angular imagery resolution: sensor angular resolution divided by SFR10 (Thesis 2024, 6.3.1)."""
     if not sfr10_cy_px > 0:
         return math.nan
     return sensor_resolution_deg / sfr10_cy_px
 
 
 def lateral_mm(angular_deg: float, distance_mm: float) -> float:
-    """Size covered by ``angular_deg`` at ``distance_mm`` (thesis eq. 5-2)."""
+    """Size covered by ``angular_deg`` at ``distance_mm`` (Thesis 2024, eq. 5-2)."""
     return 2.0 * distance_mm * math.tan(math.radians(angular_deg) / 2.0)
 
 

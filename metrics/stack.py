@@ -1,9 +1,9 @@
-"""Per-pixel statistics of a stack of frames (SPEC "Stacks").
+"""Per-pixel statistics of a stack of frames (docs/metrics.md, Stacks).
 
 "Mean" is the per-pixel mean over the stack ignoring the frames in which that
 pixel is invalid (NaN); a pixel valid in fewer than half of the frames is
 invalid. Repeatability is the per-pixel sample standard deviation (ISO 5725-2,
-thesis 2.1.3), with n - 1 in the denominator.
+Thesis 2024, 2.1.3), with n - 1 in the denominator.
 
 The statistics are computed in one pass over the stack by a compiled kernel
 (numba): evaluating a 640 x 480 x 100 stack must cost less than reading it

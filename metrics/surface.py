@@ -1,4 +1,4 @@
-"""Areal surface texture of a flat target (thesis 4.2.2, SPEC §2).
+"""Areal surface texture of a flat target (Thesis 2024, 4.2.2).
 
 * primary surface: stack-mean depth minus the form, the least-squares plane
   z = a + b x + c y (ISO 25178-2 F-operation), so a residual tilt is not texture;
@@ -7,7 +7,7 @@
   alpha = sqrt(ln 2 / pi), 50 % transmission at the cut-off lambda_c; as a
   Gaussian this is sigma = alpha lambda_c / sqrt(2 pi) = 0.18739 lambda_c;
 * roughness: primary minus waviness;
-* Sq (ISO 25178-2 eq. 4-1 of the thesis): root mean square about the mean.
+* Sq (ISO 25178-2 eq. 4-1 of Thesis 2024): root mean square about the mean.
 
 lambda_c is given in millimetres and converted to pixels per axis with the
 measured lateral pixel size (median spacing of neighbouring points). Invalid
@@ -90,7 +90,7 @@ class SurfaceTexture:
 def surface_texture(
     x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, cutoff_mm: float = 25.0
 ) -> SurfaceTexture:
-    """Primary, waviness and roughness surfaces and their Sq (SPEC §2).
+    """Primary, waviness and roughness surfaces and their Sq (Thesis 2024, 4.2.2).
 
     ``x``, ``y``, ``z`` are stack-mean maps (mm); the returned maps are NaN
     outside the valid, cropped evaluation area.

@@ -1,6 +1,6 @@
-"""Measurement error in x and y (thesis 5.3, 6.4 Table 6-6; SPEC §6; ISO 5725-2 terms).
+"""Measurement error in x and y (Thesis 2024, 5.3, 6.4 Table 6-6, 5.3; ISO 5725-2 terms).
 
-Systematic error on the checkerboard (the distortion target, thesis 5.3):
+Systematic error on the checkerboard (the distortion target, Thesis 2024, 5.3):
 the corners found in the intensity image are read bilinearly at their
 sub-pixel positions from the cloud, and the spacing of neighbouring corners is
 compared to the tile size,
@@ -9,10 +9,10 @@ compared to the tile size,
 
 so a scale error of the cloud shows directly, and the board's position does
 not matter. Trueness uses the cloud of the stack mean, accuracy a single
-frame; each reports the 90 % quantile of |e| and the signed median (thesis
-Table 6-6).
+frame; each reports the 90 % quantile of |e| and the signed median (Thesis
+2024, Table 6-6).
 
-Statistical error on the white wall (thesis 5.3, Fig. 5-12): the per-pixel
+Statistical error on the white wall (Thesis 2024, 5.3, Fig. 5-12): the per-pixel
 standard deviation of x and y over a stack; repeatability is the centre
 pixel's (the caller takes the maximum over the distance sweep), precision the
 90 % quantile over the valid pixels (reported at 2000 mm).

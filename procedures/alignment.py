@@ -1,8 +1,8 @@
-"""Camera alignment to the wall (thesis 4.1.2) and the face mask capture (thesis 6.7, SPEC §8).
+"""Camera alignment to the wall (Thesis 2024, 4.1.2) and the face mask capture (Thesis 2024, 6.7).
 
 ``alignment``: the camera looks at the wall at ``distance_mm``; the runner
 shows the four corner-field depths and the tilt they imply after every stack
-of ``frames`` (default 10, as in the thesis) and asks the operator to adjust
+of ``frames`` (default 10, as in Thesis 2024) and asks the operator to adjust
 the tilt stage and measure again, or accept; the accepted fields and residual
 tilt are recorded with the step.
 

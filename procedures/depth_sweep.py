@@ -1,4 +1,4 @@
-"""Depth error on the wall over distance (thesis 4.2.1, SPEC §1).
+"""Depth error on the wall over distance (Thesis 2024, 4.2.1).
 
 The stage moves the camera from ``start_mm`` to ``stop_mm`` (inclusive) in
 ``step_mm`` increments; at each position a stack of ``frames`` frames of the
@@ -61,7 +61,7 @@ class DepthSweep(StrictModel):
 
 
 class XYSweep(DepthSweep):
-    """Campaign entry ``kind = "xy_sweep"``: the same wall sweep, evaluated for x/y noise (SPEC §6)."""
+    """Campaign entry ``kind = "xy_sweep"``: the same wall sweep, evaluated for x/y noise (Thesis 2024, 5.3)."""
 
     needs_reference: ClassVar[bool] = False
 

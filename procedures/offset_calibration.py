@@ -1,12 +1,11 @@
-"""Camera-laser offset calibration (thesis 4.1.2).
+"""Camera-laser offset calibration (Thesis 2024, 4.1.2).
 
 One stack on the wall at 2000 mm. The runner computes
 ``offset = mean camera depth (central 10 % x 10 % region) - laser reading``
 from it; every later step's reference distance is the distance the laser
-reading stands for in the camera's frame, ``laser reading + offset``. (SPEC
-writes "laser - offset", which holds with the opposite sign convention
-offset = laser - camera; the thesis's definition, camera - laser, is used
-here.)
+reading stands for in the camera's frame, ``laser reading + offset``. ("laser - offset" holds with the
+opposite sign convention offset = laser - camera; Thesis 2024's definition,
+camera - laser, 4.1.2, is used here.)
 """
 
 from __future__ import annotations

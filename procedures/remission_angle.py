@@ -1,4 +1,4 @@
-"""Influence of target remission and angle on the robot (thesis 5.4, 6.5; SPEC §7).
+"""Influence of target remission and angle on the robot (Thesis 2024, 5.4, 6.5).
 
 For every material the operator mounts the plate on the hoist (one prompt per
 swap, with the hoist height), then the robot carries the camera around the

@@ -1,9 +1,9 @@
-"""Sharpness over distance with the ISO 12233 slanted-edge chart (thesis 5.1.2, 6.2, SPEC §3).
+"""Sharpness over distance with the ISO 12233 slanted-edge chart (Thesis 2024, 5.1.2, 6.2).
 
 The operator mounts the chart (one prompt), the camera sweeps it from
 ``start_mm`` to ``stop_mm``; then the operator covers the chart with the
 white sheet once, and the camera sweeps back over the same distances for the white reference (one prompt instead of
-one per position). Exposure may follow the distance, as in thesis Table C-1:
+one per position). Exposure may follow the distance, as in Thesis 2024, Table C-1:
 ``exposure_table = [[from_mm, exposure_us], ...]`` uses the exposure of the
 last row whose ``from_mm`` is not above the distance.
 """

@@ -55,5 +55,5 @@ class Step:
 
     @property
     def step_id(self) -> str:
-        """``<NNNNN>_<procedure kind>`` (CONTRACTS §4)."""
+        """``<NNNNN>_<procedure kind>`` (docs/runfile.md)."""
         return f"{self.index:05d}_{self.procedure}"

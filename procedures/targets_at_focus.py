@@ -1,16 +1,16 @@
-"""Procedures that capture one target at the camera's sharpest distance (thesis 5.2.1, 6.3.2, 6.4).
+"""Procedures that capture one target at the camera's sharpest distance (Thesis 2024, 5.2.1, 6.3.2, 6.4).
 
 ``distance_mm`` is a number (camera-to-target distance) or ``"best_focus"``:
 the runner then takes the distance from the campaign's earlier
 ``slanted_edge`` steps — the nearest distance whose sharpness is within 5 % of
 the best, because "if there are multiple distances with high focus, the
-smallest distance is chosen" (thesis 5.2.1), which keeps the tiles and
+smallest distance is chosen" (Thesis 2024, 5.2.1), which keeps the tiles and
 segments large.
 
-* ``checkerboard`` (SPEC §5-6): a 19 mm board on the wall, filling the image;
-* ``boehler_star`` (SPEC §4): a Boehler star ``gap_mm`` in front of the wall;
+* ``checkerboard`` (Thesis 2024, 5.2-5.3): a 19 mm board on the wall, filling the image;
+* ``boehler_star`` (Thesis 2024, 5.1.3): a Boehler star ``gap_mm`` in front of the wall;
   ``segments`` 72, 24 or both ``[72, 24]`` (the 24-segment star is the
-  fallback where the 72 is not resolved, thesis 6.3.2) with an operator prompt
+  fallback where the 72 is not resolved, Thesis 2024, 6.3.2) with an operator prompt
   per star swap.
 """
 

@@ -1,4 +1,4 @@
-"""Analytic height field of an adult silicone face mask (thesis 6.7, Fig. 5-13).
+"""Analytic height field of an adult silicone face mask (Thesis 2024, 6.7, Fig. 5-13).
 
 Coordinates in mm on the mask's base plane, seen frontally by the camera:
 x to the right, y downwards (image convention), origin at the centre of the
@@ -18,7 +18,7 @@ camera) a surface point lies at z = z_base - h.
   - face base: dome 21 * sqrt(1 - rho^3) (flat front, curving back at the sides);
   - brow ridge: +5 G at (0, -33), sigma (32, 5);
   - eye sockets: -13 G at (+-31.25, -14), sigma (11, 8): centres 62.5 mm
-    apart, the mean adult inter-eye distance the thesis uses (6.6, after
+    apart, the mean adult inter-eye distance Thesis 2024 uses (6.6, after
     Yildirim et al. 2015);
   - nose: (3 + 11 (y + 26) / 54) * L((y + 26) / 3) * L((32 - y) / 2.5)
     * exp(-(x / w)^4), a dorsum rising from the nasion (y = -26) towards
@@ -34,7 +34,7 @@ C2, so normals are well defined everywhere. The unit normal pointing out of
 the mask (towards the camera) is n = (-dh/dx, -dh/dy, -1) / sqrt(1 + |grad h|^2);
 its angle to the viewing axis is arccos(1 / sqrt(1 + |grad h|^2)).
 
-Fig. 5-13 of the thesis shows, for the real mask, a broad distribution of
+Fig. 5-13 of Thesis 2024 shows, for the real mask, a broad distribution of
 these angles with many near 40 and 70 deg (nose, cheeks). This model, limited
 to 33.6 mm of relief, has about 37 % of its projected area (47 % of its
 surface area) between 30 and 75 deg, and no angle beyond 68 deg; most

@@ -1,4 +1,4 @@
-"""Fault injection for simulated devices (CONTRACTS §3, ``[sim.faults]``).
+"""Fault injection for simulated devices (docs/campaign.md, ``[sim.faults]``).
 
 A rate is the probability that a fault kind strikes once during a step. When
 it does, the schedule (drawn from the step's own random stream) picks which

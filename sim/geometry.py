@@ -6,7 +6,7 @@ X_world = R X_cam + position.
 
 * Stage lab: the camera sits at the world origin looking along +z; the wall
   is the plane z = D (the camera-wall distance).
-* Robot lab (thesis 5.4, Fig. 5-15): the circle centre is the world origin,
+* Robot lab (Thesis 2024, 5.4, Fig. 5-15): the circle centre is the world origin,
   the robot turns the camera about the vertical (y) axis; at angle theta the
   camera sits at (R sin theta, 0, -R cos theta) looking at the centre. A
   camera whose optical axis misses the robot axis by e sits e further along

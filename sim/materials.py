@@ -1,4 +1,4 @@
-"""NIR material table of the lab's targets (thesis 4.1.1, 5.4.1 Table 5-2, 6.2.1, 6.5).
+"""NIR material table of the lab's targets (Thesis 2024, 4.1.1, 5.4.1 Table 5-2, 6.2.1, 6.5).
 
 Per material:
 
@@ -32,20 +32,20 @@ Per material:
   axis, as in ToF and active stereo) scales with ``angle_factor`` = cos(theta)^m.
   m = 1 is a Lambertian surface (irradiance ~ cos theta, radiance the same in
   every direction); m > 1 a surface that sends part of the light away
-  specularly. One exponent is enough for the thesis's angle study (5.4, 6.5),
+  specularly. One exponent is enough for Thesis 2024's angle study (5.4, 6.5),
   which only compares materials by how fast their signal falls with angle.
 
 Values (``Material.source`` gives the sources per material):
 
     name          850 nm   940 nm   bias mm   m     basis
     ptfe          0.95     0.95     10        1     literature; bias: diffusion estimate
-    molleton      0.10     0.10     0         1     thesis 4.1.1 (Fig. B-1)
+    molleton      0.10     0.10     0         1     Thesis 2024, 4.1.1 (Fig. B-1)
     silicone      0.50     0.48     5         1     assumption inside the skin range
     gelatine      0.52     0.49     5         1     assumption inside the skin range
     collagen      0.35     0.33     3         2     assumption (thin glossy film)
-    wall          0.90     0.90     0         1     thesis 4.1.1 (Fig. B-1)
+    wall          0.90     0.90     0         1     Thesis 2024, 4.1.1 (Fig. B-1)
     chart_white   0.80     0.80     0         1     assumption (paper)
-    chart_black   0.0076   0.0076   0         1     chart_white / 105 (thesis 6.2.1)
+    chart_black   0.0076   0.0076   0         1     chart_white / 105 (Thesis 2024, 6.2.1)
     paper_white   0.80     0.80     0         1     assumption (paper)
 
 Ranges found. PTFE 0.92-0.99: Spectralon (sintered PTFE powder) > 0.99
@@ -56,7 +56,7 @@ skin roughly 0.4-0.6 at 850-940 nm, lower at 940 nm (water band) and for
 darker skin: the diffusion estimate above gives 0.51-0.57; reflectance peaks
 at 720-840 nm for light and near 900 nm for dark skin (Kuppenheim and Heer
 1951); NIST publishes reference spectra (Cooksey et al., J. Res. NIST 122,
-2017). The thesis (Fig. B-3) compares its skin-like targets with the skin
+2017). Thesis 2024 (Fig. B-3) compares its skin-like targets with the skin
 spectra of Rest (2022) without giving numbers. Subsurface bias: PTFE mm to
 cm (diffusion estimate 6-20 mm; its reflectance still grows from 5 to 10 mm
 thickness, so light reaches that deep); skin 5-7 mm (diffusion estimate),
@@ -102,7 +102,7 @@ _PAPER = (
 )
 _SKIN_LIKE = (
     "assumption: no NIR data exist for this material; chosen inside the roughly 0.4-0.6 of human skin at "
-    "850-940 nm (diffusion estimate 0.51-0.57, see the module docstring), ordered by the thesis's "
+    "850-940 nm (diffusion estimate 0.51-0.57, see the module docstring), ordered by Thesis 2024's "
     "repeatabilities (6.5.2: gelatine slightly better than silicone, collagen worst of the skin-like "
     "targets), with 940 nm a little lower as for skin (water band)"
 )
@@ -123,7 +123,7 @@ MATERIALS: dict[str, Material] = {
         ),
         Material(
             "molleton", remission_850=0.10, remission_940=0.10, subsurface_bias_mm=0.0, lambertian_exponent=1.0,
-            source="thesis 4.1.1 and Fig. B-1: black molleton reflects 10 % at 850 and 940 nm; opaque cotton "
+            source="Thesis 2024, 4.1.1 and Fig. B-1: black molleton reflects 10 % at 850 and 940 nm; opaque cotton "
             "fabric (bias 0, assumption); Lambertian (assumption: napped, rough diffuse surface)",
         ),
         Material(
@@ -140,26 +140,26 @@ MATERIALS: dict[str, Material] = {
             "collagen", remission_850=0.35, remission_940=0.33, subsurface_bias_mm=3.0, lambertian_exponent=2.0,
             source=f"Viscofan COFFI collagen film (Table 5-2). {_SKIN_LIKE}; assumption: a thin semi-transparent "
             "film whose bias is set by what lies behind it, taken as 3 mm; m = 2 because the smooth film "
-            "reflects partly specularly, in line with the thesis (6.5: largest relative loss with angle, "
+            "reflects partly specularly, in line with Thesis 2024 (6.5: largest relative loss with angle, "
             "stereo invalid from 20 to 60 deg)",
         ),
         Material(
             "wall", remission_850=0.90, remission_940=0.90, subsurface_bias_mm=0.0, lambertian_exponent=1.0,
-            source="thesis 4.1.1 and Fig. B-1: the wall is painted white with 90 % reflectance at 850 and 940 nm; "
+            source="Thesis 2024, 4.1.1 and Fig. B-1: the wall is painted white with 90 % reflectance at 850 and 940 nm; "
             "opaque matt paint (bias 0, Lambertian: assumption)",
         ),
         Material(
             "chart_white", remission_850=0.80, remission_940=0.80, subsurface_bias_mm=0.0, lambertian_exponent=1.0,
-            source=f"A0 inkjet print, white = the paper (thesis 6.2.1). {_PAPER}",
+            source=f"A0 inkjet print, white = the paper (Thesis 2024, 6.2.1). {_PAPER}",
         ),
         Material(
             "chart_black", remission_850=0.0076, remission_940=0.0076, subsurface_bias_mm=0.0, lambertian_exponent=1.0,
-            source="water-based inkjet black; thesis 6.2.1 and Fig. B-2: black/white about 1:105 in the NIR, "
+            source="water-based inkjet black; Thesis 2024, 6.2.1 and Fig. B-2: black/white about 1:105 in the NIR, "
             "so chart_white / 105",
         ),
         Material(
             "paper_white", remission_850=0.80, remission_940=0.80, subsurface_bias_mm=0.0, lambertian_exponent=1.0,
-            source=f"white sheet used as white reference (thesis 5.1.2, 6.2.1). {_PAPER}",
+            source=f"white sheet used as white reference (Thesis 2024, 5.1.2, 6.2.1). {_PAPER}",
         ),
     )
 }

@@ -1,4 +1,4 @@
-"""Simulation model files (CONTRACTS §5).
+"""Simulation model files (docs/simulation.md).
 
 ```toml
 camera = "blaze101"              # built-in profile

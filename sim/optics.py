@@ -2,9 +2,9 @@
 
 Pixel centres sit at integer (u, v); the principal point is the image centre
 ((W-1)/2, (H-1)/2); the focal lengths follow from the FOV as
-f_x = (W/2) / tan(FOV_h/2) and f_y = (H/2) / tan(FOV_v/2) (SPEC §5), so a
+f_x = (W/2) / tan(FOV_h/2) and f_y = (H/2) / tan(FOV_v/2) (Thesis 2024, 5.2), so a
 FOV ratio that differs from W/H gives non-square pixels (pixel aspect ratio).
-Back-projection follows thesis eq. 2-2/2-3: x = z (u - c_x)/f_x, y = z (v - c_y)/f_y.
+Back-projection follows Thesis 2024, eq. 2-2/2-3: x = z (u - c_x)/f_x, y = z (v - c_y)/f_y.
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ class Pinhole:
 class CameraOptics:
     """The camera's true optics: pinhole of the true FOV plus Brown radial distortion.
 
-    Distortion (thesis eq. 5-5, CONTRACTS radial_distortion): a scene point whose
+    Distortion (Thesis 2024, eq. 5-5; effect ``radial_distortion`` of docs/simulation.md): a scene point whose
     undistorted image lies at radius r_u from the principal point appears at
     r_d = r_u (1 + k1 (r_u / R)^2), R = half the image diagonal in pixels.
     ``directions`` maps (distorted) pixel positions to the rays they see.
@@ -110,12 +110,12 @@ class CameraOptics:
 
 
 def sensor_angular_resolution_deg(fov_deg: float, pixels: int) -> float:
-    """Angle covered by one pixel (thesis eq. 5-1): FOV / number of pixels."""
+    """Angle covered by one pixel (Thesis 2024, eq. 5-1): FOV / number of pixels."""
     return fov_deg / pixels
 
 
 def pixel_aspect_distortion_pct(fov_h_deg: float, fov_v_deg: float, width: int, height: int) -> float:
-    """Distortion due to the pixel aspect ratio (thesis Table 6-5 row 1), normalized to the width.
+    """Distortion due to the pixel aspect ratio (Thesis 2024, Table 6-5 row 1), normalized to the width.
 
     (angular pixel height / angular pixel width - 1) in percent.
     """
@@ -125,12 +125,12 @@ def pixel_aspect_distortion_pct(fov_h_deg: float, fov_v_deg: float, width: int, 
 
 
 def lateral_resolution_mm(angular_deg: float, distance_mm: float) -> float:
-    """Lateral size seen by ``angular_deg`` at ``distance_mm`` (thesis eq. 5-2)."""
+    """Lateral size seen by ``angular_deg`` at ``distance_mm`` (Thesis 2024, eq. 5-2)."""
     return 2.0 * distance_mm * math.tan(math.radians(angular_deg) / 2.0)
 
 
 def depth_of_field_mm(focal_mm: float, focus_mm: float, coc_mm: float, f_number: float) -> tuple[float, float]:
-    """Near and far limits of acceptable sharpness (thesis eq. 2-5, Lange 2023).
+    """Near and far limits of acceptable sharpness (Thesis 2024, eq. 2-5, Lange 2023).
 
     g_near = f^2 g / (f^2 + Z F (g - f)),  g_far = f^2 g / (f^2 - Z F (g - f)),
     with focal length f, focus distance g, circle of confusion Z, f-number F;

@@ -1,6 +1,6 @@
 """Built-in camera profiles: blaze101, amt100, flexx2, d455.
 
-Every number carries its source in ``SOURCES``: the thesis's Table 6-1
+Every number carries its source in ``SOURCES``: Thesis 2024's Table 6-1
 (datasheet values collected there), its text, a datasheet, or ``assumption``
 when no public number exists (those are the knobs the reconcile workflow is
 meant to correct from measurements).
@@ -12,7 +12,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Literal
 
-T61 = "thesis Table 6-1 (manufacturer datasheets)"
+T61 = "Thesis 2024, Table 6-1 (manufacturer datasheets)"
 
 
 @dataclass(frozen=True)
@@ -104,20 +104,20 @@ SOURCES: dict[str, dict[str, str]] = {
         "width/height/fov/wavelength/frame_rate": T61,
         "min_range/max_range": T61 + ": measurement range 0.3 to 10 m",
         "noise_mm_at_2m": T61 + ": precision < 1 mm up to 5.5 m; 1.0 mm taken as the centre value",
-        "hyperfocal_mm": "thesis 6.6: 40 cm hyperfocal distance",
+        "hyperfocal_mm": "Thesis 2024, 6.6: 40 cm hyperfocal distance",
         "pixel_pitch_um": "Sony IMX556 sensor: 10 um",
         "confidence_dtype": "pylon blaze Confidence component is Mono16",
         "lens_sigma_px": "calibrated: SFR10 of the Gaussian-blurred pixel = sensor resolution / imagery "
-        "resolution of thesis Table 6-3 (0.102 / 0.23 deg)",
+        "resolution of Thesis 2024, Table 6-3 (0.102 / 0.23 deg)",
         "modulation_mhz/exposure_us/contrast/ambient/saturation": "assumption",
     },
     "amt100": {
         "width/height/fov/wavelength/frame_rate": T61,
         "max_range": T61 + ": 6 m",
-        "noise_mm_at_2m": "assumption: thesis 6.6 finds the lowest depth noise of the four",
-        "hyperfocal_mm": "thesis 6.6: 60 cm",
-        "output_step_mm": "SPEC: stores integer millimetres",
-        "lens_sigma_px": "calibrated to thesis Table 6-3 (0.105 / 0.17 deg)",
+        "noise_mm_at_2m": "assumption: Thesis 2024, 6.6 finds the lowest depth noise of the four",
+        "hyperfocal_mm": "Thesis 2024, 6.6: 60 cm",
+        "output_step_mm": "Thesis 2024, Table 6-1: stores integer millimetres",
+        "lens_sigma_px": "calibrated to Thesis 2024, Table 6-3 (0.105 / 0.17 deg)",
         "pixel_pitch_um/modulation_mhz/exposure_us/contrast/ambient/saturation/min_range": "assumption",
     },
     "flexx2": {
@@ -125,22 +125,22 @@ SOURCES: dict[str, dict[str, str]] = {
         "frame_rate": T61 + ": < 60 fps; 30 fps use case assumed",
         "min_range/max_range": T61 + ": 0.1 to 7 m",
         "noise_mm_at_2m": "assumption: 1 % of distance at 2 m",
-        "hyperfocal_mm": "thesis 6.6: 20 cm",
-        "lens_sigma_px": "calibrated to thesis Table 6-3 (0.25 / 0.37 deg)",
+        "hyperfocal_mm": "Thesis 2024, 6.6: 20 cm",
+        "lens_sigma_px": "calibrated to Thesis 2024, Table 6-3 (0.25 / 0.37 deg)",
         "pixel_pitch_um/modulation_mhz/exposure_us/contrast/ambient/saturation": "assumption",
     },
     "d455": {
-        "width/height/fov/wavelength": T61 + " (FOV as used in the thesis)",
+        "width/height/fov/wavelength": T61 + " (FOV as used in Thesis 2024)",
         "frame_rate": T61 + ": < 90 fps; 30 fps default stream assumed",
         "min_range/max_range": T61 + ": 0.6 to 6 m",
-        "hyperfocal_mm": "Grunnet-Jepsen et al. 2023 (thesis 6.2): 500 mm",
+        "hyperfocal_mm": "Grunnet-Jepsen et al. 2023 (Thesis 2024, 6.2): 500 mm",
         "baseline_mm": "Intel D455 datasheet: 95 mm",
         "output_step_mm": "librealsense z16 depth, 1 mm units",
-        "lens_sigma_px": "calibrated to thesis Table 6-3 (0.117 / 0.23 deg)",
+        "lens_sigma_px": "calibrated to Thesis 2024, Table 6-3 (0.117 / 0.23 deg)",
         "disparity_step_px": "assumption: 1/32 px sub-pixel disparity",
         "texture_threshold": "assumption: local IR contrast below which matching fails",
         "angle_noise_gain": "adapted from Nguyen, Izadi, Lovell 2012 (noise grows with theta^2/(pi/2-theta)^2)",
-        "noise_mm_at_2m": "DESIGN: z^2 s/(f b) with s = 0.08 px gives about 10 mm at 2 m",
+        "noise_mm_at_2m": "stereo depth resolution z^2 s/(f b) (Thesis 2024, 2.3.2) with s = 0.08 px: about 10 mm at 2 m",
         "pixel_pitch_um/exposure_us": "assumption",
     },
 }

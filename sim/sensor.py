@@ -29,7 +29,7 @@ from sim.effects import defocus as defocus_effect
 from sim.optics import CameraOptics, Pinhole
 from sim.profiles import CameraProfile
 
-#: SFR area lost at the hyperfocal distance by the default circle of confusion (SPEC §3's 90 % plateau rule)
+#: SFR area lost at the hyperfocal distance by the default circle of confusion (Thesis 2024, 5.1.2's 90 % plateau rule)
 HYPERFOCAL_SFR_AREA_RATIO = 0.9
 
 

@@ -1,9 +1,9 @@
-"""Active-stereo depth physics (DESIGN "Simulation physics", thesis 2.3.2).
+"""Active-stereo depth physics (Thesis 2024, 2.3.2; Giancola et al. 2018).
 
 Per step (noise-free, once):
 
-* left IR image = lamps' ambient light on the scene (reflectance cos^m; the
-  thesis lights the targets of the stereo camera) plus, with the projector
+* left IR image = lamps' ambient light on the scene (reflectance cos^m; Thesis
+  2024, 6.2.1, lights the targets of the stereo camera) plus, with the projector
   on, its random dot pattern (~ 1/r^2), blurred by the lens PSF (and
   ``defocus``), times ``vignetting``;
 * matching needs texture: where the local IR contrast (std / mean over the

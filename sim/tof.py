@@ -1,4 +1,4 @@
-"""Continuous-wave Time-of-Flight sensor physics (thesis 2.3.1).
+"""Continuous-wave Time-of-Flight sensor physics (Thesis 2024, 2.3.1).
 
 Per step (noise-free, once):
 

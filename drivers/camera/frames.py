@@ -1,7 +1,7 @@
 """Helpers shared by the camera backends: SDK import, invalid points, pinhole geometry.
 
 Every backend delivers :class:`~drivers.protocols.Frame` arrays in the run file's
-convention (CONTRACTS §4): x, y, z float32 in mm in the camera frame (z along the
+convention (docs/runfile.md): x, y, z float32 in mm in the camera frame (z along the
 optical axis), NaN where the camera has no valid point, intensity float32.
 """
 

@@ -1,4 +1,4 @@
-"""``labctl analyze``: metrics on single files, outside any run (CONTRACTS §2)."""
+"""``labctl analyze``: metrics on single files, outside any run (README.md, Command line)."""
 
 from __future__ import annotations
 
@@ -89,7 +89,7 @@ def _fov_deg(text: str) -> tuple[float, float]:
 @click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout")
 def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str, cloud: Path | None,
                  plot_path: Path | None, as_json: bool) -> None:
-    """Distortion of a checkerboard IMAGE (png, tif, bmp or npy) and of its CLOUD (thesis 5.2, 6.4)."""
+    """Distortion of a checkerboard IMAGE (png, tif, bmp or npy) and of its CLOUD (Thesis 2024, 5.2, 6.4)."""
     from metrics.distortion import cloud_distortion, detect_corners, distortion, pixel_aspect_distortion_pct, pixel_aspect_ratio
     from metrics.sfr import load_image
 
@@ -198,7 +198,7 @@ def _organized_cloud(path: Path):
 @click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout")
 def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov_text: str | None,
             plot_path: Path | None, as_json: bool) -> None:
-    """Böhler-star resolution of an organized point CLOUD (.pcd or .npy; SPEC §4, thesis 5.1.3)."""
+    """Böhler-star resolution of an organized point CLOUD (.pcd or .npy; Thesis 2024, 5.1.3)."""
     from metrics.boehler import analyze_boehler
 
     fov = _fov_deg(fov_text) if fov_text is not None else None

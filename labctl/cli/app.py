@@ -1,4 +1,4 @@
-"""The ``labctl`` command line (CONTRACTS §2).
+"""The ``labctl`` command line (README.md, Command line).
 
 Exit codes: 0 success, 2 invalid input (one paragraph naming the field or
 file, no traceback), 1 hardware/runtime failure, 130 Ctrl-C after the devices
@@ -47,7 +47,11 @@ def _echo_err(message: str) -> None:
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(labctl_version(), prog_name="labctl")
 def cli() -> None:
-    """Characterize 3D cameras: run campaigns, evaluate runs, simulate the lab."""
+    """Characterize 3D cameras: run campaigns, evaluate runs, simulate the lab.
+
+    Sources cited in the help texts and reports (Thesis 2024 with a section number, ISO 12233:2023, ...)
+    are listed in full in docs/references.md.
+    """
 
 
 # ---------------------------------------------------------------------- plan
@@ -301,7 +305,7 @@ cli.add_command(cli_info.info)
 
 # ---------------------------------------------------------------------- entry point
 def main(argv: Sequence[str] | None = None) -> None:
-    """Console entry point: maps errors to the exit codes of CONTRACTS §2."""
+    """Console entry point: maps errors to the exit codes of README.md, Command line."""
     debug = bool(os.environ.get("LABCTL_DEBUG"))
     try:
         cli.main(args=list(argv) if argv is not None else None, prog_name="labctl", standalone_mode=False)

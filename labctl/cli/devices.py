@@ -1,6 +1,6 @@
 """``labctl device laser|stage|camera`` and ``labctl devices``: single devices, outside any campaign.
 
-Exit codes as for every command (CONTRACTS §2): 2 for bad arguments, 1 when the device
+Exit codes as for every command (README.md, Command line): 2 for bad arguments, 1 when the device
 fails or its SDK is missing; devices are left in their safe state on every path.
 """
 
@@ -125,7 +125,7 @@ def _capture_file(
     camera: DepthCamera, output: Path, frames: int, exposure_us: float | None, settings: dict[str, Any],
     description: str,
 ) -> dict[str, Any]:
-    """Grab one stack into a new run file holding one ``capture`` step (CONTRACTS §4)."""
+    """Grab one stack into a new run file holding one ``capture`` step (docs/runfile.md)."""
     camera.configure(exposure_us, settings)
     step = Step(index=0, procedure="capture", target="scene", frames=frames, exposure_us=exposure_us)
     writer = RunWriter.create(

@@ -1,4 +1,4 @@
-"""``labctl export``: the organized point cloud of one step as PCD or PLY (CONTRACTS §2, SPEC §8)."""
+"""``labctl export``: the organized point cloud of one step as PCD or PLY (README.md, Command line, Thesis 2024, 6.7)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from metrics.stack import stack_stats
 
 
 def step_cloud(record: StepRecord, frame: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W, 3) points and (H, W) intensity of a step: the stack mean (SPEC "Stacks") or frame ``frame``.
+    """(H, W, 3) points and (H, W) intensity of a step: the stack mean (docs/metrics.md, Stacks) or frame ``frame``.
 
     A point is invalid (NaN in x, y and z) where any coordinate is.
     """

@@ -1,4 +1,4 @@
-"""``labctl reconcile``: the simulation-vs-measurement workflow (CONTRACTS §2, §6)."""
+"""``labctl reconcile``: the simulation-vs-measurement workflow (README.md, Command line; docs/reconcile.md)."""
 
 from __future__ import annotations
 

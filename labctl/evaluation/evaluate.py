@@ -36,7 +36,7 @@ from metrics.stack import stack_stats
 from metrics.surface import SurfaceTexture, surface_texture
 from sim.optics import pixel_aspect_distortion_pct
 
-#: distance at which the single-position key figures are taken (CONTRACTS §7)
+#: distance at which the single-position key figures are taken (docs/keyfigures.md)
 KEY_DISTANCE_MM = 2000.0
 #: a step counts as "at 2000 mm" when its reference lies within this distance
 KEY_DISTANCE_TOLERANCE_MM = 150.0
@@ -119,7 +119,7 @@ def _detect_quantization(found: dict[str, float], rec: StepRecord, z: np.ndarray
 def evaluate_depth_sweep(
     steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None]
 ) -> None:
-    """SPEC §1-2 on the wall steps: curves over distance, key figures, surface at 2000 mm; the vendors'
+    """Thesis 2024, 4.2 on the wall steps: curves over distance, key figures, surface at 2000 mm; the vendors'
     depth-quality figures at every distance."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
@@ -177,7 +177,7 @@ def evaluate_depth_sweep(
 
 def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation,
                        progress: Callable[[str], None]) -> None:
-    """SPEC §3 figures from the slanted-edge steps."""
+    """Thesis 2024, 5.1.2 figures from the slanted-edge steps."""
     result = evaluate_slanted_edge(steps, reader.camera, progress)
     if result is None:
         evaluation.notes.append("slanted_edge steps without white references: sharpness figures are null")

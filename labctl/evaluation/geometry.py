@@ -1,4 +1,4 @@
-"""Evaluation of the geometric procedures: checkerboard, Boehler star, x/y noise on the wall (SPEC §4-6).
+"""Evaluation of the geometric procedures: checkerboard, Boehler star, x/y noise on the wall (Thesis 2024, 5.1.3-5.3).
 
 * ``checkerboard``: corners of the stack-mean intensity image; distortion of
   the intensity image and of the point cloud (the key figures use labctl's
@@ -7,7 +7,7 @@
   mean) and accuracy (first frame) from neighbouring corner spacings.
 * ``boehler_star``: the automated Boehler-star resolution of the stack-mean
   cloud, rings binned by the point spacing on the star (``auto_binning``);
-  the 72-segment star where it is resolved, else the 24-segment one (thesis 6.3.2).
+  the 72-segment star where it is resolved, else the 24-segment one (Thesis 2024, 6.3.2).
 * x/y repeatability and precision: per-pixel std of x and y over the wall
   stacks of ``xy_sweep`` steps, or of ``depth_sweep`` steps when the run has no
   ``xy_sweep`` (the same wall captures).
@@ -132,7 +132,7 @@ def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
 
 
 def figure_values(result: GeometryResult) -> dict[str, tuple[float, list[str]]]:
-    """Key figures (CONTRACTS §7) with their source steps."""
+    """Key figures (docs/keyfigures.md) with their source steps."""
     figures: dict[str, tuple[float, list[str]]] = {}
     board = result.checkerboard
     if board is not None:

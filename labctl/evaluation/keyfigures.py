@@ -1,6 +1,6 @@
-"""The key figures (CONTRACTS §7): one definition per name, used by JSON and report alike.
+"""The key figures (docs/keyfigures.md): one definition per name, used by JSON and report alike.
 
-Each figure carries its name, unit, meaning and the SPEC section of its
+Each figure carries its name, unit, meaning and the source section of its
 method, so ``keyfigures.json`` and the report can never drift apart.
 """
 
@@ -20,43 +20,51 @@ class FigureDef:
 
 
 FIGURES: tuple[FigureDef, ...] = (
-    FigureDef("z_trueness_q90_mm", "mm", "Q90 of |mean of stack - reference| over valid pixels, at 2000 mm", "SPEC 1"),
-    FigureDef("z_accuracy_q90_mm", "mm", "Q90 of |single frame - reference| over valid pixels, at 2000 mm", "SPEC 1"),
-    FigureDef("z_precision_q90_mm", "mm", "Q90 of the per-pixel standard deviation, at 2000 mm", "SPEC 1"),
-    FigureDef("z_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's standard deviation", "SPEC 1"),
-    FigureDef("surface_primary_sq_mm", "mm", "ISO 25178 Sq of the primary surface at 2000 mm", "SPEC 2"),
-    FigureDef("surface_waviness_sq_mm", "mm", "ISO 25178 Sq of the waviness surface at 2000 mm", "SPEC 2"),
-    FigureDef("surface_roughness_sq_mm", "mm", "ISO 25178 Sq of the roughness surface at 2000 mm", "SPEC 2"),
-    FigureDef("hyperfocal_distance_mm", "mm", "left edge of the sharpness plateau", "SPEC 3"),
+    FigureDef("z_trueness_q90_mm", "mm", "Q90 of |mean of stack - reference| over valid pixels, at 2000 mm",
+              "Thesis 2024, 4.2.1"),
+    FigureDef("z_accuracy_q90_mm", "mm", "Q90 of |single frame - reference| over valid pixels, at 2000 mm", "Thesis 2024, 4.2.1"),
+    FigureDef("z_precision_q90_mm", "mm", "Q90 of the per-pixel standard deviation, at 2000 mm", "Thesis 2024, 4.2.1"),
+    FigureDef("z_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's standard deviation",
+              "Thesis 2024, 4.2.1"),
+    FigureDef("surface_primary_sq_mm", "mm", "ISO 25178 Sq of the primary surface at 2000 mm", "Thesis 2024, 4.2.2"),
+    FigureDef("surface_waviness_sq_mm", "mm", "ISO 25178 Sq of the waviness surface at 2000 mm", "Thesis 2024, 4.2.2"),
+    FigureDef("surface_roughness_sq_mm", "mm", "ISO 25178 Sq of the roughness surface at 2000 mm", "Thesis 2024, 4.2.2"),
+    FigureDef("hyperfocal_distance_mm", "mm", "left edge of the sharpness plateau", "Thesis 2024, 5.1.2"),
     FigureDef("best_focus_distance_mm", "mm", "distance of highest sharpness: the nearest within 5 % of the "
-              "highest smoothed SFR area, where sharp targets are placed", "SPEC 3"),
-    FigureDef("intensity_resolution_h_deg", "deg", "imagery resolution of the intensity image, horizontal (SFR10)", "SPEC 3"),
-    FigureDef("intensity_resolution_v_deg", "deg", "imagery resolution of the intensity image, vertical (SFR10)", "SPEC 3"),
-    FigureDef("cloud_resolution_h_deg", "deg", "imagery resolution of the point cloud, horizontal (Boehler star)", "SPEC 4"),
-    FigureDef("cloud_resolution_v_deg", "deg", "imagery resolution of the point cloud, vertical (Boehler star)", "SPEC 4"),
-    FigureDef("pixel_aspect_distortion_pct", "%", "pixel aspect ratio distortion from FOV and sensor size", "SPEC 5"),
-    FigureDef("radial_distortion_intensity_w_pct", "%", "checkerboard radial distortion, intensity image, width", "SPEC 5"),
-    FigureDef("radial_distortion_intensity_h_pct", "%", "checkerboard radial distortion, intensity image, height", "SPEC 5"),
-    FigureDef("radial_distortion_cloud_w_pct", "%", "checkerboard radial distortion, point cloud, width", "SPEC 5"),
-    FigureDef("radial_distortion_cloud_h_pct", "%", "checkerboard radial distortion, point cloud, height", "SPEC 5"),
-    FigureDef("x_trueness_q90_mm", "mm", "checkerboard corner spacing vs tile size, x, stack mean", "SPEC 6"),
-    FigureDef("y_trueness_q90_mm", "mm", "checkerboard corner spacing vs tile size, y, stack mean", "SPEC 6"),
-    FigureDef("x_accuracy_q90_mm", "mm", "checkerboard corner spacing vs tile size, x, single frame", "SPEC 6"),
-    FigureDef("y_accuracy_q90_mm", "mm", "checkerboard corner spacing vs tile size, y, single frame", "SPEC 6"),
-    FigureDef("x_precision_q90_mm", "mm", "Q90 of the per-pixel std of x on the wall at 2000 mm", "SPEC 6"),
-    FigureDef("y_precision_q90_mm", "mm", "Q90 of the per-pixel std of y on the wall at 2000 mm", "SPEC 6"),
+              "highest smoothed SFR area, where sharp targets are placed", "Thesis 2024, 5.1.2"),
+    FigureDef("intensity_resolution_h_deg", "deg", "imagery resolution of the intensity image, horizontal (SFR10)",
+              "Thesis 2024, 5.1.2"),
+    FigureDef("intensity_resolution_v_deg", "deg", "imagery resolution of the intensity image, vertical (SFR10)",
+              "Thesis 2024, 5.1.2"),
+    FigureDef("cloud_resolution_h_deg", "deg", "imagery resolution of the point cloud, horizontal (Boehler star)",
+              "Thesis 2024, 5.1.3"),
+    FigureDef("cloud_resolution_v_deg", "deg", "imagery resolution of the point cloud, vertical (Boehler star)",
+              "Thesis 2024, 5.1.3"),
+    FigureDef("pixel_aspect_distortion_pct", "%", "pixel aspect ratio distortion from FOV and sensor size", "Thesis 2024, 5.2"),
+    FigureDef("radial_distortion_intensity_w_pct", "%", "checkerboard radial distortion, intensity image, width",
+              "Thesis 2024, 5.2"),
+    FigureDef("radial_distortion_intensity_h_pct", "%", "checkerboard radial distortion, intensity image, height",
+              "Thesis 2024, 5.2"),
+    FigureDef("radial_distortion_cloud_w_pct", "%", "checkerboard radial distortion, point cloud, width", "Thesis 2024, 5.2"),
+    FigureDef("radial_distortion_cloud_h_pct", "%", "checkerboard radial distortion, point cloud, height", "Thesis 2024, 5.2"),
+    FigureDef("x_trueness_q90_mm", "mm", "checkerboard corner spacing vs tile size, x, stack mean", "Thesis 2024, 5.3"),
+    FigureDef("y_trueness_q90_mm", "mm", "checkerboard corner spacing vs tile size, y, stack mean", "Thesis 2024, 5.3"),
+    FigureDef("x_accuracy_q90_mm", "mm", "checkerboard corner spacing vs tile size, x, single frame", "Thesis 2024, 5.3"),
+    FigureDef("y_accuracy_q90_mm", "mm", "checkerboard corner spacing vs tile size, y, single frame", "Thesis 2024, 5.3"),
+    FigureDef("x_precision_q90_mm", "mm", "Q90 of the per-pixel std of x on the wall at 2000 mm", "Thesis 2024, 5.3"),
+    FigureDef("y_precision_q90_mm", "mm", "Q90 of the per-pixel std of y on the wall at 2000 mm", "Thesis 2024, 5.3"),
     FigureDef("x_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's std of x (x ~ 0 there: "
-              "lateral jitter only)", "SPEC 6"),
+              "lateral jitter only)", "Thesis 2024, 5.3"),
     FigureDef("y_repeatability_center_mm", "mm", "max over the sweep of the centre pixel's std of y (y ~ 0 there: "
-              "lateral jitter only)", "SPEC 6"),
+              "lateral jitter only)", "Thesis 2024, 5.3"),
     FigureDef("x_repeatability_off_axis_mm", "mm", "max over the sweep of the std of x halfway from the centre to "
               "the right edge, where x carries the depth noise", "docs/metrics.md, x/y noise"),
     FigureDef("y_repeatability_off_axis_mm", "mm", "max over the sweep of the std of y halfway from the centre to "
               "the bottom edge, where y carries the depth noise", "docs/metrics.md, x/y noise"),
-    FigureDef("repeatability_skin_40deg_mm", "mm", "max repeatability over skin-like materials at 40 deg", "SPEC 7"),
-    FigureDef("repeatability_skin_70deg_mm", "mm", "max repeatability over skin-like materials at 70 deg", "SPEC 7"),
+    FigureDef("repeatability_skin_40deg_mm", "mm", "max repeatability over skin-like materials at 40 deg", "Thesis 2024, 5.4"),
+    FigureDef("repeatability_skin_70deg_mm", "mm", "max repeatability over skin-like materials at 70 deg", "Thesis 2024, 5.4"),
     FigureDef("ied_pixels_at_hyperfocal", "px", "inter-eye distance (62.5 mm) coverage at the hyperfocal distance, "
-              "face at the image centre (pinhole: 62.5 mm x f / d, f = (W / 2) / tan(FOV_h / 2))", "SPEC 9"),
+              "face at the image centre (pinhole: 62.5 mm x f / d, f = (W / 2) / tan(FOV_h / 2))", "Thesis 2024, Ch. 3, 6.6"),
     FigureDef("ied_pixels_at_hyperfocal_angular", "px", "the same with the mean angular pixel size FOV_h / W "
               "(thesis eq. 6-2); over-counts at the image centre", "docs/suitability.md"),
 )
@@ -100,6 +108,18 @@ ACCEPTANCE_FIGURES: tuple[FigureDef, ...] = (
 )
 FIGURES = FIGURES + VENDOR_FIGURES + ACCEPTANCE_FIGURES
 FIGURE_BY_NAME = {f.name: f for f in FIGURES}
+
+#: figures where a larger value is better (coverage and fill rates)
+HIGHER_IS_BETTER = frozenset({"ied_pixels_at_hyperfocal"} | {f.name for f in VENDOR_FIGURES if f.name.startswith("fill_rate_")})
+#: figures that are neither better high nor low: the distance the camera is sharpest at
+NO_BETTER_DIRECTION = frozenset({"best_focus_distance_mm"})
+
+
+def better_direction(name: str) -> str:
+    """How a figure improves: "higher", "none", or "lower" (of its magnitude, for signed figures)."""
+    if name in HIGHER_IS_BETTER:
+        return "higher"
+    return "none" if name in NO_BETTER_DIRECTION else "lower"
 
 
 @dataclass(frozen=True)

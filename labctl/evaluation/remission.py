@@ -1,16 +1,16 @@
-"""Evaluation of ``remission_angle`` runs: repeatability and trueness over angle per material (SPEC §7).
+"""Evaluation of ``remission_angle`` runs: repeatability and trueness over angle per material (Thesis 2024, 5.4).
 
 Per step (material, robot angle) the ROI on the optical axis gives the axis
 distance, the pooled repeatability and the invalid and off-target fractions
 (metrics/remission.py). Per material, trueness is reported twice: against the
-material's own 0 deg distance (thesis 5.4.1, Fig. 6-11) and against the
+material's own 0 deg distance (Thesis 2024, 5.4.1, Fig. 6-11) and against the
 geometric reference R + delta / cos(theta) - e tan(theta), with delta and e
-fitted to the curve of PTFE (thesis 5.4.2, labctl's improvement). The
+fitted to the curve of PTFE (Thesis 2024, 5.4.2, labctl's improvement). The
 geometric trueness therefore still holds b of the fit's model for that
 material: the camera's range offset, the radius error and the material's
 sub-surface bias, which is what trueness should show.
 
-Key figures (CONTRACTS §7): ``repeatability_skin_40deg_mm`` and
+Key figures (docs/keyfigures.md): ``repeatability_skin_40deg_mm`` and
 ``repeatability_skin_70deg_mm`` are the largest repeatability over the skin-like
 materials (silicone, gelatine, collagen) at +40 and -40 deg (resp. +-70 deg):
 a face shows both sides, so the worse side counts. Steps whose ROI is not on
@@ -48,9 +48,9 @@ from metrics.remission import (
 )
 from procedures.remission_angle import MATERIALS, SKIN_LIKE
 
-#: material whose distance curve gives the misalignment (thesis 5.4.1: the best-case target)
+#: material whose distance curve gives the misalignment (Thesis 2024, 5.4.1: the best-case target)
 FIT_MATERIAL = "ptfe"
-#: robot angles of the key figures (thesis 6.5.1: most angles in a face lie between 40 and 70 deg)
+#: robot angles of the key figures (Thesis 2024, 6.5.1: most angles in a face lie between 40 and 70 deg)
 KEY_ANGLES_DEG = {"repeatability_skin_40deg_mm": 40.0, "repeatability_skin_70deg_mm": 70.0}
 #: two recorded angles count as the same within this
 ANGLE_TOLERANCE_DEG = 0.5
@@ -154,7 +154,7 @@ def _fit(measured: list[_Measured], material: str, notes: list[str]) -> Misalign
 
 def evaluate_remission(steps: Sequence[StepRecord], camera: CameraInfo, progress: Callable[[str], None],
                        roi_size: int = ROI_SIZE_PX, fit_material: str = FIT_MATERIAL) -> RemissionResult | None:
-    """SPEC §7 over the ``remission_angle`` steps (None when there are none).
+    """Thesis 2024, 5.4 over the ``remission_angle`` steps (None when there are none).
 
     Trueness vs 0 deg compares steps of the same material and radius.
     """

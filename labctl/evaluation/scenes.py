@@ -1,4 +1,4 @@
-"""Evaluation of the face mask (thesis 6.7, SPEC §8) and of the alignment record (thesis 4.1.2).
+"""Evaluation of the face mask (Thesis 2024, 6.7) and of the alignment record (Thesis 2024, 4.1.2).
 
 The face mask's stack-mean organized cloud is kept for export (PCD) and a
 rendering in the report; the alignment step's accepted corner fields and

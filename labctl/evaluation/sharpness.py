@@ -1,7 +1,7 @@
 """Evaluation of ``slanted_edge`` runs: SFR over distance, hyperfocal distance, intensity resolution.
 
 Per position the stack-mean intensity of the chart is divided pixel-wise by
-the stack mean of the white sheet at the same distance (SPEC §3), the near-
+the stack mean of the white sheet at the same distance (Thesis 2024, 5.1.2), the near-
 vertical and near-horizontal edges are found automatically, and the ISO 12233
 e-SFR of each gives SFR10, SFR50 and SFR area. "Horizontal" results come from
 the near-vertical edge (they resolve horizontal detail, with the sensor's
@@ -140,7 +140,7 @@ def _mean_image(step: StepRecord, channel: str = "intensity") -> np.ndarray:
 
 def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
                           progress: Callable[[str], None]) -> SharpnessResult | None:
-    """SPEC §3 over every chart position that has a white reference at the same distance."""
+    """Thesis 2024, 5.1.2 over every chart position that has a white reference at the same distance."""
     charts = {s.attrs["distance_mm"]: s for s in steps if s.attrs.get("target") == "slanted_edge"}
     whites = {s.attrs["distance_mm"]: s for s in steps if s.attrs.get("target") == "white_sheet"}
     sensor = (sensor_angular_resolution_deg(camera.fov_deg[0], camera.width),

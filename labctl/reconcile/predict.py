@@ -151,7 +151,7 @@ class Predictor:
 
     def blur_reach_bins(self, distance_mm: float) -> int:
         """How many bins the measured camera's blur (3 sigma of the lens PSF plus the defocus disc radius,
-        thesis eq. 2-5) reaches at ``distance_mm``."""
+        Thesis 2024, eq. 2-5) reaches at ``distance_mm``."""
         reach_px = 3.0 * self.full.lens_sigma_px + 0.5 * self._coc_hyperfocal / max(distance_mm, 1.0)
         return 1 + int(math.ceil(reach_px / self.bin_px))
 

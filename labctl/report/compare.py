@@ -1,9 +1,9 @@
-"""Side-by-side comparison of cameras from their evaluations (thesis 6.6, Fig. 6-12; CONTRACTS §2).
+"""Side-by-side comparison of cameras from their evaluations (Thesis 2024, 6.6, Fig. 6-12; README.md, Command line).
 
 Input: the output directories of ``labctl evaluate`` (their ``keyfigures.json``).
 Output: ``compare.json`` (every figure per camera, the suitability verdicts),
 ``compare.html`` with the Fig. 6-12 style chart (all figures, lower is better;
-angular resolutions x 10 as in the thesis so they share the axis; fill rates,
+angular resolutions x 10 as in Thesis 2024 so they share the axis; fill rates,
 where higher is better, are left out), the datasheet-comparable figures with
 where they are defined, the
 inter-eye-distance coverage per camera against the 90 px requirement, and the
@@ -25,8 +25,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from labctl.errors import InputError  # noqa: E402
-from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES  # noqa: E402
+from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES, better_direction  # noqa: E402
 from labctl.evaluation.suitability import IED_MIN_PX  # noqa: E402
+from labctl.report.html import CSS, references_html, verdict_cell, wrap_table, wrappable  # noqa: E402
 from labctl.run.store import labctl_version, now_iso  # noqa: E402
 from metrics.jsonsafe import dumps_strict  # noqa: E402
 
@@ -72,13 +73,31 @@ def compare(directories: list[Path], outdir: Path) -> Path:
              for fig in FIGURES}
     verdicts = {label: {k: v["verdict"] for k, v in doc.get("suitability", {}).get("stories", {}).items()}
                 for label, doc in zip(labels, docs)}
-    result = {"cameras": labels, "sources": [str(d) for d in directories], "figures": table, "suitability": verdicts}
+    result = {"cameras": labels, "sources": [str(d) for d in directories], "figures": table, "suitability": verdicts,
+              "stories": _story_names(docs)}
     (outdir / "compare.json").write_text(dumps_strict(result, indent=2) + "\n")
     chart = _chart(table, labels, plots / "comparison.png")
     ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")
     page = outdir / "compare.html"
     page.write_text(_page(result, chart.relative_to(outdir), ied.relative_to(outdir)))
     return page
+
+
+def story_name(key: str) -> str:
+    """A readable name for a user-story id an evaluation did not describe: ``3d_face_recognition_1_to_n`` ->
+    ``3D face recognition 1:N``."""
+    words = {"3d": "3D", "pad": "PAD", "nir": "NIR", "rgb": "RGB"}
+    text = " ".join(words.get(w, w) for w in key.split("_"))
+    return text.replace(" 1 to n", " 1:N").replace(" 1 to 1", " 1:1")
+
+
+def _story_names(docs: list[dict[str, Any]]) -> dict[str, str]:
+    """User-story id -> its description as the evaluations give it (a readable form of the id otherwise)."""
+    names: dict[str, str] = {}
+    for doc in docs:
+        for key, story in doc.get("suitability", {}).get("stories", {}).items():
+            names.setdefault(key, story.get("description") or story_name(key))
+    return names
 
 
 def _unique(labels: list[str]) -> list[str]:
@@ -95,18 +114,23 @@ def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: P
     fig, ax = plt.subplots(figsize=(14, 6))
     width = 0.8 / max(len(labels), 1)
     x = np.arange(len(names))
+    floor = _chart_floor(table, names, labels)
     for k, label in enumerate(labels):
-        values = []
-        for name in names:
-            v = table[name][label]
-            v = abs(v) * (10 if name in TIMES_TEN else 1) if v is not None and math.isfinite(v) else np.nan
-            values.append(v)
-        ax.bar(x + (k - (len(labels) - 1) / 2) * width, values, width, label=label)
+        values = np.array([_charted(name, table[name][label]) for name in names])
+        positions = x + (k - (len(labels) - 1) / 2) * width
+        bars = ax.bar(positions, values, width, label=label)
+        colour = bars.patches[0].get_facecolor() if bars.patches else None
+        for pos, v in zip(positions, values):
+            if v == 0 or not math.isfinite(v):  # a log axis cannot draw 0: say it instead of leaving a gap
+                ax.text(pos, floor, "0" if v == 0 else "n/a", rotation=90, ha="center", va="bottom", fontsize=8,
+                        fontweight="bold", color=colour)
     ax.set_xticks(x)
     ax.set_xticklabels([n + (" x10" if n in TIMES_TEN else "") for n in names], rotation=70, ha="right", fontsize=8)
     ax.set_yscale("log")
+    ax.set_ylim(bottom=floor)
     ax.set_ylabel("value (mm, %, deg x10); lower is better")
-    ax.set_title("Key figures of the cameras (thesis Fig. 6-12); missing bars: not measured, or 0", pad=28)
+    ax.set_title("Key figures of the cameras (Thesis 2024, Fig. 6-12); labels at the foot: 0 = value zero, "
+                 "n/a = not measured", pad=28)
     ax.grid(axis="y", alpha=0.3, which="both")
     ax.legend(ncol=max(len(labels), 1), loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=9, frameon=False)
     fig.tight_layout()
@@ -115,14 +139,30 @@ def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: P
     return path
 
 
+def _charted(name: str, value: float | None) -> float:
+    """The bar height of a figure: |value| (x 10 for angular resolutions), NaN when not measured."""
+    if value is None or not math.isfinite(value):
+        return math.nan
+    return abs(value) * (10 if name in TIMES_TEN else 1)
+
+
+def _chart_floor(table: dict[str, dict[str, float | None]], names: list[str], labels: list[str]) -> float:
+    """Foot of the log axis: a decade below the smallest non-zero bar (0.001 when there is none)."""
+    heights = [_charted(n, table[n][label]) for n in names for label in labels]
+    positive = [h for h in heights if math.isfinite(h) and h > 0]
+    return 10.0 ** (math.floor(math.log10(min(positive))) - 1) if positive else 1e-3
+
+
 def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 3.8))
     values = [ied[label] if ied[label] is not None else np.nan for label in labels]
-    ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
+    bars = ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
+    ax.bar_label(bars, labels=[f"{v:.0f} px" if math.isfinite(v) else "n/a" for v in values], label_type="center",
+                 color="white", fontsize=9, fontweight="bold")  # inside the bars: clear of the required line
     ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
-    ax.set_ylabel("px across 62.5 mm at the hyperfocal distance")
-    ax.set_title("Inter-eye distance coverage (thesis eq. 6-2)")
-    ax.legend(loc="lower right")
+    ax.set_ylabel("px across 62.5 mm\nat the hyperfocal distance")
+    ax.set_title("Inter-eye distance coverage (Thesis 2024, eq. 6-2)", pad=24)
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False, fontsize=8)  # above the bars, never on them
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -142,38 +182,36 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
     head = "".join(f"<th>{html.escape(label)}</th>" for label in labels)
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
-        f'<tr><td class="l">{html.escape(name)}</td><td class="l">{units[name]}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_direction(name)}</td>'
         + "".join(f"<td>{_fmt(values[label])}</td>" for label in labels) + "</tr>"
         for name, values in result["figures"].items()
     )
     vendor_rows = "".join(
-        f'<tr><td class="l">{html.escape(f.name)}</td><td class="l">{f.unit}</td>'
+        f'<tr><td class="l">{wrappable(f.name)}</td><td class="l">{f.unit}</td>'
         + "".join(f"<td>{_fmt(result['figures'][f.name][label])}</td>" for label in labels)
         + f'<td class="l">{html.escape(f.section)}</td></tr>'
         for f in VENDOR_FIGURES
     )
-    stories = sorted({story for v in result["suitability"].values() for story in v})
     suit_rows = "".join(
-        f'<tr><td class="l">{html.escape(story)}</td>'
-        + "".join(f"<td>{html.escape(result['suitability'][label].get(story, 'n/a').replace('_', ' '))}</td>"
-                  for label in labels) + "</tr>"
-        for story in stories
+        f'<tr><td class="l">{html.escape(name)}</td>'
+        + "".join(verdict_cell(result["suitability"][label].get(story, "not_evaluated")) for label in labels) + "</tr>"
+        for story, name in result["stories"].items()
     )
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>labctl camera comparison</title>
-<style>body{{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;color:#222}}
-table{{border-collapse:collapse;font-size:.9em}}td,th{{border:1px solid #ddd;padding:.3em .6em;text-align:right}}
-th{{background:#f4f4f4}}td.l{{text-align:left}}img{{max-width:100%}}</style></head><body>
+<style>{CSS}</style></head><body>
 <h1>Camera comparison</h1>
 <p>labctl {labctl_version()}, {now_iso()}. Cameras marked * were simulated.</p>
 <img src="{chart.as_posix()}" alt="key figures per camera">
 <h2>Inter-eye distance coverage</h2><img src="{ied.as_posix()}" alt="IED coverage">
-<h2>Suitability (SPEC 9)</h2>
-<table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>
+<h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>
+{wrap_table(f'<table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>')}
 <h2>Datasheet-comparable figures</h2>
 <p>As the camera vendors' tools define them; set them next to the datasheets.</p>
-<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>{vendor_rows}</table>
+{wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>'
+             f'{vendor_rows}</table>')}
 <h2>Key figures</h2>
-<table><tr><th class="l">figure</th><th class="l">unit</th>{head}</tr>{rows}</table>
+{wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th><th class="l">better</th>{head}</tr>{rows}</table>')}
+{references_html()}
 </body></html>
 """

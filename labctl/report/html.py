@@ -10,8 +10,9 @@ from typing import Any
 from labctl.evaluation.capture import capture_table
 from labctl.evaluation.depth_quality import vendor_table
 from labctl.evaluation.evaluate import Evaluation, depth_table
-from labctl.evaluation.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, clean, keyfigures_document
+from labctl.evaluation.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, better_direction, clean, keyfigures_document
 from labctl.evaluation.remission import misalignment_summary, remission_table
+from labctl.evaluation.scenes import AlignmentRecord
 from labctl.evaluation.sharpness import resolution_table
 from labctl.evaluation.suitability import face_depth_values, suitability
 from labctl.evaluation.vdi2634 import acceptance_table, verdicts
@@ -33,13 +34,34 @@ from labctl.report.pointcloud_io import write_pcd
 from labctl.run.store import labctl_version, now_iso
 from metrics.jsonsafe import dumps_strict
 
+#: page style shared by the report and the comparison: tables sit in a container that scrolls sideways
+#: on screen, headers wrap at underscores, and in print everything wraps to the page width
 CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1150px;color:#222}
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1150px;padding:0 1em;color:#222}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
-table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ddd;padding:.3em .6em;text-align:right}
-th{background:#f4f4f4}td.l,th.l{text-align:left}.null{color:#999}.note{color:#a15c00}
-img{max-width:100%;border:1px solid #eee}td.src{font-size:.85em;color:#555}
+.tablewrap{max-width:100%;overflow-x:auto;margin:.4em 0}
+table{border-collapse:collapse;font-size:.85em}td,th{border:1px solid #ddd;padding:.25em .5em;text-align:right}
+th{background:#f4f4f4;font-weight:600;vertical-align:bottom}td.l,th.l{text-align:left}
+.null{color:#999}.note{color:#a15c00}
+img{max-width:100%;height:auto;border:1px solid #eee}td.src{font-size:.85em;color:#555}
+.verdict-pass{color:#1a7f37;background:#dafbe1}.verdict-fail{color:#cf222e;background:#ffebe9}
+.verdict-not_evaluated{color:#9a6700;background:#fff8c5}.verdict-no_numeric_requirement{color:#57606a}
+.summary{border:1px solid #ccc;border-radius:6px;padding:.2em 1em 1em;background:#fafafa}
+.summary h2{margin-top:.6em}
+@media print{body{max-width:none;margin:0;padding:0;font-size:9pt}.tablewrap{overflow:visible}
+table{font-size:7.5pt;width:100%}td,th{padding:.15em .3em;overflow-wrap:break-word}
+img{break-inside:avoid}h2,h3{break-after:avoid}tr{break-inside:avoid}}
 """
+
+
+def wrap_table(table_html: str) -> str:
+    """A table inside the sideways-scrolling container, so it never widens the page."""
+    return f'<div class="tablewrap">{table_html}</div>'
+
+
+def wrappable(name: str) -> str:
+    """A name (column, figure, step) that may wrap after its underscores (``<wbr>``), escaped."""
+    return html.escape(name).replace("_", "_<wbr>")
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
@@ -80,9 +102,11 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
 
     sections: list[str] = _alignment_section(evaluation)
     sections.extend(_capture_sections(evaluation, outdir, plots, doc))
+    if evaluation.alignment is not None:
+        doc["alignment"] = alignment_document(evaluation.alignment)
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
-        sections.append(_section("Depth error over distance (SPEC 1)", img, outdir, _depth_rows(evaluation)))
+        sections.append(_section("Depth error over distance (Thesis 2024, 4.2.1)", img, outdir, _depth_rows(evaluation)))
     if evaluation.vendor:
         doc["depth_quality"] = _clean_rows(vendor_table(evaluation.vendor))
         img = plot_vendor_figures(evaluation.vendor, plots / "depth_quality.png")
@@ -91,24 +115,23 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         sections.append(_acceptance_section(evaluation, outdir, plots, doc))
     if evaluation.surface is not None:
         img = plot_surface_maps(evaluation.surface, plots / "surface_texture.png")
-        sections.append(_section("Surface texture (SPEC 2, ISO 25178-2)", img, outdir, ""))
+        sections.append(_section("Surface texture (Thesis 2024, 4.2.2, ISO 25178-2)", img, outdir, ""))
     if evaluation.sharpness is not None:
         img = plot_sharpness(evaluation.sharpness, plots / "sharpness.png")
-        sections.append(_section("Sharpness over distance (SPEC 3, ISO 12233)", img, outdir, ""))
+        sections.append(_section("Sharpness over distance (Thesis 2024, 5.1.2, ISO 12233)", img, outdir, ""))
         img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
         table = _rows_table(resolution_table(evaluation.sharpness), "step")
-        sections.append(_section("Resolution of the intensity image (thesis 6.3.1)", img, outdir, table))
+        sections.append(_section("Resolution of the intensity image (Thesis 2024, 6.3.1)", img, outdir, table))
     sections.extend(_geometry_sections(evaluation, outdir, plots, doc))
     sections.extend(_remission_sections(evaluation, outdir, plots, doc))
     if evaluation.face is not None:
         face = evaluation.face
         pcd = outdir / f"face_mask_{face.step_id}.pcd"
         write_pcd(pcd, face.cloud, face.intensity)
-        img = plot_face_mask(face.cloud, face.intensity, f"Face mask at {face.distance_mm:.0f} mm ({face.step_id})",
-                             plots / "face_mask.png")
+        img = plot_face_mask(face.cloud, face.intensity, face.distance_mm, face.step_id, plots / "face_mask.png")
         link = f'<p>Organized point cloud for CloudCompare / Open3D: <a href="{pcd.name}">{pcd.name}</a> ' \
                f"({face.invalid_fraction:.1%} invalid points).</p>"
-        sections.append(_section("Face mask (SPEC 8, thesis 6.7)", img, outdir, link))
+        sections.append(_section("Face mask (Thesis 2024, 6.7)", img, outdir, link))
         doc["face_mask"] = {"step": face.step_id, "pcd": pcd.name, "invalid_fraction": face.invalid_fraction}
     json_path = outdir / "keyfigures.json"
     json_path.write_text(dumps_strict(doc, indent=2) + "\n")
@@ -117,17 +140,23 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     return json_path, report
 
 
+def alignment_document(a: AlignmentRecord) -> dict[str, Any]:
+    """The ``alignment`` section of keyfigures.json: the accepted corner fields (x, y, z in mm) and residual tilt."""
+    return {"step": a.step_id, "fields_mm": {name: [clean(float(v)) for v in xyz] for name, xyz in a.fields_mm.items()},
+            "tilt_x_deg": clean(a.tilt_x_deg), "tilt_y_deg": clean(a.tilt_y_deg)}
+
+
 def _alignment_section(evaluation: Evaluation) -> list[str]:
     a = evaluation.alignment
     if a is None:
         return []
     fields = ", ".join(f"{name.replace('_', ' ')} {xyz[2]:.1f} mm" for name, xyz in a.fields_mm.items())
-    return [f"<h2>Alignment (thesis 4.1.2)</h2><p>Accepted in {html.escape(a.step_id)}: corner fields {fields}; "
+    return [f"<h2>Alignment (Thesis 2024, 4.1.2)</h2><p>Accepted in {html.escape(a.step_id)}: corner fields {fields}; "
             f"residual tilt {a.tilt_x_deg:+.3f} deg about x (up), {a.tilt_y_deg:+.3f} deg about y (right).</p>"]
 
 
 def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
-    """Checkerboard distortion, Boehler star and x/y noise sections (SPEC 4-6)."""
+    """Checkerboard distortion, Boehler star and x/y noise sections (Thesis 2024, 5.1.3-5.3)."""
     geo = evaluation.geometry
     sections: list[str] = []
     if geo is None:
@@ -153,7 +182,8 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                          "fov_estimate_h_deg": math.nan, "fov_estimate_v_deg": math.nan, "k1": math.nan,
                          "corners": c.n_corners})
         doc["checkerboard"] = _clean_rows(rows)
-        sections.append(_section("Distortion (SPEC 5, EBU Tech 3249 / ISO 17850)", img, outdir, _rows_table(rows, "image")))
+        sections.append(_section("Distortion (Thesis 2024, 5.2, EBU Tech 3249 / ISO 17850)", img, outdir,
+                                 _rows_table(rows, "image")))
     if geo.chosen_star is not None:
         star = geo.chosen_star
         img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
@@ -162,7 +192,7 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                  "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg,
                  "distance_mm": s.result.distance_mm} for s in geo.stars]
         doc["boehler_star"] = _clean_rows(rows)
-        sections.append(_section("Resolution of the point cloud: Boehler star (SPEC 4)", img, outdir,
+        sections.append(_section("Resolution of the point cloud: Boehler star (Thesis 2024, 5.1.3)", img, outdir,
                                  _rows_table(rows, "star")))
     if geo.precision:
         rows = [{"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
@@ -172,12 +202,12 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                  "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
         doc["xy_noise"] = _clean_rows(rows)
         img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
-        sections.append(_section("x/y noise on the wall (SPEC 6)", img, outdir, _rows_table(rows, "step")))
+        sections.append(_section("x/y noise on the wall (Thesis 2024, 5.3)", img, outdir, _rows_table(rows, "step")))
     return sections
 
 
 def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
-    """Repeatability and trueness over angle per material, and the misalignment fit (SPEC 7)."""
+    """Repeatability and trueness over angle per material, and the misalignment fit (Thesis 2024, 5.4)."""
     result = evaluation.remission
     if result is None:
         return []
@@ -191,7 +221,7 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
                  for m in sorted({r["material"] for r in rows})]
         pivots.append(f"<h3>{html.escape(title)}</h3>{_rows_table(table, 'material')}")
     img = plot_remission(result, plots / "remission_angle.png")
-    sections = [_section("Remission and angle of incidence (SPEC 7, thesis Fig. 6-11)", img, outdir, "".join(pivots))]
+    sections = [_section("Remission and angle of incidence (Thesis 2024, 5.4, Fig. 6-11)", img, outdir, "".join(pivots))]
     summary = misalignment_summary(result)
     if summary is not None:
         doc["misalignment"] = {k: clean(v) if isinstance(v, float) else v for k, v in summary.items()}
@@ -202,7 +232,7 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
                 f"{_fmt(summary['camera_axis_offset_se_mm'], 2)} mm, level b = {_fmt(summary['bias_mm'])} mm, residual "
                 f"RMS {_fmt(summary['residual_rms_mm'], 2)} mm. The geometric reference R + delta / cos(theta) - "
                 "e tan(theta) removes the set-up from the trueness above.</p>")
-        sections.append(_section("Target and camera misalignment (thesis 5.4.2)", img, outdir, text))
+        sections.append(_section("Target and camera misalignment (Thesis 2024, 5.4.2)", img, outdir, text))
     return sections
 
 
@@ -232,12 +262,12 @@ def _rows_table(rows: list[dict[str, Any]], key: str) -> str:
     if not rows:
         return ""
     cols = [c for c in rows[0] if c != key]
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    head = "".join(f"<th>{wrappable(c)}</th>" for c in cols)
     body = "".join(
-        f'<tr><td class="l">{html.escape(str(r[key]))}</td>' + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
+        f'<tr><td class="l">{wrappable(str(r[key]))}</td>' + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
         for r in rows
     )
-    return f'<table><tr><th class="l">{html.escape(key)}</th>{head}</tr>{body}</table>'
+    return wrap_table(f'<table><tr><th class="l">{wrappable(key)}</th>{head}</tr>{body}</table>')
 
 
 def _section(title: str, image: Path, outdir: Path, table: str) -> str:
@@ -248,7 +278,7 @@ def _section(title: str, image: Path, outdir: Path, table: str) -> str:
 def _vendor_html(evaluation: Evaluation, doc: dict[str, Any]) -> str:
     """The vendor key figures next to where they are defined, then the figures at every distance."""
     rows = "".join(
-        f'<tr><td class="l">{html.escape(f.name)}</td><td>{_fmt(doc["figures"][f.name]["value"])}</td>'
+        f'<tr><td class="l">{wrappable(f.name)}</td><td>{_fmt(doc["figures"][f.name]["value"])}</td>'
         f'<td class="l">{f.unit}</td><td class="l">{html.escape(f.meaning)}</td>'
         f'<td class="l src">{html.escape(f.section)}</td></tr>'
         for f in VENDOR_FIGURES
@@ -256,9 +286,9 @@ def _vendor_html(evaluation: Evaluation, doc: dict[str, Any]) -> str:
     return ("<p>The figures camera vendors quote in their datasheets, computed as their own tools define them "
             "(see docs/metrics.md for the choices where a definition is vague); subpixel RMS only for stereo "
             "cameras.</p>"
-            '<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">definition</th>'
-            f'<th class="l">defined by</th></tr>{rows}</table>'
-            f"<h3>At every wall distance</h3>{_rows_table(vendor_table(evaluation.vendor), 'step')}")
+            + wrap_table('<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th>'
+                         f'<th class="l">definition</th><th class="l">defined by</th></tr>{rows}</table>')
+            + f"<h3>At every wall distance</h3>{_rows_table(vendor_table(evaluation.vendor), 'step')}")
 
 
 def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> str:
@@ -283,16 +313,21 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
 
 
 def _depth_rows(evaluation: Evaluation) -> str:
-    return _rows_table(depth_table(evaluation), "step")
+    """The depth table as in the plot: invalid pixels in % (keyfigures.json keeps the fraction)."""
+    rows = [{("invalid_pct" if k == "invalid_fraction" else k): (100.0 * v if k == "invalid_fraction" else v)
+             for k, v in row.items()} for row in depth_table(evaluation)]
+    return _rows_table(rows, "step")
 
 
-VERDICT_COLOUR = {"pass": "#1a7f37", "fail": "#cf222e", "not_evaluated": "#9a6700", "no_numeric_requirement": "#57606a"}
+def verdict_cell(verdict: str, note: str = "") -> str:
+    """A table cell with the verdict in words (and a one-line ``note``), coloured by its class ``verdict-<verdict>``."""
+    line = f"<br>{html.escape(note)}" if note else ""
+    return f'<td class="l verdict-{html.escape(verdict)}"><b>{html.escape(verdict.replace("_", " "))}</b>{line}</td>'
 
 
 def _suitability_html(suit: dict[str, Any]) -> str:
     rows = []
     for story in suit["stories"].values():
-        colour = VERDICT_COLOUR[story["verdict"]]
         checks = "<br>".join(
             f'{html.escape(c["requirement"])}: <b>{c["status"].replace("_", " ")}</b> ('
             + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c["values"].items())
@@ -300,11 +335,59 @@ def _suitability_html(suit: dict[str, Any]) -> str:
             for c in story["checks"]
         ) or "; ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in story["figures"].items())
         rows.append(f'<tr><td class="l">{html.escape(story["description"])}</td>'
-                    f'<td class="l" style="color:{colour}"><b>{story["verdict"].replace("_", " ")}</b><br>'
-                    f'{html.escape(story["summary"])}</td>'
+                    f'{verdict_cell(story["verdict"], story["summary"])}'
                     f'<td class="l">{checks}</td></tr>')
-    return (f'<p>{html.escape(suit["standard"])}</p><table><tr><th class="l">user story</th><th class="l">verdict</th>'
-            f'<th class="l">checks (values)</th></tr>{"".join(rows)}</table>')
+    return (f'<p>{html.escape(suit["standard"])}</p>'
+            + wrap_table('<table><tr><th class="l">user story</th><th class="l">verdict</th>'
+                         f'<th class="l">checks (values)</th></tr>{"".join(rows)}</table>'))
+
+
+#: the figures the summary shows: is the face's shape right and steady (depth trueness, precision), are its
+#: features resolved (point-cloud resolution), is it undistorted and large enough for the ISO/IEC 39794-5
+#: limits (cloud distortion, inter-eye distance), and does skin seen at an angle stay steady
+SUMMARY_FIGURES = ("z_trueness_q90_mm", "z_precision_q90_mm", "cloud_resolution_h_deg",
+                   "radial_distortion_cloud_w_pct", "ied_pixels_at_hyperfocal", "repeatability_skin_40deg_mm")
+
+#: the works the report's headings cite, in full (all of them, with the sections used: docs/references.md)
+REFERENCES = (
+    ("Thesis 2024", "Characterization of 3D cameras for facial biometric applications, master's thesis, 2024 "
+                    "(the source of the methods; section numbers as cited)"),
+    ("ISO 5725-1/-2", "Accuracy (trueness and precision) of measurement methods and results, ISO 5725-1:2023, "
+                      "ISO 5725-2:2019"),
+    ("ISO 12233:2023", "Digital cameras - Resolution and spatial frequency responses"),
+    ("ISO 25178-2", "GPS - Surface texture: Areal - Part 2: Terms, definitions and surface texture parameters, 2012"),
+    ("ISO 17850:2015", "Photography - Digital cameras - Geometric distortion (GD) measurements"),
+    ("EBU Tech 3249", "Measurement and analysis of the performance of film and television camera lenses, EBU, 1995"),
+    ("ISO/IEC 39794-5:2019", "Extensible biometric data interchange formats - Part 5: Face image data, Annex D"),
+    ("VDI/VDE 2634 Part 2", "Optical 3-D measuring systems - Optical systems based on area scanning, 2012"),
+)
+
+
+def references_html() -> str:
+    """The References section closing the report and the comparison."""
+    items = "".join(f"<li><b>{html.escape(key)}</b>: {html.escape(text)}</li>" for key, text in REFERENCES)
+    return ("<h2>References</h2><ul>" + items + "</ul><p>Full citations and the sections used: "
+            "docs/references.md in the labctl repository.</p>")
+
+
+def _summary_html(cam: dict[str, Any], doc: dict[str, Any]) -> str:
+    """Camera, the verdict per user story and the six figures that matter most, ahead of everything else."""
+    stories = doc["suitability"]["stories"]
+    judged = {k: s for k, s in stories.items() if s["verdict"] != "no_numeric_requirement"}
+    passed = sum(s["verdict"] == "pass" for s in judged.values())
+    badges = "".join(f'<li><span class="verdict-{html.escape(s["verdict"])}"><b>'
+                     f'{html.escape(s["verdict"].replace("_", " "))}</b></span> {html.escape(s["description"])}</li>'
+                     for s in judged.values())
+    rows = "".join(
+        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc["figures"][name]["value"])}</td>'
+        f'<td class="l">{doc["figures"][name]["unit"]}</td><td class="l">{better_direction(name)}</td>'
+        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td></tr>'
+        for name in SUMMARY_FIGURES
+    )
+    return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam["model"])}</b>: suitable for {passed} of '
+            f"{len(judged)} user stories with numeric requirements.</p><ul>{badges}</ul>"
+            + wrap_table('<table><tr><th class="l">figure</th><th>value</th><th class="l">unit</th>'
+                         f'<th class="l">better</th><th class="l">meaning</th></tr>{rows}</table>') + "</div>")
 
 
 def _flags_html(flags: list[dict[str, str]]) -> str:
@@ -316,8 +399,9 @@ def _flags_html(flags: list[dict[str, str]]) -> str:
 def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> str:
     cam = evaluation.camera
     fig_rows = "".join(
-        f'<tr><td class="l">{html.escape(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}{_flags_html(f["flags"])}</td>'
+        f'<td class="l">{better_direction(name)}</td>'
         f'<td class="l src">{_sources(f["source"])}</td></tr>'
         for name, f in doc["figures"].items()
     )
@@ -331,12 +415,14 @@ def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> s
 <h1>Characterization of {html.escape(cam['model'])}{simulated}</h1>
 <p>Serial {html.escape(str(cam['serial']))}, {cam['width']}&times;{cam['height']} px,
 FOV {cam['fov_deg'][0]:g}&times;{cam['fov_deg'][1]:g}&deg;. Report by labctl {labctl_version()} on {now_iso()}.</p>
+{_summary_html(cam, doc)}
 <ul>{runs}</ul>
 {f'<ul>{notes}</ul>' if notes else ''}
 <h2>Key figures</h2>
-<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">meaning</th>
-<th class="l">source steps</th></tr>{fig_rows}</table>
-<h2>Suitability (SPEC 9)</h2>{suit_html}
+{wrap_table(f'''<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">meaning</th>
+<th class="l">better</th><th class="l">source steps</th></tr>{fig_rows}</table>''')}
+<h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>{suit_html}
 {''.join(sections)}
+{references_html()}
 </body></html>
 """

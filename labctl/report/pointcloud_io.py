@@ -1,4 +1,4 @@
-"""Point-cloud files: organized PCD v0.7 and PLY 1.0 (SPEC §8: for CloudCompare and Open3D).
+"""Point-cloud files: organized PCD v0.7 and PLY 1.0 (Thesis 2024, 6.7: for CloudCompare and Open3D).
 
 PCD (Point Cloud Library file format v0.7): header ``VERSION``, ``FIELDS x y
 z intensity``, ``SIZE 4 4 4 4``, ``TYPE F F F F``, ``COUNT 1 1 1 1``,
@@ -13,7 +13,7 @@ only valid points are written and the organized size is recorded in a
 ``comment``.
 
 Coordinates are millimetres in the camera frame (x right, y down, z along the
-optical axis), as in the run file (CONTRACTS §4).
+optical axis), as in the run file (docs/runfile.md).
 """
 
 from __future__ import annotations

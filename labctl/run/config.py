@@ -1,4 +1,4 @@
-"""Campaign files (CONTRACTS §3): TOML validated by pydantic.
+"""Campaign files (docs/campaign.md): TOML validated by pydantic.
 
 Everything that can be checked before a device moves is checked here: unknown
 keys, value ranges, procedure kinds, and every stage position against the
@@ -22,7 +22,7 @@ from procedures.targets import with_target_prompts
 if TYPE_CHECKING:
     from drivers.robot.circle import MeasurementCircle
 
-#: campaign ``backend`` -> simulation profile name (CONTRACTS §3)
+#: campaign ``backend`` -> simulation profile name (docs/campaign.md)
 SIM_PROFILE_OF_BACKEND = {
     "realsense": "d455",
     "blaze": "blaze101",

@@ -1,4 +1,4 @@
-"""The HDF5 run file (CONTRACTS §4): layout, crash-safe writing, reading.
+"""The HDF5 run file (docs/runfile.md): layout, crash-safe writing, reading.
 
 Crash safety. A run file must stay readable whatever happens (kill -9, power
 loss during a stack). The writer therefore

@@ -1,4 +1,4 @@
-"""The effect library (CONTRACTS §5): one module per effect, names fixed."""
+"""The effect library (docs/simulation.md): one module per effect, names fixed."""
 
 from __future__ import annotations
 

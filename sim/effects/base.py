@@ -1,6 +1,6 @@
 """What every effect module provides.
 
-``NAME`` (the CONTRACTS §5 name), ``TECHNOLOGIES`` (``tof`` and/or
+``NAME`` (the docs/simulation.md name), ``TECHNOLOGIES`` (``tof`` and/or
 ``stereo``), ``SOURCE`` (where the formula comes from), ``Params`` (a strict
 pydantic model: units in the field names, defaults, valid ranges) and the pure
 function(s) the sensor pipeline calls at the point where the effect acts. An

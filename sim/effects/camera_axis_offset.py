@@ -1,7 +1,7 @@
 """camera_axis_offset: the camera's optical axis passes the robot axis ``offset_mm`` to the side.
 
 The centre pixel then measures R - e tan(theta) at robot angle theta (sign by
-side; thesis 5.4.2, Fig. 5-15 b): 113 mm less at 80 deg for 20 mm.
+side; Thesis 2024, 5.4.2, Fig. 5-15 b): 113 mm less at 80 deg for 20 mm.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from sim.effects.base import EffectParams
 
 NAME = "camera_axis_offset"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "thesis 5.4.2, Fig. 5-15 (b)"
+SOURCE = "Thesis 2024, 5.4.2, Fig. 5-15 (b)"
 
 
 class Params(EffectParams):

@@ -1,4 +1,4 @@
-"""defocus: thin-lens blur of a lens focused at infinity (thesis 2.2, eq. 2-5, Fig. 2-5).
+"""defocus: thin-lens blur of a lens focused at infinity (Thesis 2024, 2.2, eq. 2-5, Fig. 2-5).
 
 For a lens focused at infinity the circle of confusion of an object at
 distance s is c(s) = f^2 / (F s), so with the hyperfocal distance H (where c
@@ -10,7 +10,7 @@ The blur is a uniform disc (pillbox) convolved with the lens's in-focus PSF;
 it acts on the light, i.e. on the intensity image and on the ToF phasor (so
 depth edges blur too when ``flying_pixels`` is on). ``coc_px`` is the blur at
 H; by default it is the disc that costs 10 % of the SFR area (the same
-criterion labctl uses to find the hyperfocal distance, SPEC §3), computed for
+criterion labctl uses to find the hyperfocal distance, Thesis 2024, 5.1.2), computed for
 the profile's lens PSF. s is the depth at the image centre.
 """
 
@@ -22,7 +22,7 @@ from sim.effects.base import EffectParams
 
 NAME = "defocus"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "thesis 2.2, eq. 2-5 (Lange 2023); Hecht 2017"
+SOURCE = "Thesis 2024, 2.2, eq. 2-5 (Lange 2023); Hecht 2017"
 
 
 class Params(EffectParams):

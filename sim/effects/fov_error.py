@@ -3,7 +3,7 @@
 The scene is imaged with the true FOV ``fov_deg`` = [h, v] while the run file
 reports the datasheet FOV, so evaluations that rely on the datasheet see a
 linear scale error. The camera's own calibration knows the true optics, so the
-point cloud stays correct. Source: thesis 6.4.1 (blaze-101: 65 x 51 deg
+point cloud stays correct. Source: Thesis 2024, 6.4.1 (blaze-101: 65 x 51 deg
 instead of 67 x 51; D455: 78 x 62 instead of 75 x 62).
 """
 
@@ -15,7 +15,7 @@ from sim.effects.base import EffectParams
 
 NAME = "fov_error"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "thesis 6.4.1, Table 6-2"
+SOURCE = "Thesis 2024, 6.4.1, Table 6-2"
 
 
 class Params(EffectParams):

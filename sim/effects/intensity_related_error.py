@@ -3,7 +3,7 @@
 Delta r = error_at_reference_mm * A_ref / A, with A the pixel's amplitude and
 A_ref the amplitude of the 90 % wall at 2 m (image centre, default exposure).
 Source: Lindner & Kolb 2007 (intensity-related distance error of PMD
-cameras); DESIGN "intensity-related error (~ 1/A)".
+cameras: the error grows about as 1/A).
 """
 
 from __future__ import annotations

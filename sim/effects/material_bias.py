@@ -3,7 +3,7 @@
 Light entering translucent materials (PTFE, skin, gelatine, silicone) leaves
 them displaced and late, so a ToF camera measures r + scale * b(material),
 b from the material table (sim/materials.py). Source: the material table's
-references; thesis 5.4 / 6.5.
+references; Thesis 2024, 5.4 / 6.5.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from sim.effects.base import EffectParams
 
 NAME = "material_bias"
 TECHNOLOGIES = ("tof",)
-SOURCE = "sim/materials.py references; thesis 6.5"
+SOURCE = "sim/materials.py references; Thesis 2024, 6.5"
 
 
 class Params(EffectParams):

@@ -3,8 +3,8 @@
 P' = P + strength * mean_scene(P) * exp(j 4 pi f extra_path_mm / c): a fraction
 of the light returned by the whole scene reaches each pixel again after an
 extra path. The phase of the sum shifts the range, most where the pixel's own
-return is weak. Source: Fuchs 2010 (multipath interference in ToF); DESIGN
-"simple single-bounce multipath".
+return is weak. Source: Fuchs 2010 (multipath interference in ToF), reduced to a
+single bounce.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """quantization: coordinates stored in steps of ``step_mm`` (e.g. integer millimetres).
 
-x, y, z are rounded to the nearest multiple of the step. Source: SPEC (the
-AM-T100 stores integer mm); RealSense z16 depth in 1 mm units.
+x, y, z are rounded to the nearest multiple of the step. Source: the
+AM-T100 stores integer mm (Thesis 2024, Table 6-1); RealSense z16 depth in 1 mm units.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from sim.effects.base import EffectParams
 
 NAME = "quantization"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "SPEC lab hardware (AM-T100 integer mm); librealsense z16 depth units"
+SOURCE = "Thesis 2024, Table 6-1 (AM-T100 integer mm); librealsense z16 depth units"
 
 
 class Params(EffectParams):

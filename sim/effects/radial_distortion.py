@@ -1,4 +1,4 @@
-"""radial_distortion: Brown radial lens distortion (thesis eq. 5-5, ISO 17850).
+"""radial_distortion: Brown radial lens distortion (Thesis 2024, eq. 5-5, ISO 17850).
 
 A point whose undistorted image lies at r_u pixels from the principal point
 appears at r_d = r_u (1 + k1 (r_u / R)^2), R = half the image diagonal in
@@ -16,7 +16,7 @@ from sim.effects.base import EffectParams
 
 NAME = "radial_distortion"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Brown 1966; Jaehne 2012 p. 97 (thesis eq. 5-5); ISO 17850:2015"
+SOURCE = "Brown 1966; Jaehne 2012 p. 97 (Thesis 2024, eq. 5-5); ISO 17850:2015"
 
 
 class Params(EffectParams):

@@ -1,7 +1,7 @@
 """range_offset: a constant range error, r' = r + offset_mm.
 
 Source: every ToF camera calibration models a constant distance offset
-(Lindner & Kolb 2006; thesis 4.1.2 measures it as the camera-laser offset).
+(Lindner & Kolb 2006; Thesis 2024, 4.1.2 measures it as the camera-laser offset).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from sim.effects.base import EffectParams
 
 NAME = "range_offset"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Lindner & Kolb 2006, ToF distance calibration; thesis 4.1.2"
+SOURCE = "Lindner & Kolb 2006, ToF distance calibration; Thesis 2024, 4.1.2"
 
 
 class Params(EffectParams):

@@ -1,7 +1,7 @@
 """target_misalignment: the target plate stands ``offset_mm`` behind the robot circle's centre.
 
 The centre pixel then measures R + delta / cos(theta) at robot angle theta
-(thesis 5.4.2, Fig. 5-15 a): 95 mm more at 80 deg than at 0 deg for 20 mm.
+(Thesis 2024, 5.4.2, Fig. 5-15 a): 95 mm more at 80 deg than at 0 deg for 20 mm.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from sim.effects.base import EffectParams
 
 NAME = "target_misalignment"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "thesis 5.4.2, Fig. 5-15 (a)"
+SOURCE = "Thesis 2024, 5.4.2, Fig. 5-15 (a)"
 
 
 class Params(EffectParams):

@@ -6,8 +6,8 @@ within tens of minutes, so a warm-up is a sum of exponentials, one per
 thermal time constant of a lumped thermal network (first-order lag per node).
 t is the device time of the frame (seconds since the camera started). A
 camera reaches its steady state after a few tau; the steady offset itself is
-``range_offset``. Source: DESIGN "Simulation physics"; self-heating is a
-known ToF error (thesis Table 3-2; Chiabrando et al. 2009).
+``range_offset``. Source: self-heating is a
+known ToF error (Thesis 2024, Table 3-2; Chiabrando et al. 2009).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from sim.effects.base import EffectParams
 
 NAME = "temperature_drift"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Chiabrando et al. 2009; thesis Table 3-2 (self-heating); further terms: one per thermal time constant"
+SOURCE = "Chiabrando et al. 2009; Thesis 2024, Table 3-2 (self-heating); further terms: one per thermal time constant"
 
 
 class Term(EffectParams):

@@ -2,7 +2,7 @@
 
 alpha is the angle between a pixel's ray and the optical axis; exponent 4 is
 the natural cos^4 law of a lens (relative illumination), larger values add the
-falloff of the illumination beam. Source: Hecht 2017 (cos^4 law); thesis 5.1.2
+falloff of the illumination beam. Source: Hecht 2017 (cos^4 law); Thesis 2024, 5.1.2
 ("corner pixels are usually illuminated less than those in the center").
 """
 
@@ -15,7 +15,7 @@ from sim.effects.base import EffectParams
 
 NAME = "vignetting"
 TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Hecht 2017 (cos^4 law); thesis 5.1.2"
+SOURCE = "Hecht 2017 (cos^4 law); Thesis 2024, 5.1.2"
 
 
 class Params(EffectParams):

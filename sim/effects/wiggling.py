@@ -4,7 +4,7 @@ Delta r = a sin(2 pi r / P + phi) + sum_k a_k sin(2 pi r / P_k + phi_k).
 
 With 4-tap sampling, the harmonics of a non-sinusoidal modulation alias to
 a period of c / (8 f_mod): 375 mm at 100 MHz, 2.5 m at 15 MHz. Source: Lindner
-& Kolb 2006; Giancola et al. 2018; thesis 4.2.2 (the circular patterns of Fig. 4-4).
+& Kolb 2006; Giancola et al. 2018; Thesis 2024, 4.2.2 (the circular patterns of Fig. 4-4).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from sim.effects.base import EffectParams
 
 NAME = "wiggling"
 TECHNOLOGIES = ("tof",)
-SOURCE = "Lindner & Kolb 2006; Giancola et al. 2018; thesis 4.2.2"
+SOURCE = "Lindner & Kolb 2006; Giancola et al. 2018; Thesis 2024, 4.2.2"
 
 
 class Harmonic(EffectParams):

@@ -1,11 +1,11 @@
-"""The lab's targets as scenes (SPEC: every procedure's scene).
+"""The lab's targets as scenes (one per procedure of docs/campaign.md).
 
 Stage lab (camera at the origin looking along +z, wall at z = D):
 
 * ``wall`` — the 90 % white wall filling the view;
 * ``slanted_edge`` — an A0 inkjet chart (1189 x 841 mm) on the wall: white paper
   with a black quadrant whose two edges leave the chart centre slanted by
-  ``angle_deg`` (default 8 deg, thesis 6.2.1), so that one near-vertical and
+  ``angle_deg`` (default 8 deg, Thesis 2024, 6.2.1), so that one near-vertical and
   one near-horizontal edge are in view at every distance;
 * ``white_sheet`` — the same chart covered by a white sheet (white reference);
 * ``checkerboard`` — a printed board of ``tile_mm`` tiles (default 19 mm) on

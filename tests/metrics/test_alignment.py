@@ -1,4 +1,4 @@
-"""Alignment fields and implied tilt (thesis 4.1.2)."""
+"""Alignment fields and implied tilt (Thesis 2024, 4.1.2)."""
 
 import math
 

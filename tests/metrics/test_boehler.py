@@ -1,4 +1,4 @@
-"""Known-answer tests for metrics.boehler (SPEC §4; thesis 5.1.3, 6.3.2, eq. 5-4).
+"""Known-answer tests for metrics.boehler (Thesis 2024, 5.1.3, 6.3.2, eq. 5-4).
 
 Synthetic clouds are ray-cast exactly: a pinhole camera (640 x 480, 67 x 51
 deg unless stated) sees a 400 mm star with a 10 mm disc, ``gap`` mm in front
@@ -79,7 +79,7 @@ def star_cloud(segments: int, r0_h: float, r0_v: float, *, merged: str = "filled
 
 
 def assert_dense_where_resolved(result) -> None:
-    """Thesis 6.3.3: a ring with fewer than 2 points per segment must never count as resolved."""
+    """Thesis 2024, 6.3.3: a ring with fewer than 2 points per segment must never count as resolved."""
     least = 2 * MIN_SAMPLES_PER_SEGMENT
     assert np.all(result.points_h[result.resolved_h] >= least * result.expected_h)
     assert np.all(result.points_v[result.resolved_v] >= least * result.expected_v)
@@ -129,7 +129,7 @@ def test_resolution_radius_is_the_merge_radius(segments, r0_h, r0_v, merged, rot
 @pytest.mark.parametrize("segments", [72, 24])
 def test_filled_segment_across_zero_is_one_cluster(segments):
     """A filled segment spanning angle 0 (-s/2 ... s/2) sits in a horizontal sector: split at 0/2 pi it would
-    count twice there (thesis 6.3.3) and no ring would be resolved horizontally."""
+    count twice there (Thesis 2024, 6.3.3) and no ring would be resolved horizontally."""
     half_segment = 180.0 / segments
     r0_h, r0_v = (40.4, 55.2) if segments == 72 else (15.3, 24.7)
     cloud = star_cloud(segments, r0_h, r0_v, merged="filled", rotation_deg=-half_segment, centre=(25.0, 15.0))
@@ -164,7 +164,7 @@ def test_wrapping_cluster_merged_in_ring_table():
 
 def test_sparse_ring_is_never_resolved():
     """One sample per segment: every filled segment is one cluster, so the count is right by construction,
-    but the ring holds fewer than 2 points per segment and must not count (thesis 6.3.3)."""
+    but the ring holds fewer than 2 points per segment and must not count (Thesis 2024, 6.3.3)."""
     radius, angle, inlier = ring_samples(72, 1)
     table = evaluate_rings(radius, angle, inlier, 72, max_radius_mm=32.0, phase_rad=0.0)
     assert table.clusters[15] == 36 and table.clusters_h[15] == table.expected_h
@@ -183,7 +183,7 @@ def test_sparse_merged_ring_with_doubled_count_is_not_resolved():
 
 
 def test_result_is_never_finer_than_the_sensor():
-    """A camera whose datasheet FOV is far wider than its real one (thesis 5.1.3 on Song 2021): the star is
+    """A camera whose datasheet FOV is far wider than its real one (Thesis 2024, 5.1.3 on Song 2021): the star is
     really resolved finer than FOV / pixels claims possible, so the result is clamped to that and flagged.
     The real FOV is 40 x 30 deg, so the image border also cuts the star."""
     cloud = star_cloud(72, 0.0, 0.0, fov_deg=(40.0, 30.0), centre=(20.0, -10.0), rotation_deg=31.0)
@@ -239,7 +239,7 @@ def test_simulated_blaze101_star():
     """The simulator's blaze-101 (640 x 480, 67 x 51 deg, lens PSF sigma 0.71 px, defocus at its hyperfocal
     400 mm, depth from the phase of all light reaching a pixel) 500 mm from the 72-segment star.
 
-    Measured: h 2.44 mm (2.5 px, 0.28 deg), v 2.62 mm (2.5 px, 0.30 deg), close to thesis Table 6-4
+    Measured: h 2.44 mm (2.5 px, 0.28 deg), v 2.62 mm (2.5 px, 0.30 deg), close to Thesis 2024, Table 6-4
     (0.22 / 0.24 deg); with a 6 px defocus disc, 4.7 px both ways. A segment stays an inlier cluster only
     while it is about as wide as the blur disc (a wider blur mixes in the wall behind the slots and moves
     the depth out of the +-20 mm band), so the resolution must lie between 0.6 and 1.2 disc diameters.

@@ -1,4 +1,4 @@
-"""Checkerboard distortion and pixel aspect ratio (SPEC §5; thesis 5.2, 6.4, Table 6-5).
+"""Checkerboard distortion and pixel aspect ratio (Thesis 2024, 5.2, 6.4, Table 6-5).
 
 Known answers: boards rendered by the simulator (tested in tests/sim) with a
 known radial coefficient k1 and a known true FOV, against the formulas worked
@@ -6,12 +6,12 @@ out here. The simulated board lies at z = D - 0.2 mm with a tile corner on the
 optical axis (shifted by ``offset_mm``); a board point (X, Y) images at
 u_u = c_x + f_x X / z, v_u = c_y + f_y Y / z with the true FOV's
 f = (W/2) / tan(FOV/2) and c at the image centre, and appears at
-r_d = r_u (1 + k1 (r_u / R)^2), R = half the image diagonal (thesis eq. 5-5).
+r_d = r_u (1 + k1 (r_u / R)^2), R = half the image diagonal (Thesis 2024, eq. 5-5).
 A ToF camera reports the measured range r = |(X, Y, z)| along the ray of the
 pixel it sees the point in: the distorted one (``cloud = true``) or the true
 one (``cloud = false``).
 
-Tolerance: 0.3 % of the image length (SPEC §5 target) on every distortion,
+Tolerance: 0.3 % of the image length (Thesis 2024, 5.2 target) on every distortion,
 0.5 deg on the FOV. Corner detection is good to about 0.1 px (0.02 % of
 640 px, 0.06 % of 172 px), so the margin covers blur and noise at the
 border; the effects tested are 1.5-4.5 %, ten times the tolerance.
@@ -70,7 +70,7 @@ class Board:
         self.o = np.flatnonzero((ij == 0).all(axis=1))[0]
 
     def raw_pct(self, fov_given, distance):
-        """found - (centre corner + index x tile f_given / distance), thesis Table 6-5."""
+        """found - (centre corner + index x tile f_given / distance), Thesis 2024, Table 6-5."""
         fx = (self.w / 2) / math.tan(math.radians(fov_given[0]) / 2)
         fy = (self.h / 2) / math.tan(math.radians(fov_given[1]) / 2)
         eu = self.ud[self.o] + self.ij[:, 0] * TILE * fx / distance
@@ -117,7 +117,7 @@ def test_perfect_pinhole_board_shows_no_distortion():
         assert abs(value) < 0.1
     assert result.fov_estimate_deg == pytest.approx((67.0, 51.0), abs=0.1)
     assert abs(result.k1) < 0.003 and result.fit_rms_px < 0.3 and not result.warnings
-    angular = TILE / (599.8 * math.tan(math.radians(p.fov_h_deg / p.width)))  # the mistake SPEC §5 warns of
+    angular = TILE / (599.8 * math.tan(math.radians(p.fov_h_deg / p.width)))  # the mistake Thesis 2024, 5.2 warns of
     wrong = corners.centre_uv[0] + corners.ij[:, 0] * angular
     assert 100 * np.max(np.abs(corners.uv[:, 0] - wrong)) / p.width > 3.0
 

@@ -147,8 +147,8 @@ def test_target_window_holds_misaligned_targets_and_excludes_the_curtain(theta):
 
 
 def test_spec_numbers_of_figure_5_15():
-    """SPEC §7: for 20 mm, +95 mm at 80 deg relative to 0 deg (target) and -113 mm at 80 deg (camera
-    axis), not the thesis text's "about 20 cm"."""
+    """Thesis 2024, 5.4: for 20 mm, +95 mm at 80 deg relative to 0 deg (target) and -113 mm at 80 deg (camera
+    axis), not the "about 20 cm" of Thesis 2024, 5.4.2."""
     target = geometric_reference([0.0, 80.0], RADIUS, delta_mm=20.0)
     assert target[1] - target[0] == pytest.approx(95.2, abs=0.1)
     camera = geometric_reference([0.0, 80.0], RADIUS, e_mm=20.0)

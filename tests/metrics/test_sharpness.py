@@ -1,4 +1,4 @@
-"""Sharpness over distance: plateau rule, best focus, imagery resolution, eq. 6-2 (thesis 6.6)."""
+"""Sharpness over distance: plateau rule, best focus, imagery resolution, eq. 6-2 (Thesis 2024, 6.6)."""
 
 import math
 
@@ -79,7 +79,7 @@ def test_imagery_resolution_and_lateral_size():
 
 
 @pytest.mark.parametrize("res,distance,pixels", [
-    (0.102, 400, 88),   # Blaze101 at 40 cm (thesis 6.6: about 88 px)
+    (0.102, 400, 88),   # Blaze101 at 40 cm (Thesis 2024, 6.6: about 88 px)
     (0.105, 600, 57),   # AM-T100 at 60 cm (about 57 px)
     (0.25, 200, 72),    # flexx2 at 20 cm (about 72 px)
     (0.122, 500, 59),   # RealSense at 50 cm, corrected FOV 78 deg (about 59 px)

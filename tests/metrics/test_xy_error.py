@@ -1,4 +1,4 @@
-"""x/y measurement error (SPEC §6; thesis 5.3, Table 6-6): known noise gives known statistics.
+"""x/y measurement error (Thesis 2024, 5.3, Table 6-6): known noise gives known statistics.
 
 Neighbour spacing on the checkerboard. A corner at sub-pixel (u, v) is read
 bilinearly from four pixels with weights w = ((1-f_u)(1-f_v), f_u(1-f_v),
@@ -11,7 +11,7 @@ these folded normals; its 90 % quantile q solves mean_k P(|e_k| < q) = 0.9,
 and the sample quantile of n pairs has the standard error
 sqrt(0.9 0.1 / n) / f(q), f the mixture's density of |e| at q (likewise the
 signed median with sqrt(0.25 / n) / f_e(0)). Tolerance: 4 standard errors.
-Reading the cloud at rounded positions (thesis 5.2.2) would raise the spread
+Reading the cloud at rounded positions (Thesis 2024, 5.2.2) would raise the spread
 by about 50 % (sum w^2 is 4/9 on average), far outside it.
 """
 
@@ -177,7 +177,7 @@ def test_simulated_board_with_known_cloud_noise():
 
 
 def test_simulated_frames_trueness_below_accuracy():
-    """The simulator's own ToF noise: the mean of frames beats one frame (thesis Table 6-6 ToF columns)."""
+    """The simulator's own ToF noise: the mean of frames beats one frame (Thesis 2024, Table 6-6 ToF columns)."""
     model = parse_model(default_model_text("flexx2"))
     frames = [simulate_frame(model, "checkerboard", {"tile_mm": TILE}, distance_mm=600.0, seed=s) for s in range(4)]
     clouds = np.array([np.dstack(f[:3]) for f in frames])

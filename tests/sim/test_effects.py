@@ -244,7 +244,7 @@ def test_defocus_blur_follows_the_thin_lens_law():
 def test_edge_sfr_above_nyquist_is_the_lens_not_an_alias(camera):
     """In focus (no defocus effect), the chart's edge SFR follows |sinc f| x Gauss(lens_sigma_px) from 0.1 to
     0.75 cy/px, above Nyquist too (within 0.03; measured at most 0.023), so SFR10 -- the imagery resolution
-    of thesis Table 6-3 the lens is calibrated to -- comes out within 5 %. Blurring pixel values instead of
+    of Thesis 2024, Table 6-3 the lens is calibrated to -- comes out within 5 %. Blurring pixel values instead of
     sub-pixels folds the lens's response about 0.5 cy/px: SFR10 read 0.84 instead of 0.61 cy/px for the
     AM-T100's 0.46 px."""
     cam = make(camera, overrides="[camera_overrides]\nwidth = 320\nheight = 240\n", base=False)

@@ -1,4 +1,4 @@
-"""Known answers from the thesis, reproduced by the simulator (SPEC "Simulation")."""
+"""Known answers from Thesis 2024, reproduced by the simulator (docs/simulation.md)."""
 
 import math
 
@@ -13,7 +13,7 @@ from sim.render import render
 from sim.scenes.targets import build_scene, plate_scene
 from sim.tof import ToFSensor, surface_properties
 
-# thesis Table 6-2 (sensor resolution, deg) and Table 6-5 row 1 (pixel aspect distortion, %)
+# Thesis 2024, Table 6-2 (sensor resolution, deg) and Table 6-5 row 1 (pixel aspect distortion, %)
 TABLE_6_2 = {"blaze101": (0.105, 0.106), "amt100": (0.105, 0.106), "flexx2": (0.25, 0.256), "d455": (0.117, 0.129)}
 TABLE_6_5_ROW_1 = {"blaze101": 1.5, "amt100": 1.5, "flexx2": 2.3, "d455": 10.2}
 
@@ -34,7 +34,7 @@ def test_pixel_aspect_distortion_matches_table_6_5(name):
 
 
 def test_corrected_fovs_of_table_6_2():
-    """The thesis's corrected FOVs: blaze 65 x 51 -> 0.102 deg, D455 78 x 62 -> 0.122 deg (bracketed values)."""
+    """Thesis 2024's corrected FOVs: blaze 65 x 51 -> 0.102 deg, D455 78 x 62 -> 0.122 deg (bracketed values)."""
     assert sensor_angular_resolution_deg(65.0, 640) == pytest.approx(0.102, abs=0.0006)
     assert sensor_angular_resolution_deg(78.0, 640) == pytest.approx(0.122, abs=0.0006)
 
@@ -47,7 +47,7 @@ def test_every_profile_number_has_a_source(name):
 
 
 def test_depth_of_field_of_figure_5_4():
-    """f = 8 mm, focus 150 mm, CoC 5.3 um: about 147-154 mm at f/2 and 137-166 mm at f/8 (SPEC)."""
+    """f = 8 mm, focus 150 mm, CoC 5.3 um: about 147-154 mm at f/2 and 137-166 mm at f/8 (Thesis 2024, Fig. 5-4, eq. 2-5)."""
     near, far = depth_of_field_mm(8.0, 150.0, 0.0053, 2.0)
     assert (round(near), round(far)) == (147, 154)
     near, far = depth_of_field_mm(8.0, 150.0, 0.0053, 8.0)
@@ -75,7 +75,7 @@ def test_34_by_25_tiles_of_19_mm_visible_at_500_mm():
 
 @pytest.mark.parametrize("delta,e", [(20.0, 0.0), (0.0, 20.0), (20.0, -15.0)])
 def test_misalignment_geometry_of_figure_5_15(delta, e):
-    """Centre pixel on the robot circle: R + delta / cos(theta) - e tan(theta) (thesis 5.4.2)."""
+    """Centre pixel on the robot circle: R + delta / cos(theta) - e tan(theta) (Thesis 2024, 5.4.2)."""
     radius = 850.0
     cam = sensor()
     for theta in range(-80, 81, 10):

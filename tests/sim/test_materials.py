@@ -1,4 +1,4 @@
-"""The NIR material table holds physical values in the order the thesis's physics relies on."""
+"""The NIR material table holds physical values in the order Thesis 2024's physics relies on."""
 
 import dataclasses
 import math

@@ -1,6 +1,6 @@
 """The simulated ToF/stereo depth noise follows the published noise laws.
 
-Eq. 2-9 of the thesis (Li 2014) is re-implemented here from its text, on
+Eq. 2-9 of Thesis 2024 (Li 2014) is re-implemented here from its text, on
 purpose independently of sim/tof.py, and compared with what a simulated
 campaign records.
 """

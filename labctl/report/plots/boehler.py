@@ -1,4 +1,4 @@
-"""Figure of a Böhler-star evaluation (thesis Fig. 5-6 and 6-6; SPEC §4), matplotlib Agg, PNG out."""
+"""Figure of a Böhler-star evaluation (Thesis 2024, Fig. 5-6 and 6-6, 5.1.3), matplotlib Agg, PNG out."""
 
 from __future__ import annotations
 

@@ -36,10 +36,12 @@ def plot_vendor_figures(positions: list[VendorPosition], path: Path) -> Path:
             ax.plot(d, values, marker="o", ms=3, label=label)
             if not np.isfinite(values).any():
                 ax.text(0.5, 0.5, "not measured (stereo cameras only)", transform=ax.transAxes, ha="center")
+                ax.set_yticks([])  # no made-up scale around nothing
         ax.set_title(title)
         ax.set_ylabel(unit)
         ax.grid(alpha=0.3)
         ax.legend()
+    axes[0, 0].set_ylim(0, 105)  # a fill rate of 100 % everywhere sits at the top, not mid-axis
     for ax in axes[1]:
         ax.set_xlabel("reference distance (mm)")
     fig.tight_layout()

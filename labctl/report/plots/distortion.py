@@ -1,4 +1,4 @@
-"""Checkerboard distortion figure (thesis Fig. 6-8): found and expected corners with magnified displacements."""
+"""Checkerboard distortion figure (Thesis 2024, Fig. 6-8): found and expected corners with magnified displacements."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def _panel(ax, found: np.ndarray, expected: np.ndarray, ij: np.ndarray, width: f
 
 def plot_distortion(image: np.ndarray, result: DistortionResult, path: Path,
                     cloud: CloudDistortion | None = None, title: str = "") -> Path:
-    """Intensity image with its corners (and, if given, the cloud's corners in mm) like thesis Fig. 6-8."""
+    """Intensity image with its corners (and, if given, the cloud's corners in mm) like Thesis 2024, Fig. 6-8."""
     panels = 2 if cloud is not None else 1
     fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 5.6), squeeze=False)
     ax = axes[0, 0]

@@ -41,9 +41,11 @@ def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
         ax.grid(alpha=0.3)
         ax.legend()
     ax = axes[1, 1]
-    ax.plot(d, 100 * series("invalid_fraction"), marker="o", ms=3, color="tab:red")
+    invalid_pct = 100 * series("invalid_fraction")
+    ax.plot(d, invalid_pct, marker="o", ms=3, color="tab:red")
+    ax.set_ylim(*percent_axis_limits(invalid_pct))
     ax.set_title("Invalid pixels")
-    ax.set_ylabel("%")
+    ax.set_ylabel("% of the image")
     ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("reference distance (mm)")
@@ -53,8 +55,15 @@ def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
     return path
 
 
+def percent_axis_limits(values_pct: np.ndarray) -> tuple[float, float]:
+    """A percentage axis from 0 to at least 1 % (so all-zero data sits on the floor, not mid-axis), 10 % headroom."""
+    finite = values_pct[np.isfinite(values_pct)]
+    top = float(finite.max()) if finite.size else 0.0
+    return 0.0, min(100.0, max(1.0, 1.1 * top))
+
+
 def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -> Path:
-    """x and y precision (Q90 of the per-pixel std) and the centre pixel's repeatability over distance (SPEC 6)."""
+    """x and y precision (Q90 of the per-pixel std) and the centre pixel's repeatability over distance (Thesis 2024, 5.3)."""
     rows = sorted(precision, key=lambda item: item[1])
     d = np.array([distance for _, distance, _ in rows])
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
@@ -113,7 +122,7 @@ def _valid_and_invalid(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: 
 
 
 def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
-    """SFR10, SFR50 and SFR area over distance, horizontal and vertical (thesis Fig. 6-3)."""
+    """SFR10, SFR50 and SFR area over distance, horizontal and vertical (Thesis 2024, Fig. 6-3)."""
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), sharex=True)
     for ax, attr, title in zip(axes, ("sfr10", "sfr50", "sfr_area"), ("SFR10", "SFR50", "SFR area")):
         for orientation, color in (("horizontal", "tab:blue"), ("vertical", "tab:orange")):
@@ -168,14 +177,29 @@ def shaded_relief(cloud: np.ndarray) -> np.ndarray:
     return np.clip(normal @ light, 0.0, 1.0)
 
 
-def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, title: str, path: Path) -> Path:
-    """The face mask as the camera sees it: shaded relief of the point cloud, depth and intensity (thesis 6.7)."""
-    z = cloud[..., 2]
+def face_mask_region(z: np.ndarray) -> np.ndarray:
+    """Pixels of the mask and its surroundings: within 150 mm behind the nearest 0.5 % of the points (not the
+    wall). The mask may fill only a few % of a small image, so the quantile stays well below that."""
     finite = z[np.isfinite(z)]
     if finite.size == 0:
         raise ValueError("the face mask cloud has no valid point")
-    near = np.quantile(finite, 0.02)
-    mask = np.isfinite(z) & (z < near + 150.0)  # the mask and its surroundings, not the wall behind
+    near = np.quantile(finite, 0.005)
+    return np.isfinite(z) & (z < near + 150.0)
+
+
+def face_mask_title(z: np.ndarray, wall_distance_mm: float, step_id: str) -> str:
+    """Title naming the depth range the picture shows (the mask's), and the wall distance of the step apart."""
+    shown = z[face_mask_region(z)]
+    lo, hi = float(np.min(shown)), float(np.max(shown))
+    wall = f", wall at {wall_distance_mm:.0f} mm" if math.isfinite(wall_distance_mm) else ""
+    return f"Face mask {lo:.0f}-{hi:.0f} mm from the camera (depth shown){wall} ({step_id})"
+
+
+def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, wall_distance_mm: float, step_id: str,
+                   path: Path) -> Path:
+    """The face mask as the camera sees it: shaded relief of the point cloud, depth and intensity (Thesis 2024, 6.7)."""
+    z = cloud[..., 2]
+    mask = face_mask_region(z)
     rows, cols = np.where(mask)
     crop = (slice(max(rows.min() - 10, 0), rows.max() + 11), slice(max(cols.min() - 10, 0), cols.max() + 11))
     fig, axes = plt.subplots(1, 3, figsize=(13, 5))
@@ -189,7 +213,7 @@ def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, title: str, path: P
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.suptitle(title)
+    fig.suptitle(face_mask_title(z, wall_distance_mm, step_id))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -1,4 +1,4 @@
-"""`labctl analyze checkerboard` (CONTRACTS §2): JSON keys and values, text output, figure, input errors."""
+"""`labctl analyze checkerboard` (README.md, Command line): JSON keys and values, text output, figure, input errors."""
 
 import json
 
@@ -49,7 +49,7 @@ def test_json_has_the_contract_keys_and_the_metric_values(board, capsys, tmp_pat
     assert doc["cloud_distortion_h_pct"] == pytest.approx(in_cloud.distortion_h_pct)
     assert doc["fov_estimate_deg"] == pytest.approx([56.0, 44.0], abs=0.5)
     assert doc["radial_distortion_w_pct"] < -2.5 and doc["k1"] == pytest.approx(-0.06, abs=0.005)
-    assert doc["pixel_aspect_distortion_pct"] == pytest.approx(2.3, abs=0.05)  # thesis Table 6-5, flexx2
+    assert doc["pixel_aspect_distortion_pct"] == pytest.approx(2.3, abs=0.05)  # Thesis 2024, Table 6-5, flexx2
     assert doc["n_corners"] == len(corners.uv) and doc["warnings"] == []
     assert cv2.imread(str(figure)).shape[1] > 1200  # image and cloud side by side
     write_pcd(folder / "cloud.pcd", cloud)  # the same cloud as PCD (float32)

@@ -89,7 +89,7 @@ def test_stage_bad_arguments_exit_2(labctl_main) -> None:
 
 # ------------------------------------------------------------------ camera
 def assert_valid_run_file(path: Path, frames: int, height: int, width: int) -> h5py.Group:
-    """The CONTRACTS §4 layout of a one-step run file."""
+    """The docs/runfile.md layout of a one-step run file."""
     f = h5py.File(path, "r")
     assert f.attrs["format"] == "labctl-run" and f.attrs["format_version"] == 1
     assert f.attrs["status"] == "complete" and not f.attrs["simulated"]

@@ -1,4 +1,4 @@
-"""Bad input exits 2 with one clear message, no traceback and no run file (CONTRACTS §2)."""
+"""Bad input exits 2 with one clear message, no traceback and no run file (README.md, Command line)."""
 
 import pytest
 

@@ -1,6 +1,6 @@
 """The complete characterization of each camera (examples/<camera>.toml), simulated and evaluated.
 
-Every key figure of CONTRACTS §7 comes out (none null), and each sits where the
+Every key figure of docs/keyfigures.md comes out (none null), and each sits where the
 camera's profile puts it. To keep the suite fast the campaigns keep every
 position but take 10 frames per depth-sweep stack and 4 elsewhere, the 640 x 480
 cameras run at 160 x 120 (the flexx2 at its own 224 x 172), the ball bar and the

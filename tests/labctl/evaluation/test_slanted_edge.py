@@ -51,12 +51,12 @@ def test_exposure_table_must_ascend():
         parse_campaign(campaign_text(procedures=slanted("exposure_table = [[300, 100], [100, 300]]")))
 
 
-# thesis Table C-1 style exposure tables keep the white sheet below saturation at close range
+# Thesis 2024, Table C-1 style exposure tables keep the white sheet below saturation at close range
 EXPOSURES = {
     "blaze101": "exposure_table = [[100, 60], [200, 250], [400, 1000]]",
     "amt100": "exposure_table = [[100, 60], [200, 250], [400, 1000]]",
     "flexx2": "exposure_table = [[100, 60], [200, 250], [400, 1000]]",
-    "d455": "camera_settings = { projector = false }",  # the projector's dots would ruin the edge (thesis 6.2.1)
+    "d455": "camera_settings = { projector = false }",  # the projector's dots would ruin the edge (Thesis 2024, 6.2.1)
 }
 BACKENDS = {"blaze101": "blaze", "amt100": "amt100", "flexx2": "flexx2", "d455": "realsense"}
 

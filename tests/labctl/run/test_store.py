@@ -1,4 +1,4 @@
-"""Run file layout (CONTRACTS §4) and its crash-safety rules."""
+"""Run file layout (docs/runfile.md) and its crash-safety rules."""
 
 import json
 import math
