@@ -1,0 +1,98 @@
+"""Checkerboard corner positions as residual families: radial_distortion and fov_error become visible.
+
+The measured runs are plain simulated checkerboard runs (two distances, 60 mm
+tiles so that the test-size sensor resolves them) rewritten by the forward
+models of tests/reconcile/forward.py, written from first principles and not
+with the effect library's code: a Brown radial distortion (the pixel sees the
+ray its undistorted position would, r_u from a fixed-point iteration), with
+the point cloud left uncorrected (points along the pinhole ray of the
+distorted pixel) or corrected; and a true FOV narrower than the file says
+(pixel u sees the ray of slope (u - c) / f_true; the camera's own
+calibration keeps the cloud right).
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from labctl.cli import main
+from labctl.reconcile.workflow import reconcile
+from tests.reconcile.forward import brown_source, focal_source, simulated_run, warp_run
+
+BOARD = ('[campaign]\nname = "board"\n[devices.camera]\nbackend = "blaze"\n[devices.stage]\nprotocol = "zaber"\n'
+         'port = "/dev/ttyUSB0"\ntravel_mm = [0, 4000]\nspeed_mm_s = 50\n'
+         '[[procedure]]\nkind = "checkerboard"\ndistance_mm = 600\ntile_mm = 60\nframes = {frames}\n'
+         '{second}[sim]\nseed = {seed}\n')
+SECOND = '[[procedure]]\nkind = "checkerboard"\ndistance_mm = 1000\ntile_mm = 60\nframes = 5\n'
+FOV = (67.0, 51.0)  # the blaze-101's datasheet FOV, as the run file reports it
+
+
+def _board_run(directory, seed=3, frames=5, second=True):
+    return simulated_run(directory, "blaze101", campaign=BOARD.format(frames=frames, second=SECOND if second else "",
+                                                                      seed=seed))
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory):
+    return _board_run(tmp_path_factory.mktemp("board"))
+
+
+@pytest.mark.parametrize("corrected", [False, True])
+def test_a_hidden_radial_distortion_is_named_from_the_corners(plain, tmp_path, corrected):
+    k1 = 0.08
+    measured = warp_run(plain, tmp_path / "measured.h5", brown_source(k1), cloud_corrected=corrected)
+    result = reconcile(measured)
+    assert result.verdict == "effect_found", (result.notes, result.corners.summary())
+    assert [e["name"] for e in result.named] == ["radial_distortion"]
+    got = result.named[0]
+    assert got["parameters"]["k1"] == pytest.approx(k1, abs=0.1 * k1)
+    assert got["parameters"]["cloud"] is (not corrected)
+    assert got["evidence"]["stderr"]["k1"] > 0
+    assert result.gap_after <= 0.5 * result.gap_before, (result.gap_before, result.gap_after)
+    assert result.corners.after.consistent
+
+
+def test_a_hidden_fov_error_is_named_from_the_corners(plain, tmp_path):
+    true_fov = (64.0, 51.0)
+    measured = warp_run(plain, tmp_path / "measured.h5", focal_source(FOV, true_fov), cloud_corrected=True)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as info:
+        main(["reconcile", str(measured), "-o", str(out), "--quiet"])
+    assert info.value.code == 0
+    doc = json.loads((out / "reconcile.json").read_text())
+    assert doc["verdict"] == "effect_found", doc["corners"]
+    assert [e["name"] for e in doc["named_effects"]] == ["fov_error"]
+    fov = doc["named_effects"][0]["parameters"]["fov_deg"]
+    assert fov[0] == pytest.approx(true_fov[0], abs=0.3) and fov[1] == pytest.approx(true_fov[1], abs=0.3)
+    assert doc["gap_after"] <= 0.5 * doc["gap_before"]
+    assert doc["corners"]["after"]["corner_image"]["unit"] == "mm in the board plane"
+    assert doc["corners"]["after"]["consistent_with_noise"] is True
+    assert "fov_error" in (out / "reconcile.html").read_text()
+
+
+def test_a_board_with_nothing_hidden_answers_none(plain, tmp_path):
+    runs = [plain] + [_board_run(tmp_path / f"seed{seed}", seed=seed) for seed in (11, 12)]
+    verdicts = [reconcile(run).verdict for run in runs]
+    assert verdicts == ["none"] * 3
+
+
+def test_a_board_at_one_distance_still_shows_the_distortion(tmp_path):
+    plain = _board_run(tmp_path / "one", second=False)
+    measured = warp_run(plain, tmp_path / "measured.h5", brown_source(0.08), cloud_corrected=True)
+    result = reconcile(measured)
+    assert [e["name"] for e in result.named] == ["radial_distortion"], result.corners.summary()
+    assert result.named[0]["parameters"]["k1"] == pytest.approx(0.08, abs=0.008)
+
+
+def test_a_run_with_nothing_comparable_is_still_not_comparable(tmp_path):
+    run = _board_run(tmp_path, frames=1, second=False)  # one frame: no scatter, so no corner floor
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as info:
+        main(["reconcile", str(run), "-o", str(out), "--quiet"])
+    assert info.value.code == 0
+    doc = json.loads((out / "reconcile.json").read_text())
+    assert doc["verdict"] == "not_comparable"
+    assert "checkerboard" not in doc["not_comparable"]["procedures_needed"]
+    assert "depth_sweep" in doc["not_comparable"]["procedures_needed"]
