@@ -73,6 +73,7 @@ CORNER_FLOOR_PX = 0.1  # analytic projection against the detector (calibrated by
 SLOPE_FLOOR = 5e-5  # the same in the cloud, as slope x/z (0.05 mm at 1 m)
 BOARD_GAP_MM = 0.2  # the board stands this far in front of the wall (sim/scenes/targets.py)
 MIN_FRAMES = 2
+MIN_TILE_PX = 6.0  # below, cornerSubPix's window (0.4 tile) is 2 px and the grid's labels become unreliable
 FAMILIES = ("corner_image", "corner_cloud")
 FAMILY_UNIT = "mm in the board plane"
 
@@ -110,8 +111,8 @@ def _board_index(corners: Corners, tile_mm: float, offset_mm: tuple[float, float
 
 def observe_corners(step: StepRecord, scene: StepScene, fov_deg: tuple[float, float],
                     max_frames: int = MAX_FRAMES) -> CornerObservation | None:
-    """The corners of one checkerboard step (None when no board is found or the stack has under
-    ``MIN_FRAMES`` frames)."""
+    """The corners of one checkerboard step (None when no board is found, its tiles are under ``MIN_TILE_PX``
+    or the stack has under ``MIN_FRAMES`` frames)."""
     n = min(int(step.group["intensity"].shape[0]), max_frames)
     if n < MIN_FRAMES or scene.wall_distance_mm is None:
         return None
@@ -119,6 +120,8 @@ def observe_corners(step: StepRecord, scene: StepScene, fov_deg: tuple[float, fl
     try:
         corners = detect_corners(np.nan_to_num(stack_stats(frames).mean, nan=0.0))
     except ValueError:
+        return None
+    if min(np.abs(corners.tile_px)) < MIN_TILE_PX:
         return None
     uv = np.stack([refine_corners(frame, corners) for frame in frames])  # (n, N, 2)
     cloud = np.stack([np.asarray(step.group[c][:n], np.float64) for c in ("x", "y", "z")], axis=-1)
@@ -148,8 +151,8 @@ def observe_corner_run(path: str | Path, fov_deg: tuple[float, float],
             scene = step_scene(step)
             found = observe_corners(step, scene, fov_deg, max_frames) if scene is not None else None
             if found is None:
-                notes.append(f"{step.step_id}: no checkerboard corners found in {MIN_FRAMES} or more frames; "
-                             "its corners are not compared")
+                notes.append(f"{step.step_id}: no checkerboard corners of at least {MIN_TILE_PX:g} px tiles found in "
+                             f"{MIN_FRAMES} or more frames; its corners are not compared")
             else:
                 out.append(found)
     return out, notes
