@@ -26,10 +26,10 @@ The board's placement is what a lab does not know to a fraction of a pixel:
 per step and family a lateral shift (two) and an in-plane rotation about the
 optical axis (one), and per reference group (laser, stage) an error dZ of the
 board distance (the camera's mounting offset: it scales a step's corners by
--dZ / Z) are profiled out by weighted least squares. A FOV error scales the
-corners of every distance alike, a distance error by 1 / Z: boards at two or
-more distances tell them apart; at one distance fov_error is not
-identifiable (the reconcile says so).
+-dZ / Z in both families) are profiled out by weighted least squares. A FOV
+error moves the image corners only, so the cloud family pins dZ and one board
+distance determines the FOV; several distances separate them also by their
+scaling (a FOV error alike at every distance, dZ by 1 / Z).
 
 Weights and floor: every corner axis has the variance of its mean from the
 frames plus a comparison floor (``CORNER_FLOOR_PX`` in the image: the

@@ -58,6 +58,7 @@ from sim.model import SimModel, parse_model
 from sim.profiles import default_effects, get_profile
 
 DBIC_THRESHOLD = 30.0
+CORNER_NAMES = {c.name for c in CORNER_CANDIDATES}
 MARGIN = 10.0
 COMPETING_CORRELATION = 0.5
 MAX_EFFECTS = 4
@@ -564,7 +565,8 @@ def reconcile(path: str | Path, model: SimModel | None = None,
         notes.append(_corner_unexplained(corners))
     if unexplained is not None:
         unexplained["message"] = _unexplained_message(named, good_physical, unexplained, empirical)
-    notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items()]
+    notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items()
+              if corners is None or name not in CORNER_NAMES]
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
                            state.model, observations, iterations, _residual_maps(lay, state.dz), notes, ambiguity,
                            good_before, state.good, good_physical, unexplained, empirical, corners=corners)

@@ -20,6 +20,7 @@ removes ``/sim`` so that the reconcile sees only what a measured file holds.
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from collections.abc import Callable
@@ -141,6 +142,14 @@ class Pixels:
 
 
 RangeError = Callable[[Pixels], np.ndarray]
+
+
+def reconcile_cli(run: Path, out: Path) -> dict[str, Any]:
+    """``labctl reconcile RUN -o OUT --quiet`` (must exit 0); returns reconcile.json."""
+    with pytest.raises(SystemExit) as info:
+        main(["reconcile", str(run), "-o", str(out), "--quiet"])
+    assert info.value.code == 0
+    return json.loads((out / "reconcile.json").read_text())
 
 
 def rewrite_run(source: Path, destination: Path, range_error_mm: RangeError) -> Path:

@@ -13,13 +13,11 @@ calibration keeps the cloud right).
 
 from __future__ import annotations
 
-import json
 
 import pytest
 
-from labctl.cli import main
 from labctl.reconcile.workflow import reconcile
-from tests.reconcile.forward import brown_source, focal_source, simulated_run, warp_run
+from tests.reconcile.forward import brown_source, focal_source, reconcile_cli, simulated_run, warp_run
 
 BOARD = ('[campaign]\nname = "board"\n[devices.camera]\nbackend = "blaze"\n[devices.stage]\nprotocol = "zaber"\n'
          'port = "/dev/ttyUSB0"\ntravel_mm = [0, 4000]\nspeed_mm_s = 50\n'
@@ -58,10 +56,7 @@ def test_a_hidden_fov_error_is_named_from_the_corners(plain, tmp_path):
     true_fov = (64.0, 51.0)
     measured = warp_run(plain, tmp_path / "measured.h5", focal_source(FOV, true_fov), cloud_corrected=True)
     out = tmp_path / "out"
-    with pytest.raises(SystemExit) as info:
-        main(["reconcile", str(measured), "-o", str(out), "--quiet"])
-    assert info.value.code == 0
-    doc = json.loads((out / "reconcile.json").read_text())
+    doc = reconcile_cli(measured, out)
     assert doc["verdict"] == "effect_found", doc["corners"]
     assert [e["name"] for e in doc["named_effects"]] == ["fov_error"]
     fov = doc["named_effects"][0]["parameters"]["fov_deg"]
@@ -78,21 +73,25 @@ def test_a_board_with_nothing_hidden_answers_none(plain, tmp_path):
     assert verdicts == ["none"] * 3
 
 
-def test_a_board_at_one_distance_still_shows_the_distortion(tmp_path):
+def test_a_board_at_one_distance_still_shows_distortion_and_fov(tmp_path):
+    """The cloud's lateral positions do not depend on the FOV but do on the board distance: one distance
+    separates a FOV error from the profiled distance error."""
     plain = _board_run(tmp_path / "one", second=False)
-    measured = warp_run(plain, tmp_path / "measured.h5", brown_source(0.08), cloud_corrected=True)
+    measured = warp_run(plain, tmp_path / "k1.h5", brown_source(0.08), cloud_corrected=True)
     result = reconcile(measured)
     assert [e["name"] for e in result.named] == ["radial_distortion"], result.corners.summary()
     assert result.named[0]["parameters"]["k1"] == pytest.approx(0.08, abs=0.008)
+    measured = warp_run(plain, tmp_path / "fov.h5", focal_source(FOV, (64.0, 49.0)), cloud_corrected=True)
+    result = reconcile(measured)
+    assert [e["name"] for e in result.named] == ["fov_error"], result.corners.summary()
+    assert result.named[0]["parameters"]["fov_deg"] == pytest.approx([64.0, 49.0], abs=0.3)
+    assert result.named[0]["evidence"]["determination"]["well_determined"]
 
 
 def test_a_run_with_nothing_comparable_is_still_not_comparable(tmp_path):
     run = _board_run(tmp_path, frames=1, second=False)  # one frame: no scatter, so no corner floor
     out = tmp_path / "out"
-    with pytest.raises(SystemExit) as info:
-        main(["reconcile", str(run), "-o", str(out), "--quiet"])
-    assert info.value.code == 0
-    doc = json.loads((out / "reconcile.json").read_text())
+    doc = reconcile_cli(run, out)
     assert doc["verdict"] == "not_comparable"
     assert "checkerboard" not in doc["not_comparable"]["procedures_needed"]
     assert "depth_sweep" in doc["not_comparable"]["procedures_needed"]
