@@ -216,6 +216,22 @@ def brown_source(k1: float) -> Warp:
     return where
 
 
+def decentering_source(p1: float, p2: float) -> Warp:
+    """Brown-Conrady decentering (tangential) distortion, which no library effect has: with (x, y) from the image
+    centre over half the diagonal, x_d = x + 2 p1 x y + p2 (r^2 + 2 x^2), y_d = y + p1 (r^2 + 2 y^2) + 2 p2 x y;
+    the undistorted position of every distorted pixel by fixed-point iteration."""
+    def where(u: np.ndarray, v: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        cu, cv, big_r = (width - 1) / 2, (height - 1) / 2, math.hypot(width, height) / 2
+        xd, yd = (u - cu) / big_r, (v - cv) / big_r
+        x, y = xd.copy(), yd.copy()
+        for _ in range(60):
+            r2 = x * x + y * y
+            x, y = (xd - (2 * p1 * x * y + p2 * (r2 + 2 * x * x)),
+                    yd - (p1 * (r2 + 2 * y * y) + 2 * p2 * x * y))
+        return cu + x * big_r, cv + y * big_r
+    return where
+
+
 def focal_source(fov_deg: tuple[float, float], true_fov_deg: tuple[float, float]) -> Warp:
     """A pinhole of the true FOV where the file says ``fov_deg``: the pixel at u sees the ray of slope
     (u - c) / f_true, which the plain camera (focal f from ``fov_deg``) saw at c + f (u - c) / f_true."""

@@ -6,9 +6,10 @@ models of tests/reconcile/forward.py, written from first principles and not
 with the effect library's code: a Brown radial distortion (the pixel sees the
 ray its undistorted position would, r_u from a fixed-point iteration), with
 the point cloud left uncorrected (points along the pinhole ray of the
-distorted pixel) or corrected; and a true FOV narrower than the file says
+distorted pixel) or corrected; a true FOV narrower than the file says
 (pixel u sees the ray of slope (u - c) / f_true; the camera's own
-calibration keeps the cloud right).
+calibration keeps the cloud right); and a decentering distortion, which no
+library effect has.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from __future__ import annotations
 import pytest
 
 from labctl.reconcile.workflow import reconcile
-from tests.reconcile.forward import brown_source, focal_source, reconcile_cli, simulated_run, warp_run
+from tests.reconcile.forward import brown_source, decentering_source, focal_source, reconcile_cli, simulated_run, warp_run
 
 BOARD = ('[campaign]\nname = "board"\n[devices.camera]\nbackend = "blaze"\n[devices.stage]\nprotocol = "zaber"\n'
          'port = "/dev/ttyUSB0"\ntravel_mm = [0, 4000]\nspeed_mm_s = 50\n'
@@ -65,6 +66,16 @@ def test_a_hidden_fov_error_is_named_from_the_corners(plain, tmp_path):
     assert doc["corners"]["after"]["corner_image"]["unit"] == "mm in the board plane"
     assert doc["corners"]["after"]["consistent_with_noise"] is True
     assert "fov_error" in (out / "reconcile.html").read_text()
+
+
+def test_a_distortion_outside_the_library_is_unexplained(plain, tmp_path):
+    """A decentering distortion (1 % at half the diagonal) is neither radial nor a FOV error."""
+    measured = warp_run(plain, tmp_path / "measured.h5", decentering_source(0.01, 0.0), cloud_corrected=True)
+    result = reconcile(measured)
+    assert result.verdict == "unexplained", result.corners.summary()
+    assert result.named == []
+    assert not result.corners.after.consistent
+    assert any(n.startswith("checkerboard corners: a residual") for n in result.notes)
 
 
 def test_a_board_with_nothing_hidden_answers_none(plain, tmp_path):
