@@ -18,7 +18,7 @@ from __future__ import annotations
 import pytest
 
 from labctl.reconcile.workflow import reconcile
-from tests.reconcile.forward import brown_source, decentering_source, focal_source, reconcile_cli, simulated_run, warp_run
+from tests.reconcile.forward import CAMPAIGN, brown_source, decentering_source, focal_source, reconcile_cli, simulated_run, warp_run
 
 BOARD = ('[campaign]\nname = "board"\n[devices.camera]\nbackend = "blaze"\n[devices.stage]\nprotocol = "zaber"\n'
          'port = "/dev/ttyUSB0"\ntravel_mm = [0, 4000]\nspeed_mm_s = 50\n'
@@ -106,3 +106,21 @@ def test_a_run_with_nothing_comparable_is_still_not_comparable(tmp_path):
     assert doc["verdict"] == "not_comparable"
     assert "checkerboard" not in doc["not_comparable"]["procedures_needed"]
     assert "depth_sweep" in doc["not_comparable"]["procedures_needed"]
+
+
+def test_in_a_campaign_the_corners_and_the_depth_sweep_each_name_their_effect(tmp_path):
+    """Offset calibration, 0.4-4 m sweep and the two boards, with a library wiggling hidden in the simulation and
+    a Brown k1 = 0.08 (cloud along the distorted pixel's ray, so the sweep's depth shows it too) written over it:
+    the corners name the distortion, the depth rounds (starting from the model with it) the wiggling."""
+    boards = SECOND.replace("1000", "600") + SECOND
+    wiggling = {"amplitude_mm": 3.0, "period_mm": 900.0, "phase_rad": 0.5}
+    plain = simulated_run(tmp_path / "plain", "blaze101", {"wiggling": wiggling},
+                          campaign=CAMPAIGN.format(backend="blaze", seed=3, sweep_step_mm=200, robot=boards))
+    result = reconcile(warp_run(plain, tmp_path / "measured.h5", brown_source(0.08), cloud_corrected=False))
+    assert result.verdict == "effect_found", (result.notes, result.corners.summary())
+    named = {e["name"]: e["parameters"] for e in result.named}
+    assert sorted(named) == ["radial_distortion", "wiggling"]
+    assert named["radial_distortion"]["k1"] == pytest.approx(0.08, abs=0.008) and named["radial_distortion"]["cloud"]
+    assert named["wiggling"]["period_mm"] == pytest.approx(900.0, rel=0.02)
+    assert result.corners.after.consistent and result.goodness_physical.consistent
+    assert result.gap_after <= 0.5 * result.gap_before
