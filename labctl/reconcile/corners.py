@@ -355,6 +355,7 @@ class CornerFit:
     rss1: float
     stderr: dict[str, float]
     signature: np.ndarray  # the fitted change of the whitened rows
+    x: np.ndarray  # the fitted parameter vector (``CornerCandidate.keys``)
 
 
 def corner_score(rss0: np.ndarray, rss1: np.ndarray, counts: np.ndarray, n_params: int) -> float:
@@ -394,7 +395,8 @@ def fit_corner_candidate(candidate: CornerCandidate, comparison: CornerCompariso
         except np.linalg.LinAlgError:
             stderr = {}
         fit = CornerFit(candidate.name, {**candidate.params(result.x), **variant},
-                        corner_score(rss0, rss1, counts, k), float(rss0.sum()), float(rss1.sum()), stderr, r0 - r1)
+                        corner_score(rss0, rss1, counts, k), float(rss0.sum()), float(rss1.sum()), stderr, r0 - r1,
+                        result.x)
         if best is None or fit.score > best.score:
             best = fit
     return best

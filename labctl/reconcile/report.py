@@ -273,7 +273,7 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
     named = "".join(
         f"<tr><td class=l>{html.escape(e['name'])}</td><td class=l>{_params(e['parameters'], e['evidence']['stderr'])}"
         f"{_determination(e['evidence'].get('determination'))}</td>"
-        f"<td>{e['evidence']['delta_bic']:.1f}</td><td>{e['evidence']['loso_gain']:.3f}</td>"
+        f"<td>{e['evidence']['delta_bic']:.1f}</td><td>{_loso(e['evidence'].get('loso_gain'))}</td>"
         f"<td class=l>{html.escape(str(e['evidence']['runner_up']))}</td>"
         f"<td>{e['evidence']['gap_before_mm']:.3f} &rarr; {e['evidence']['gap_after_mm']:.3f}</td></tr>"
         for e in result.named)
@@ -303,6 +303,12 @@ subtracted): <b>{result.gap_before:.3f} mm &rarr; {result.gap_after:.3f} mm</b>;
 <h2>Residuals before and after</h2><img src="{plots[0].name}" alt="residual plots">
 <h2>Candidates</h2><img src="{plots[2].name}" alt="candidate scores">{rounds}"""
     return _write_page(output, measured, result, model_path, body), model_path, doc
+
+
+def _loso(gain: float | None) -> str:
+    """The leave-one-step-out gain, or what stands in for it: effects named from the checkerboard corners are
+    scored over the corners, not cross-validated by step."""
+    return f"{gain:.3f}" if gain is not None else "(corners)"
 
 
 def _determination(det: dict[str, Any] | None) -> str:

@@ -386,9 +386,10 @@ CORNER_CAPTURE = ("the checkerboard at two or more distances (a FOV error scales
                   "distortion grows with the radius squared)")
 
 
-def _corner_determination(fit: CornerFit, start: np.ndarray, x: np.ndarray) -> dict[str, Any]:
+def _corner_determination(fit: CornerFit, start: np.ndarray) -> dict[str, Any]:
     """Whether the corners determine the fitted parameters: every standard error at most
-    ``POOR_RELATIVE_ERROR`` of the parameter's largest departure from the model it started from."""
+    ``POOR_RELATIVE_ERROR`` of the parameters' largest departure from the model they started from."""
+    x = fit.x
     scale = float(np.max(np.abs(x - start))) if len(x) else 0.0
     problems = [f"{k} is uncertain by {e:.3g} (standard error)" for k, e in fit.stderr.items()
                 if not e <= POOR_RELATIVE_ERROR * scale]
@@ -439,13 +440,11 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
                                  f"floor {good.gap_floor_mm:.3f} mm)")
             break
         candidate = next(c for c in CORNER_CANDIDATES if c.name == best.name)
-        x = np.array([best.params[k] for k in ("k1",)]) if best.name == "radial_distortion" \
-            else np.array(best.params["fov_deg"], float)
         named.append({"name": best.name, "parameters": best.params, "evidence": {
             "family": "corners", "delta_bic": round(best.score, 2), "loso_gain": None,
             "runner_up": runner.name if runner else None,
             "runner_up_delta_bic": round(runner.score, 2) if runner else None,
-            "stderr": best.stderr, "determination": _corner_determination(best, candidate.start(model), x),
+            "stderr": best.stderr, "determination": _corner_determination(best, candidate.start(model)),
             "rss_before": best.rss0, "rss_after": best.rss1,
             "gap_before_mm": good.gap_mm, "gap_after_mm": after.gap_mm,
             "gap_before_px": good.gap_px, "gap_after_px": after.gap_px, "steps": len(comparison.obs)}})

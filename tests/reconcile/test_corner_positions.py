@@ -116,11 +116,16 @@ def test_in_a_campaign_the_corners_and_the_depth_sweep_each_name_their_effect(tm
     wiggling = {"amplitude_mm": 3.0, "period_mm": 900.0, "phase_rad": 0.5}
     plain = simulated_run(tmp_path / "plain", "blaze101", {"wiggling": wiggling},
                           campaign=CAMPAIGN.format(backend="blaze", seed=3, sweep_step_mm=200, robot=boards))
-    result = reconcile(warp_run(plain, tmp_path / "measured.h5", brown_source(0.08), cloud_corrected=False))
-    assert result.verdict == "effect_found", (result.notes, result.corners.summary())
-    named = {e["name"]: e["parameters"] for e in result.named}
+    measured = warp_run(plain, tmp_path / "measured.h5", brown_source(0.08), cloud_corrected=False)
+    doc = reconcile_cli(measured, tmp_path / "out")
+    assert doc["verdict"] == "effect_found", (doc["notes"], doc["corners"])
+    named = {e["name"]: e for e in doc["named_effects"]}
     assert sorted(named) == ["radial_distortion", "wiggling"]
-    assert named["radial_distortion"]["k1"] == pytest.approx(0.08, abs=0.008) and named["radial_distortion"]["cloud"]
-    assert named["wiggling"]["period_mm"] == pytest.approx(900.0, rel=0.02)
-    assert result.corners.after.consistent and result.goodness_physical.consistent
-    assert result.gap_after <= 0.5 * result.gap_before
+    distortion = named["radial_distortion"]
+    assert distortion["parameters"]["k1"] == pytest.approx(0.08, abs=0.008) and distortion["parameters"]["cloud"]
+    assert distortion["evidence"]["family"] == "corners"
+    assert named["wiggling"]["parameters"]["period_mm"] == pytest.approx(900.0, rel=0.02)
+    assert doc["corners"]["after"]["consistent_with_noise"] and doc["consistent_with_noise"]
+    assert doc["goodness_of_fit"]["after_physical"]["consistent_with_noise"]
+    assert doc["gap_after"] <= 0.5 * doc["gap_before"]
+    assert "Checkerboard corners" in (tmp_path / "out" / "reconcile.html").read_text()
