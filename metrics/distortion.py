@@ -64,7 +64,7 @@ from sim.optics import Pinhole, pixel_aspect_distortion_pct, sensor_angular_reso
 
 __all__ = [
     "CloudDistortion", "Corners", "DistortionResult", "cloud_distortion", "detect_corners", "distortion",
-    "pixel_aspect_distortion_pct", "pixel_aspect_ratio", "sample_cloud",
+    "pixel_aspect_distortion_pct", "pixel_aspect_ratio", "refine_corners", "sample_cloud",
 ]
 
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
@@ -370,6 +370,27 @@ def detect_corners(image: np.ndarray, pattern: tuple[int, int] | None = None) ->
     centre = np.array([(image.shape[1] - 1) / 2, (image.shape[0] - 1) / 2])
     ij = ij - ij[np.argmin(np.linalg.norm(uv - centre, axis=1))]
     return Corners(uv, ij, (image.shape[0], image.shape[1]), detector, _median_spacing(uv, ij))
+
+
+def refine_corners(image: np.ndarray, corners: Corners) -> np.ndarray:
+    """The given corners refined again on another image of the same board (e.g. one frame of the stack whose
+    mean they were found in): ``cornerSubPix`` from their positions, with the detector's normalization and
+    half-window (below half a tile). Returns (N, 2) positions; NaN where a corner moved by more than a quarter
+    tile (refined onto another feature) or the image has no finite pixels."""
+    image = np.asarray(image, dtype=float)
+    finite = np.isfinite(image)
+    out = np.full(corners.uv.shape, np.nan)
+    if not finite.any() or not len(corners.uv):
+        return out
+    work = _normalized(np.where(finite, image, np.min(image[finite])))
+    tile = min(np.abs(corners.tile_px))
+    half = _half_window(tile)
+    inside = _inside(corners.uv, image.shape, half + 1)
+    if inside.any():
+        out[inside] = _refine(work, corners.uv[inside], half)
+    moved = ~(np.linalg.norm(out - corners.uv, axis=1) <= 0.25 * tile)
+    out[moved] = np.nan
+    return out
 
 
 # --------------------------------------------------------------------------------------- distortion

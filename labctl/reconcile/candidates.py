@@ -33,8 +33,8 @@ Not candidates, because the comparison cannot see them:
   left out (the slanted-edge evaluation measures sharpness);
 * ``fov_error`` and ``radial_distortion`` corrected in the cloud
   (``cloud = false``): the camera's calibration keeps depth and the point
-  cloud right, only feature positions in the intensity image move (the
-  checkerboard evaluation measures them).
+  cloud right, only feature positions in the intensity image move; the
+  checkerboard corners show them (labctl/reconcile/corners.py).
 """
 
 from __future__ import annotations
@@ -533,7 +533,7 @@ NOT_IDENTIFIABLE = {
     "quantization": "does not move the mean of a noisy stack",
     "defocus": "acts at edges, which the comparison leaves out (see the slanted-edge evaluation)",
     "flying_pixels": "acts at depth edges, which the comparison leaves out",
-    "fov_error": "the camera's calibration keeps depth and the cloud right (see the checkerboard evaluation)",
+    "fov_error": "the camera's calibration keeps depth and the cloud right; a checkerboard's corners would show it",
 }
 
 

@@ -41,6 +41,8 @@ from labctl.reconcile.residuals import LOG_I_FLOOR, LOG_I_FLOOR_PROJECTOR, Z_FLO
 
 REFERENCE_NOISE_MM = 0.15  # one distance reading per stage step (the laser meter's repeatability)
 STEP_FACTOR = 3.0
+MATERIAL_FRACTION = 0.2  # an effect must remove at least this share of a family's gap ...
+FLOOR_FRACTION = 0.5  # ... and at least this multiple of that family's noise floor
 
 
 @dataclass(frozen=True)
@@ -135,3 +137,24 @@ def goodness(lay: Layout, obs: list[Observation], dz: list[np.ndarray], di: list
     nan = math.nan
     return Goodness(_systematic(v, var), math.sqrt(np.mean(floor_sq)) if len(v) else nan,
                     100 * _systematic(w, log_var), 100 * math.sqrt(np.mean(i_floor_sq)) if len(w) else nan, steps)
+
+
+def material(before: Any, after: Any) -> bool:
+    """The practical-significance rule. Over the steps whose own gap a change of the model moves by more than
+    ``FLOOR_FRACTION`` of their floor (an effect may act on part of the run only: a drift early on, a target on
+    the robot), in one residual family, the change must reduce their RMS gap in units of their own floors
+    (whitened, so that a quiet step counts as much as a noisy one) by at least ``MATERIAL_FRACTION`` of it and
+    by at least ``FLOOR_FRACTION`` (half a floor). The families are those of ``before.steps``: depth and
+    intensity of a ``Goodness``, the corner families of a ``CornerGoodness`` (labctl/reconcile/corners.py)."""
+    after_steps = {(s.step_id, s.family): s for s in after.steps}
+    for family in sorted({s.family for s in before.steps}):
+        pairs = [(b, after_steps[(b.step_id, family)]) for b in before.steps
+                 if b.family == family and (b.step_id, family) in after_steps]
+        moved = [(b, a) for b, a in pairs if abs(b.gap - a.gap) > FLOOR_FRACTION * b.floor]
+        if not moved:
+            continue
+        ratio_b = math.sqrt(np.mean([b.ratio**2 for b, _ in moved]))
+        ratio_a = math.sqrt(np.mean([(a.gap / b.floor) ** 2 for b, a in moved]))
+        if ratio_b - ratio_a >= max(MATERIAL_FRACTION * ratio_b, FLOOR_FRACTION):
+            return True
+    return False

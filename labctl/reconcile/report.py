@@ -190,6 +190,31 @@ def _goodness(result: ReconcileResult) -> str:
                f"{worst.family})" if worst else "") + ".</p>")
 
 
+def _corners(result: ReconcileResult) -> str:
+    """The checkerboard corner families: gap against floor before and after, and the effects they named."""
+    c = result.corners
+    if c is None:
+        return ""
+    rows = "".join(
+        f"<tr><td class=l>{family}</td><td>{b[family]['gap']}</td><td>{a[family]['gap']}</td>"
+        f"<td>{a[family]['gap_floor']}</td><td class=l>{'yes' if a[family]['consistent_with_noise'] else 'NO'}</td></tr>"
+        for b, a in [(c.before.summary(), c.after.summary())] for family in ("corner_image", "corner_cloud"))
+    named = "".join(
+        f"<li><b>{html.escape(e['name'])}</b>: {_params(e['parameters'], e['evidence']['stderr'])}"
+        f"{_determination(e['evidence'].get('determination'))} (dBIC {e['evidence']['delta_bic']:.1f}; corner gap "
+        f"{e['evidence']['gap_before_mm']:.3f} &rarr; {e['evidence']['gap_after_mm']:.3f} mm, "
+        f"{e['evidence']['gap_before_px']:.3f} &rarr; {e['evidence']['gap_after_px']:.3f} px)</li>" for e in c.named)
+    decisions = "; ".join(html.escape(r["decision"]) for r in c.rounds)
+    return (f"<h2>Checkerboard corners</h2><p>Steps {html.escape(', '.join(c.steps))}: measured corner positions "
+            "against the simulated ones, in mm in the board plane (image: px converted by the board distance over "
+            f"the focal length; cloud: the lateral position the point cloud gives the corner). Image gap "
+            f"{c.before.gap_px:.3f} &rarr; {c.after.gap_px:.3f} px (floor {c.after.gap_floor_px:.3f} px).</p>"
+            "<table><tr><th class=l>family</th><th>gap before (mm)</th><th>gap after (mm)</th><th>floor (mm)</th>"
+            f"<th class=l>consistent with noise</th></tr>{rows}</table>"
+            + (f"<ul>{named}</ul>" if named else "<p>No effect named from the corners.</p>")
+            + f"<p>Rounds: {decisions}.</p>")
+
+
 def _not_comparable_page(result: ReconcileResult) -> str:
     nc = result.not_comparable or {}
     needed = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in nc.get("procedures_needed", {}).items())
@@ -238,8 +263,9 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
     model_path.write_text(result.model_toml(), encoding="utf-8")
     doc = json_document(result, model_path)
     (output / "reconcile.json").write_text(dumps_strict(doc, indent=2), encoding="utf-8")
-    if not result.iterations:
-        return _write_page(output, measured, result, model_path, _not_comparable_page(result)), model_path, doc
+    if result.not_comparable is not None or not result.iterations:
+        page = _not_comparable_page(result) if result.not_comparable is not None else _corners(result)
+        return _write_page(output, measured, result, model_path, page), model_path, doc
     plots = [plot_residuals(result, output / "reconcile_residuals.png"),
              plot_residual_map(result, output / "reconcile_map.png"),
              plot_candidates(result, output / "reconcile_candidates.png")]
@@ -247,7 +273,7 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
     named = "".join(
         f"<tr><td class=l>{html.escape(e['name'])}</td><td class=l>{_params(e['parameters'], e['evidence']['stderr'])}"
         f"{_determination(e['evidence'].get('determination'))}</td>"
-        f"<td>{e['evidence']['delta_bic']:.1f}</td><td>{e['evidence']['loso_gain']:.3f}</td>"
+        f"<td>{e['evidence']['delta_bic']:.1f}</td><td>{_loso(e['evidence'].get('loso_gain'))}</td>"
         f"<td class=l>{html.escape(str(e['evidence']['runner_up']))}</td>"
         f"<td>{e['evidence']['gap_before_mm']:.3f} &rarr; {e['evidence']['gap_after_mm']:.3f}</td></tr>"
         for e in result.named)
@@ -271,12 +297,18 @@ subtracted): <b>{result.gap_before:.3f} mm &rarr; {result.gap_after:.3f} mm</b>;
 <h2>Named effects</h2>
 <table><tr><th class=l>effect</th><th class=l>parameters (&plusmn; statistical standard error)</th><th>dBIC</th>
 <th>LOSO gain</th><th class=l>runner-up</th><th>gap (mm)</th></tr>{named or '<tr><td colspan=6>none</td></tr>'}</table>
-{_unexplained(result, unexplained_plot)}
+{_unexplained(result, unexplained_plot)}{_corners(result)}
 <h2>Where the disagreement sits</h2>{_where(result)}
 <img src="{plots[1].name}" alt="residual map">
 <h2>Residuals before and after</h2><img src="{plots[0].name}" alt="residual plots">
 <h2>Candidates</h2><img src="{plots[2].name}" alt="candidate scores">{rounds}"""
     return _write_page(output, measured, result, model_path, body), model_path, doc
+
+
+def _loso(gain: float | None) -> str:
+    """The leave-one-step-out gain, or what stands in for it: effects named from the checkerboard corners are
+    scored over the corners, not cross-validated by step."""
+    return f"{gain:.3f}" if gain is not None else "(corners)"
 
 
 def _determination(det: dict[str, Any] | None) -> str:

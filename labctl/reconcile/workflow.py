@@ -46,8 +46,16 @@ from scipy import optimize
 from labctl.errors import InputError
 from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
 from labctl.reconcile.characterize import characterize
+from labctl.reconcile.corners import (
+    CORNER_CANDIDATES,
+    CornerComparison,
+    CornerFit,
+    CornerGoodness,
+    fit_corner_candidate,
+    observe_corner_run,
+)
 from labctl.reconcile.empirical import FIRST_FORM, FORMS
-from labctl.reconcile.goodness import Goodness, goodness
+from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, goodness, material
 from labctl.reconcile.observe import Observation, observe_run
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout, layout, raw_residuals
@@ -56,12 +64,11 @@ from sim.model import SimModel, parse_model
 from sim.profiles import default_effects, get_profile
 
 DBIC_THRESHOLD = 30.0
+CORNER_NAMES = {c.name for c in CORNER_CANDIDATES}
 MARGIN = 10.0
 COMPETING_CORRELATION = 0.5
 MAX_EFFECTS = 4
 MIN_STEPS = 2  # steps are the replications: one step cannot separate an effect from the lab's nuisance
-MATERIAL_FRACTION = 0.2  # an effect must remove at least this share of a family's gap ...
-FLOOR_FRACTION = 0.5  # ... and at least this multiple of that family's noise floor
 POOR_RELATIVE_ERROR = 0.05  # a parameter whose standard error exceeds 5 % (2 sigma: 10 %) is poorly determined
 POOR_ANGLE_ERROR_RAD = 0.05
 POOR_CORRELATION = 0.95
@@ -73,6 +80,8 @@ NEEDED_PROCEDURES = {
     "offset_calibration": "the same wall position at the start of the run (with a sweep: drift against distance)",
     "remission_angle": "material plates on the robot circle at several angles (material_bias, target_misalignment, "
                        "camera_axis_offset)",
+    "checkerboard": "a checkerboard filling the view, at two or more distances (corner positions: "
+                    "radial_distortion, fov_error)",
 }
 
 
@@ -86,6 +95,25 @@ class Iteration:
     decision: str  # "added NAME", "none significant", "ambiguous", "consistent with noise", "NAME not material"
     residual_z: list[np.ndarray]  # per-step depth residual maps (nuisance removed, NaN outside the comparison)
     goodness: Goodness | None = None
+
+
+@dataclass
+class CornerStage:
+    """The checkerboard corner comparison (labctl/reconcile/corners.py): goodness before and after, the effects it
+    named, its rounds, an ambiguity."""
+
+    before: CornerGoodness
+    after: CornerGoodness
+    named: list[dict[str, Any]]
+    rounds: list[dict[str, Any]]
+    ambiguity: dict[str, Any] | None
+    steps: list[str]
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON form (``corners`` of reconcile.json)."""
+        return {"steps": self.steps, "before": self.before.summary(), "after": self.after.summary(),
+                "named_effects": [e["name"] for e in self.named], "rounds": self.rounds,
+                "consistent_with_noise": self.after.consistent, "ambiguity": self.ambiguity}
 
 
 @dataclass
@@ -109,6 +137,7 @@ class ReconcileResult:
     unexplained: dict[str, Any] | None = None
     empirical: list[dict[str, Any]] = field(default_factory=list)
     not_comparable: dict[str, Any] | None = None
+    corners: CornerStage | None = None
 
     def model_toml(self) -> str:
         return tomli_w.dumps(self.model.model_dump(mode="json", exclude_defaults=False))
@@ -301,26 +330,6 @@ def _separating_step(a: Fit, b: Fit, lay: Layout, obs: list[Observation]) -> str
     return f"{s.step_id} ({s.procedure}, {s.target} at {where})"
 
 
-def material(before: Goodness, after: Goodness) -> bool:
-    """The practical-significance rule. Over the steps whose own gap a change of the model moves by more than
-    ``FLOOR_FRACTION`` of their floor (an effect may act on part of the run only: a drift early on, a target on
-    the robot), in one residual family, the change must reduce their RMS gap in units of their own floors
-    (whitened, so that a quiet step counts as much as a noisy one) by at least ``MATERIAL_FRACTION`` of it and
-    by at least ``FLOOR_FRACTION`` (half a floor)."""
-    after_steps = {(s.step_id, s.family): s for s in after.steps}
-    for family in ("depth", "intensity"):
-        pairs = [(b, after_steps[(b.step_id, family)]) for b in before.steps
-                 if b.family == family and (b.step_id, family) in after_steps]
-        moved = [(b, a) for b, a in pairs if abs(b.gap - a.gap) > FLOOR_FRACTION * b.floor]
-        if not moved:
-            continue
-        ratio_b = math.sqrt(np.mean([b.ratio**2 for b, _ in moved]))
-        ratio_a = math.sqrt(np.mean([(a.gap / b.floor) ** 2 for b, a in moved]))
-        if ratio_b - ratio_a >= max(MATERIAL_FRACTION * ratio_b, FLOOR_FRACTION):
-            return True
-    return False
-
-
 def _comparable_steps(lay: Layout) -> int:
     return int(sum(int(z.sum()) >= 2 or int(i.sum()) >= 2 for z, i in zip(lay.z_masks, lay.i_masks, strict=True)))
 
@@ -331,8 +340,7 @@ def _not_comparable(observations: list[Observation], model: SimModel, notes: lis
     needed = {k: v for k, v in NEEDED_PROCEDURES.items() if k not in procedures}
     detail = {"reason": why, "comparable_steps": [o.scene.step_id for o in observations],
               "procedures_needed": needed or NEEDED_PROCEDURES,
-              "not_compared": "checkerboard corner positions and edge sharpness are evaluated by labctl evaluate, "
-                              "not compared here"}
+              "not_compared": "edge sharpness is evaluated by labctl evaluate, not compared here"}
     nan = math.nan
     return ReconcileResult("not_comparable", [], [], nan, nan, nan, nan, model, observations, [], [],
                            notes + [f"not comparable: {why}"], not_comparable=detail)
@@ -379,6 +387,79 @@ def _add_empirical(state: _State, carrying: str | None, say: Callable[[str], Non
     return added
 
 
+CORNER_CAPTURE = ("the checkerboard at two or more distances (a FOV error scales the corners alike at every "
+                  "distance, a board distance error by 1 / Z), filling the image to its corners (a radial "
+                  "distortion grows with the radius squared)")
+
+
+def _corner_determination(fit: CornerFit, start: np.ndarray) -> dict[str, Any]:
+    """Whether the corners determine the fitted parameters: every standard error at most
+    ``POOR_RELATIVE_ERROR`` of the parameters' largest departure from the model they started from."""
+    x = fit.x
+    scale = float(np.max(np.abs(x - start))) if len(x) else 0.0
+    problems = [f"{k} is uncertain by {e:.3g} (standard error)" for k, e in fit.stderr.items()
+                if not e <= POOR_RELATIVE_ERROR * scale]
+    interval = {k: [float(v - 1.96 * fit.stderr[k]), float(v + 1.96 * fit.stderr[k])]
+                for k, v in zip(fit.stderr, x) if k in fit.stderr}
+    return {"well_determined": not problems, "interval_95": interval, "problems": problems,
+            "capture": CORNER_CAPTURE if problems else None}
+
+
+def _corner_stage(comparison: CornerComparison, model: SimModel,
+                  say: Callable[[str], None]) -> tuple[CornerStage, SimModel]:
+    """Name and fit the effects the checkerboard corners show (radial_distortion, fov_error), as the depth rounds
+    do: the best candidate by Schwarz's criterion over the corner axes, above ``DBIC_THRESHOLD``, no competing
+    runner-up within ``MARGIN``, material on the corner families (``material``); until the corners are
+    consistent with their noise."""
+    good = before = comparison.goodness(model)
+    named: list[dict[str, Any]] = []
+    rounds: list[dict[str, Any]] = []
+    ambiguity = None
+    for _ in CORNER_CANDIDATES:
+        entry: dict[str, Any] = {"model_effects": sorted(model.effects), "gap": _rounded(good.gap_mm),
+                                 "gap_floor": _rounded(good.gap_floor_mm), "decision": "none significant"}
+        rounds.append(entry)
+        if good.consistent:
+            entry["decision"] = "consistent with noise"
+            break
+        fits: list[CornerFit] = []
+        for candidate in CORNER_CANDIDATES:
+            if candidate.name not in model.effects:
+                say(f"fitting {candidate.name} to the checkerboard corners")
+                fit = fit_corner_candidate(candidate, comparison, model, with_effect)
+                if fit is not None:
+                    fits.append(fit)
+        fits.sort(key=lambda f: -f.score)
+        entry["candidates"] = [{"name": f.name, "score": round(f.score, 2), "parameters": f.params} for f in fits]
+        if not fits or fits[0].score < DBIC_THRESHOLD:
+            break
+        best, runner = fits[0], (fits[1] if len(fits) > 1 else None)
+        if runner is not None and runner.score > best.score - MARGIN and competing(best, runner):
+            entry["decision"] = "ambiguous"
+            ambiguity = {"between": [best.name, runner.name], "scores": [best.score, runner.score],
+                         "separating_capture": CORNER_CAPTURE}
+            break
+        trial = with_effect(model, best.name, best.params)
+        after = comparison.goodness(trial)
+        if not material(good, after):
+            entry["decision"] = (f"{best.name} not material (corner gap {good.gap_mm:.3f} -> {after.gap_mm:.3f} mm, "
+                                 f"floor {good.gap_floor_mm:.3f} mm)")
+            break
+        candidate = next(c for c in CORNER_CANDIDATES if c.name == best.name)
+        named.append({"name": best.name, "parameters": best.params, "evidence": {
+            "family": "corners", "delta_bic": round(best.score, 2), "loso_gain": None,
+            "runner_up": runner.name if runner else None,
+            "runner_up_delta_bic": round(runner.score, 2) if runner else None,
+            "stderr": best.stderr, "determination": _corner_determination(best, candidate.start(model)),
+            "rss_before": best.rss0, "rss_after": best.rss1,
+            "gap_before_mm": good.gap_mm, "gap_after_mm": after.gap_mm,
+            "gap_before_px": good.gap_px, "gap_after_px": after.gap_px, "steps": len(comparison.obs)}})
+        entry["decision"] = f"added {best.name}"
+        model, good = trial, after
+    stage = CornerStage(before, good, named, rounds, ambiguity, [o.step_id for o in comparison.obs])
+    return stage, model
+
+
 def reconcile(path: str | Path, model: SimModel | None = None,
               progress: Callable[[str], None] | None = None) -> ReconcileResult:
     """Name, fit and add the effects the model is missing to explain the measured run at ``path``."""
@@ -386,16 +467,27 @@ def reconcile(path: str | Path, model: SimModel | None = None,
     say("reading the measured run")
     observations, info, notes = observe_run(path)
     model = model or base_model(info)
+    fov = (float(info["fov_deg"][0]), float(info["fov_deg"][1]))
+    corner_obs, corner_notes = observe_corner_run(path, fov)
+    notes += corner_notes
+    corners = None
+    if corner_obs:
+        say(f"comparing the corners of {len(corner_obs)} checkerboard step(s)")
+        corners, model = _corner_stage(CornerComparison(corner_obs, info["width"], info["height"], fov), model, say)
     if not observations:
-        return _not_comparable(observations, model, notes, "the run holds no step the simulator can "
-                               "re-create (walls, charts, boards, stars, masks, material plates)")
+        why = ("the run holds no step the simulator can re-create (walls, charts, boards, stars, masks, "
+               "material plates)")
+        return _corner_result(observations, model, notes, why, corners) if corners else \
+            _not_comparable(observations, model, notes, why)
     sim = Simulation(observations, info)
     say(f"re-simulating {len(observations)} steps")
     preds = sim.predict(model)
     lay = layout(observations, preds, model.profile().technology)
     if _comparable_steps(lay) < MIN_STEPS:
-        return _not_comparable(observations, model, notes, f"{_comparable_steps(lay)} step(s) with compared "
-                               f"bins; at least {MIN_STEPS} are needed to tell an effect from the lab's nuisance")
+        why = (f"{_comparable_steps(lay)} step(s) with compared bins; at least {MIN_STEPS} are needed to tell an "
+               "effect from the lab's nuisance")
+        return _corner_result(observations, model, notes, why, corners) if corners else \
+            _not_comparable(observations, model, notes, why)
     state = _State(sim, lay, model)
     good_before = state.good
     gap_before, igap_before = good_before.gap_mm, good_before.intensity_gap_pct
@@ -464,18 +556,54 @@ def reconcile(path: str | Path, model: SimModel | None = None,
         unexplained = characterize(observations, state.preds, residual_physical, sim.t0_s)
         empirical = _add_empirical(state, unexplained["carrying_axis"], say)
     gap_after, igap_after = state.good.gap_mm, state.good.intensity_gap_pct
-    if good_physical.consistent:
+    if corners is not None:
+        named = corners.named + named
+        ambiguity = ambiguity or corners.ambiguity
+    corners_consistent = corners is None or corners.after.consistent
+    if good_physical.consistent and corners_consistent:
         verdict = "effect_found" if named else "none"
     elif ambiguity is not None:
         verdict = "ambiguous"
     else:
         verdict = "unexplained"
+    if not corners_consistent:
+        notes.append(_corner_unexplained(corners))
     if unexplained is not None:
         unexplained["message"] = _unexplained_message(named, good_physical, unexplained, empirical)
-    notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items()]
+    notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items()
+              if corners is None or name not in CORNER_NAMES]
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
                            state.model, observations, iterations, _residual_maps(lay, state.dz), notes, ambiguity,
-                           good_before, state.good, good_physical, unexplained, empirical)
+                           good_before, state.good, good_physical, unexplained, empirical, corners=corners)
+
+
+def _corner_unexplained(corners: CornerStage) -> str:
+    """What the user reads when the corners stay above their noise."""
+    g = corners.after
+    after = " after " + ", ".join(e["name"] for e in corners.named) if corners.named else ""
+    return (f"checkerboard corners: a residual of {g.gap_mm:.3f} mm in the board plane ({g.gap_px:.3f} px in the "
+            f"image) remains{after} (floor {g.gap_floor_mm:.3f} mm, {g.gap_floor_px:.3f} px) that neither "
+            "radial_distortion nor fov_error explains")
+
+
+def _corner_result(observations: list[Observation], model: SimModel, notes: list[str], why: str,
+                   corners: CornerStage) -> ReconcileResult:
+    """The result of a run whose only comparison is its checkerboard corners: their gap (mm in the board
+    plane) is the run's gap, and the depth comparison's absence is said with the procedures it would need."""
+    procedures = sorted({o.scene.procedure for o in observations})
+    needed = {k: v for k, v in NEEDED_PROCEDURES.items() if k not in procedures}
+    notes = notes + [f"depth and intensity not compared: {why}; range effects would need "
+                     + ", ".join(needed or NEEDED_PROCEDURES)]
+    if corners.ambiguity is not None:
+        verdict = "ambiguous"
+    elif not corners.after.consistent:
+        verdict = "unexplained"
+        notes.append(_corner_unexplained(corners))
+    else:
+        verdict = "effect_found" if corners.named else "none"
+    nan = math.nan
+    return ReconcileResult(verdict, corners.named, [], corners.before.gap_mm, corners.after.gap_mm, nan, nan, model,
+                           observations, [], [], notes, corners.ambiguity, corners=corners)
 
 
 def _unexplained_message(named: list[dict[str, Any]], good: Goodness, found: dict[str, Any],
@@ -503,6 +631,9 @@ def json_document(result: ReconcileResult, model_path: Path) -> dict[str, Any]:
     per-round goodness of fit, the unexplained residual's characterization, empirical corrections, and what a
     not-comparable run would need."""
     after = result.goodness_after
+    corners = result.corners
+    corner_floor = _rounded(corners.after.gap_floor_mm) if corners else None
+    corners_ok = corners.after.consistent if corners else True
     doc: dict[str, Any] = {
         "verdict": result.verdict,
         "named_effects": result.named,
@@ -511,8 +642,8 @@ def json_document(result: ReconcileResult, model_path: Path) -> dict[str, Any]:
         "gap_after": _rounded(result.gap_after),
         "gap_unit": "mm",
         "model_toml": str(model_path),
-        "gap_floor": _rounded(after.gap_floor_mm) if after else None,
-        "consistent_with_noise": after.consistent if after else None,
+        "gap_floor": _rounded(after.gap_floor_mm) if after else corner_floor,
+        "consistent_with_noise": (after.consistent if after else True) and corners_ok if after or corners else None,
         "gap_after_physical": _rounded(result.goodness_physical.gap_mm) if result.goodness_physical else None,
         "intensity_gap_before": _rounded(result.intensity_gap_before),
         "intensity_gap_after": _rounded(result.intensity_gap_after),
@@ -530,6 +661,8 @@ def json_document(result: ReconcileResult, model_path: Path) -> dict[str, Any]:
         "empirical_corrections": result.empirical,
         "notes": result.notes,
     }
+    if corners is not None:
+        doc["corners"] = corners.summary()
     if result.unexplained is not None:
         doc["unexplained"] = result.unexplained
     if result.not_comparable is not None:

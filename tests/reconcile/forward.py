@@ -20,6 +20,7 @@ removes ``/sim`` so that the reconcile sees only what a measured file holds.
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from collections.abc import Callable
@@ -143,6 +144,14 @@ class Pixels:
 RangeError = Callable[[Pixels], np.ndarray]
 
 
+def reconcile_cli(run: Path, out: Path) -> dict[str, Any]:
+    """``labctl reconcile RUN -o OUT --quiet`` (must exit 0); returns reconcile.json."""
+    with pytest.raises(SystemExit) as info:
+        main(["reconcile", str(run), "-o", str(out), "--quiet"])
+    assert info.value.code == 0
+    return json.loads((out / "reconcile.json").read_text())
+
+
 def rewrite_run(source: Path, destination: Path, range_error_mm: RangeError) -> Path:
     """Copy the run at ``source`` to ``destination`` and move every valid point of every frame of every step
     along its ray by ``range_error_mm(pixels)`` mm (a scalar or an (H, W) array). Returns ``destination``."""
@@ -174,4 +183,91 @@ def stretch_time(source: Path, destination: Path, factor: float) -> Path:
     with h5py.File(destination, "a") as f:
         for group in f["steps"].values():
             group["timestamp"][:] = group["timestamp"][:] * factor
+    return destination
+
+
+Warp = Callable[[np.ndarray, np.ndarray, int, int], tuple[np.ndarray, np.ndarray]]
+
+
+def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` at (u, v) (column, row; pixel centres at integers); NaN outside or where a
+    neighbour is NaN."""
+    h, w = image.shape
+    u0 = np.clip(np.floor(u).astype(int), 0, w - 2)
+    v0 = np.clip(np.floor(v).astype(int), 0, h - 2)
+    fu, fv = u - u0, v - v0
+    out = ((1 - fu) * (1 - fv) * image[v0, u0] + fu * (1 - fv) * image[v0, u0 + 1]
+           + (1 - fu) * fv * image[v0 + 1, u0] + fu * fv * image[v0 + 1, u0 + 1])
+    return np.where((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1), out, np.nan)
+
+
+def brown_source(k1: float) -> Warp:
+    """Brown radial distortion about the image centre, r_d = r_u (1 + k1 (r_u / R)^2), R = half the diagonal:
+    the undistorted position (where the plain camera saw the ray) of every distorted pixel, r_u solved by the
+    fixed-point iteration r_u = r_d / (1 + k1 (r_u / R)^2)."""
+    def where(u: np.ndarray, v: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        cu, cv, big_r = (width - 1) / 2, (height - 1) / 2, math.hypot(width, height) / 2
+        r_d = np.hypot(u - cu, v - cv)
+        r_u = r_d.copy()
+        for _ in range(60):
+            r_u = r_d / (1 + k1 * (r_u / big_r) ** 2)
+        scale = np.divide(r_u, r_d, out=np.ones_like(r_d), where=r_d > 0)
+        return cu + (u - cu) * scale, cv + (v - cv) * scale
+    return where
+
+
+def decentering_source(p1: float, p2: float) -> Warp:
+    """Brown-Conrady decentering (tangential) distortion, which no library effect has: with (x, y) from the image
+    centre over half the diagonal, x_d = x + 2 p1 x y + p2 (r^2 + 2 x^2), y_d = y + p1 (r^2 + 2 y^2) + 2 p2 x y;
+    the undistorted position of every distorted pixel by fixed-point iteration."""
+    def where(u: np.ndarray, v: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        cu, cv, big_r = (width - 1) / 2, (height - 1) / 2, math.hypot(width, height) / 2
+        xd, yd = (u - cu) / big_r, (v - cv) / big_r
+        x, y = xd.copy(), yd.copy()
+        for _ in range(60):
+            r2 = x * x + y * y
+            x, y = (xd - (2 * p1 * x * y + p2 * (r2 + 2 * x * x)),
+                    yd - (p1 * (r2 + 2 * y * y) + 2 * p2 * x * y))
+        return cu + x * big_r, cv + y * big_r
+    return where
+
+
+def focal_source(fov_deg: tuple[float, float], true_fov_deg: tuple[float, float]) -> Warp:
+    """A pinhole of the true FOV where the file says ``fov_deg``: the pixel at u sees the ray of slope
+    (u - c) / f_true, which the plain camera (focal f from ``fov_deg``) saw at c + f (u - c) / f_true."""
+    def where(u: np.ndarray, v: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        ratio = [math.tan(math.radians(a) / 2) / math.tan(math.radians(b) / 2) for a, b in zip(true_fov_deg, fov_deg)]
+        cu, cv = (width - 1) / 2, (height - 1) / 2
+        return cu + (u - cu) * ratio[0], cv + (v - cv) * ratio[1]
+    return where
+
+
+def warp_run(source: Path, destination: Path, where: Warp, cloud_corrected: bool) -> Path:
+    """Copy the run at ``source`` to ``destination`` as a camera whose pixel (u, v) sees what the plain camera saw
+    at ``where(u, v)`` (every frame's intensity and cloud resampled bilinearly). ``cloud_corrected``: the camera's
+    calibration knows its optics, so every point keeps its place (x, y, z resampled); otherwise it turns the
+    range it measures (|p| resampled) into a point along the plain pinhole ray of (u, v), slopes
+    ((u - c_u) / f_x, (v - c_v) / f_y) with f from the file's FOV. Returns ``destination``."""
+    shutil.copyfile(source, destination)
+    with h5py.File(destination, "a") as f:
+        fov = tuple(float(v) for v in f["camera"].attrs["fov_deg"])
+        for group in f["steps"].values():
+            n, h, w = group["z"].shape
+            v, u = np.mgrid[0:h, 0:w].astype(float)
+            su, sv = where(u, v, w, h)
+            tx = (u - (w - 1) / 2) / ((w / 2) / math.tan(math.radians(fov[0]) / 2))
+            ty = (v - (h - 1) / 2) / ((h / 2) / math.tan(math.radians(fov[1]) / 2))
+            for k in range(n):
+                image = np.asarray(group["intensity"][k], float)
+                group["intensity"][k] = np.round(np.nan_to_num(_bilinear(image, su, sv))).astype(
+                    group["intensity"].dtype) if group["intensity"].dtype.kind in "iu" else _bilinear(image, su, sv)
+                x, y, z = (np.asarray(group[c][k], float) for c in ("x", "y", "z"))
+                if cloud_corrected:
+                    new = [_bilinear(c, su, sv) for c in (x, y, z)]
+                else:
+                    r = _bilinear(np.sqrt(x * x + y * y + z * z), su, sv)
+                    norm = np.sqrt(1 + tx * tx + ty * ty)
+                    new = [r * tx / norm, r * ty / norm, r / norm]
+                for c, values in zip(("x", "y", "z"), new):
+                    group[c][k] = values.astype(np.float32)
     return destination

@@ -11,7 +11,6 @@ range correction that closes at least half the gap.
 
 from __future__ import annotations
 
-import json
 import math
 
 import h5py
@@ -22,7 +21,7 @@ from labctl.cli import main
 from labctl.reconcile.goodness import Goodness, StepFit
 from labctl.reconcile.workflow import material, reconcile
 from sim.model import parse_model
-from tests.reconcile.forward import BACKENDS, rewrite_run, simulated_run
+from tests.reconcile.forward import BACKENDS, reconcile_cli, rewrite_run, simulated_run
 
 
 def _bump(px):
@@ -33,10 +32,7 @@ def test_a_range_error_outside_the_library_is_unexplained_and_characterized(tmp_
     plain = simulated_run(tmp_path / "plain", "blaze101", robot=False)
     measured = rewrite_run(plain, tmp_path / "measured.h5", _bump)
     out = tmp_path / "out"
-    with pytest.raises(SystemExit) as info:
-        main(["reconcile", str(measured), "-o", str(out), "--quiet"])
-    assert info.value.code == 0
-    doc = json.loads((out / "reconcile.json").read_text())
+    doc = reconcile_cli(measured, out)
     assert doc["verdict"] == "unexplained", doc["goodness_of_fit"]
     assert doc["named_effects"] == []
     assert doc["consistent_with_noise"] is not None and doc["gap_floor"] > 0
@@ -104,10 +100,7 @@ def test_a_checkerboard_only_run_is_not_comparable(tmp_path):
     run = simulated_run(tmp_path, "blaze101", {"radial_distortion": {"k1": 0.1, "cloud": False}},
                         campaign=campaign)
     out = tmp_path / "out"
-    with pytest.raises(SystemExit) as info:
-        main(["reconcile", str(run), "-o", str(out), "--quiet"])
-    assert info.value.code == 0
-    doc = json.loads((out / "reconcile.json").read_text())
+    doc = reconcile_cli(run, out)
     assert doc["verdict"] == "not_comparable"
     assert "depth_sweep" in doc["not_comparable"]["procedures_needed"]
     assert doc["gap_before"] is None and doc["named_effects"] == []
