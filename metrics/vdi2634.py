@@ -15,11 +15,10 @@
   above; labctl additionally keeps only the points whose line of sight (from
   the camera at the origin) meets the sphere (fitted centre, calibrated
   radius) at an incidence of at most
-  ``max_incidence_deg`` (60 deg, labctl's choice: beyond it a pixel's
-  footprint on the sphere stretches as 1 / cos(incidence), twice its
-  frontal size at 60 deg; the sphere-centre algorithm of ASTM E3125-17 also
-  keeps only the points within a cone about the line of sight, Rachakonda et
-  al. 2018, J. Res. NIST 123:006) and passes at least
+  ``max_incidence_deg`` (60 deg: half the 120 deg cone opening angle about
+  the line of sight within which the ASTM E3125-17 sphere-centre algorithm
+  keeps a sphere's points, Rachakonda et al. 2018; a pixel's footprint on the
+  sphere stretches as 1 / cos(incidence), twice its frontal size there) and passes at least
   ``margin_rad`` inside its silhouette (one pixel: a pixel
   whose centre lies one pixel inside has its whole footprint, half-diagonal
   0.71 px, on the sphere). The selection depends only on the points'
