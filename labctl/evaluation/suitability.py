@@ -29,6 +29,7 @@ story's verdict is ``fail`` if any check fails, ``pass`` if all pass, else
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -154,7 +155,7 @@ def _summary(verdict: str, results: list[dict[str, Any]], informative: dict[str,
         if r["status"] != wanted:
             continue
         shown = ", ".join(_number(v) for v in r["values"].values())
-        parts.append(f"{r['requirement'].split(' (')[0]}: {shown}" if wanted == "fail"
+        parts.append(f"{re.sub(r' [(][^)]*[)]', '', r['requirement'])}: {shown}" if wanted == "fail"
                      else ", ".join(name for name, v in r["values"].items() if v is None))
     return ("fails " if wanted == "fail" else "not measured: ") + "; ".join(parts)
 

@@ -134,3 +134,16 @@ def test_quantization_is_detected_on_the_first_wall_step_with_valid_pixels():
     for step in (blind, seen):
         _detect_quantization(found, step, step.z)
     assert found["z"] == 1.0 and math.isnan(found["x"]) and math.isnan(found["y"])
+
+
+def test_the_report_shows_each_flag_under_its_figure(tmp_path):
+    from labctl.evaluation.evaluate import Evaluation
+    from labctl.report.html import write_outputs
+
+    camera = {"model": "m", "serial": "s", "width": 8, "height": 6, "fov_deg": [60.0, 45.0], "simulated": False}
+    evaluation = Evaluation(runs=[], camera=camera, figures={"z_precision_q90_mm": FigureValue(0.0, ["00001_x"])},
+                            flags={"z_precision_q90_mm": [{"check": "quantization_limited", "message": "rounding"}]})
+    json_path, report = write_outputs(evaluation, tmp_path)
+    row = next(r for r in report.read_text().split("<tr>") if "z_precision_q90_mm" in r)
+    assert "quantization limited: rounding" in row
+    assert '"flags": []' in json_path.read_text()  # the figures without a flag

@@ -48,7 +48,7 @@ def test_depth_precision_decides_where_the_image_figures_pass():
     assert v["pad_makeup_nir"] == v["pad_makeup_rgb"] == "fail"
     assert v["pad_light"] == "pass"
     story = suitability(dict(GOOD, **{FACE_PRECISION: 2.8}))["stories"]["3d_face_recognition_1_to_1"]
-    assert "depth precision" in story["summary"] and "2.8" in story["summary"]
+    assert story["summary"] == "fails depth precision <= 1 mm on the face: 2.8"
     assert verdicts(dict(GOOD, **{FACE_TRUENESS: -2.5}))["3d_face_recognition_1_to_1"] == "fail"  # |trueness|
     assert verdicts(dict(GOOD, **{FACE_TRUENESS: 2.5}))["pad_makeup_nir"] == "pass"  # no trueness limit there
 
