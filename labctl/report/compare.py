@@ -171,7 +171,7 @@ def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> P
 
 def _fmt(value: Any) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return '<span style="color:#999">n/a</span>'
+        return '<span class="null">n/a</span>'  # styled by the shared CSS
     if isinstance(value, float):
         return f"{value:.0f}" if abs(value) >= 100 else f"{value:.3g}"
     return html.escape(str(value))
