@@ -2,15 +2,15 @@
 
 * hyperfocal distance: the nearest distance from which the SFR area stays at
   or above 90 % of its plateau, the plateau being the median over the far half
-  of the sweep (SPEC §3);
+  of the sweep (Thesis 2024, 5.1.2);
 * best focus: the nearest distance whose SFR area, after a 3-point moving
-  median, is within 5 % of the highest (thesis 5.2.1: of several distances of
+  median, is within 5 % of the highest (Thesis 2024, 5.2.1: of several distances of
   high focus the smallest is chosen); the same distance is the key figure and
   where sharp targets are placed;
-* imagery resolution (thesis 6.3.1): angular = sensor angular resolution /
+* imagery resolution (Thesis 2024, 6.3.1): angular = sensor angular resolution /
   SFR10 (eq. 5-1), lateral = the size that angle covers at the distance (eq. 5-2);
 * inter-eye distance coverage at the image centre (pinhole): px = IED f / d
-  with f = (W / 2) / tan(FOV / 2); thesis eq. 6-2's px = IED / (tan(res) d)
+  with f = (W / 2) / tan(FOV / 2); Thesis 2024, eq. 6-2's px = IED / (tan(res) d)
   with the mean angular pixel size res = FOV / W over-counts there.
 """
 
@@ -24,7 +24,7 @@ import numpy as np
 PLATEAU_FRACTION = 0.9
 #: SFR areas within this fraction of the highest count as equally sharp (best focus)
 BEST_FOCUS_TOLERANCE = 0.05
-IED_MM = 62.5  # average adult inter-eye distance (Yildirim et al. 2015, thesis 6.6)
+IED_MM = 62.5  # average adult inter-eye distance (Yildirim et al. 2015, Thesis 2024, 6.6)
 
 
 def _sorted_valid(distances: Sequence[float], values: Sequence[float], valid: Sequence[bool]) -> tuple[np.ndarray, np.ndarray]:
@@ -70,7 +70,7 @@ def best_focus_distance(distances: Sequence[float], sfr_area: Sequence[float], v
 
     One definition for the key figure and for where sharp targets go: "if there
     are multiple distances with high focus, the smallest distance is chosen"
-    (thesis 5.2.1), which keeps checkerboard tiles and star segments large.
+    (Thesis 2024, 5.2.1), which keeps checkerboard tiles and star segments large.
     """
     d, smoothed = _smoothed(distances, sfr_area, valid)
     if not d.size:
@@ -108,7 +108,7 @@ def lateral_mm(angular_deg: float, distance_mm: float) -> float:
 
 def ied_pixels(resolution_deg: float, distance_mm: float, ied_mm: float = IED_MM) -> float:
     """Pixels across the inter-eye distance at ``distance_mm`` with the mean angular pixel size FOV / pixels
-    (thesis eq. 6-2). It over-counts at the image centre, where a pixel subtends more than the mean angle."""
+    (Thesis 2024, eq. 6-2). It over-counts at the image centre, where a pixel subtends more than the mean angle."""
     return ied_mm / (math.tan(math.radians(resolution_deg)) * distance_mm)
 
 

@@ -66,7 +66,7 @@ FIGURES: tuple[FigureDef, ...] = (
     FigureDef("ied_pixels_at_hyperfocal", "px", "inter-eye distance (62.5 mm) coverage at the hyperfocal distance, "
               "face at the image centre (pinhole: 62.5 mm x f / d, f = (W / 2) / tan(FOV_h / 2))", "Thesis 2024, Ch. 3, 6.6"),
     FigureDef("ied_pixels_at_hyperfocal_angular", "px", "the same with the mean angular pixel size FOV_h / W "
-              "(thesis eq. 6-2); over-counts at the image centre", "docs/suitability.md"),
+              "(Thesis 2024, eq. 6-2); over-counts at the image centre", "docs/suitability.md"),
 )
 
 #: where the datasheet-comparable figures are defined

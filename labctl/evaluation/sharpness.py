@@ -71,7 +71,7 @@ class SharpnessResult:
     best_focus_mm: float = math.nan
     resolution_deg: tuple[float, float] = (math.nan, math.nan)
     ied_px: float = math.nan  # a face at the image centre (pinhole model)
-    ied_px_angular: float = math.nan  # with the mean angular pixel size FOV / pixels (thesis eq. 6-2)
+    ied_px_angular: float = math.nan  # with the mean angular pixel size FOV / pixels (Thesis 2024, eq. 6-2)
     #: set when the sharpness peaks at an end of the sweep (best focus is then a bound)
     focus_warning: str | None = None
     notes: list[str] = field(default_factory=list)

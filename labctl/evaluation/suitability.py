@@ -1,4 +1,4 @@
-"""Suitability of a camera for facial biometrics: one verdict per user story of the thesis Table 3-1.
+"""Suitability of a camera for facial biometrics: one verdict per user story of Thesis 2024, Table 3-1.
 
 Requirements and where they come from (docs/suitability.md gives the reasoning):
 
@@ -37,15 +37,15 @@ from typing import Any
 IED_MIN_PX = 90.0
 DISTORTION_1_TO_N_PCT = 5.0
 DISTORTION_1_TO_1_PCT = 7.0
-PIXEL_ASPECT_MAX_PCT = 10.0
+PIXEL_AR_LIMIT_PCT = 10.0
 #: judgements (see the module docstring): depth precision (Q90 of the per-pixel std) and trueness on the face
 PRECISION_RECOGNITION_MM = 1.0
 TRUENESS_RECOGNITION_MM = 2.0
 PRECISION_LANDMARKS_MM = 2.0
 PRECISION_LIVENESS_MM = 5.0
 
-ISO_39794 = "ISO/IEC 39794-5:2019 Annex D (2D face images), applied to the 3D camera (thesis Table 3-1)"
-HEDBERG = "Hedberg 2020 citing Sun 2014, via thesis Table 3-1"
+ISO_39794 = "ISO/IEC 39794-5:2019 Annex D (2D face images), applied to the 3D camera (Thesis 2024, Table 3-1)"
+HEDBERG = "Hedberg 2020 citing Sun 2014, via Thesis 2024, Table 3-1"
 DEPTH_JUDGEMENT = ("judgement: between FRGC scans (~0.1 mm, Phillips et al. 2005) and Kinect v1 (a few mm at 1 m, "
                    "Khoshelham & Oude Elberink 2012; weaker 3D recognition, Min et al. 2014)")
 LANDMARK_JUDGEMENT = "judgement: a tenth of the ~20 mm nose relief the 3D landmark check relies on"
@@ -74,8 +74,8 @@ def _distortion(figures: tuple[str, ...], limit: float) -> Check:
 
 IED = Check(f"inter-eye distance >= {IED_MIN_PX:g} px (face at the image centre, hyperfocal distance)",
             ("ied_pixels_at_hyperfocal",), IED_MIN_PX, "min", ISO_39794)
-ASPECT = Check(f"pixel aspect ratio within +-{PIXEL_ASPECT_MAX_PCT:g} %", ("pixel_aspect_distortion_pct",),
-               PIXEL_ASPECT_MAX_PCT, "max_abs", HEDBERG)
+PIXEL_AR = Check(f"pixel aspect ratio within +-{PIXEL_AR_LIMIT_PCT:g} %", ("pixel_aspect_distortion_pct",),
+               PIXEL_AR_LIMIT_PCT, "max_abs", HEDBERG)
 
 
 def _precision(limit: float, source: str) -> Check:
@@ -91,11 +91,11 @@ RECOGNITION_DEPTH = [_precision(PRECISION_RECOGNITION_MM, DEPTH_JUDGEMENT), TRUE
 
 STORIES: dict[str, tuple[str, list[Check], tuple[str, ...]]] = {
     "3d_face_recognition_1_to_n": ("3D face recognition, 1:N identification",
-                                   [_distortion(CLOUD, DISTORTION_1_TO_N_PCT), IED, ASPECT, *RECOGNITION_DEPTH], ()),
+                                   [_distortion(CLOUD, DISTORTION_1_TO_N_PCT), IED, PIXEL_AR, *RECOGNITION_DEPTH], ()),
     "3d_face_recognition_1_to_1": ("3D face recognition, 1:1 verification",
-                                   [_distortion(CLOUD, DISTORTION_1_TO_1_PCT), IED, ASPECT, *RECOGNITION_DEPTH], ()),
+                                   [_distortion(CLOUD, DISTORTION_1_TO_1_PCT), IED, PIXEL_AR, *RECOGNITION_DEPTH], ()),
     "pad_makeup_nir": ("make-up attack PAD: faces detected in the camera's NIR image, landmarks checked in 3D",
-                       [_distortion(INTENSITY, DISTORTION_1_TO_N_PCT), IED, ASPECT,
+                       [_distortion(INTENSITY, DISTORTION_1_TO_N_PCT), IED, PIXEL_AR,
                         _precision(PRECISION_LANDMARKS_MM, LANDMARK_JUDGEMENT)], ()),
     "pad_makeup_rgb": ("make-up attack PAD: faces detected by an RGB camera, landmarks checked in 3D",
                        [_precision(PRECISION_LANDMARKS_MM, LANDMARK_JUDGEMENT)],
@@ -183,5 +183,5 @@ def suitability(values: Mapping[str, float | None]) -> dict[str, Any]:
             "checks": results,
             "figures": figures,
         }
-    return {"standard": "thesis Table 3-1 user stories; ISO/IEC 39794-5:2019 Annex D for distortion and IED; depth "
+    return {"standard": "Thesis 2024, Table 3-1 user stories; ISO/IEC 39794-5:2019 Annex D for distortion and IED; depth "
                         "limits are judgements (docs/suitability.md)", "stories": stories}

@@ -19,7 +19,7 @@ Two families, both in mm in the board plane:
   the px figures are reported beside it;
 * ``corner_cloud``: measured minus simulated lateral position of the corner in
   the point cloud, as the slope x/z, y/z (the cloud sampled bilinearly at the
-  measured corner, thesis 5.2.2) times the board distance. A range error
+  measured corner, Thesis 2024, 5.2.2) times the board distance. A range error
   moves points along their rays, so it leaves this family alone. As the cloud
   is read where the corner was found, the image position's error enters it
   too: with rays as the pinhole's (no distortion, or one left in the cloud) the

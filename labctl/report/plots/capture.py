@@ -25,7 +25,7 @@ def _limits(data: np.ndarray, symmetric: bool = False) -> tuple[float, float]:
 
 
 def plot_capture(result: CaptureResult, path: Path) -> Path:
-    """The maps of one capture (thesis-style imshow panels with colour bars and units)."""
+    """The maps of one capture (imshow panels with colour bars and units)."""
     s = result.summary
     panels: list[tuple[str, np.ndarray, str, str, bool]] = [
         ("depth z, stack mean", s.depth, "mm", "viridis_r", False),

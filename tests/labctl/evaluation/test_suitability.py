@@ -1,4 +1,4 @@
-"""Suitability checks on known inputs (thesis Table 3-1; ISO/IEC 39794-5 Annex D; depth judgements)."""
+"""Suitability checks on known inputs (Thesis 2024, Table 3-1; ISO/IEC 39794-5 Annex D; depth judgements)."""
 
 import pytest
 
