@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 
 from drivers.protocols import CameraInfo
-from labctl import cli_analyze, cli_devices, cli_export, cli_info, cli_reconcile, cli_sim
+from labctl import cli_analyze, cli_batch, cli_devices, cli_export, cli_info, cli_reconcile, cli_sim
 from labctl.config import Campaign, load_campaign, parse_campaign
 from labctl.errors import InputError, LabctlError
 from labctl.lab import Lab, build_real_lab, build_sim_lab
@@ -292,6 +292,7 @@ cli.add_command(cli_analyze.analyze_group)
 cli.add_command(cli_export.export)
 cli.add_command(cli_reconcile.reconcile)
 cli.add_command(cli_info.info)
+cli.add_command(cli_batch.batch)
 
 
 # ---------------------------------------------------------------------- entry point
