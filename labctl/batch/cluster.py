@@ -51,7 +51,8 @@ class Cluster:
 
 @contextmanager
 def open_client(cluster: Cluster) -> Iterator[Client]:
-    """A connected Dask client of ``cluster``; a local cluster is closed on the way out."""
+    """A connected Dask client of ``cluster``; a local cluster is closed on the way out. The local scheduler's
+    HTTP server (its dashboard when the ``bokeh`` package is installed) listens on a free port."""
     from distributed import Client, LocalCluster
 
     scheduler = cluster.scheduler
@@ -66,7 +67,7 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
             client.close()
         return
     local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
-                         dashboard_address=None, silence_logs=logging.ERROR)
+                         dashboard_address=":0", silence_logs=logging.ERROR)
     try:
         with Client(local) as client:
             yield client

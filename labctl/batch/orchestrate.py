@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from labctl.batch.calibration import null_calibration
 from labctl.batch.cluster import Cluster, open_client
@@ -22,6 +23,7 @@ class Outcome:
     index_json: Path
     index_csv: Path
     report: Path
+    calibration: dict[str, Any] | None = None  # a reconciled sweep's error rates on its null runs
 
     @property
     def failed(self) -> int:
@@ -64,4 +66,4 @@ def batch_sweep(sweep: Sweep, outdir: Path, cluster: Cluster, quiet: bool = Fals
              **({"null_calibration": calibration} if calibration is not None else {})}
     json_path, csv_path = write_index(summaries, outdir, extra, sweep.axes)
     report = write_report(summaries, outdir, f"Sweep {sweep.name}", sweep.axes, figures, calibration)
-    return Outcome(summaries, json_path, csv_path, report)
+    return Outcome(summaries, json_path, csv_path, report, calibration)

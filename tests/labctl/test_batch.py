@@ -1,0 +1,189 @@
+"""labctl batch on a local Dask cluster (2 worker processes): the same outputs as the serial commands, a corrupt
+run reported while the others complete; sweep files expanded into their grid; run arguments expanded."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from labctl.batch.calibration import null_calibration
+from labctl.batch.inputs import expand_runs, run_names
+from labctl.batch.sweep import load_sweep
+from labctl.cli import main
+from labctl.errors import InputError
+
+SEEDS = [11, 12, 13, 14, 15, 16]
+#: four steps of 5 frames: the offset position and a wall at 1, 2 and 3 m (reconcile needs two comparable steps)
+PROCEDURES = """
+[[procedure]]
+kind = "offset_calibration"
+frames = 5
+
+[[procedure]]
+kind = "depth_sweep"
+start_mm = 1000
+stop_mm = 3000
+step_mm = 1000
+frames = 5
+"""
+
+
+def _labctl(*args: str) -> int:
+    """The command line in this process (as the user runs it, without a subprocess's start-up)."""
+    with pytest.raises(SystemExit) as info:
+        main([str(a) for a in args])
+    return int(info.value.code)
+
+
+def _without(doc: dict, *keys: str) -> dict:
+    return {k: v for k, v in doc.items() if k not in keys}
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """Six simulated runs made by ``labctl batch sweep`` (48 x 36 blaze-101, seeds 11-16, evaluated)."""
+    from tests.conftest import SMALL_MODEL, campaign_text
+
+    base = tmp_path_factory.mktemp("batch")
+    (base / "campaign.toml").write_text(campaign_text(procedures=PROCEDURES))
+    (base / "model.toml").write_text(SMALL_MODEL.format(camera="blaze101", width=48, height=36))
+    (base / "sweep.toml").write_text('[sweep]\ncampaign = "campaign.toml"\nmodel = "model.toml"\n'
+                                     f"[grid]\nseed = {SEEDS}\n")
+    assert _labctl("batch", "sweep", base / "sweep.toml", "-o", base / "sweep", "--workers", 2, "--quiet") == 0
+    return base, base / "sweep"
+
+
+def test_sweep_runs_and_evaluations_equal_the_serial_commands(swept: tuple[Path, Path]) -> None:
+    base, out = swept
+    index = json.loads((out / "index.json").read_text())
+    assert index["counts"] == {"runs": 6, "ok": 6, "failed": 0}
+    assert [r["parameters"]["seed"] for r in index["runs"]] == SEEDS
+    assert all(r["null"] for r in index["runs"])  # nothing beyond the model: null runs
+    # a point's run is the run ``labctl run --sim --model --seed`` makes
+    serial_run = base / "serial-13.h5"
+    assert _labctl("run", base / "campaign.toml", "--sim", "--model", base / "model.toml", "--seed", 13,
+                   "-o", serial_run, "--quiet") == 0
+    with h5py.File(serial_run) as a, h5py.File(out / "points" / "p0002" / "run.h5") as b:
+        assert sorted(a["steps"]) == sorted(b["steps"])
+        for step in a["steps"]:
+            np.testing.assert_array_equal(a["steps"][step]["z"][()], b["steps"][step]["z"][()])
+    # every point's evaluation is labctl evaluate's
+    for k, summary in enumerate(index["runs"]):
+        serial = base / f"serial-eval-{k}"
+        assert _labctl("evaluate", summary["run"], "-o", serial, "--quiet") == 0
+        expected = json.loads((serial / "keyfigures.json").read_text())
+        got = json.loads((Path(summary["output"]) / "evaluation" / "keyfigures.json").read_text())
+        assert got == expected
+        assert summary["evaluate"]["figures"] == {n: f["value"] for n, f in expected["figures"].items()}
+    html = (out / "batch.html").read_text()
+    assert "Figures over the grid" in html and "z_accuracy_q90_mm mean" in html
+
+
+def test_corrupt_run_is_reported_and_the_others_reconcile_as_serially(swept: tuple[Path, Path]) -> None:
+    base, out = swept
+    runs = base / "runs"
+    runs.mkdir()
+    for k in range(6):
+        shutil.copyfile(out / "points" / f"p{k:04d}" / "run.h5", runs / f"unit{k}.h5")
+    data = (runs / "unit0.h5").read_bytes()
+    (runs / "corrupt.h5").write_bytes(data[: len(data) // 3])  # a copy cut short
+    result = base / "batch"
+    assert _labctl("batch", "runs", runs, "-o", result, "--no-evaluate", "--reconcile", "--workers", 2,
+                   "--quiet") == 1  # a run failed: exit 1, the others complete
+    index = json.loads((result / "index.json").read_text())
+    assert index["counts"] == {"runs": 7, "ok": 6, "failed": 1}
+    failed = [r for r in index["runs"] if r["status"] == "failed"]
+    assert [r["name"] for r in failed] == ["corrupt"]
+    assert "corrupt.h5" in failed[0]["error"] and "Traceback" not in failed[0]["error"]
+    for summary in index["runs"]:
+        if summary["status"] != "ok":
+            continue
+        serial = base / f"serial-reconcile-{summary['name']}"
+        assert _labctl("reconcile", summary["run"], "-o", serial, "--quiet") == 0
+        expected = json.loads((serial / "reconcile.json").read_text())
+        got = json.loads((Path(summary["output"]) / "reconcile" / "reconcile.json").read_text())
+        assert _without(got, "model_toml") == _without(expected, "model_toml")
+        assert (Path(summary["output"]) / "reconcile" / "model.toml").read_text() == (serial / "model.toml").read_text()
+        assert summary["reconcile"]["verdict"] == expected["verdict"]
+    rows = (result / "index.csv").read_text().splitlines()
+    assert len(rows) == 8 and rows[0].startswith("name,run,status,error")
+
+
+def test_run_arguments_expand_to_files(tmp_path: Path) -> None:
+    (tmp_path / "lot1").mkdir()
+    (tmp_path / "lot2").mkdir()
+    for path in ("lot1/a.h5", "lot1/b.hdf5", "lot2/a.h5", "lot2/notes.txt"):
+        (tmp_path / path).write_bytes(b"")
+    found = expand_runs([str(tmp_path), str(tmp_path / "lot1" / "*.h5"), str(tmp_path / "lot2" / "a.h5")])
+    assert found == sorted((tmp_path / p).resolve() for p in ("lot1/a.h5", "lot1/b.hdf5", "lot2/a.h5"))
+    assert run_names(found) == ["lot1__a", "lot1__b", "lot2__a"]
+    for bad, message in (("missing.h5", "does not exist"), ("*.nothing", "matches no file"),
+                         ("lot2/notes.txt/..", "holds no run file")):
+        with pytest.raises(InputError, match=message):
+            expand_runs([str(tmp_path / bad)] if bad != "lot2/notes.txt/.." else [str(_empty_dir(tmp_path))])
+
+
+def _empty_dir(tmp_path: Path) -> Path:
+    (tmp_path / "empty").mkdir(exist_ok=True)
+    return tmp_path / "empty"
+
+
+def test_sweep_grid_is_every_combination(tmp_path: Path) -> None:
+    from tests.conftest import campaign_text
+
+    (tmp_path / "campaign.toml").write_text(campaign_text())
+    (tmp_path / "sweep.toml").write_text("""
+[sweep]
+campaign = "campaign.toml"
+reconcile = true
+[grid]
+seed = {start = 5, count = 3}
+"camera,model.camera_overrides.width" = [["blaze101", 48], ["d455", 64]]
+"model.effects.range_scale.scale" = [0.0, 0.01]
+"campaign.procedure.1.step_mm" = [1000]
+""")
+    sweep = load_sweep(tmp_path / "sweep.toml")
+    assert len(sweep.points) == 3 * 2 * 2 * 1
+    point = next(p for p in sweep.points if p.parameters == {
+        "seed": 6, "camera": "d455", "model.camera_overrides.width": 64, "model.effects.range_scale.scale": 0.01,
+        "campaign.procedure.1.step_mm": 1000})
+    assert point.seed == 6
+    assert 'backend = "realsense"' in point.campaign_toml and "step_mm = 1000" in point.campaign_toml
+    assert "width = 64" in point.model_toml and "scale = 0.01" in point.model_toml
+    assert not point.null and point.reconcile_model_toml is None  # against the built-in model
+
+
+@pytest.mark.parametrize(("sweep", "message"), [
+    ('[sweep]\ncampaign = "campaign.toml"\n[grid]\nexposure = [1]\n', "grid axis 'exposure'"),
+    ('[sweep]\ncampaign = "campaign.toml"\n[grid]\n"camera,seed" = [["d455"]]\n', "move together"),
+    ('[sweep]\ncampaign = "campaign.toml"\ncolour = 1\n', "unknown key"),
+    ('[sweep]\ncampaign = "nowhere.toml"\n', "nowhere.toml does not exist"),
+    ('[sweep]\ncampaign = "campaign.toml"\n[grid]\n"model.effects.no_such_effect.size" = [2.0]\n', "p0000"),
+])
+def test_bad_sweep_files_are_named(tmp_path: Path, sweep: str, message: str) -> None:
+    from tests.conftest import campaign_text
+
+    (tmp_path / "campaign.toml").write_text(campaign_text())
+    (tmp_path / "sweep.toml").write_text(sweep)
+    with pytest.raises(InputError, match=message):
+        load_sweep(tmp_path / "sweep.toml")
+
+
+def test_null_calibration_counts_named_effects_and_unexplained() -> None:
+    def run(verdict: str, named: list[str], camera: str, null: bool = True) -> dict:
+        return {"null": null, "parameters": {"camera": camera}, "reconcile": {
+            "verdict": verdict, "named": named, "best_candidate_dbic": 3.0, "worst_step_ratio": 1.5}}
+
+    summaries = [run("none", [], "d455")] * 7 + [run("effect_found", ["wiggling"], "d455"),
+                                                 run("unexplained", [], "amt100"),
+                                                 run("effect_found", ["wiggling"], "amt100", null=False)]
+    rates = null_calibration(summaries)
+    assert rates is not None and rates["runs"] == 9
+    assert (rates["false_positive"], rates["false_unexplained"]) == (1, 1)
+    assert rates["false_positive_rate"] == pytest.approx(1 / 9)
+    assert rates["by_camera"]["amt100"]["runs"] == 1 and rates["named"] == {"wiggling": 1}
