@@ -21,6 +21,8 @@ from labctl.errors import InputError, RunAborted
 if TYPE_CHECKING:
     from distributed import Client
 
+#: a worker's compiled kernels run on its one core (numba would start a thread per core in every worker)
+WORKER_ENVIRONMENT = {"NUMBA_NUM_THREADS": "1"}
 #: seconds to wait for a remote scheduler before giving up
 CONNECT_TIMEOUT_S = 20.0
 
@@ -67,7 +69,7 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
             client.close()
         return
     local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
-                         dashboard_address=":0", silence_logs=logging.ERROR)
+                         dashboard_address=":0", silence_logs=logging.ERROR, env=WORKER_ENVIRONMENT)
     try:
         with Client(local) as client:
             yield client

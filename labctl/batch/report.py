@@ -121,11 +121,13 @@ def grid_rows(summaries: Sequence[Summary], axes: Sequence[str], figures: Sequen
 
 
 def _grid_section(summaries: Sequence[Summary], axes: Sequence[str], figures: Sequence[str], outdir: Path) -> str:
-    """The sweep's figures over its grid: the table per point of the non-seed axes, a plot per figure and axis."""
+    """The sweep's figures over its grid: the table per point of the non-seed axes, a plot per figure and axis
+    that takes more than one value (the seed only when nothing else varies)."""
     varied = [a for a in axes if a != "seed"]
     header = varied + ["runs", "ok", "verdicts"] + [f"{f} {stat}" for f in figures for stat in ("mean", "sd")]
     section = "<h2>Figures over the grid</h2>" + _table(header, grid_rows(summaries, varied, figures))
-    plot_axes = varied or [a for a in axes if a == "seed"]
+    spread = [a for a in axes if len({str(s.get("parameters", {}).get(a)) for s in summaries}) > 1]
+    plot_axes = [a for a in spread if a != "seed"] or spread
     shown = [f for f in figures if any(_value(s, f) is not None for s in summaries)]
     if not plot_axes or not shown:
         return section
@@ -139,7 +141,8 @@ def _grid_section(summaries: Sequence[Summary], axes: Sequence[str], figures: Se
             position = {x: (x if numeric else i) for i, x in enumerate(labels)}
             ax.plot([position[x] for x, _ in values], [v for _, v in values], "o", ms=3, alpha=0.6)
             means = [statistics.fmean(v for x, v in values if x == label) for label in labels]
-            ax.plot([position[x] for x in labels], means, "-", color="tab:red", lw=1.2, label="mean")
+            ax.plot([position[x] for x in labels], means, "-" if numeric else "_", color="tab:red", lw=1.2, ms=14,
+                    label="mean")
             if not numeric:
                 ax.set_xticks(range(len(labels)), [str(x) for x in labels], fontsize=8)
             ax.set_xlabel(axis, fontsize=8)

@@ -4,7 +4,6 @@ run reported while the others complete; sweep files expanded into their grid; ru
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import h5py
@@ -45,57 +44,31 @@ def _without(doc: dict, *keys: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def swept(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """Six simulated runs made by ``labctl batch sweep`` (48 x 36 blaze-101, seeds 11-16, evaluated)."""
+def serial(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Six runs made by ``labctl run --sim`` one after the other (48 x 36 blaze-101, seeds 11-16) in ``runs/``,
+    with their campaign and model."""
     from tests.conftest import SMALL_MODEL, campaign_text
 
     base = tmp_path_factory.mktemp("batch")
     (base / "campaign.toml").write_text(campaign_text(procedures=PROCEDURES))
     (base / "model.toml").write_text(SMALL_MODEL.format(camera="blaze101", width=48, height=36))
-    (base / "sweep.toml").write_text('[sweep]\ncampaign = "campaign.toml"\nmodel = "model.toml"\n'
-                                     f"[grid]\nseed = {SEEDS}\n")
-    assert _labctl("batch", "sweep", base / "sweep.toml", "-o", base / "sweep", "--workers", 2, "--quiet") == 0
-    return base, base / "sweep"
+    (base / "runs").mkdir()
+    for seed in SEEDS:
+        assert _labctl("run", base / "campaign.toml", "--sim", "--model", base / "model.toml", "--seed", seed,
+                       "-o", base / "runs" / f"unit{seed}.h5", "--quiet") == 0
+    return base
 
 
-def test_sweep_runs_and_evaluations_equal_the_serial_commands(swept: tuple[Path, Path]) -> None:
-    base, out = swept
-    index = json.loads((out / "index.json").read_text())
-    assert index["counts"] == {"runs": 6, "ok": 6, "failed": 0}
-    assert [r["parameters"]["seed"] for r in index["runs"]] == SEEDS
-    assert all(r["null"] for r in index["runs"])  # nothing beyond the model: null runs
-    # a point's run is the run ``labctl run --sim --model --seed`` makes
-    serial_run = base / "serial-13.h5"
-    assert _labctl("run", base / "campaign.toml", "--sim", "--model", base / "model.toml", "--seed", 13,
-                   "-o", serial_run, "--quiet") == 0
-    with h5py.File(serial_run) as a, h5py.File(out / "points" / "p0002" / "run.h5") as b:
-        assert sorted(a["steps"]) == sorted(b["steps"])
-        for step in a["steps"]:
-            np.testing.assert_array_equal(a["steps"][step]["z"][()], b["steps"][step]["z"][()])
-    # every point's evaluation is labctl evaluate's
-    for k, summary in enumerate(index["runs"]):
-        serial = base / f"serial-eval-{k}"
-        assert _labctl("evaluate", summary["run"], "-o", serial, "--quiet") == 0
-        expected = json.loads((serial / "keyfigures.json").read_text())
-        got = json.loads((Path(summary["output"]) / "evaluation" / "keyfigures.json").read_text())
-        assert got == expected
-        assert summary["evaluate"]["figures"] == {n: f["value"] for n, f in expected["figures"].items()}
-    html = (out / "batch.html").read_text()
-    assert "Figures over the grid" in html and "z_accuracy_q90_mm mean" in html
-
-
-def test_corrupt_run_is_reported_and_the_others_reconcile_as_serially(swept: tuple[Path, Path]) -> None:
-    base, out = swept
-    runs = base / "runs"
-    runs.mkdir()
-    for k in range(6):
-        shutil.copyfile(out / "points" / f"p{k:04d}" / "run.h5", runs / f"unit{k}.h5")
-    data = (runs / "unit0.h5").read_bytes()
+def test_batch_equals_the_serial_commands_and_a_corrupt_run_is_reported(serial: Path) -> None:
+    runs = serial / "runs"
+    data = (runs / "unit11.h5").read_bytes()
     (runs / "corrupt.h5").write_bytes(data[: len(data) // 3])  # a copy cut short
-    result = base / "batch"
-    assert _labctl("batch", "runs", runs, "-o", result, "--no-evaluate", "--reconcile", "--workers", 2,
-                   "--quiet") == 1  # a run failed: exit 1, the others complete
-    index = json.loads((result / "index.json").read_text())
+    try:
+        assert _labctl("batch", "runs", runs, "-o", serial / "batch", "--reconcile", "--workers", 2,
+                       "--quiet") == 1  # a run failed: exit 1, the others complete
+    finally:
+        (runs / "corrupt.h5").unlink()
+    index = json.loads((serial / "batch" / "index.json").read_text())
     assert index["counts"] == {"runs": 7, "ok": 6, "failed": 1}
     failed = [r for r in index["runs"] if r["status"] == "failed"]
     assert [r["name"] for r in failed] == ["corrupt"]
@@ -103,15 +76,40 @@ def test_corrupt_run_is_reported_and_the_others_reconcile_as_serially(swept: tup
     for summary in index["runs"]:
         if summary["status"] != "ok":
             continue
-        serial = base / f"serial-reconcile-{summary['name']}"
-        assert _labctl("reconcile", summary["run"], "-o", serial, "--quiet") == 0
-        expected = json.loads((serial / "reconcile.json").read_text())
-        got = json.loads((Path(summary["output"]) / "reconcile" / "reconcile.json").read_text())
+        out, mine = serial / "serial" / summary["name"], Path(summary["output"])
+        assert _labctl("evaluate", summary["run"], "-o", out / "evaluation", "--quiet") == 0
+        expected = json.loads((out / "evaluation" / "keyfigures.json").read_text())
+        assert json.loads((mine / "evaluation" / "keyfigures.json").read_text()) == expected
+        assert summary["evaluate"]["figures"] == {n: f["value"] for n, f in expected["figures"].items()}
+        assert _labctl("reconcile", summary["run"], "-o", out / "reconcile", "--quiet") == 0
+        expected = json.loads((out / "reconcile" / "reconcile.json").read_text())
+        got = json.loads((mine / "reconcile" / "reconcile.json").read_text())
         assert _without(got, "model_toml") == _without(expected, "model_toml")
-        assert (Path(summary["output"]) / "reconcile" / "model.toml").read_text() == (serial / "model.toml").read_text()
+        assert (mine / "reconcile" / "model.toml").read_text() == (out / "reconcile" / "model.toml").read_text()
         assert summary["reconcile"]["verdict"] == expected["verdict"]
-    rows = (result / "index.csv").read_text().splitlines()
+    rows = (serial / "batch" / "index.csv").read_text().splitlines()
     assert len(rows) == 8 and rows[0].startswith("name,run,status,error")
+    assert "Key figures across the runs" in (serial / "batch" / "batch.html").read_text()
+
+
+def test_sweep_points_are_the_runs_labctl_run_makes(serial: Path) -> None:
+    (serial / "sweep.toml").write_text('[sweep]\ncampaign = "campaign.toml"\nmodel = "model.toml"\n'
+                                       f"[grid]\nseed = {SEEDS[:2]}\n")
+    out = serial / "sweep"
+    assert _labctl("batch", "sweep", serial / "sweep.toml", "-o", out, "--workers", 2, "--quiet") == 0
+    index = json.loads((out / "index.json").read_text())
+    assert index["counts"] == {"runs": 2, "ok": 2, "failed": 0}
+    for k, summary in enumerate(index["runs"]):
+        assert summary["parameters"] == {"seed": SEEDS[k]} and summary["null"]  # nothing beyond the model
+        with h5py.File(serial / "runs" / f"unit{SEEDS[k]}.h5") as a, h5py.File(summary["run"]) as b:
+            assert sorted(a["steps"]) == sorted(b["steps"])
+            for step in a["steps"]:
+                for channel in ("z", "intensity"):
+                    np.testing.assert_array_equal(a["steps"][step][channel][()], b["steps"][step][channel][()])
+        figures = json.loads((Path(summary["output"]) / "evaluation" / "keyfigures.json").read_text())["figures"]
+        assert summary["evaluate"]["figures"] == {n: f["value"] for n, f in figures.items()}
+    html = (out / "batch.html").read_text()
+    assert "Figures over the grid" in html and "z_accuracy_q90_mm mean" in html
 
 
 def test_run_arguments_expand_to_files(tmp_path: Path) -> None:
