@@ -4,6 +4,7 @@
 cluster sized to the machine, or a remote scheduler), ``tasks`` holds what a
 worker does for one run (the same functions as ``labctl evaluate`` and
 ``labctl reconcile``), ``sweep`` expands a sweep file into simulated runs,
-``execute`` submits the tasks and follows them, ``index`` and ``report`` write
-what was found across all runs.
+``execute`` submits the tasks and follows them, ``orchestrate`` ties a whole
+batch together, ``index``, ``report`` and ``calibration`` write what was found
+across all runs.
 """
