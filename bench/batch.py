@@ -1,8 +1,8 @@
 """Batch speed-up: N runs evaluated one after the other, as ``labctl evaluate`` does, and as Dask tasks on a
 local cluster of one worker process per core (``labctl batch runs``).
 
-The runs are synthetic wall sweeps (bench/evaluation.py's generator: 10
-positions, 320 x 240, 30 frames, x/y/z written), each evaluated into its own
+The runs are synthetic wall sweeps (bench/evaluation.py's generator: 8
+positions, 320 x 240, 20 frames, x/y/z written), each evaluated into its own
 directory by the batch's task function. Both sides are warmed first (the
 serial side by one evaluation, every worker by one task), so that what is
 compared is the steady state; the cluster's start-up is reported apart.
@@ -27,8 +27,8 @@ from labctl.batch.cluster import Cluster, machine_workers, open_client
 from labctl.batch.tasks import process_run
 
 RUNS = 8
-WIDTH, HEIGHT, FRAMES = 320, 240, 30
-DISTANCES = [500 + 400 * i for i in range(10)]
+WIDTH, HEIGHT, FRAMES = 320, 240, 20
+DISTANCES = [500 + 500 * i for i in range(8)]
 BUDGET = 1.3
 
 

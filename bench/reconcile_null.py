@@ -44,8 +44,8 @@ def write_sweep(directory: Path, seeds: int) -> Path:
     cameras = [[camera, *SIZES[camera]] for camera in sorted(BACKENDS)]
     sweep = {"sweep": {"name": "reconcile null runs", "campaign": "campaign.toml", "evaluate": False,
                        "reconcile": True, "keep_runs": False},
-             "grid": {"camera,model.camera_overrides.width,model.camera_overrides.height": cameras,
-                      "seed": {"start": 100, "count": seeds}}}
+             "grid": {"seed": {"start": 100, "count": seeds},  # seeds outermost: the cameras take turns
+                      "camera,model.camera_overrides.width,model.camera_overrides.height": cameras}}
     path = directory / "sweep.toml"
     path.write_text(tomli_w.dumps(sweep))
     return path
