@@ -120,13 +120,26 @@ def grid_rows(summaries: Sequence[Summary], axes: Sequence[str], figures: Sequen
     return rows
 
 
+def _distinct_axes(summaries: Sequence[Summary], axes: Sequence[str]) -> list[str]:
+    """The axes that take more than one value, each once: an axis that moves with an earlier one (zipped
+    axes, e.g. a camera and its size) splits the runs the same way and is left out."""
+    kept, seen = [], set()
+    for axis in axes:
+        values = [str(s.get("parameters", {}).get(axis)) for s in summaries]
+        pattern = tuple(values.index(v) for v in values)  # the partition of the runs, whatever the labels
+        if len(set(values)) > 1 and pattern not in seen:
+            kept.append(axis)
+            seen.add(pattern)
+    return kept
+
+
 def _grid_section(summaries: Sequence[Summary], axes: Sequence[str], figures: Sequence[str], outdir: Path) -> str:
     """The sweep's figures over its grid: the table per point of the non-seed axes, a plot per figure and axis
     that takes more than one value (the seed only when nothing else varies)."""
     varied = [a for a in axes if a != "seed"]
     header = varied + ["runs", "ok", "verdicts"] + [f"{f} {stat}" for f in figures for stat in ("mean", "sd")]
     section = "<h2>Figures over the grid</h2>" + _table(header, grid_rows(summaries, varied, figures))
-    spread = [a for a in axes if len({str(s.get("parameters", {}).get(a)) for s in summaries}) > 1]
+    spread = _distinct_axes(summaries, axes)
     plot_axes = [a for a in spread if a != "seed"] or spread
     shown = [f for f in figures if any(_value(s, f) is not None for s in summaries)]
     if not plot_axes or not shown:
