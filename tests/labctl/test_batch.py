@@ -1,5 +1,6 @@
-"""labctl batch on a local Dask cluster (2 worker processes): the same outputs as the serial commands, a corrupt
-run reported while the others complete; sweep files expanded into their grid; run arguments expanded."""
+"""labctl batch on a Dask LocalCluster of 2 worker processes (given by --scheduler, and started by the command
+itself): the same outputs as the serial commands, a corrupt run reported while the others complete; sweep files
+expanded into their grid; run arguments expanded; cluster options checked."""
 
 from __future__ import annotations
 
@@ -63,9 +64,15 @@ def test_batch_equals_the_serial_commands_and_a_corrupt_run_is_reported(serial: 
     runs = serial / "runs"
     data = (runs / "unit11.h5").read_bytes()
     (runs / "corrupt.h5").write_bytes(data[: len(data) // 3])  # a copy cut short
-    try:
-        assert _labctl("batch", "runs", runs, "-o", serial / "batch", "--reconcile", "--workers", 2,
-                       "--quiet") == 1  # a run failed: exit 1, the others complete
+    from distributed import LocalCluster
+
+    from labctl.batch.cluster import WORKER_ENVIRONMENT
+
+    try:  # an existing cluster, as --scheduler finds one: a LocalCluster of 2 worker processes
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                          env=WORKER_ENVIRONMENT) as cluster:
+            assert _labctl("batch", "runs", runs, "-o", serial / "batch", "--reconcile", "--scheduler",
+                           cluster.scheduler_address, "--quiet") == 1  # a run failed: exit 1, the others complete
     finally:
         (runs / "corrupt.h5").unlink()
     index = json.loads((serial / "batch" / "index.json").read_text())
