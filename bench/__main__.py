@@ -6,10 +6,10 @@ import signal
 import sys
 from types import FrameType
 
-from bench import evaluation, reconcile, recording, sim_capture
+from bench import batch, evaluation, reconcile, recording, sim_capture
 
 BENCHMARKS = {"recording": recording.run, "evaluation": evaluation.run, "sim_capture": sim_capture.run,
-              "reconcile": reconcile.run}
+              "reconcile": reconcile.run, "batch": batch.run}
 
 
 def _exit_on_term(signum: int, _frame: FrameType | None) -> None:

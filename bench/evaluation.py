@@ -25,23 +25,25 @@ WIDTH, HEIGHT, FRAMES = 640, 480, 100
 DISTANCES = [400 + 100 * i for i in range(37)]
 
 
-def _make_run(path: Path) -> None:
-    camera = CameraInfo(WIDTH, HEIGHT, (67.0, 51.0), 10.0, 30.0, 940.0, "uint16")
+def make_run(path: Path, width: int = WIDTH, height: int = HEIGHT, frames: int = FRAMES,
+             distances: list[int] = DISTANCES, seed: int = 1) -> None:
+    """A complete run of synthetic wall stacks (x, y, z) at ``distances``, ``frames`` frames each."""
+    camera = CameraInfo(width, height, (67.0, 51.0), 10.0, 30.0, 940.0, "uint16")
     run = RunWriter.create(
         path, campaign_toml="", simulated=True,
         devices={"camera": (DeviceIdentity("bench", "bench", "0", "0"), {})}, camera=camera,
     )
-    rng = np.random.default_rng(1)
-    noise = rng.standard_normal((FRAMES + 7, HEIGHT, WIDTH), dtype=np.float32)
-    fx = (WIDTH / 2) / np.tan(np.radians(33.5))
-    u = (np.arange(WIDTH) - (WIDTH - 1) / 2) / fx
-    v = (np.arange(HEIGHT) - (HEIGHT - 1) / 2) / fx
-    for i, d in enumerate(DISTANCES):
-        step = Step(i, "depth_sweep", "wall", FRAMES, distance_mm=float(d))
+    rng = np.random.default_rng(seed)
+    noise = rng.standard_normal((frames + 7, height, width), dtype=np.float32)
+    fx = (width / 2) / np.tan(np.radians(33.5))
+    u = (np.arange(width) - (width - 1) / 2) / fx
+    v = (np.arange(height) - (height - 1) / 2) / fx
+    for i, d in enumerate(distances):
+        step = Step(i, "depth_sweep", "wall", frames, distance_mm=float(d))
         writer = run.begin_step(step, float(d))
         group = writer.group
         shift = i % 7
-        z = (d + (d / 2000) * noise[shift : shift + FRAMES]).astype(np.float32)
+        z = (d + (d / 2000) * noise[shift : shift + frames]).astype(np.float32)
         group["z"][...] = z
         group["x"][...] = z * u[None, None, :]
         group["y"][...] = z * v[None, :, None]
@@ -63,7 +65,7 @@ def _read_floor(path: Path) -> None:
 def run() -> Result:
     with scratch_dir() as tmp:
         path = Path(tmp) / "sweep.h5"
-        _make_run(path)
+        make_run(path)
         read_s = evaluate_s = float("inf")
         for _ in range(2):
             read_s = min(read_s, best_of(1, lambda: _read_floor(path)))

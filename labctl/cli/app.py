@@ -17,6 +17,7 @@ import click
 
 from drivers.protocols import CameraInfo
 from labctl.cli import analyze as cli_analyze
+from labctl.cli import batch as cli_batch
 from labctl.cli import devices as cli_devices
 from labctl.cli import export as cli_export
 from labctl.cli import info as cli_info
@@ -301,6 +302,7 @@ cli.add_command(cli_analyze.analyze_group)
 cli.add_command(cli_export.export)
 cli.add_command(cli_reconcile.reconcile)
 cli.add_command(cli_info.info)
+cli.add_command(cli_batch.batch)
 
 
 # ---------------------------------------------------------------------- entry point

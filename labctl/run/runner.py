@@ -21,6 +21,7 @@ import dataclasses
 import json
 import math
 import signal
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
@@ -82,6 +83,11 @@ class StopRequests:
 
     @contextmanager
     def installed(self) -> Iterator[None]:
+        """The handlers, in the main thread; a run in another thread (a Dask worker's task, labctl batch)
+        leaves the signals to the process that owns that thread (Python delivers them to the main thread)."""
+        if not _main_thread():
+            yield
+            return
         previous = {sig: signal.signal(sig, self._handle) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             yield
@@ -91,8 +97,8 @@ class StopRequests:
 
 
 def bring_to_safe_state(lab: Lab, report: Callable[[str], None]) -> None:
-    """safe_state() on every device; further Ctrl-C is ignored until all are safe."""
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    """safe_state() on every device; further Ctrl-C is ignored until all are safe (in the main thread)."""
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
     try:
         for role, device in lab.devices().items():
             try:
@@ -100,7 +106,13 @@ def bring_to_safe_state(lab: Lab, report: Callable[[str], None]) -> None:
             except Exception as exc:  # a device that cannot even stop must not stop the others
                 report(f"warning: {role} safe_state failed: {exc}")
     finally:
-        signal.signal(signal.SIGINT, previous)
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _main_thread() -> bool:
+    """Whether this is the main thread, the only one that may set signal handlers (Python's signal module)."""
+    return threading.current_thread() is threading.main_thread()
 
 
 def close_all(lab: Lab, report: Callable[[str], None]) -> None:

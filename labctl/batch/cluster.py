@@ -1,0 +1,77 @@
+"""The Dask client of a batch: a local cluster sized to the machine, or an existing cluster's scheduler.
+
+Workers are processes with one thread each: HDF5 (h5py) serializes every call
+within a process behind one lock, and the evaluation's compiled kernels
+(numba) and numpy already use the core they run on, so a core is a worker
+(Dask's distributed scheduler, https://distributed.dask.org/en/stable/
+worker.html: ``nthreads`` and ``processes``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from labctl.errors import InputError, RunAborted
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+#: a worker's compiled kernels run on its one core (numba would start a thread per core in every worker)
+WORKER_ENVIRONMENT = {"NUMBA_NUM_THREADS": "1"}
+#: seconds to wait for a remote scheduler before giving up
+CONNECT_TIMEOUT_S = 20.0
+
+
+def machine_workers() -> int:
+    """The cores this process may run on (its CPU affinity, which a container or ``taskset`` narrows)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:  # not on Linux
+        return max(os.cpu_count() or 1, 1)
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """Where the tasks run: ``scheduler``, an existing cluster's address (``tcp://host:8786``; its workers
+    must read the run files and write the outputs at the same paths), else a local cluster of ``workers``
+    single-threaded worker processes (default: one per core)."""
+
+    scheduler: str | None = None
+    workers: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.scheduler is not None and self.workers is not None:
+            raise InputError("--workers sizes a local cluster; with --scheduler the cluster keeps its own workers")
+        if self.workers is not None and self.workers < 1:
+            raise InputError(f"--workers must be at least 1, not {self.workers}")
+
+
+@contextmanager
+def open_client(cluster: Cluster) -> Iterator[Client]:
+    """A connected Dask client of ``cluster``; a local cluster is closed on the way out. The local scheduler's
+    HTTP server (its dashboard when the ``bokeh`` package is installed) listens on a free port."""
+    from distributed import Client, LocalCluster
+
+    scheduler = cluster.scheduler
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise RunAborted(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
+                         dashboard_address=":0", silence_logs=logging.ERROR, env=WORKER_ENVIRONMENT)
+    try:
+        with Client(local) as client:
+            yield client
+    finally:
+        local.close()

@@ -1,0 +1,101 @@
+"""What a worker does for one run: the functions ``labctl evaluate`` and ``labctl reconcile`` call, on a path.
+
+A task gets the run file's path (the run is read where it lies, stacks
+streamed step by step as ``labctl evaluate`` does) and an output directory,
+writes the same files the serial command writes there, and returns a small
+summary (plain JSON values) for the index: never arrays or the run itself.
+A failure of one run becomes the summary's ``error`` (the message the serial
+command would print; the traceback in ``evaluate-error.txt`` or
+``reconcile-error.txt`` beside the outputs), so
+the other runs go on.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from labctl.errors import LabctlError
+
+Summary = dict[str, Any]
+
+
+def error_message(exc: BaseException) -> str:
+    """The one-line message the command line would print for ``exc`` (labctl.cli.main's mapping)."""
+    if isinstance(exc, LabctlError):
+        return str(exc)
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}" if exc.filename else exc.strerror
+    return f"{type(exc).__name__}: {exc}"
+
+
+def guarded(stage: Callable[[], Summary], error_file: Path) -> Summary:
+    """``stage()``, or ``{"error": message}`` when it fails (the traceback written to ``error_file``)."""
+    try:
+        return stage()
+    except Exception as exc:  # one run's failure must not stop the batch: it is reported in the index
+        error_file.parent.mkdir(parents=True, exist_ok=True)
+        error_file.write_text("".join(traceback.format_exception(exc)))
+        return {"error": error_message(exc)}
+
+
+def evaluate_run(run: Path, outdir: Path) -> Summary:
+    """``labctl evaluate RUN -o OUTDIR``: keyfigures.json, report.html and plots; the figures' values."""
+    from labctl.evaluation.evaluate import evaluate_runs
+    from labctl.report.html import write_outputs
+
+    json_path, report = write_outputs(evaluate_runs([run]), outdir)
+    doc = json.loads(json_path.read_text())
+    return {"output": str(outdir), "report": str(report), "camera": doc["camera"],
+            "figures": {name: figure["value"] for name, figure in doc["figures"].items()}}
+
+
+def reconcile_run(run: Path, outdir: Path, model_text: str | None = None, model_source: str = "model") -> Summary:
+    """``labctl reconcile RUN [--model MODEL] -o OUTDIR``: reconcile.json, reconcile.html, model.toml; the
+    verdict, named effects, gaps, the best candidate's dBIC and the largest step gap in units of its floor
+    before any effect was added (the two numbers the thresholds are calibrated on)."""
+    from labctl.reconcile.report import write_reconcile
+    from labctl.reconcile.workflow import reconcile
+    from sim.model import parse_model
+
+    model = parse_model(model_text, model_source) if model_text is not None else None
+    result = reconcile(run, model)
+    report, model_file, doc = write_reconcile(result, run, outdir)
+    before = result.goodness_before
+    worst = before.worst_step if before is not None else None
+    best = max((c["score"] for c in result.candidates), default=None)
+    return {"output": str(outdir), "report": str(report), "model": str(model_file), "verdict": doc["verdict"],
+            "named": [e["name"] for e in result.named],
+            "empirical": [e["name"] for e in result.empirical],
+            "gap_before": doc["gap_before"], "gap_after": doc["gap_after"], "gap_floor": doc["gap_floor"],
+            "consistent_with_noise": doc["consistent_with_noise"],
+            "best_candidate": result.candidates[0]["name"] if result.candidates else None,
+            "best_candidate_dbic": best if best is None or math.isfinite(best) else None,
+            "worst_step_ratio": round(worst.ratio, 4) if worst is not None and math.isfinite(worst.ratio) else None}
+
+
+def process_run(run: Path, outdir: Path, evaluate: bool, reconcile: bool, model_text: str | None = None,
+                model_source: str = "model") -> Summary:
+    """One run of a batch: evaluated into ``outdir/evaluation`` and/or reconciled into ``outdir/reconcile``;
+    ``status`` is ``failed`` when a stage failed (its ``error`` says why), the other stage still runs."""
+    start = time.monotonic()
+    summary: Summary = {"run": str(run), "output": str(outdir), "worker": f"{socket.gethostname()}:{os.getpid()}"}
+    if evaluate:
+        summary["evaluate"] = guarded(lambda: evaluate_run(run, outdir / "evaluation"),
+                                      outdir / "evaluate-error.txt")
+    if reconcile:
+        summary["reconcile"] = guarded(lambda: reconcile_run(run, outdir / "reconcile", model_text, model_source),
+                                       outdir / "reconcile-error.txt")
+    errors = [f"{stage}: {summary[stage]['error']}" for stage in ("evaluate", "reconcile")
+              if "error" in summary.get(stage, {})]
+    summary["status"] = "failed" if errors else "ok"
+    summary["error"] = "; ".join(errors) or None
+    summary["seconds"] = round(time.monotonic() - start, 3)
+    return summary
