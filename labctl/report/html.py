@@ -67,6 +67,8 @@ def wrappable(name: str) -> str:
 def _fmt(value: Any, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return '<span class="null">n/a</span>'
+    if isinstance(value, bool):
+        return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.0f}" if abs(value) >= 10 ** (digits - 1) else f"{value:.{digits}g}"
     return html.escape(str(value))
@@ -390,6 +392,27 @@ def _summary_html(cam: dict[str, Any], doc: dict[str, Any]) -> str:
                          f'<th class="l">better</th><th class="l">meaning</th></tr>{rows}</table>') + "</div>")
 
 
+def _capture_summary_html(cam: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+    """The summary of a run of single captures (``labctl device camera``): what each stack shows, since without a
+    reference distance no key figure and no suitability verdict can be computed."""
+    def line(r: dict[str, Any]) -> str:
+        plane = (f"planar, plane {_fmt(r['plane_distance_on_axis_mm'])} mm away on the axis, residual RMS "
+                 f"{_fmt(r['plane_rms_mm'])} mm" if r["planar"] else "not planar")
+        return (f"<li><b>{html.escape(r['step'])}</b>: {r['frames']} frame(s), {_fmt(100 * r['valid_fraction'])} % valid "
+                f"pixels, depth median {_fmt(r['depth_median_mm'])} mm (5-95 %: {_fmt(r['depth_q05_mm'])}-"
+                f"{_fmt(r['depth_q95_mm'])} mm), temporal noise median {_fmt(r['temporal_noise_median_mm'])} mm, "
+                f"Q90 {_fmt(r['temporal_noise_q90_mm'])} mm; {plane}</li>")
+    return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam["model"])}</b>: single capture '
+            "(<code>labctl device camera</code>) without a reference distance, so no key figure and no suitability "
+            "verdict: those need a campaign's procedures. What was captured (maps below):</p>"
+            f"<ul>{''.join(line(r) for r in rows)}</ul></div>")
+
+
+def _capture_only(doc: dict[str, Any]) -> bool:
+    """The runs hold only capture steps: no figure came from a step (the pixel aspect comes from the datasheet)."""
+    return "capture" in doc and not any(f["source"] for f in doc["figures"].values())
+
+
 def _flags_html(flags: list[dict[str, str]]) -> str:
     """A figure's plausibility flags, one warning line each."""
     return "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))}: '
@@ -409,20 +432,22 @@ def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> s
     runs = "".join(f"<li>{html.escape(r)}</li>" for r in evaluation.runs)
     simulated = " (simulated)" if cam.get("simulated") and "simulated" not in cam["model"] else ""
     suit_html = _suitability_html(doc["suitability"])
+    capture_only = _capture_only(doc)  # its maps come first: the key figures and verdicts are all n/a
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>labctl report: {html.escape(cam['model'])}</title>
 <style>{CSS}</style></head><body>
 <h1>Characterization of {html.escape(cam['model'])}{simulated}</h1>
 <p>Serial {html.escape(str(cam['serial']))}, {cam['width']}&times;{cam['height']} px,
 FOV {cam['fov_deg'][0]:g}&times;{cam['fov_deg'][1]:g}&deg;. Report by labctl {labctl_version()} on {now_iso()}.</p>
-{_summary_html(cam, doc)}
+{_capture_summary_html(cam, doc["capture"]) if capture_only else _summary_html(cam, doc)}
 <ul>{runs}</ul>
 {f'<ul>{notes}</ul>' if notes else ''}
+{''.join(sections) if capture_only else ''}
 <h2>Key figures</h2>
 {wrap_table(f'''<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">meaning</th>
 <th class="l">better</th><th class="l">source steps</th></tr>{fig_rows}</table>''')}
 <h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>{suit_html}
-{''.join(sections)}
+{'' if capture_only else ''.join(sections)}
 {references_html()}
 </body></html>
 """

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from labctl.cli import main
+from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
 from labctl.evaluation.scenes import face_mask
 from labctl.report.compare import _chart_floor, story_name
 from labctl.report.html import SUMMARY_FIGURES
@@ -267,3 +268,20 @@ def test_alignment_result_is_in_keyfigures_json(report):
     for x, y, z in a["fields_mm"].values():
         assert z == pytest.approx(1500, abs=15) and abs(x) > 100 and abs(y) > 100
     assert abs(a["tilt_x_deg"]) < 0.2 and abs(a["tilt_y_deg"]) < 0.2
+
+
+def test_better_direction_is_the_one_docs_keyfigures_md_gives():
+    """Each figure's "better" column in docs/keyfigures.md is what the report and comparison show; more pixels
+    across the eyes is better whichever pixel size counts them (the angular count once read "lower")."""
+    text = (Path(__file__).parents[3] / "docs" / "keyfigures.md").read_text()
+    documented = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.split("|")[1:-1]]
+        if len(cells) >= 4 and cells[0].startswith("`") and cells[0].strip("`") in FIGURE_BY_NAME:
+            direction = next((c for c in cells if c in ("lower", "higher", "none")), None)
+            if direction is not None:  # the tables of definitions only have no "better" column
+                documented[cells[0].strip("`")] = direction
+    assert {"ied_pixels_at_hyperfocal", "ied_pixels_at_hyperfocal_angular", "best_focus_distance_mm",
+            "fill_rate_1000mm_pct"} <= set(documented)
+    for name, direction in documented.items():
+        assert better_direction(name) == direction, name
