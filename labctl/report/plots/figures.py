@@ -63,14 +63,17 @@ def percent_axis_limits(values_pct: np.ndarray) -> tuple[float, float]:
 
 
 def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -> Path:
-    """x and y precision (Q90 of the per-pixel std) and the centre pixel's repeatability over distance (Thesis 2024, 5.3)."""
+    """x and y precision (Q90 of the per-pixel std) and the repeatability of the off-axis and the centre pixel over
+    distance (Thesis 2024, 5.3; the off-axis pixel: docs/metrics.md, x/y noise)."""
     rows = sorted(precision, key=lambda item: item[1])
     d = np.array([distance for _, distance, _ in rows])
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
     for ax, axis in zip(axes, "xy"):
         ax.plot(d, [getattr(p, f"precision_q90_{axis}_mm") for *_, p in rows], marker="o", ms=3, label="Q90 over pixels")
+        ax.plot(d, [getattr(p, f"repeatability_off_axis_{axis}_mm") for *_, p in rows], marker="o", ms=3,
+                label=f"off-axis pixel (halfway to the {'right' if axis == 'x' else 'bottom'} edge)")
         ax.plot(d, [getattr(p, f"repeatability_center_{axis}_mm") for *_, p in rows], marker="o", ms=3,
-                label="centre pixel")
+                label=f"centre pixel ({axis} ~ 0: no depth noise)")
         ax.set_title(f"{axis} noise (per-pixel std over the stack)")
         ax.set_xlabel("distance (mm)")
         ax.set_ylabel("mm")
