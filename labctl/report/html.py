@@ -122,7 +122,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         img = plot_sharpness(evaluation.sharpness, plots / "sharpness.png")
         sections.append(_section("Sharpness over distance (Thesis 2024, 5.1.2, ISO 12233)", img, outdir, ""))
         img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
-        table = _rows_table(resolution_table(evaluation.sharpness), "step")
+        table = _rows_table(resolution_rows(resolution_table(evaluation.sharpness)), "step")
         sections.append(_section("Resolution of the intensity image (Thesis 2024, 6.3.1)", img, outdir, table))
     sections.extend(_geometry_sections(evaluation, outdir, plots, doc))
     sections.extend(_remission_sections(evaluation, outdir, plots, doc))
@@ -256,6 +256,18 @@ def _capture_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: di
     return sections
 
 
+def resolution_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The intensity-resolution table as the report shows it: the notes of both orientations in one column
+    ("h, v: ..." when they agree, else "h: ...; v: ..."), so that its columns fit the page; keyfigures.json keeps
+    ``note_h`` and ``note_v``."""
+    shown = []
+    for row in rows:
+        h, v = row["note_h"], row["note_v"]
+        note = f"h, v: {h}" if h and h == v else "; ".join(f"{o}: {n}" for o, n in (("h", h), ("v", v)) if n)
+        shown.append({**{k: val for k, val in row.items() if k not in ("note_h", "note_v")}, "notes": note})
+    return shown
+
+
 def _clean_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [{k: clean(v) if isinstance(v, float) else v for k, v in row.items()} for row in rows]
 
@@ -266,7 +278,9 @@ def _rows_table(rows: list[dict[str, Any]], key: str) -> str:
     cols = [c for c in rows[0] if c != key]
     head = "".join(f"<th>{wrappable(c)}</th>" for c in cols)
     body = "".join(
-        f'<tr><td class="l">{wrappable(str(r[key]))}</td>' + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
+        f'<tr><td class="l">{wrappable(str(r[key]))}</td>'
+        + "".join(f'<td class="l">{_fmt(r[c])}</td>' if isinstance(r[c], str) else f"<td>{_fmt(r[c])}</td>" for c in cols)
+        + "</tr>"
         for r in rows
     )
     return wrap_table(f'<table><tr><th class="l">{wrappable(key)}</th>{head}</tr>{body}</table>')

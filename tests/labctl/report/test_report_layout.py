@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import html
 import json
+import math
 import textwrap
 from html.parser import HTMLParser
 from pathlib import Path
@@ -21,7 +22,7 @@ from labctl.cli import main
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
 from labctl.evaluation.scenes import face_mask
 from labctl.report.compare import _chart_floor, story_name
-from labctl.report.html import SUMMARY_FIGURES
+from labctl.report.html import SUMMARY_FIGURES, resolution_rows
 from labctl.report.plots.figures import face_mask_title, percent_axis_limits
 from labctl.report.plots.remission import misalignment_label
 from labctl.run.store import RunReader
@@ -285,3 +286,18 @@ def test_better_direction_is_the_one_docs_keyfigures_md_gives():
             "fill_rate_1000mm_pct"} <= set(documented)
     for name, direction in documented.items():
         assert better_direction(name) == direction, name
+
+
+def test_resolution_table_shows_both_orientations_notes_in_one_column():
+    """16 columns with two note columns overflowed the page (the simulated flexx2: 1189 px in 1150); the notes of
+    both orientations share one column."""
+    base = {"distance_mm": 300.0, "step": "00012_slanted_edge", "sfr10_h": 0.62, "sfr10_v": math.nan}
+    rows = resolution_rows([
+        {**base, "note_h": "SFR10 above Nyquist", "note_v": "no SFR10"},
+        {**base, "note_h": "SFR10 above Nyquist", "note_v": "SFR10 above Nyquist"},
+        {**base, "note_h": "", "note_v": "edge not found"},
+        {**base, "note_h": "", "note_v": ""},
+    ])
+    assert [r["notes"] for r in rows] == ["h: SFR10 above Nyquist; v: no SFR10", "h, v: SFR10 above Nyquist",
+                                          "v: edge not found", ""]
+    assert all("note_h" not in r and "note_v" not in r and r["sfr10_h"] == 0.62 for r in rows)
