@@ -73,8 +73,13 @@ def compare(directories: list[Path], outdir: Path) -> Path:
              for fig in FIGURES}
     verdicts = {label: {k: v["verdict"] for k, v in doc.get("suitability", {}).get("stories", {}).items()}
                 for label, doc in zip(labels, docs)}
+    reasons = {label: {k: v.get("summary", "") for k, v in doc.get("suitability", {}).get("stories", {}).items()}
+               for label, doc in zip(labels, docs)}
+    flags = {fig.name: {label: [f["check"] for f in doc["figures"][fig.name].get("flags", [])]
+                        for label, doc in zip(labels, docs) if doc["figures"].get(fig.name, {}).get("flags")}
+             for fig in FIGURES}
     result = {"cameras": labels, "sources": [str(d) for d in directories], "figures": table, "suitability": verdicts,
-              "stories": _story_names(docs)}
+              "reasons": reasons, "stories": _story_names(docs), "flags": {k: v for k, v in flags.items() if v}}
     (outdir / "compare.json").write_text(dumps_strict(result, indent=2) + "\n")
     chart = _chart(table, labels, plots / "comparison.png")
     ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")
@@ -153,6 +158,10 @@ def _chart_floor(table: dict[str, dict[str, float | None]], names: list[str], la
     return 10.0 ** (math.floor(math.log10(min(positive))) - 1) if positive else 1e-3
 
 
+#: the IED chart shows ``ied_pixels_at_hyperfocal``: the pinhole count at the image centre (docs/suitability.md)
+IED_TITLE = "Inter-eye distance at the hyperfocal distance (pinhole, face at the image centre)"
+
+
 def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 3.8))
     values = [ied[label] if ied[label] is not None else np.nan for label in labels]
@@ -161,7 +170,7 @@ def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> P
                  color="white", fontsize=9, fontweight="bold")  # inside the bars: clear of the required line
     ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
     ax.set_ylabel("px across 62.5 mm\nat the hyperfocal distance")
-    ax.set_title("Inter-eye distance coverage (Thesis 2024, eq. 6-2)", pad=24)
+    ax.set_title(IED_TITLE, pad=24)
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False, fontsize=8)  # above the bars, never on them
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -177,13 +186,20 @@ def _fmt(value: Any) -> str:
     return html.escape(str(value))
 
 
+def _flagged(value: Any, checks: list[str]) -> str:
+    """A value with its plausibility flags (docs/keyfigures.md) after it, as the report shows them."""
+    return _fmt(value) + "".join(f'<br><span class="note">&#9888; {html.escape(c.replace("_", " "))}</span>'
+                                 for c in checks)
+
+
 def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
     labels = result["cameras"]
     head = "".join(f"<th>{html.escape(label)}</th>" for label in labels)
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_direction(name)}</td>'
-        + "".join(f"<td>{_fmt(values[label])}</td>" for label in labels) + "</tr>"
+        + "".join(f"<td>{_flagged(values[label], result['flags'].get(name, {}).get(label, []))}</td>" for label in labels)
+        + "</tr>"
         for name, values in result["figures"].items()
     )
     vendor_rows = "".join(
@@ -194,7 +210,8 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
     )
     suit_rows = "".join(
         f'<tr><td class="l">{html.escape(name)}</td>'
-        + "".join(verdict_cell(result["suitability"][label].get(story, "not_evaluated")) for label in labels) + "</tr>"
+        + "".join(verdict_cell(result["suitability"][label].get(story, "not_evaluated"),
+                               result["reasons"].get(label, {}).get(story, "")) for label in labels) + "</tr>"
         for story, name in result["stories"].items()
     )
     return f"""<!DOCTYPE html>
@@ -204,6 +221,9 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
 <p>labctl {labctl_version()}, {now_iso()}. Cameras marked * were simulated.</p>
 <img src="{chart.as_posix()}" alt="key figures per camera">
 <h2>Inter-eye distance coverage</h2><img src="{ied.as_posix()}" alt="IED coverage">
+<p>Pixels across the 62.5 mm inter-eye distance of a face at the image centre at the hyperfocal distance, pinhole
+model (<code>ied_pixels_at_hyperfocal</code>); the mean angular pixel size of Thesis 2024, eq. 6-2 counts more
+(<code>ied_pixels_at_hyperfocal_angular</code>, in the key figures below).</p>
 <h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>
 {wrap_table(f'<table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>')}
 <h2>Datasheet-comparable figures</h2>

@@ -21,7 +21,7 @@ import pytest
 from labctl.cli import main
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
 from labctl.evaluation.scenes import face_mask
-from labctl.report.compare import _chart_floor, story_name
+from labctl.report.compare import IED_TITLE, _chart_floor, story_name
 from labctl.report.html import SUMMARY_FIGURES, resolution_rows
 from labctl.report.plots.figures import face_mask_title, percent_axis_limits
 from labctl.report.plots.remission import misalignment_label
@@ -301,3 +301,27 @@ def test_resolution_table_shows_both_orientations_notes_in_one_column():
     assert [r["notes"] for r in rows] == ["h: SFR10 above Nyquist; v: no SFR10", "h, v: SFR10 above Nyquist",
                                           "v: edge not found", ""]
     assert all("note_h" not in r and "note_v" not in r and r["sfr10_h"] == 0.62 for r in rows)
+
+
+def test_comparison_gives_each_verdicts_reason_each_figures_flags_and_names_the_ied_model(tmp_path):
+    d = tmp_path / "a"
+    d.mkdir()
+    story = {"verdict": "fail", "description": "3D face recognition, 1:1 verification",
+             "summary": "fails inter-eye distance >= 90 px: 75.5"}
+    flag = {"check": "near_axis", "message": "taken where x = 0.5 mm"}
+    doc = {"camera": {"model": "cam A"},
+           "figures": {"ied_pixels_at_hyperfocal": {"value": 75.5, "unit": "px", "flags": []},
+                       "x_repeatability_center_mm": {"value": 0.003, "unit": "mm", "flags": [flag]}},
+           "suitability": {"standard": "s", "stories": {"3d_face_recognition_1_to_1": story}}}
+    (d / "keyfigures.json").write_text(json.dumps(doc))
+    assert invoke("compare", d, "-o", tmp_path / "cmp") == 0
+    page = (tmp_path / "cmp" / "compare.html").read_text()
+    assert "<b>fail</b><br>fails inter-eye distance &gt;= 90 px: 75.5" in page
+    row = page[page.index("x_<wbr>repeatability_<wbr>center_<wbr>mm"):]
+    assert row[:row.index("</tr>")].count("near axis") == 1
+    assert "pinhole" in IED_TITLE and "6-2" not in IED_TITLE
+    ied_text = page[page.index("Inter-eye distance coverage"):page.index("<h2>Suitability")]
+    assert "pinhole" in ied_text and "ied_pixels_at_hyperfocal_angular" in ied_text
+    result = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert result["flags"] == {"x_repeatability_center_mm": {"cam A": ["near_axis"]}}
+    assert result["reasons"]["cam A"]["3d_face_recognition_1_to_1"] == story["summary"]
