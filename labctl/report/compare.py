@@ -23,6 +23,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from labctl.errors import InputError  # noqa: E402
 from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES, better_direction  # noqa: E402
@@ -159,23 +160,33 @@ def _chart_floor(table: dict[str, dict[str, float | None]], names: list[str], la
 
 
 #: the IED chart shows ``ied_pixels_at_hyperfocal``: the pinhole count at the image centre (docs/suitability.md)
-IED_TITLE = "Inter-eye distance at the hyperfocal distance (pinhole, face at the image centre)"
+IED_TITLE = "Inter-eye distance at the hyperfocal distance\n(pinhole, face at the image centre)"
 
 
 def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> Path:
+    fig = ied_figure(ied, labels)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def ied_figure(ied: dict[str, float | None], labels: list[str]) -> Figure:
+    """The IED coverage bars of each camera against the 90 px requirement (ISO/IEC 39794-5:2019, Annex D)."""
     fig, ax = plt.subplots(figsize=(7, 3.8))
     values = [ied[label] if ied[label] is not None else np.nan for label in labels]
     bars = ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
-    ax.bar_label(bars, labels=[f"{v:.0f} px" if math.isfinite(v) else "n/a" for v in values], label_type="center",
+    ax.bar_label(bars, labels=[f"{v:.0f} px" if math.isfinite(v) else "" for v in values], label_type="center",
                  color="white", fontsize=9, fontweight="bold")  # inside the bars: clear of the required line
+    for k, v in enumerate(values):
+        if not math.isfinite(v):  # no bar to label: say so at its foot
+            ax.text(k, 2.0, "n/a", ha="center", va="bottom", fontsize=9, fontweight="bold", color="tab:gray")
+    ax.set_xlim(-0.5, len(labels) - 0.5)  # every camera keeps its place, with or without a bar
     ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
     ax.set_ylabel("px across 62.5 mm\nat the hyperfocal distance")
     ax.set_title(IED_TITLE, pad=24)
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False, fontsize=8)  # above the bars, never on them
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return fig
 
 
 def _fmt(value: Any) -> str:
@@ -195,6 +206,7 @@ def _flagged(value: Any, checks: list[str]) -> str:
 def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
     labels = result["cameras"]
     head = "".join(f"<th>{html.escape(label)}</th>" for label in labels)
+    story_head = "".join(f'<th class="l">{html.escape(label)}</th>' for label in labels)  # over left-aligned verdicts
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_direction(name)}</td>'
@@ -225,7 +237,7 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
 model (<code>ied_pixels_at_hyperfocal</code>); the mean angular pixel size of Thesis 2024, eq. 6-2 counts more
 (<code>ied_pixels_at_hyperfocal_angular</code>, in the key figures below).</p>
 <h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>
-{wrap_table(f'<table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>')}
+{wrap_table(f'<table><tr><th class="l">user story</th>{story_head}</tr>{suit_rows}</table>')}
 <h2>Datasheet-comparable figures</h2>
 <p>As the camera vendors' tools define them; set them next to the datasheets.</p>
 {wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>'

@@ -21,7 +21,7 @@ import pytest
 from labctl.cli import main
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
 from labctl.evaluation.scenes import face_mask
-from labctl.report.compare import IED_TITLE, _chart_floor, story_name
+from labctl.report.compare import IED_TITLE, _chart_floor, ied_figure, story_name
 from labctl.report.html import SUMMARY_FIGURES, resolution_rows
 from labctl.report.plots.figures import face_mask_title, percent_axis_limits
 from labctl.report.plots.remission import misalignment_label
@@ -325,3 +325,18 @@ def test_comparison_gives_each_verdicts_reason_each_figures_flags_and_names_the_
     result = json.loads((tmp_path / "cmp" / "compare.json").read_text())
     assert result["flags"] == {"x_repeatability_center_mm": {"cam A": ["near_axis"]}}
     assert result["reasons"]["cam A"]["3d_face_recognition_1_to_1"] == story["summary"]
+
+
+def test_ied_chart_title_legend_and_labels_lie_inside_the_figure():
+    """The title once ran past the figure's right edge (cut at "centre" in the 700 px PNG), and a camera without
+    a value (n/a) pushed the last camera's name off the axis."""
+    labels = ["Basler blaze-101*", "Schmersal AM-T100*", "pmd flexx2 VGA*", "Intel RealSense D455*"]
+    fig = ied_figure(dict(zip(labels, [75.5, 50.4, 65.8, None])), labels)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    texts = [ax.title, ax.yaxis.label, *ax.get_xticklabels(), ax.get_legend()]
+    for artist in texts:
+        box = artist.get_window_extent(renderer)
+        assert box.x0 >= 0 and box.y0 >= 0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height, artist
+    assert "n/a" in [t.get_text() for t in ax.texts]
