@@ -23,7 +23,7 @@ from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
 from labctl.evaluation.scenes import face_mask
 from labctl.report.compare import IED_TITLE, _chart_floor, ied_figure, story_name
 from labctl.report.html import SUMMARY_FIGURES, resolution_rows
-from labctl.report.plots.figures import face_mask_title, percent_axis_limits
+from labctl.report.plots.figures import face_mask_title, percent_axis_limits, sharpness_figure
 from labctl.report.plots.remission import misalignment_label
 from labctl.run.store import RunReader
 from tests.conftest import campaign_text
@@ -340,3 +340,22 @@ def test_ied_chart_title_legend_and_labels_lie_inside_the_figure():
         box = artist.get_window_extent(renderer)
         assert box.x0 >= 0 and box.y0 >= 0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height, artist
     assert "n/a" in [t.get_text() for t in ax.texts]
+
+
+def test_sharpness_legend_lies_under_the_plots_and_names_the_focus_lines():
+    """The simulated flexx2's legend once covered its vertical SFR10 at 1000 mm; the hyperfocal and best-focus
+    lines had no legend entry, the SFR10 plot no Nyquist line to judge its values against."""
+    from tests.labctl.evaluation.test_plausibility import sharpness
+
+    result = sharpness(0.62, 0.79)
+    result.hyperfocal_mm = 300.0
+    fig = sharpness_figure(result)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    [legend] = fig.legends
+    box = legend.get_window_extent(renderer)
+    assert box.x0 >= 0 and box.y0 >= 0 and box.x1 <= fig.bbox.width
+    for ax in fig.axes:
+        assert box.y1 < ax.xaxis.label.get_window_extent(renderer).y0  # under every axis and its label
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == ["horizontal", "vertical", "Nyquist 0.5 cy/px", "hyperfocal 300 mm", "best focus 400 mm"]
