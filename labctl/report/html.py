@@ -108,7 +108,8 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         doc["alignment"] = alignment_document(evaluation.alignment)
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
-        sections.append(_section("Depth error over distance (Thesis 2024, 4.2.1)", img, outdir, _depth_rows(evaluation)))
+        sections.append(_section("Depth error over distance (Thesis 2024, 4.2.1)", img, outdir,
+                                 depth_quantization_html(evaluation.quantization_mm) + _depth_rows(evaluation)))
     if evaluation.vendor:
         doc["depth_quality"] = _clean_rows(vendor_table(evaluation.vendor))
         img = plot_vendor_figures(evaluation.vendor, plots / "depth_quality.png")
@@ -326,6 +327,17 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
             "says otherwise), besides the guideline's 0.3 % outlier rule.</p>" + table
             + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(per_step, 'step')}")
     return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
+
+
+def depth_quantization_html(quantization_mm: dict[str, float]) -> str:
+    """Under the depth table: what a quantized depth output does to its figures (empty for continuous depth)."""
+    step = quantization_mm.get("z", math.nan)
+    if not math.isfinite(step):
+        return ""
+    return (f'<p class="note">The depth is stored in steps of {_fmt(step)} mm: figures near or below a step are '
+            "largely rounding. A pixel with little noise against the step and a true depth away from a rounding "
+            "boundary reads the same value in every frame (precision and repeatability 0), and a single frame's error jumps by up to a step from one "
+            "distance to the next as the reference moves between steps.</p>")
 
 
 def _depth_rows(evaluation: Evaluation) -> str:

@@ -22,7 +22,7 @@ from labctl.cli import main
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
 from labctl.evaluation.scenes import face_mask
 from labctl.report.compare import IED_TITLE, _chart_floor, ied_figure, story_name
-from labctl.report.html import SUMMARY_FIGURES, resolution_rows
+from labctl.report.html import SUMMARY_FIGURES, depth_quantization_html, resolution_rows
 from labctl.report.plots.figures import face_mask_title, percent_axis_limits, sharpness_figure
 from labctl.report.plots.remission import misalignment_label
 from labctl.run.store import RunReader
@@ -359,3 +359,12 @@ def test_sharpness_legend_lies_under_the_plots_and_names_the_focus_lines():
         assert box.y1 < ax.xaxis.label.get_window_extent(renderer).y0  # under every axis and its label
     labels = [t.get_text() for t in legend.get_texts()]
     assert labels == ["horizontal", "vertical", "Nyquist 0.5 cy/px", "hyperfocal 300 mm", "best focus 400 mm"]
+
+
+def test_depth_section_says_when_the_depth_is_quantized():
+    """The AM-T100's integer millimetres: precision 0 at 506 mm and single-frame errors of 0.056 then 0.994 mm
+    at 1506 and 2006 mm; the depth section says why."""
+    text = depth_quantization_html({"x": 1.0, "y": 1.0, "z": 1.0})
+    assert "steps of 1 mm" in text and "precision and repeatability 0" in text
+    assert depth_quantization_html({"x": math.nan, "y": math.nan, "z": math.nan}) == ""
+    assert depth_quantization_html({}) == ""
