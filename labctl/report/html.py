@@ -336,8 +336,8 @@ def depth_quantization_html(quantization_mm: dict[str, float]) -> str:
         return ""
     return (f'<p class="note">The depth is stored in steps of {_fmt(step)} mm: figures near or below a step are '
             "largely rounding. A pixel with little noise against the step and a true depth away from a rounding "
-            "boundary reads the same value in every frame (precision and repeatability 0), and a single frame's error jumps by up to a step from one "
-            "distance to the next as the reference moves between steps.</p>")
+            "boundary reads the same value in every frame (precision and repeatability 0), and a single frame's "
+            "error jumps by up to a step from one distance to the next as the reference moves between steps.</p>")
 
 
 def _depth_rows(evaluation: Evaluation) -> str:
@@ -409,7 +409,9 @@ def _summary_html(cam: dict[str, Any], doc: dict[str, Any]) -> str:
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc["figures"][name]["value"])}</td>'
         f'<td class="l">{doc["figures"][name]["unit"]}</td><td class="l">{better_direction(name)}</td>'
-        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td></tr>'
+        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}'
+        + "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))} (see Key figures)</span>'
+                  for f in doc["figures"][name]["flags"]) + "</td></tr>"
         for name in SUMMARY_FIGURES
     )
     return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam["model"])}</b>: suitable for {passed} of '
