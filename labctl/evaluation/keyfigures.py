@@ -110,7 +110,8 @@ FIGURES = FIGURES + VENDOR_FIGURES + ACCEPTANCE_FIGURES
 FIGURE_BY_NAME = {f.name: f for f in FIGURES}
 
 #: figures where a larger value is better (coverage and fill rates)
-HIGHER_IS_BETTER = frozenset({"ied_pixels_at_hyperfocal"} | {f.name for f in VENDOR_FIGURES if f.name.startswith("fill_rate_")})
+HIGHER_IS_BETTER = frozenset({"ied_pixels_at_hyperfocal", "ied_pixels_at_hyperfocal_angular"}
+                              | {f.name for f in VENDOR_FIGURES if f.name.startswith("fill_rate_")})
 #: figures that are neither better high nor low: the distance the camera is sharpest at
 NO_BETTER_DIRECTION = frozenset({"best_focus_distance_mm"})
 

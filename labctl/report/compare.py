@@ -23,6 +23,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from labctl.errors import InputError  # noqa: E402
 from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES, better_direction  # noqa: E402
@@ -73,8 +74,13 @@ def compare(directories: list[Path], outdir: Path) -> Path:
              for fig in FIGURES}
     verdicts = {label: {k: v["verdict"] for k, v in doc.get("suitability", {}).get("stories", {}).items()}
                 for label, doc in zip(labels, docs)}
+    reasons = {label: {k: v.get("summary", "") for k, v in doc.get("suitability", {}).get("stories", {}).items()}
+               for label, doc in zip(labels, docs)}
+    flags = {fig.name: {label: [f["check"] for f in doc["figures"][fig.name].get("flags", [])]
+                        for label, doc in zip(labels, docs) if doc["figures"].get(fig.name, {}).get("flags")}
+             for fig in FIGURES}
     result = {"cameras": labels, "sources": [str(d) for d in directories], "figures": table, "suitability": verdicts,
-              "stories": _story_names(docs)}
+              "reasons": reasons, "stories": _story_names(docs), "flags": {k: v for k, v in flags.items() if v}}
     (outdir / "compare.json").write_text(dumps_strict(result, indent=2) + "\n")
     chart = _chart(table, labels, plots / "comparison.png")
     ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")
@@ -153,20 +159,34 @@ def _chart_floor(table: dict[str, dict[str, float | None]], names: list[str], la
     return 10.0 ** (math.floor(math.log10(min(positive))) - 1) if positive else 1e-3
 
 
+#: the IED chart shows ``ied_pixels_at_hyperfocal``: the pinhole count at the image centre (docs/suitability.md)
+IED_TITLE = "Inter-eye distance at the hyperfocal distance\n(pinhole, face at the image centre)"
+
+
 def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> Path:
-    fig, ax = plt.subplots(figsize=(7, 3.8))
-    values = [ied[label] if ied[label] is not None else np.nan for label in labels]
-    bars = ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
-    ax.bar_label(bars, labels=[f"{v:.0f} px" if math.isfinite(v) else "n/a" for v in values], label_type="center",
-                 color="white", fontsize=9, fontweight="bold")  # inside the bars: clear of the required line
-    ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
-    ax.set_ylabel("px across 62.5 mm\nat the hyperfocal distance")
-    ax.set_title("Inter-eye distance coverage (Thesis 2024, eq. 6-2)", pad=24)
-    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False, fontsize=8)  # above the bars, never on them
-    fig.tight_layout()
+    fig = ied_figure(ied, labels)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def ied_figure(ied: dict[str, float | None], labels: list[str]) -> Figure:
+    """The IED coverage bars of each camera against the 90 px requirement (ISO/IEC 39794-5:2019, Annex D)."""
+    fig, ax = plt.subplots(figsize=(7, 3.8))
+    values = [ied[label] if ied[label] is not None else np.nan for label in labels]
+    bars = ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
+    ax.bar_label(bars, labels=[f"{v:.0f} px" if math.isfinite(v) else "" for v in values], label_type="center",
+                 color="white", fontsize=9, fontweight="bold")  # inside the bars: clear of the required line
+    for k, v in enumerate(values):
+        if not math.isfinite(v):  # no bar to label: say so at its foot
+            ax.text(k, 2.0, "n/a", ha="center", va="bottom", fontsize=9, fontweight="bold", color="tab:gray")
+    ax.set_xlim(-0.5, len(labels) - 0.5)  # every camera keeps its place, with or without a bar
+    ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
+    ax.set_ylabel("px across 62.5 mm\nat the hyperfocal distance")
+    ax.set_title(IED_TITLE, pad=24)
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False, fontsize=8)  # above the bars, never on them
+    fig.tight_layout()
+    return fig
 
 
 def _fmt(value: Any) -> str:
@@ -177,13 +197,21 @@ def _fmt(value: Any) -> str:
     return html.escape(str(value))
 
 
+def _flagged(value: Any, checks: list[str]) -> str:
+    """A value with its plausibility flags (docs/keyfigures.md) after it, as the report shows them."""
+    return _fmt(value) + "".join(f'<br><span class="note">&#9888; {html.escape(c.replace("_", " "))}</span>'
+                                 for c in checks)
+
+
 def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
     labels = result["cameras"]
     head = "".join(f"<th>{html.escape(label)}</th>" for label in labels)
+    story_head = "".join(f'<th class="l">{html.escape(label)}</th>' for label in labels)  # over left-aligned verdicts
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_direction(name)}</td>'
-        + "".join(f"<td>{_fmt(values[label])}</td>" for label in labels) + "</tr>"
+        + "".join(f"<td>{_flagged(values[label], result['flags'].get(name, {}).get(label, []))}</td>" for label in labels)
+        + "</tr>"
         for name, values in result["figures"].items()
     )
     vendor_rows = "".join(
@@ -194,7 +222,8 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
     )
     suit_rows = "".join(
         f'<tr><td class="l">{html.escape(name)}</td>'
-        + "".join(verdict_cell(result["suitability"][label].get(story, "not_evaluated")) for label in labels) + "</tr>"
+        + "".join(verdict_cell(result["suitability"][label].get(story, "not_evaluated"),
+                               result["reasons"].get(label, {}).get(story, "")) for label in labels) + "</tr>"
         for story, name in result["stories"].items()
     )
     return f"""<!DOCTYPE html>
@@ -204,8 +233,11 @@ def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
 <p>labctl {labctl_version()}, {now_iso()}. Cameras marked * were simulated.</p>
 <img src="{chart.as_posix()}" alt="key figures per camera">
 <h2>Inter-eye distance coverage</h2><img src="{ied.as_posix()}" alt="IED coverage">
+<p>Pixels across the 62.5 mm inter-eye distance of a face at the image centre at the hyperfocal distance, pinhole
+model (<code>ied_pixels_at_hyperfocal</code>); the mean angular pixel size of Thesis 2024, eq. 6-2 counts more
+(<code>ied_pixels_at_hyperfocal_angular</code>, in the key figures below).</p>
 <h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>
-{wrap_table(f'<table><tr><th class="l">user story</th>{head}</tr>{suit_rows}</table>')}
+{wrap_table(f'<table><tr><th class="l">user story</th>{story_head}</tr>{suit_rows}</table>')}
 <h2>Datasheet-comparable figures</h2>
 <p>As the camera vendors' tools define them; set them next to the datasheets.</p>
 {wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>'

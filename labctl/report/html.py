@@ -67,6 +67,8 @@ def wrappable(name: str) -> str:
 def _fmt(value: Any, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return '<span class="null">n/a</span>'
+    if isinstance(value, bool):
+        return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.0f}" if abs(value) >= 10 ** (digits - 1) else f"{value:.{digits}g}"
     return html.escape(str(value))
@@ -106,7 +108,8 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         doc["alignment"] = alignment_document(evaluation.alignment)
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
-        sections.append(_section("Depth error over distance (Thesis 2024, 4.2.1)", img, outdir, _depth_rows(evaluation)))
+        sections.append(_section("Depth error over distance (Thesis 2024, 4.2.1)", img, outdir,
+                                 depth_quantization_html(evaluation.quantization_mm) + _depth_rows(evaluation)))
     if evaluation.vendor:
         doc["depth_quality"] = _clean_rows(vendor_table(evaluation.vendor))
         img = plot_vendor_figures(evaluation.vendor, plots / "depth_quality.png")
@@ -120,7 +123,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         img = plot_sharpness(evaluation.sharpness, plots / "sharpness.png")
         sections.append(_section("Sharpness over distance (Thesis 2024, 5.1.2, ISO 12233)", img, outdir, ""))
         img = plot_resolution(evaluation.sharpness, plots / "intensity_resolution.png")
-        table = _rows_table(resolution_table(evaluation.sharpness), "step")
+        table = _rows_table(resolution_rows(resolution_table(evaluation.sharpness)), "step")
         sections.append(_section("Resolution of the intensity image (Thesis 2024, 6.3.1)", img, outdir, table))
     sections.extend(_geometry_sections(evaluation, outdir, plots, doc))
     sections.extend(_remission_sections(evaluation, outdir, plots, doc))
@@ -254,6 +257,18 @@ def _capture_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: di
     return sections
 
 
+def resolution_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The intensity-resolution table as the report shows it: the notes of both orientations in one column
+    ("h, v: ..." when they agree, else "h: ...; v: ..."), so that its columns fit the page; keyfigures.json keeps
+    ``note_h`` and ``note_v``."""
+    shown = []
+    for row in rows:
+        h, v = row["note_h"], row["note_v"]
+        note = f"h, v: {h}" if h and h == v else "; ".join(f"{o}: {n}" for o, n in (("h", h), ("v", v)) if n)
+        shown.append({**{k: val for k, val in row.items() if k not in ("note_h", "note_v")}, "notes": note})
+    return shown
+
+
 def _clean_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [{k: clean(v) if isinstance(v, float) else v for k, v in row.items()} for row in rows]
 
@@ -264,7 +279,9 @@ def _rows_table(rows: list[dict[str, Any]], key: str) -> str:
     cols = [c for c in rows[0] if c != key]
     head = "".join(f"<th>{wrappable(c)}</th>" for c in cols)
     body = "".join(
-        f'<tr><td class="l">{wrappable(str(r[key]))}</td>' + "".join(f"<td>{_fmt(r[c])}</td>" for c in cols) + "</tr>"
+        f'<tr><td class="l">{wrappable(str(r[key]))}</td>'
+        + "".join(f'<td class="l">{_fmt(r[c])}</td>' if isinstance(r[c], str) else f"<td>{_fmt(r[c])}</td>" for c in cols)
+        + "</tr>"
         for r in rows
     )
     return wrap_table(f'<table><tr><th class="l">{wrappable(key)}</th>{head}</tr>{body}</table>')
@@ -310,6 +327,17 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
             "says otherwise), besides the guideline's 0.3 % outlier rule.</p>" + table
             + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(per_step, 'step')}")
     return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
+
+
+def depth_quantization_html(quantization_mm: dict[str, float]) -> str:
+    """Under the depth table: what a quantized depth output does to its figures (empty for continuous depth)."""
+    step = quantization_mm.get("z", math.nan)
+    if not math.isfinite(step):
+        return ""
+    return (f'<p class="note">The depth is stored in steps of {_fmt(step)} mm: figures near or below a step are '
+            "largely rounding. A pixel with little noise against the step and a true depth away from a rounding "
+            "boundary reads the same value in every frame (precision and repeatability 0), and a single frame's "
+            "error jumps by up to a step from one distance to the next as the reference moves between steps.</p>")
 
 
 def _depth_rows(evaluation: Evaluation) -> str:
@@ -381,13 +409,36 @@ def _summary_html(cam: dict[str, Any], doc: dict[str, Any]) -> str:
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc["figures"][name]["value"])}</td>'
         f'<td class="l">{doc["figures"][name]["unit"]}</td><td class="l">{better_direction(name)}</td>'
-        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}</td></tr>'
+        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}'
+        + "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))} (see Key figures)</span>'
+                  for f in doc["figures"][name]["flags"]) + "</td></tr>"
         for name in SUMMARY_FIGURES
     )
     return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam["model"])}</b>: suitable for {passed} of '
             f"{len(judged)} user stories with numeric requirements.</p><ul>{badges}</ul>"
             + wrap_table('<table><tr><th class="l">figure</th><th>value</th><th class="l">unit</th>'
                          f'<th class="l">better</th><th class="l">meaning</th></tr>{rows}</table>') + "</div>")
+
+
+def _capture_summary_html(cam: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+    """The summary of a run of single captures (``labctl device camera``): what each stack shows, since without a
+    reference distance no key figure and no suitability verdict can be computed."""
+    def line(r: dict[str, Any]) -> str:
+        plane = (f"planar, plane {_fmt(r['plane_distance_on_axis_mm'])} mm away on the axis, residual RMS "
+                 f"{_fmt(r['plane_rms_mm'])} mm" if r["planar"] else "not planar")
+        return (f"<li><b>{html.escape(r['step'])}</b>: {r['frames']} frame(s), {_fmt(100 * r['valid_fraction'])} % valid "
+                f"pixels, depth median {_fmt(r['depth_median_mm'])} mm (5-95 %: {_fmt(r['depth_q05_mm'])}-"
+                f"{_fmt(r['depth_q95_mm'])} mm), temporal noise median {_fmt(r['temporal_noise_median_mm'])} mm, "
+                f"Q90 {_fmt(r['temporal_noise_q90_mm'])} mm; {plane}</li>")
+    return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam["model"])}</b>: single capture '
+            "(<code>labctl device camera</code>) without a reference distance, so no key figure and no suitability "
+            "verdict: those need a campaign's procedures. What was captured (maps below):</p>"
+            f"<ul>{''.join(line(r) for r in rows)}</ul></div>")
+
+
+def _capture_only(doc: dict[str, Any]) -> bool:
+    """The runs hold only capture steps: no figure came from a step (the pixel aspect comes from the datasheet)."""
+    return "capture" in doc and not any(f["source"] for f in doc["figures"].values())
 
 
 def _flags_html(flags: list[dict[str, str]]) -> str:
@@ -409,20 +460,22 @@ def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> s
     runs = "".join(f"<li>{html.escape(r)}</li>" for r in evaluation.runs)
     simulated = " (simulated)" if cam.get("simulated") and "simulated" not in cam["model"] else ""
     suit_html = _suitability_html(doc["suitability"])
+    capture_only = _capture_only(doc)  # its maps come first: the key figures and verdicts are all n/a
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>labctl report: {html.escape(cam['model'])}</title>
 <style>{CSS}</style></head><body>
 <h1>Characterization of {html.escape(cam['model'])}{simulated}</h1>
 <p>Serial {html.escape(str(cam['serial']))}, {cam['width']}&times;{cam['height']} px,
 FOV {cam['fov_deg'][0]:g}&times;{cam['fov_deg'][1]:g}&deg;. Report by labctl {labctl_version()} on {now_iso()}.</p>
-{_summary_html(cam, doc)}
+{_capture_summary_html(cam, doc["capture"]) if capture_only else _summary_html(cam, doc)}
 <ul>{runs}</ul>
 {f'<ul>{notes}</ul>' if notes else ''}
+{''.join(sections) if capture_only else ''}
 <h2>Key figures</h2>
 {wrap_table(f'''<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">meaning</th>
 <th class="l">better</th><th class="l">source steps</th></tr>{fig_rows}</table>''')}
 <h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>{suit_html}
-{''.join(sections)}
+{'' if capture_only else ''.join(sections)}
 {references_html()}
 </body></html>
 """

@@ -10,6 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from labctl.evaluation.evaluate import DepthPosition, SurfaceResult  # noqa: E402
 from labctl.evaluation.sharpness import SharpnessResult  # noqa: E402
@@ -63,14 +64,17 @@ def percent_axis_limits(values_pct: np.ndarray) -> tuple[float, float]:
 
 
 def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -> Path:
-    """x and y precision (Q90 of the per-pixel std) and the centre pixel's repeatability over distance (Thesis 2024, 5.3)."""
+    """x and y precision (Q90 of the per-pixel std) and the repeatability of the off-axis and the centre pixel over
+    distance (Thesis 2024, 5.3; the off-axis pixel: docs/metrics.md, x/y noise)."""
     rows = sorted(precision, key=lambda item: item[1])
     d = np.array([distance for _, distance, _ in rows])
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
     for ax, axis in zip(axes, "xy"):
         ax.plot(d, [getattr(p, f"precision_q90_{axis}_mm") for *_, p in rows], marker="o", ms=3, label="Q90 over pixels")
+        ax.plot(d, [getattr(p, f"repeatability_off_axis_{axis}_mm") for *_, p in rows], marker="o", ms=3,
+                label=f"off-axis pixel (halfway to the {'right' if axis == 'x' else 'bottom'} edge)")
         ax.plot(d, [getattr(p, f"repeatability_center_{axis}_mm") for *_, p in rows], marker="o", ms=3,
-                label="centre pixel")
+                label=f"centre pixel ({axis} ~ 0: no depth noise)")
         ax.set_title(f"{axis} noise (per-pixel std over the stack)")
         ax.set_xlabel("distance (mm)")
         ax.set_ylabel("mm")
@@ -123,25 +127,37 @@ def _valid_and_invalid(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: 
 
 def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
     """SFR10, SFR50 and SFR area over distance, horizontal and vertical (Thesis 2024, Fig. 6-3)."""
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), sharex=True)
+    fig = sharpness_figure(result)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def sharpness_figure(result: SharpnessResult) -> Figure:
+    """The figure of :func:`plot_sharpness`: one legend under the three plots, never on their data, naming the
+    orientations, the Nyquist frequency, the hyperfocal and best-focus lines and how invalid positions are drawn."""
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), sharex=True)
+    lines = ((result.hyperfocal_mm, "hyperfocal", ":"), (result.best_focus_mm, "best focus", "-."))
     for ax, attr, title in zip(axes, ("sfr10", "sfr50", "sfr_area"), ("SFR10", "SFR50", "SFR area")):
         for orientation, color in (("horizontal", "tab:blue"), ("vertical", "tab:orange")):
             d, v, ok = result.series(orientation, attr)
             _valid_and_invalid(ax, d, v, ok, orientation, color)
+        if attr == "sfr10":  # a sampled image holds no higher frequency: an SFR10 above it is aliasing
+            ax.axhline(0.5, color="tab:red", linestyle="--", linewidth=0.8, label="Nyquist 0.5 cy/px")
         ax.set_title(title)
         ax.set_xlabel("distance (mm)")
         ax.set_ylabel("cy/px" if attr != "sfr_area" else "")
         ax.grid(alpha=0.3)
-        for x, name in ((result.hyperfocal_mm, "hyperfocal"), (result.best_focus_mm, "best focus")):
+        for x, name, style in lines:
             if math.isfinite(x):
-                ax.axvline(x, color="gray", linestyle=":" if name == "hyperfocal" else "-.", linewidth=1)
-    axes[0].legend(title="hollow, x at the bottom: invalid\n(reason: the table's note)")
+                ax.axvline(x, color="gray", linestyle=style, linewidth=1, label=f"{name} {x:.0f} mm")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False,
+               title="invalid positions: hollow, or x at the bottom where there is no value (reason: the table's notes)")
     fig.suptitle(f"Slanted-edge sharpness over distance: hyperfocal {result.hyperfocal_mm:.0f} mm, "
                  f"best focus {result.best_focus_mm:.0f} mm")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    fig.tight_layout(rect=(0, 0.14, 1, 1))
+    return fig
 
 
 def plot_resolution(result: SharpnessResult, path: Path) -> Path:

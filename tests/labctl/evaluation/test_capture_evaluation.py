@@ -35,6 +35,12 @@ def test_capture_of_a_realsense_recording_is_summarized_not_a_page_of_na(labctl_
     report = (tmp_path / "out" / "report.html").read_text()
     assert "Single capture 00000_capture" in report and "plots/capture_00000_capture.png" in report
     assert (tmp_path / "out" / "plots" / "capture_00000_capture.png").stat().st_size > 10_000
+    # the page opens with what was captured, not with a summary of n/a figures and "suitable for 0 of 5"
+    summary = report[report.index('<div class="summary">'):report.index("</div>", report.index('<div class="summary">'))]
+    assert "suitable for" not in summary and "no key figure and no suitability verdict" in summary
+    assert f"{row['frames']} frame(s), {100 * row['valid_fraction']:.3g} % valid" in summary
+    assert f"depth median {row['depth_median_mm']:.0f} mm" in summary and "not planar" in summary
+    assert report.index("Single capture 00000_capture") < report.index("<h2>Key figures</h2>")
 
 
 def test_capture_of_a_simulated_wall_finds_the_plane(labctl_main, tmp_path):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import html
 import json
+import math
 import textwrap
 from html.parser import HTMLParser
 from pathlib import Path
@@ -18,10 +19,11 @@ import numpy as np
 import pytest
 
 from labctl.cli import main
+from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
 from labctl.evaluation.scenes import face_mask
-from labctl.report.compare import _chart_floor, story_name
-from labctl.report.html import SUMMARY_FIGURES
-from labctl.report.plots.figures import face_mask_title, percent_axis_limits
+from labctl.report.compare import IED_TITLE, _chart_floor, ied_figure, story_name
+from labctl.report.html import SUMMARY_FIGURES, depth_quantization_html, resolution_rows
+from labctl.report.plots.figures import face_mask_title, percent_axis_limits, sharpness_figure
 from labctl.report.plots.remission import misalignment_label
 from labctl.run.store import RunReader
 from tests.conftest import campaign_text
@@ -267,3 +269,102 @@ def test_alignment_result_is_in_keyfigures_json(report):
     for x, y, z in a["fields_mm"].values():
         assert z == pytest.approx(1500, abs=15) and abs(x) > 100 and abs(y) > 100
     assert abs(a["tilt_x_deg"]) < 0.2 and abs(a["tilt_y_deg"]) < 0.2
+
+
+def test_better_direction_is_the_one_docs_keyfigures_md_gives():
+    """Each figure's "better" column in docs/keyfigures.md is what the report and comparison show; more pixels
+    across the eyes is better whichever pixel size counts them (the angular count once read "lower")."""
+    text = (Path(__file__).parents[3] / "docs" / "keyfigures.md").read_text()
+    documented = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.split("|")[1:-1]]
+        if len(cells) >= 4 and cells[0].startswith("`") and cells[0].strip("`") in FIGURE_BY_NAME:
+            direction = next((c for c in cells if c in ("lower", "higher", "none")), None)
+            if direction is not None:  # the tables of definitions only have no "better" column
+                documented[cells[0].strip("`")] = direction
+    assert {"ied_pixels_at_hyperfocal", "ied_pixels_at_hyperfocal_angular", "best_focus_distance_mm",
+            "fill_rate_1000mm_pct"} <= set(documented)
+    for name, direction in documented.items():
+        assert better_direction(name) == direction, name
+
+
+def test_resolution_table_shows_both_orientations_notes_in_one_column():
+    """16 columns with two note columns overflowed the page (the simulated flexx2: 1189 px in 1150); the notes of
+    both orientations share one column."""
+    base = {"distance_mm": 300.0, "step": "00012_slanted_edge", "sfr10_h": 0.62, "sfr10_v": math.nan}
+    rows = resolution_rows([
+        {**base, "note_h": "SFR10 above Nyquist", "note_v": "no SFR10"},
+        {**base, "note_h": "SFR10 above Nyquist", "note_v": "SFR10 above Nyquist"},
+        {**base, "note_h": "", "note_v": "edge not found"},
+        {**base, "note_h": "", "note_v": ""},
+    ])
+    assert [r["notes"] for r in rows] == ["h: SFR10 above Nyquist; v: no SFR10", "h, v: SFR10 above Nyquist",
+                                          "v: edge not found", ""]
+    assert all("note_h" not in r and "note_v" not in r and r["sfr10_h"] == 0.62 for r in rows)
+
+
+def test_comparison_gives_each_verdicts_reason_each_figures_flags_and_names_the_ied_model(tmp_path):
+    d = tmp_path / "a"
+    d.mkdir()
+    story = {"verdict": "fail", "description": "3D face recognition, 1:1 verification",
+             "summary": "fails inter-eye distance >= 90 px: 75.5"}
+    flag = {"check": "near_axis", "message": "taken where x = 0.5 mm"}
+    doc = {"camera": {"model": "cam A"},
+           "figures": {"ied_pixels_at_hyperfocal": {"value": 75.5, "unit": "px", "flags": []},
+                       "x_repeatability_center_mm": {"value": 0.003, "unit": "mm", "flags": [flag]}},
+           "suitability": {"standard": "s", "stories": {"3d_face_recognition_1_to_1": story}}}
+    (d / "keyfigures.json").write_text(json.dumps(doc))
+    assert invoke("compare", d, "-o", tmp_path / "cmp") == 0
+    page = (tmp_path / "cmp" / "compare.html").read_text()
+    assert "<b>fail</b><br>fails inter-eye distance &gt;= 90 px: 75.5" in page
+    row = page[page.index("x_<wbr>repeatability_<wbr>center_<wbr>mm"):]
+    assert row[:row.index("</tr>")].count("near axis") == 1
+    assert "pinhole" in IED_TITLE and "6-2" not in IED_TITLE
+    ied_text = page[page.index("Inter-eye distance coverage"):page.index("<h2>Suitability")]
+    assert "pinhole" in ied_text and "ied_pixels_at_hyperfocal_angular" in ied_text
+    result = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert result["flags"] == {"x_repeatability_center_mm": {"cam A": ["near_axis"]}}
+    assert result["reasons"]["cam A"]["3d_face_recognition_1_to_1"] == story["summary"]
+
+
+def test_ied_chart_title_legend_and_labels_lie_inside_the_figure():
+    """The title once ran past the figure's right edge (cut at "centre" in the 700 px PNG), and a camera without
+    a value (n/a) pushed the last camera's name off the axis."""
+    labels = ["Basler blaze-101*", "Schmersal AM-T100*", "pmd flexx2 VGA*", "Intel RealSense D455*"]
+    fig = ied_figure(dict(zip(labels, [75.5, 50.4, 65.8, None])), labels)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    texts = [ax.title, ax.yaxis.label, *ax.get_xticklabels(), ax.get_legend()]
+    for artist in texts:
+        box = artist.get_window_extent(renderer)
+        assert box.x0 >= 0 and box.y0 >= 0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height, artist
+    assert "n/a" in [t.get_text() for t in ax.texts]
+
+
+def test_sharpness_legend_lies_under_the_plots_and_names_the_focus_lines():
+    """The simulated flexx2's legend once covered its vertical SFR10 at 1000 mm; the hyperfocal and best-focus
+    lines had no legend entry, the SFR10 plot no Nyquist line to judge its values against."""
+    from tests.labctl.evaluation.test_plausibility import sharpness
+
+    result = sharpness(0.62, 0.79)
+    result.hyperfocal_mm = 300.0
+    fig = sharpness_figure(result)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    [legend] = fig.legends
+    box = legend.get_window_extent(renderer)
+    assert box.x0 >= 0 and box.y0 >= 0 and box.x1 <= fig.bbox.width
+    for ax in fig.axes:
+        assert box.y1 < ax.xaxis.label.get_window_extent(renderer).y0  # under every axis and its label
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == ["horizontal", "vertical", "Nyquist 0.5 cy/px", "hyperfocal 300 mm", "best focus 400 mm"]
+
+
+def test_depth_section_says_when_the_depth_is_quantized():
+    """The AM-T100's integer millimetres: precision 0 at 506 mm and single-frame errors of 0.056 then 0.994 mm
+    at 1506 and 2006 mm; the depth section says why."""
+    text = depth_quantization_html({"x": 1.0, "y": 1.0, "z": 1.0})
+    assert "steps of 1 mm" in text and "precision and repeatability 0" in text
+    assert depth_quantization_html({"x": math.nan, "y": math.nan, "z": math.nan}) == ""
+    assert depth_quantization_html({}) == ""
