@@ -82,15 +82,12 @@ def test_batch_equals_the_serial_commands_and_a_corrupt_run_is_reported(serial: 
     assert "corrupt.h5" in failed[0]["error"] and "Traceback" not in failed[0]["error"]
     done = [r for r in index["runs"] if r["status"] == "ok"]
     assert len(done) == 6
-    for k, summary in enumerate(done):
+    for summary in done:
         out, mine = serial / "serial" / summary["name"], Path(summary["output"])
         assert _labctl("evaluate", summary["run"], "-o", out / "evaluation", "--quiet") == 0
         expected = json.loads((out / "evaluation" / "keyfigures.json").read_text())
         assert json.loads((mine / "evaluation" / "keyfigures.json").read_text()) == expected
         assert summary["evaluate"]["figures"] == {n: f["value"] for n, f in expected["figures"].items()}
-        if k not in (0, 5):  # the serial reconcile of two of them (it is the suite's cost): the first and last
-            assert summary["reconcile"]["verdict"] in ("none", "effect_found", "unexplained", "ambiguous")
-            continue
         assert _labctl("reconcile", summary["run"], "-o", out / "reconcile", "--quiet") == 0
         expected = json.loads((out / "reconcile" / "reconcile.json").read_text())
         got = json.loads((mine / "reconcile" / "reconcile.json").read_text())
