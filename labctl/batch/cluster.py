@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -52,6 +54,24 @@ class Cluster:
 
 
 @contextmanager
+def _children_ignore_ctrl_c() -> Iterator[None]:
+    """Processes started inside ignore SIGINT: Ctrl-C at a terminal signals the whole foreground process
+    group, and the local cluster's workers would each die with a traceback. An ignored signal stays ignored
+    across exec, and Python then installs no KeyboardInterrupt handler (Python docs, ``signal``: "SIGINT is
+    translated into a KeyboardInterrupt exception if the parent process has not changed it"). This process
+    keeps its handler: it cancels the pending tasks and closes the cluster, which ends the workers. (A
+    Ctrl-C during the few seconds the workers take to start is not seen.)"""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextmanager
 def open_client(cluster: Cluster) -> Iterator[Client]:
     """A connected Dask client of ``cluster``; a local cluster is closed on the way out. The local scheduler's
     HTTP server (its dashboard when the ``bokeh`` package is installed) listens on a free port."""
@@ -68,8 +88,9 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
         finally:
             client.close()
         return
-    local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
-                         dashboard_address=":0", silence_logs=logging.ERROR, env=WORKER_ENVIRONMENT)
+    with _children_ignore_ctrl_c():
+        local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
+                             dashboard_address=":0", silence_logs=logging.ERROR, env=WORKER_ENVIRONMENT)
     try:
         with Client(local) as client:
             yield client

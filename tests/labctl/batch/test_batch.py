@@ -5,6 +5,11 @@ expanded into their grid; run arguments expanded; cluster options checked."""
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -205,3 +210,36 @@ def test_cluster_options_are_checked(tmp_path: Path, monkeypatch: pytest.MonkeyP
     with pytest.raises(Exception, match="cannot reach the Dask scheduler at tcp://127.0.0.1:1"):
         with cluster.open_client(cluster.Cluster("tcp://127.0.0.1:1")):
             pass
+
+
+def test_ctrl_c_cancels_the_pending_runs_and_stops_the_cluster(serial: Path) -> None:
+    """Ctrl-C at the terminal (SIGINT to the command's whole process group, the cluster's worker processes
+    included) once the first run is done: exit 130 with one line and no traceback, the runs still pending never
+    evaluated, and no process of the group left behind."""
+    out = serial / "interrupted"
+    root = Path(__file__).resolve().parents[3]
+    proc = subprocess.Popen([sys.executable, "-m", "labctl", "batch", "runs", str(serial / "runs"), "-o", str(out),
+                             "--workers", "1", "--quiet"], cwd=root, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not list(out.glob("runs/*/evaluation/keyfigures.json")):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "no run finished"
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and stderr.strip().splitlines()[-1] == "labctl: aborted", stderr
+    assert len(list(out.glob("runs/*/evaluation/keyfigures.json"))) < len(SEEDS)
+    deadline = time.monotonic() + 30
+    while True:  # the cluster's processes end with the command
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "processes of the batch's group are still running"
+        time.sleep(0.5)
