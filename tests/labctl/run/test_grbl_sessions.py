@@ -174,12 +174,14 @@ def test_campaigns_after_a_feed_hold_and_after_a_hard_limit(
         time.sleep(0.1)
         raw(grbl.port, b"!")
         assert grbl.status_state == "Hold:0"
-        assert run("after_hold.h5") == (0, "")
+        code, err = run("after_hold.h5")
+        assert (code, err) == (0, ""), err
         assert grbl.status_state == "Idle"
         grbl.trip_hard_limit_at(300.0)  # the third sweep step (400 mm) runs into a limit switch
         code, err = run("hard_limit.h5")
         assert code == 1 and "ALARM:1: Hard limit has been triggered" in err, err
-        assert run("after_limit.h5") == (0, "")  # silent Grbl reset, then homed (home_on_connect)
+        code, err = run("after_limit.h5")  # silent Grbl reset, then homed (home_on_connect)
+        assert (code, err) == (0, ""), err
     for name, status in [("after_hold.h5", "complete"), ("hard_limit.h5", "aborted"), ("after_limit.h5", "complete")]:
         with h5py.File(tmp_path / name, "r") as f:
             assert f.attrs["status"] == status
