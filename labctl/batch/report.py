@@ -19,6 +19,7 @@ from labctl.batch.index import counts, figure_names  # noqa: E402
 from labctl.batch.tasks import Summary  # noqa: E402
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME  # noqa: E402
 from labctl.report.html import CSS  # noqa: E402
+from labctl.report.plots.png import save_png  # noqa: E402
 from labctl.run.store import labctl_version, now_iso  # noqa: E402
 
 MAX_PLOTTED = 12  # figures plotted across runs (all are tabled)
@@ -85,17 +86,10 @@ def _figures_section(summaries: Sequence[Summary], outdir: Path) -> str:
     for ax in list(axes.flat)[len(plotted):]:
         ax.axis("off")
     fig.tight_layout()
-    image = _save(fig, outdir / "plots" / "figures_across_runs.png")
+    image = save_png(fig, outdir / "plots" / "figures_across_runs.png", dpi=90)
     return ("<h2>Key figures across the runs</h2>" + f'<img src="{image.relative_to(outdir).as_posix()}" '
             'alt="key figures across the runs">'
             + _table(["figure", "unit", "runs", "min", "median", "max", "min at", "max at"], rows))
-
-
-def _save(fig: Any, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
 
 
 def grid_rows(summaries: Sequence[Summary], axes: Sequence[str], figures: Sequence[str]) -> list[list[Any]]:
@@ -161,7 +155,7 @@ def _grid_section(summaries: Sequence[Summary], axes: Sequence[str], figures: Se
             ax.set_xlabel(axis, fontsize=8)
             ax.set_ylabel(figure, fontsize=8)
     fig.tight_layout()
-    image = _save(fig, outdir / "plots" / "figures_over_grid.png")
+    image = save_png(fig, outdir / "plots" / "figures_over_grid.png", dpi=90)
     return section + f'<img src="{image.relative_to(outdir).as_posix()}" alt="figures over the grid">'
 
 

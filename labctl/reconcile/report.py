@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 
 from labctl.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
 from labctl.report.html import CSS as REPORT_CSS  # noqa: E402
+from labctl.report.plots.png import save_png  # noqa: E402
 from labctl.run.store import labctl_version, now_iso  # noqa: E402
 from metrics.jsonsafe import dumps_strict  # noqa: E402
 
@@ -73,9 +74,7 @@ def plot_residuals(result: ReconcileResult, path: Path) -> Path:
     ax.legend(fontsize=8)
     fig.suptitle("measurement - simulation (lab nuisance removed): before and after reconcile")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def _bin_mean(maps: list[np.ndarray]) -> np.ndarray:
@@ -98,9 +97,7 @@ def plot_residual_map(result: ReconcileResult, path: Path) -> Path:
         ax.set_yticks([])
         fig.colorbar(im, ax=ax, label="mm")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def plot_candidates(result: ReconcileResult, path: Path) -> Path:
@@ -118,9 +115,7 @@ def plot_candidates(result: ReconcileResult, path: Path) -> Path:
         ax.set_xlabel("dBIC over steps")
         ax.tick_params(labelsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def _rms_text(values: np.ndarray) -> str:
@@ -157,9 +152,7 @@ def plot_unexplained(result: ReconcileResult, path: Path) -> Path:
     axes[1].set_xticks([])
     axes[1].set_yticks([])
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def _unexplained(result: ReconcileResult, plot: Path | None) -> str:

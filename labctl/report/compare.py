@@ -29,6 +29,7 @@ from labctl.errors import InputError  # noqa: E402
 from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES, better_direction  # noqa: E402
 from labctl.evaluation.suitability import IED_MIN_PX  # noqa: E402
 from labctl.report.html import CSS, references_html, verdict_cell, wrap_table, wrappable  # noqa: E402
+from labctl.report.plots.png import save_png  # noqa: E402
 from labctl.run.store import labctl_version, now_iso  # noqa: E402
 from metrics.jsonsafe import dumps_strict  # noqa: E402
 
@@ -140,9 +141,7 @@ def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: P
     ax.grid(axis="y", alpha=0.3, which="both")
     ax.legend(ncol=max(len(labels), 1), loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=9, frameon=False)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def _charted(name: str, value: float | None) -> float:
@@ -165,9 +164,7 @@ IED_TITLE = "Inter-eye distance at the hyperfocal distance\n(pinhole, face at th
 
 def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> Path:
     fig = ied_figure(ied, labels)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def ied_figure(ied: dict[str, float | None], labels: list[str]) -> Figure:

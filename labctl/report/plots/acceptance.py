@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from labctl.evaluation.vdi2634 import QUANTITIES, AcceptanceResult  # noqa: E402
+from labctl.report.plots.png import save_png  # noqa: E402
 
 
 def plot_acceptance(result: AcceptanceResult, path: Path) -> Path:
@@ -30,6 +31,4 @@ def plot_acceptance(result: AcceptanceResult, path: Path) -> Path:
         ax.set_title(name.replace("_mm", " (mm)").replace("_", " "))
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)

@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from labctl.report.plots.png import save_png  # noqa: E402
 from metrics.boehler import (  # noqa: E402
     MIN_SAMPLES_PER_SEGMENT,
     SECTOR_IS_V,
@@ -99,6 +100,4 @@ def plot_boehler(result: BoehlerResult, cloud: np.ndarray, path: Path) -> Path:
     bx.legend(loc="upper right", fontsize=8)
     fig.suptitle(f"Böhler star, {result.segments} segments, at {result.distance_mm:.0f} mm")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from labctl.evaluation.capture import CaptureResult  # noqa: E402
+from labctl.report.plots.png import save_png  # noqa: E402
 
 
 def _limits(data: np.ndarray, symmetric: bool = False) -> tuple[float, float]:
@@ -50,6 +51,4 @@ def plot_capture(result: CaptureResult, path: Path) -> Path:
         ax.axis("off")
     fig.suptitle(f"Capture {result.step_id}: {s.frames} frame(s), {s.valid_fraction:.1%} valid pixels")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from labctl.evaluation.depth_quality import VendorPosition  # noqa: E402
+from labctl.report.plots.png import save_png  # noqa: E402
 
 
 def plot_vendor_figures(positions: list[VendorPosition], path: Path) -> Path:
@@ -45,6 +46,4 @@ def plot_vendor_figures(positions: list[VendorPosition], path: Path) -> Path:
     for ax in axes[1]:
         ax.set_xlabel("reference distance (mm)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)

@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from labctl.report.plots.png import save_png  # noqa: E402
 from metrics.distortion import CloudDistortion, DistortionResult  # noqa: E402
 
 _NICE = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
@@ -73,6 +74,4 @@ def plot_distortion(image: np.ndarray, result: DistortionResult, path: Path,
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)

@@ -14,6 +14,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from labctl.evaluation.evaluate import DepthPosition, SurfaceResult  # noqa: E402
 from labctl.evaluation.sharpness import SharpnessResult  # noqa: E402
+from labctl.report.plots.png import save_png  # noqa: E402
 from metrics.xy_error import XYPrecision  # noqa: E402
 
 
@@ -51,9 +52,7 @@ def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
     for ax in axes[1]:
         ax.set_xlabel("reference distance (mm)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def percent_axis_limits(values_pct: np.ndarray) -> tuple[float, float]:
@@ -81,9 +80,7 @@ def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def plot_surface_maps(surface: SurfaceResult, path: Path) -> Path:
@@ -107,9 +104,7 @@ def plot_surface_maps(surface: SurfaceResult, path: Path) -> Path:
         f"Surface texture at {surface.reference_mm:.0f} mm ({surface.step_id}), cut-off {t.cutoff_mm:g} mm"
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def _valid_and_invalid(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: str, color: str) -> None:
@@ -128,9 +123,7 @@ def _valid_and_invalid(ax, d: np.ndarray, v: np.ndarray, ok: np.ndarray, label: 
 def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
     """SFR10, SFR50 and SFR area over distance, horizontal and vertical (Thesis 2024, Fig. 6-3)."""
     fig = sharpness_figure(result)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def sharpness_figure(result: SharpnessResult) -> Figure:
@@ -176,9 +169,7 @@ def plot_resolution(result: SharpnessResult, path: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def shaded_relief(cloud: np.ndarray) -> np.ndarray:
@@ -231,6 +222,4 @@ def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, wall_distance_mm: f
         ax.set_yticks([])
     fig.suptitle(face_mask_title(z, wall_distance_mm, step_id))
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from labctl.evaluation.remission import RemissionResult  # noqa: E402
+from labctl.report.plots.png import save_png  # noqa: E402
 
 COLORS = {"ptfe": "tab:blue", "molleton": "black", "silicone": "tab:orange", "gelatine": "tab:green",
           "collagen": "tab:red"}
@@ -44,9 +45,7 @@ def plot_remission(result: RemissionResult, path: Path) -> Path:
                  if fit else "no misalignment fit: reference = commanded radius")
     fig.suptitle(f"Remission and angle, ROI {result.roi[2]}x{result.roi[3]} px on the optical axis; {reference}")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def _signed_term(value: float, text: str) -> str:
@@ -91,6 +90,4 @@ def plot_misalignment_fit(result: RemissionResult, path: Path) -> Path:
     bottom.set_xlabel("robot angle (deg)")
     bottom.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
