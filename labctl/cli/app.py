@@ -319,16 +319,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)
-    except LabctlError as exc:
+    except (LabctlError, ModelError) as exc:  # a bad simulation model is bad input like a bad campaign
         if debug:
             raise
         _echo_err(f"labctl: error: {exc}")
-        sys.exit(exc.exit_code)
-    except ModelError as exc:  # a bad simulation model is bad input like a bad campaign
-        if debug:
-            raise
-        _echo_err(f"labctl: error: {exc}")
-        sys.exit(InputError.exit_code)
+        sys.exit(exc.exit_code if isinstance(exc, LabctlError) else InputError.exit_code)
     except KeyboardInterrupt:
         _echo_err("labctl: interrupted")
         sys.exit(130)
