@@ -8,7 +8,8 @@ blocks ``rs.disparity_transform``, ``rs.spatial_filter`` and ``rs.temporal_filte
 filter depth; sensor options ``rs.option.exposure`` (µs), ``enable_auto_exposure``,
 ``emitter_enabled``, ``laser_power`` and ``visual_preset`` configure the depth module.
 A recording plays through ``rs.config.enable_device_from_file(path, repeat_playback=False)``
-with ``playback.set_real_time(False)``, so no frame is dropped.
+with ``playback.set_real_time(False)`` set on the device the config resolves, before ``pipeline.start``,
+so no frame is dropped (in real-time playback the pipeline drops a frame the reader is late for).
 
 Frames: x, y, z in mm from the SDK's point cloud, NaN where the depth is 0 (no match);
 intensity = the left IR image (NaN if a recording has no IR stream); confidence = 1
@@ -295,14 +296,17 @@ class RealSenseCamera:
     def _start(self) -> None:
         rs = self._rs
         pipeline = rs.pipeline()
+        config = self._config()
         try:
-            self._profile = pipeline.start(self._config())
+            if self.playback is not None:
+                # non-real-time before the first frame: the config keeps the playback device it resolves, and
+                # start() plays that one; switched after start(), a real-time first frame could be dropped
+                config.resolve(rs.pipeline_wrapper(pipeline)).get_device().as_playback().set_real_time(False)
+            self._profile = pipeline.start(config)
         except RuntimeError as exc:
             raise DeviceError(self.name, f"cannot start streaming: {exc}") from exc
         self._pipeline = pipeline
         self._delivered = 0
-        if self.playback is not None:
-            self._profile.get_device().as_playback().set_real_time(False)
 
     def _set_option(self, sensor: Any, option: Any, value: float) -> None:
         try:
