@@ -8,8 +8,11 @@ stores at the raw size) and keep a margin for HDF5 metadata and the rest of the 
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -62,3 +65,52 @@ def ensure_free(run_file: Path, needed: int, what: str) -> None:
             f"then continue"
         )
 
+
+
+def mount_point(path: Path) -> Path:
+    """The mount point of the file system holding ``path`` (an existing file or directory)."""
+    current = Path(os.path.abspath(path))
+    while not os.path.ismount(current):
+        current = current.parent
+    return current
+
+
+_FALLOC_FL_KEEP_SIZE = 1  # linux/falloc.h: allocate blocks past the end of the file without changing its size
+
+
+def _fallocate() -> Any:
+    """libc's fallocate(2) (Linux), or None where the C library has none."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    function = getattr(libc, "fallocate", None)
+    if function is not None:
+        function.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int64, ctypes.c_int64]
+        function.restype = ctypes.c_int
+    return function
+
+
+def reserve(fd: int, path: Path, end: int, what: str) -> bool:
+    """Allocate the blocks of file ``fd`` (the run file ``path``) up to byte ``end`` without changing its size
+    (fallocate(2), FALLOC_FL_KEEP_SIZE), so that no later write below ``end`` can fail for lack of space.
+
+    DiskSpaceLow, naming the mount point and the bytes needed, when the file system cannot provide them;
+    False (nothing reserved) where the file system or C library does not support it."""
+    function = _fallocate()
+    if function is None:
+        return False
+    if function(fd, _FALLOC_FL_KEEP_SIZE, 0, end) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+        return False
+    if err in (errno.ENOSPC, errno.EDQUOT):
+        allocated = os.fstat(fd).st_blocks * 512
+        raise DiskSpaceLow(
+            f"no space left on the file system mounted at {mount_point(path)} for {what}: it needs "
+            f"{format_bytes(max(0, end - allocated))} more for {path.name}, {format_bytes(free_bytes(path.parent))} "
+            f"are free; free space (or move the run file), then continue")
+    raise OSError(err, f"cannot reserve space for {what} in {path} ({os.strerror(err)})", str(path))
+
+
+def release(fd: int) -> None:
+    """Give back the blocks reserved past the end of file ``fd`` (truncating a file to its own size frees them)."""
+    os.ftruncate(fd, os.fstat(fd).st_size)

@@ -21,10 +21,12 @@ A step without ``complete = True`` is unfinished and is discarded by resume.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
 from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -36,13 +38,31 @@ import numpy as np
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.errors import InputError
 from labctl.run import compression as codecs
-from labctl.run.diskspace import ensure_free, frame_bytes
+from labctl.run.diskspace import DiskSpaceLow, ensure_free, frame_bytes, mount_point, release, reserve
 from procedures.steps import Step
 
 FORMAT = "labctl-run"
 FORMAT_VERSION = 1
 CHANNELS = ("x", "y", "z", "intensity", "confidence")
 STATUSES = ("running", "complete", "aborted")
+METADATA_ALLOWANCE = 2**20
+"""Bytes reserved beyond a step's worst-case frame data, and before a status change, for HDF5 metadata
+(object headers, attributes, group and chunk indices; a 10-step file of 100 frames each holds about 0.2 MB)."""
+CHUNK_OVERHEAD = 16 + 64
+"""Worst-case bytes a compressed chunk takes beyond its raw size (Blosc's header, BLOSC_MAX_OVERHEAD = 16)
+plus its share of the chunk index."""
+
+
+class DamagedRunFile(InputError):
+    """HDF5 cannot open the run file, or cannot change it in place (labctl.run.salvage recovers what it can)."""
+
+
+_NOT_DAMAGE = (errno.EACCES, errno.EPERM, errno.EAGAIN, errno.ENOENT, errno.EISDIR, errno.EROFS)
+
+
+class RunFileError(OSError):
+    """A write to the run file failed (an I/O error, or no space where nothing could be reserved). The open
+    handle is then detached from the file, so nothing more reaches it: the file keeps its last flushed state."""
 
 
 def labctl_version() -> str:
@@ -115,9 +135,13 @@ class StepWriter:
         self._frame_space = h5py.h5s.create_simple((1, *self.shape))
 
     def write(self, k: int, frame: Frame) -> None:
-        """Store frame ``k`` of the stack; FrameError if its arrays do not fit."""
+        """Store frame ``k`` of the stack; FrameError if its arrays do not fit, RunFileError if the write fails."""
         if not 0 <= k < self.step.frames:
             raise FrameError(f"frame index {k} outside 0..{self.step.frames - 1}")
+        with self.run.guarded(f"frame {k} of step {self.step.step_id}"):
+            self._write(k, frame)
+
+    def _write(self, k: int, frame: Frame) -> None:
         for name in CHANNELS:
             array = np.asarray(getattr(frame, name))
             if array.shape != self.shape:
@@ -134,12 +158,15 @@ class StepWriter:
         self._timestamps[k] = float(frame.timestamp)
 
     def commit(self, attrs: Mapping[str, Any]) -> None:
-        """Write the step's attributes, ``complete = True`` last, and make it durable."""
-        for key, value in attrs.items():
-            self.group.attrs[key] = value
-        self.group.attrs["finished"] = now_iso()
-        self.group.attrs["complete"] = True
-        _fsync(self.run.file)
+        """Write the step's attributes, ``complete = True`` last, and make it durable; then give back the
+        space reserved for the step that it did not take."""
+        with self.run.guarded(f"committing step {self.step.step_id}"):
+            for key, value in attrs.items():
+                self.group.attrs[key] = value
+            self.group.attrs["finished"] = now_iso()
+            self.group.attrs["complete"] = True
+            _fsync(self.run.file)
+            release(self.run.file.id.get_vfd_handle())
 
 
 class RunWriter:
@@ -150,9 +177,53 @@ class RunWriter:
         try:
             self.file = h5py.File(self.path, "r+")
         except OSError as exc:
-            raise InputError(f"cannot open run file {self.path} for writing: {exc}") from None
-        _check_format(self.file, self.path)
+            if exc.errno in _NOT_DAMAGE or "unable to lock file" in str(exc):
+                raise InputError(f"cannot open run file {self.path} for writing: {exc}") from None
+            raise DamagedRunFile(f"HDF5 cannot open it: {str(exc).splitlines()[0]}") from None
+        try:
+            _check_format(self.file, self.path)
+            self.file["steps"].keys()
+        except (OSError, KeyError, RuntimeError, ValueError) as exc:
+            self.file.close()
+            raise DamagedRunFile(f"its header cannot be read: {str(exc).splitlines()[0]}") from None
+        except InputError:
+            self.file.close()
+            raise
         _keep_metadata_until_flush(self.file)
+        self.failure: str | None = None
+
+    # ------------------------------------------------------------------ faults
+    @contextmanager
+    def guarded(self, what: str) -> Iterator[None]:
+        """HDF5 writes for ``what``: an OSError from them (EIO, ENOSPC) detaches the handle from the file
+        (:func:`_detach`) and becomes a RunFileError naming the file system."""
+        if self.failure is not None:
+            raise RunFileError(f"{self.path} is detached after an earlier write error ({self.failure})")
+        try:
+            yield
+        except DiskSpaceLow:
+            raise
+        except OSError as exc:
+            self.failure = str(exc.strerror or exc).splitlines()[0]
+            cause = _errno_text(exc)
+            _detach(self.file)
+            raise RunFileError(
+                f"writing {what} to {self.path} failed ({cause}) on the file system mounted at "
+                f"{mount_point(self.path.parent)}; the file keeps every step completed before it"
+            ) from None
+
+    def _reserve(self, nbytes: int, what: str) -> None:
+        """Allocate ``nbytes`` past the file's current end (DiskSpaceLow when the file system has no room),
+        so the HDF5 writes that follow cannot meet a full disk."""
+        handle = self.file.id.get_vfd_handle()
+        end = max(os.fstat(handle).st_size, self.file.id.get_filesize()) + nbytes
+        reserve(handle, self.path, end, what)
+
+    def _reopen(self) -> None:
+        """After a write error: open the file again as the disk holds it (its last flushed state)."""
+        self.file = h5py.File(self.path, "r+")
+        _keep_metadata_until_flush(self.file)
+        self.failure = None
 
     # ------------------------------------------------------------------ create
     @classmethod
@@ -228,7 +299,18 @@ class RunWriter:
         return [s for s in _complete_steps(self.file) if procedure is None or s.attrs.get("procedure") == procedure]
 
     def discard_incomplete(self) -> list[str]:
-        """Delete every step that is not complete (or unreadable); returns their ids."""
+        """Delete every step that is not complete (or unreadable); returns their ids. DamagedRunFile when
+        the file's structure does not allow it (the file is then left as it was on disk)."""
+        try:
+            return self._discard_incomplete()
+        except DiskSpaceLow:
+            raise
+        except (OSError, KeyError, RuntimeError, ValueError) as exc:
+            _detach(self.file)
+            self.failure = str(exc).splitlines()[0]
+            raise DamagedRunFile(f"its unfinished steps cannot be removed: {self.failure}") from None
+
+    def _discard_incomplete(self) -> list[str]:
         steps = self.file["steps"]
         dropped = []
         for step_id in list(steps.keys()):
@@ -237,26 +319,42 @@ class RunWriter:
             except (KeyError, OSError, RuntimeError):
                 ok = False
             if not ok:
-                del steps[step_id]
                 dropped.append(step_id)
         if dropped:
-            _fsync(self.file)
+            self._reserve(METADATA_ALLOWANCE, "discarding unfinished steps")
+            with self.guarded("discarding unfinished steps"):
+                for step_id in dropped:
+                    del steps[step_id]
+                _fsync(self.file)
         return dropped
 
     def set_status(self, status: str, reason: str = "") -> None:
+        """Record the run's status (durably). After a write error the file is opened again first, so an
+        aborted run is marked aborted whenever the disk still takes a write."""
         if status not in STATUSES:
             raise ValueError(status)
-        self.file.attrs["status"] = status
-        self.file.attrs["status_reason"] = reason
-        _fsync(self.file)
+        if self.failure is not None:
+            self._reopen()
+        self._reserve(METADATA_ALLOWANCE, f"marking the run {status}")
+        with self.guarded(f"status {status}"):
+            self.file.attrs["status"] = status
+            self.file.attrs["status_reason"] = reason
+            _fsync(self.file)
 
     # ------------------------------------------------------------------ steps
     def begin_step(self, step: Step, stage_position_mm: float | None) -> StepWriter:
         """Create the step's group and datasets, marked incomplete; DiskSpaceLow (before anything
-        is written) if the disk has no room for the step's raw size."""
+        is written) if the disk has no room for the step's raw size, or cannot reserve its worst-case size."""
         camera = self.camera_info()
-        ensure_free(self.path, step.frames * frame_bytes(camera.width, camera.height, camera.confidence_dtype),
-                    f"step {step.step_id} ({step.frames} frames)")
+        what = f"step {step.step_id} ({step.frames} frames)"
+        raw = step.frames * frame_bytes(camera.width, camera.height, camera.confidence_dtype)
+        ensure_free(self.path, raw, what)
+        chunks = step.frames * (len(CHANNELS) + 1)
+        self._reserve(raw + 8 * step.frames + chunks * CHUNK_OVERHEAD + METADATA_ALLOWANCE, what)
+        with self.guarded(f"the start of step {step.step_id}"):
+            return self._create_step(step, stage_position_mm, camera)
+
+    def _create_step(self, step: Step, stage_position_mm: float | None, camera: CameraInfo) -> StepWriter:
         steps = self.file["steps"]
         if step.step_id in steps:
             del steps[step.step_id]
@@ -291,8 +389,37 @@ class RunWriter:
         return StepWriter(self, g, step, camera)
 
     def close(self) -> None:
+        """Close the file; after a write error (the handle is detached) this writes nothing."""
         if self.file.id.valid:
-            self.file.close()
+            with self.guarded("closing"):
+                self.file.close()
+
+
+def _errno_text(exc: OSError) -> str:
+    """``No space left on device`` for an OSError from HDF5, whose text buries errno in a long message."""
+    number = exc.errno
+    if number is None:
+        for code in (errno.ENOSPC, errno.EIO, errno.EDQUOT, errno.EROFS):
+            if f"errno = {code}," in str(exc):
+                number = code
+    return os.strerror(number) if number else str(exc).splitlines()[0]
+
+
+def _detach(f: h5py.File) -> None:
+    """Point the file's descriptor at an anonymous in-memory file (memfd_create(2)) and close it there.
+
+    After a failed write HDF5 still holds dirty metadata; a flush into the run file would write part of it
+    (damaging the committed steps), and closing a file whose flush failed leaves HDF5 half torn down (a
+    later release of a dataset handle crashed the process with SIGSEGV). Written into the scratch file, the
+    flush and close succeed and the run file keeps the state of its last successful flush."""
+    try:
+        handle = f.id.get_vfd_handle()
+        scratch = os.memfd_create("labctl-detached-run-file")
+        os.dup2(scratch, handle)
+        os.close(scratch)
+        f.close()
+    except (OSError, RuntimeError, ValueError):
+        pass
 
 
 # ---------------------------------------------------------------------- reading

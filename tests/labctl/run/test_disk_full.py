@@ -1,0 +1,106 @@
+"""The disk fills up during a step, on a real file system: another process takes the free space while the
+run writes a step's frames. The run ends like any other fault (exit 1, no crash, a message naming the mount
+point and the space needed, the file marked aborted); after the space is freed, resume completes it with the
+key figures of an uninterrupted run.
+
+Before the run file reserved each step's space, HDF5 hit "No space left on device" inside the step and the
+process died of SIGSEGV (exit 139 / -11 from Popen) with the file left `running` and unresumable.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import pytest
+
+from tests.conftest import run_labctl
+from tests.labctl.run.small_fs import fill, small_fs
+
+# 6 steps of 30 frames of 160 x 120: 10.4 MB raw each, about 6 MB stored
+PROCEDURES = """
+[[procedure]]
+kind = "offset_calibration"
+frames = 30
+
+[[procedure]]
+kind = "depth_sweep"
+start_mm = 1000
+stop_mm = 2000
+step_mm = 250
+frames = 30
+"""
+STEPS = 6
+LEFT_FREE = 3 * 2**20
+
+
+def figures(run, out) -> dict:
+    result = run_labctl("evaluate", run, "-o", out)
+    assert result.returncode == 0, result.stderr
+    doc = json.loads((out / "keyfigures.json").read_text())
+    return {name: f["value"] for name, f in doc["figures"].items()}
+
+
+def run_filling_the_disk_during(step_id: str, campaign, model, out, mnt) -> tuple[int, str]:
+    """``labctl run`` into ``out``; once ``step_id`` has started writing (the line of the step before it says
+    complete, then the file grows), the process is stopped, the file system filled but LEFT_FREE, and
+    the process continued. Returns the exit code and stderr."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "labctl", "run", str(campaign), "--sim", "--model", str(model), "-o", str(out)],
+        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+    )
+    lines = []
+    previous = f"{int(step_id[:5]) - 1:05d}_"
+    for line in proc.stderr:
+        lines.append(line)
+        if line.startswith(previous) and line.rstrip().endswith("complete"):
+            size = out.stat().st_size
+            deadline = time.monotonic() + 60
+            while out.stat().st_size == size and proc.poll() is None:  # begin_step's flush: the step has started
+                assert time.monotonic() < deadline, "the run file did not grow after the step started"
+                time.sleep(0.001)
+            proc.send_signal(signal.SIGSTOP)
+            fill(mnt, LEFT_FREE)
+            proc.send_signal(signal.SIGCONT)
+            break
+    lines.append(proc.stderr.read())
+    return proc.wait(timeout=120), "".join(lines)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["ext4", "tmpfs"])
+def test_disk_filling_inside_a_step_aborts_cleanly_and_resume_completes(kind, tmp_path, write_campaign, small_model):
+    campaign, model = write_campaign(procedures=PROCEDURES), small_model(width=160, height=120)
+    with small_fs(kind, tmp_path, 128) as mnt:
+        out = mnt / "run.h5"
+        code, err = run_filling_the_disk_during("00002_depth_sweep", campaign, model, out, mnt)
+        assert code == 1, err
+        assert "Traceback" not in err and "Fatal Python error" not in err
+        assert f"free space in {mnt}" in err or f"file system mounted at {mnt}" in err, err
+        assert "needs" in err and "MB" in err and f"labctl resume {out}" in err
+        assert "could not mark the run aborted" not in err
+        info = run_labctl("info", out, "--json")
+        assert info.returncode == 0, info.stderr
+        doc = json.loads(info.stdout)
+        assert doc["status"] == "aborted"
+        done = [s["step_id"] for s in doc["steps"] if s["status"] == "complete"]
+        # the step that was writing when the disk filled had its space reserved: it completes
+        assert done[:3] == ["00000_offset_calibration", "00001_depth_sweep", "00002_depth_sweep"], done
+        assert len(done) < STEPS
+
+        (mnt / "filler").unlink()
+        resumed = run_labctl("resume", out)
+        assert resumed.returncode == 0, resumed.stderr
+        with h5py.File(out, "r") as f:
+            assert f.attrs["status"] == "complete"
+            assert sorted(f["steps"]) == [f"{i:05d}_{'offset_calibration' if i == 0 else 'depth_sweep'}"
+                                          for i in range(STEPS)]
+        resumed_figures = figures(out, tmp_path / "resumed")
+    reference = tmp_path / "reference.h5"
+    assert run_labctl("run", campaign, "--sim", "--model", model, "-o", reference).returncode == 0
+    assert resumed_figures == figures(reference, tmp_path / "reference")
+    assert resumed_figures["z_precision_q90_mm"] is not None
