@@ -35,7 +35,8 @@ from labctl.run.overrides import apply_overrides, encode_history, history_entrie
 from labctl.run.planning import expected_run_bytes, format_duration, schedule
 from labctl.run.progress import EvaluationProgress, Reporter
 from labctl.run.runner import Runner, bring_to_safe_state, close_all, connect_lab
-from labctl.run.store import RunWriter, existing_output_advice, labctl_version, now_iso
+from labctl.run.salvage import carry_over, inspect
+from labctl.run.store import DamagedRunFile, RunWriter, existing_output_advice, labctl_version, now_iso
 from metrics.jsonsafe import dumps_strict
 from procedures.steps import Step
 from sim.model import ModelError, default_model_text, load_model, parse_model
@@ -203,21 +204,36 @@ def run(
               help="connect a serial device on another port, e.g. laser=/dev/ttyUSB3 (stage, laser; repeatable)")
 @click.option("--host", "hosts", multiple=True, metavar="ROLE=HOST", help="connect the robot at another address, "
               "e.g. robot=192.168.1.20")
+@click.option("--into", type=click.Path(dir_okay=False, path_type=Path), metavar="NEW.h5",
+              help="continue a damaged RUN_FILE in the new file NEW.h5, carrying its readable complete steps over "
+                   "(RUN_FILE is only read)")
 @click.option("--interactive", is_flag=True, help=INTERACTIVE_HELP)
 @click.option("--quiet", is_flag=True, help="no progress output")
-def resume(run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], interactive: bool, quiet: bool) -> None:
+def resume(
+    run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], into: Path | None, interactive: bool, quiet: bool
+) -> None:
     """Continue RUN_FILE at the first step that is not complete.
 
     The operator first confirms that the target of that step is mounted.
     --port / --host change a device's connection; the change is recorded in
-    RUN_FILE and kept by later resumes.
+    RUN_FILE and kept by later resumes. A damaged RUN_FILE (cut short, a
+    flush that failed) is continued in a new file with --into NEW.h5.
     """
     new = [(role, "port", value) for role, value in parse_overrides("port", ports).items()]
     new += [(role, "host", value) for role, value in parse_overrides("host", hosts).items()]
     if not run_file.is_file():
         raise InputError(f"run file {run_file} does not exist")
-    writer = RunWriter(run_file)
     reporter = Reporter(quiet=quiet)
+    if into is not None:
+        output_file(into, "--into")
+        salvage = carry_over(run_file, into, reporter.message)
+        reporter.message(f"{salvage.summary()}; the run continues in {into}")
+        run_file = into
+    try:
+        writer = RunWriter(run_file)
+        dropped = writer.discard_incomplete()
+    except DamagedRunFile as exc:
+        raise _damaged(run_file, str(exc)) from None
     try:
         if writer.attrs.get("status") == "complete":
             reporter.message(f"{run_file} is already complete; nothing to resume")
@@ -244,13 +260,23 @@ def resume(run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], inter
             writer.attrs[OVERRIDES_ATTRIBUTE] = encode_history(history)
         for role, field, value in new:
             reporter.message(f"{role} {field}: {value} (recorded in {run_file})")
-        dropped = writer.discard_incomplete()
         if dropped:
             reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
         writer.set_status("running")
         _execute(config, lab, writer, reporter, operator, resumed=True)
     finally:
         writer.close()
+
+
+def _damaged(run_file: Path, cause: str) -> InputError:
+    """What a damaged run file still holds, and how to continue the run."""
+    salvage = inspect(run_file)
+    text = f"{run_file} is damaged ({cause}); {salvage.summary()}."
+    if salvage.header is None:
+        text += f" Continue the run in a new file with: labctl resume {run_file} --into NEW.h5"
+    else:
+        text += " Start the run again with labctl run."
+    return InputError(text)
 
 
 def _stored_text(writer: RunWriter, group: str, name: str) -> str:

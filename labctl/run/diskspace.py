@@ -1,9 +1,14 @@
-"""Run-file size estimates and free-space checks, so a run stops safely before the disk fills.
+"""Run-file size estimates, free-space checks and space reservations, so a full disk stops a run safely.
 
 A frame stores x, y, z, intensity (float32) and confidence (uint16 or float32): W x H x
 (16 + confidence bytes) raw. ``plan`` divides by the compression's planning ratio; the
 checks before a run and before each step do not rely on compression (incompressible noise
 stores at the raw size) and keep a margin for HDF5 metadata and the rest of the system.
+
+A check cannot see another process taking the space a moment later; :func:`reserve` can: it
+allocates a step's worst-case size in the run file (fallocate(2) with FALLOC_FL_KEEP_SIZE: the
+blocks are the file's, its length unchanged), so the step's writes land in space the file already
+owns. :func:`release` gives back what the step did not take.
 """
 
 from __future__ import annotations
@@ -60,7 +65,8 @@ def ensure_free(run_file: Path, needed: int, what: str) -> None:
     free = free_bytes(directory)
     if free < needed + MARGIN_BYTES:
         raise DiskSpaceLow(
-            f"not enough free space in {directory} for {what}: it needs {format_bytes(needed)} plus a "
+            f"not enough free space in {directory} (file system mounted at {mount_point(directory)}) for {what}: "
+            f"it needs {format_bytes(needed)} plus a "
             f"{format_bytes(MARGIN_BYTES)} margin, {format_bytes(free)} are free; free space (or move the run file), "
             f"then continue"
         )

@@ -14,6 +14,7 @@ import h5py
 from labctl.errors import InputError
 from labctl.run import compression as codecs
 from labctl.run.config import parse_campaign
+from labctl.run.salvage import inspect
 from labctl.run.store import RunReader, finite_or_none
 
 
@@ -38,7 +39,17 @@ def _step(step_id: str, group: h5py.Group) -> dict[str, Any]:
 
 
 def run_info(path: Path) -> dict[str, Any]:
-    """The header of run file ``path`` and its steps, in execution order (a JSON-ready dict)."""
+    """The header of run file ``path`` and its steps, in execution order (a JSON-ready dict); InputError,
+    with what can be recovered, when the file is damaged beyond listing its steps."""
+    try:
+        return _run_info(path)
+    except (OSError, KeyError, RuntimeError, ValueError) as exc:
+        cause = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise InputError(f"{path} is damaged ({cause}); {inspect(path).summary()}. 'labctl resume {path} --into "
+                         "NEW.h5' continues the run in a new file with the steps that can be recovered") from None
+
+
+def _run_info(path: Path) -> dict[str, Any]:
     with RunReader(path) as reader:
         attrs, f = reader.attrs, reader.file
         steps = []

@@ -1,7 +1,7 @@
 """The HDF5 run file (docs/runfile.md): layout, crash-safe writing, reading.
 
 Crash safety. A run file must stay readable whatever happens (kill -9, power
-loss during a stack). The writer therefore
+loss during a stack, a full disk, a failing disk). The writer therefore
 
 * creates the file under a temporary name and renames it into place, so the
   path either does not exist or holds a valid file;
@@ -11,12 +11,30 @@ loss during a stack). The writer therefore
   as raw chunks); the metadata cache never evicts while the file is open, so HDF5
   metadata reaches the disk only at the flushes below, and a crash between them
   leaves the file as it was at the last one;
-* checks before each step that the disk has room for it (labctl.run.diskspace), so
-  a run stops before the disk fills;
+* checks before each step that the disk has room for it (labctl.run.diskspace), and
+  then reserves the step's worst-case size in the file (fallocate, the file's length
+  unchanged), so no write inside the step can meet a full disk even when another
+  process takes the free space meanwhile: the disk filling becomes DiskSpaceLow
+  before the step writes anything, and the file stays as its last flush left it;
 * writes the step's attributes at the end, ``complete = True`` last, then
   flushes and fsyncs.
 
-A step without ``complete = True`` is unfinished and is discarded by resume.
+Why reserve rather than recover: HDF5 cannot take back a failed write. With a
+write failed, the next flush writes part of the dirty metadata (in-place updates
+succeed, appended ones fail), leaving committed structures pointing past the end
+of the file ("addr overflow" on the next change), and a file whose flush failed
+at close is left half torn down in the library: releasing one of its dataset
+handles afterwards crashed the process (SIGSEGV in H5D_close). Writing each step
+to a file of its own and copying it in would double the I/O of every step. So a
+full disk is kept away from HDF5, and for a write error that no reservation
+prevents (EIO) the handle is detached (:func:`_detach`): its descriptor is
+pointed at a scratch memory file, so the library's flush and close complete
+there and nothing more reaches the run file; it is then opened anew to be marked
+aborted.
+
+A step without ``complete = True`` is unfinished and is discarded by resume; a
+file HDF5 cannot open or change (DamagedRunFile) is recovered by
+labctl.run.salvage.
 """
 
 from __future__ import annotations

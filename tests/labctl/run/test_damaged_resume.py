@@ -1,0 +1,113 @@
+"""Resume and info on run files damaged after the fact: never a traceback; resume says what can be recovered
+and `resume --into NEW.h5` continues the run in a new file with the readable complete steps, to the key figures
+of an uninterrupted run."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import h5py
+import pytest
+
+from labctl.cli import main
+from labctl.evaluation.evaluate import evaluate_runs
+from labctl.evaluation.keyfigures import clean
+
+STEPS = [f"{i:05d}_{'offset_calibration' if i == 0 else 'depth_sweep'}" for i in range(6)]
+
+
+def invoke(capsys, *args) -> tuple[int, str]:
+    with pytest.raises(SystemExit) as info:
+        main([str(a) for a in args])
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    return info.value.code, captured.err
+
+
+def figures(run) -> dict:
+    return {name: clean(f.value) for name, f in evaluate_runs([run]).figures.items()}
+
+
+@pytest.fixture
+def aborted_run(tmp_path, write_campaign, small_model, capsys):
+    """A complete simulated run, its figures, and a copy marked aborted with its last two steps unfinished."""
+    reference = tmp_path / "reference.h5"
+    code, err = invoke(capsys, "run", write_campaign(), "--sim", "--model", small_model(), "-o", reference, "--quiet")
+    assert code == 0, err
+    run = tmp_path / "run.h5"
+    shutil.copy(reference, run)
+    with h5py.File(run, "r+") as f:
+        f.attrs["status"] = "aborted"
+        for step_id in STEPS[4:]:
+            f["steps"][step_id].attrs["complete"] = False
+    return run, figures(reference)
+
+
+def chunk_of(path, step_id: str, channel: str = "z") -> tuple[int, int]:
+    with h5py.File(path, "r") as f:
+        chunk = f["steps"][step_id][channel].id.get_chunk_info(0)
+        return chunk.byte_offset, chunk.size
+
+
+def overwrite(path, offset: int, data: bytes) -> None:
+    with open(path, "r+b") as f:
+        f.seek(offset)
+        f.write(data)
+
+
+def test_an_unreadable_step_is_left_behind_and_run_again_in_the_new_file(aborted_run, tmp_path, capsys):
+    run, expected = aborted_run
+    offset, size = chunk_of(run, STEPS[2])
+    overwrite(run, offset, os.urandom(size))  # a complete step's frame 0 no longer decompresses
+    before = run.read_bytes()
+
+    code, err = invoke(capsys, "info", run)
+    assert code == 0, err
+    new = tmp_path / "new.h5"
+    code, err = invoke(capsys, "resume", run, "--into", new)
+    assert code == 0, err
+    assert f"3 complete step(s) can be recovered ({STEPS[0]} .. {STEPS[3]})" in err
+    assert f"unreadable, to be run again: {STEPS[2]}" in err and f"the run continues in {new}" in err
+    assert run.read_bytes() == before  # the damaged file is only read
+    with h5py.File(new, "r") as f:
+        assert f.attrs["status"] == "complete" and sorted(f["steps"]) == STEPS
+    assert figures(new) == expected
+
+
+def test_a_garbage_tail_does_not_stop_resume_in_place(aborted_run, capsys):
+    run, expected = aborted_run
+    with open(run, "ab") as f:
+        f.write(os.urandom(100_000))
+    code, err = invoke(capsys, "info", run)
+    assert code == 0, err
+    code, err = invoke(capsys, "resume", run, "--quiet")
+    assert code == 0, err
+    assert figures(run) == expected
+
+
+def test_a_file_cut_short_gets_a_message_and_what_can_be_recovered(aborted_run, tmp_path, capsys):
+    run, expected = aborted_run
+    os.truncate(run, run.stat().st_size * 2 // 3)
+    code, err = invoke(capsys, "info", run)
+    assert code == 2 and str(run) in err
+    code, err = invoke(capsys, "resume", run)
+    assert code == 2 and f"{run} is damaged" in err and "truncated file" in err
+    if "--into NEW.h5" in err:  # the header survived the cut: the readable steps carry over
+        new = tmp_path / "new.h5"
+        code, err = invoke(capsys, "resume", run, "--into", new, "--quiet")
+        assert code == 0, err
+        assert figures(new) == expected
+    else:
+        assert "nothing can be recovered" in err and "labctl run" in err
+
+
+def test_a_destroyed_header_is_refused_with_a_message(aborted_run, tmp_path, capsys):
+    run, _ = aborted_run
+    overwrite(run, 0, os.urandom(4096))
+    code, err = invoke(capsys, "info", run)
+    assert code == 2 and str(run) in err
+    code, err = invoke(capsys, "resume", run)
+    assert code == 2 and f"{run} is damaged" in err and "nothing can be recovered" in err
+    code, err = invoke(capsys, "resume", run, "--into", tmp_path / "new.h5")
+    assert code == 2 and "nothing can be recovered" in err and not (tmp_path / "new.h5").exists()
