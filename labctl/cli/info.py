@@ -35,6 +35,8 @@ def info(run_file: Path, as_json: bool) -> None:
     cam = doc["camera"]
     click.echo(f"created {doc['created']} by labctl {doc['labctl_version']}; {format_bytes(doc['size_bytes'])} on disk, "
                f"compression {doc['compression']}; camera {cam['width']} x {cam['height']}")
+    if doc["damage"]:
+        click.echo(f"damaged: {doc['damage']}; 'labctl resume {run_file} --into NEW.h5' continues the run")
     click.echo(f"steps {doc['steps_complete']}/{doc['steps_total']} complete, "
                f"frames {doc['frames_complete']}/{doc['frames_total']}")
     click.echo(f"{'step':<28} {'status':<10} {'target':<14} {'position':<28} {'frames':>6}")

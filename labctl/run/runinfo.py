@@ -45,15 +45,21 @@ def run_info(path: Path) -> dict[str, Any]:
         return _run_info(path)
     except (OSError, KeyError, RuntimeError, ValueError) as exc:
         cause = (str(exc).splitlines() or [type(exc).__name__])[0]
-        raise InputError(f"{path} is damaged ({cause}); {inspect(path).summary()}. 'labctl resume {path} --into "
-                         "NEW.h5' continues the run in a new file with the steps that can be recovered") from None
+        salvage = inspect(path)
+        advice = (f"'labctl resume {path} --into NEW.h5' continues the run in a new file"
+                  if salvage.header is None else "start the run again with labctl run")
+        raise InputError(f"{path} is damaged ({cause}); {salvage.summary()}; {advice}") from None
 
 
 def _run_info(path: Path) -> dict[str, Any]:
     with RunReader(path) as reader:
         attrs, f = reader.attrs, reader.file
         steps = []
-        for step_id in sorted(f["steps"].keys()):
+        try:
+            ids, damage = sorted(f["steps"].keys()), None
+        except (OSError, KeyError, RuntimeError, ValueError):  # a flush adding a step cut short
+            ids, damage = [], inspect(path).summary()
+        for step_id in ids:
             try:
                 steps.append(_step(step_id, f["steps"][step_id]))
             except (KeyError, OSError, RuntimeError):  # a step cut off mid-creation
@@ -87,4 +93,5 @@ def _run_info(path: Path) -> dict[str, Any]:
             "frames_complete": sum(s.get("frames", 0) for s in steps if s["status"] == "complete"),
             "frames_total": sum(s.get("frames", 0) for s in steps),
             "steps": steps,
+            "damage": damage,
         }

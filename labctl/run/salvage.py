@@ -36,6 +36,8 @@ class Salvage:
     path: Path
     header: str | None = None
     """Why the header (format, campaign, camera, devices) cannot be read; None when it can."""
+    index: str | None = None
+    """Why the list of steps cannot be read (a flush that added a step cut short); None when it can."""
     complete: list[str] = field(default_factory=list)
     """Complete steps whose every dataset reads back whole."""
     lost: dict[str, str] = field(default_factory=dict)
@@ -45,6 +47,9 @@ class Salvage:
         """One paragraph for the operator."""
         if self.header is not None:
             return f"nothing can be recovered from {self.path}: its header cannot be read ({self.header})"
+        if self.index is not None:
+            return (f"its list of steps cannot be read ({self.index}): no step can be recovered, the campaign, "
+                    "devices, camera and simulation can; in a new file the run starts over")
         text = f"{len(self.complete)} complete step(s) can be recovered"
         if self.complete:
             text += f" ({self.complete[0]} .. {self.complete[-1]})"
@@ -121,7 +126,6 @@ def _read_header(f: h5py.File) -> None:
         dict(group.attrs)
     if "sim" in f:
         dict(f["sim"].attrs)
-    f["steps"].keys()
 
 
 def _step_readable(group: h5py.Group, cut: int) -> None:
@@ -149,9 +153,13 @@ def inspect(path: Path) -> Salvage:
     with f:
         try:
             _read_header(f)
-            ids = sorted(f["steps"].keys())
         except READ_ERRORS as exc:
             salvage.header = _first_line(exc)
+            return salvage
+        try:
+            ids = sorted(f["steps"].keys())
+        except READ_ERRORS as exc:
+            salvage.index = _first_line(exc)
             return salvage
         for step_id in ids:
             try:

@@ -213,7 +213,7 @@ class RunWriter:
     # ------------------------------------------------------------------ faults
     @contextmanager
     def guarded(self, what: str) -> Iterator[None]:
-        """HDF5 writes for ``what``: an OSError from them (EIO, ENOSPC) detaches the handle from the file
+        """HDF5 writes for ``what``: an OSError or RuntimeError from them (EIO, ENOSPC) detaches the handle from the file
         (:func:`_detach`) and becomes a RunFileError naming the file system."""
         if self.failure is not None:
             raise RunFileError(f"{self.path} is detached after an earlier write error ({self.failure})")
@@ -221,8 +221,8 @@ class RunWriter:
             yield
         except DiskSpaceLow:
             raise
-        except OSError as exc:
-            self.failure = str(exc.strerror or exc).splitlines()[0]
+        except (OSError, RuntimeError) as exc:  # h5py raises RuntimeError for some failed flushes
+            self.failure = str(getattr(exc, "strerror", None) or exc).splitlines()[0]
             cause = _errno_text(exc)
             _detach(self.file)
             raise RunFileError(
@@ -413,9 +413,9 @@ class RunWriter:
                 self.file.close()
 
 
-def _errno_text(exc: OSError) -> str:
+def _errno_text(exc: OSError | RuntimeError) -> str:
     """``No space left on device`` for an OSError from HDF5, whose text buries errno in a long message."""
-    number = exc.errno
+    number = getattr(exc, "errno", None)
     if number is None:
         for code in (errno.ENOSPC, errno.EIO, errno.EDQUOT, errno.EROFS):
             if f"errno = {code}," in str(exc):

@@ -14,19 +14,21 @@ import pytest
 
 @contextmanager
 def small_fs(kind: str, root: Path, size_mb: int) -> Iterator[Path]:
-    """A ``size_mb`` file system of ``kind`` (``ext4`` on a loop device, or ``tmpfs``) mounted under ``root``;
+    """A ``size_mb`` file system of ``kind`` mounted under ``root``: ``ext4`` on a loop device, ``ext4-noextents``
+    (ext4 without extents, where fallocate(2) is not supported), or ``tmpfs``;
     unmounted (and its image removed) on exit, also on failure. Skips the test when not root or when the
     mount fails, with the reason."""
     if os.geteuid() != 0:
         pytest.skip("mounting a small file system needs root")
     mnt = root / f"{kind}-mnt"
     mnt.mkdir()
-    if kind == "ext4":
+    if kind.startswith("ext4"):
         image = root / "fs.img"
         with open(image, "wb") as f:
             f.truncate(size_mb * 2**20)
         # -m 0: no blocks reserved for root, so "free" means free for this root-run test too
-        made = subprocess.run(["mkfs.ext4", "-q", "-F", "-m", "0", str(image)], capture_output=True, text=True)
+        features = ["-O", "^extents,^64bit"] if kind == "ext4-noextents" else []
+        made = subprocess.run(["mkfs.ext4", "-q", "-F", "-m", "0", *features, str(image)], capture_output=True, text=True)
         if made.returncode != 0:
             pytest.skip(f"mkfs.ext4 failed: {made.stderr.strip()}")
         command = ["mount", "-o", "loop", str(image), str(mnt)]

@@ -104,3 +104,32 @@ def test_disk_filling_inside_a_step_aborts_cleanly_and_resume_completes(kind, tm
     assert run_labctl("run", campaign, "--sim", "--model", model, "-o", reference).returncode == 0
     assert resumed_figures == figures(reference, tmp_path / "reference")
     assert resumed_figures["z_precision_q90_mm"] is not None
+
+
+@pytest.mark.slow
+def test_a_write_failing_inside_hdf5_ends_the_run_without_a_crash_and_the_run_completes(
+    tmp_path, write_campaign, small_model
+):
+    """ext4 without extents has no fallocate, so nothing is reserved and the full disk fails HDF5's own writes
+    (the path an I/O error takes): exit 1 and a message instead of SIGSEGV; the file keeps its complete steps,
+    and resume (in place, or --into a new file when the failed flush left it damaged) completes the run."""
+    campaign, model = write_campaign(procedures=PROCEDURES), small_model(width=160, height=120)
+    with small_fs("ext4-noextents", tmp_path, 128) as mnt:
+        out = mnt / "run.h5"
+        code, err = run_filling_the_disk_during("00002_depth_sweep", campaign, model, out, mnt)
+        assert code == 1, err
+        assert "Traceback" not in err and "Fatal Python error" not in err
+        assert f"on the file system mounted at {mnt}" in err and "No space left on device" in err, err
+        info = run_labctl("info", out)
+        assert info.returncode in (0, 2) and "Traceback" not in info.stderr, info.stderr
+        (mnt / "filler").unlink()
+        resumed, target = run_labctl("resume", out), out
+        if resumed.returncode == 2 and "--into NEW.h5" in resumed.stderr:
+            assert "00000_offset_calibration .. 00001_depth_sweep" in resumed.stderr, resumed.stderr
+            target = tmp_path / "into.h5"
+            resumed = run_labctl("resume", out, "--into", target)
+        assert resumed.returncode == 0, resumed.stderr
+        resumed_figures = figures(target, tmp_path / "resumed")
+    reference = tmp_path / "reference.h5"
+    assert run_labctl("run", campaign, "--sim", "--model", model, "-o", reference).returncode == 0
+    assert resumed_figures == figures(reference, tmp_path / "reference")

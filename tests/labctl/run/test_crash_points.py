@@ -1,0 +1,124 @@
+"""kill -9 at 50 instants of a small simulated run: every file opens with `labctl info`, and `resume` completes
+it with the key figures of the uninterrupted run.
+
+Half the instants are random times after the run file exists; the other half land on a random write of the
+run (strace injects SIGKILL at the N-th pwrite64, N drawn over all of a run's writes), so many fall in the
+middle of a flush: some of a flush's metadata on disk, the rest not. A file that `resume` finds damaged
+(a flush cut short) is continued with `resume --into NEW.h5`, as its message says; where the cut flush was
+adding a step to the list of steps, that list cannot be read and the new file starts the run over. The runs are
+children forked from this process, one at a time; info, resume and evaluate then run in this process.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import random
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from labctl.cli import main
+from labctl.evaluation.evaluate import evaluate_runs
+from labctl.evaluation.keyfigures import clean
+
+INSTANTS = 50
+PWRITES = 352  # pwrite64 calls of one run of the default test campaign (strace -c); targets are drawn below it
+
+
+def invoke(capsys, *args) -> tuple[int, str, str]:
+    with pytest.raises(SystemExit) as info:
+        main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return info.value.code, captured.out, captured.err
+
+
+def figures(run: Path) -> dict:
+    """The key figures `labctl evaluate` writes to keyfigures.json (without drawing its report)."""
+    return {name: clean(f.value) for name, f in evaluate_runs([run]).figures.items()}
+
+
+def _run_in_child(args: list[str], stop_first: bool) -> None:
+    """The forked child: ``labctl run`` (its imports already loaded: no interpreter start-up per instant)."""
+    if stop_first:  # wait, stopped, for strace to attach
+        os.kill(os.getpid(), signal.SIGSTOP)
+    main(args)
+
+
+def start_run(campaign: Path, model: Path, out: Path, stop_first: bool = False) -> multiprocessing.Process:
+    args = ["run", str(campaign), "--sim", "--model", str(model), "-o", str(out), "--quiet"]
+    child = multiprocessing.get_context("fork").Process(target=_run_in_child, args=(args, stop_first))
+    child.start()
+    return child
+
+
+def kill_after(child: multiprocessing.Process, out: Path, delay_s: float) -> str:
+    """SIGKILL the run ``delay_s`` after its file appears under its name."""
+    deadline = time.monotonic() + 120
+    while not out.exists() and child.is_alive():
+        assert time.monotonic() < deadline, "the run file did not appear"
+        time.sleep(0.001)
+    time.sleep(delay_s)  # the instant itself is what is drawn at random; nothing waits on it
+    child.kill()
+    child.join(timeout=120)
+    return f"kill -9 {delay_s:.3f} s after the file appeared"
+
+
+def kill_at_write(child: multiprocessing.Process, n: int) -> str:
+    """strace attaches to the stopped run and delivers SIGKILL at the entry of its n-th pwrite64."""
+    while open(f"/proc/{child.pid}/stat").read().split(")")[1].split()[0] != "T":
+        time.sleep(0.001)
+    strace = subprocess.Popen(["strace", "-p", str(child.pid), "-o", "/dev/null", "-e", "trace=pwrite64",
+                               "-e", f"inject=pwrite64:signal=SIGKILL:when={n}"], stderr=subprocess.PIPE, text=True)
+    assert "attached" in strace.stderr.readline()
+    os.kill(child.pid, signal.SIGCONT)
+    child.join(timeout=300)
+    strace.communicate(timeout=60)
+    return f"kill -9 at pwrite64 #{n}"
+
+
+@pytest.mark.slow
+def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
+    tmp_path, write_campaign, small_model, capsys
+):
+    campaign, model = write_campaign(), small_model()
+    reference = tmp_path / "reference.h5"
+    started = time.monotonic()
+    child = start_run(campaign, model, reference)
+    child.join(timeout=300)
+    assert child.exitcode == 0
+    run_s = time.monotonic() - started
+
+    rng = random.Random(21)
+    targeted = shutil.which("strace") is not None
+    plans = []  # every run is forked before this process evaluates anything (no threads at fork)
+    for i in range(INSTANTS):
+        out = tmp_path / f"killed{i:02d}.h5"
+        if targeted and i % 2:
+            plans.append((out, kill_at_write(start_run(campaign, model, out, stop_first=True), rng.randint(1, PWRITES))))
+        else:
+            plans.append((out, kill_after(start_run(campaign, model, out), out, rng.uniform(0, run_s))))
+    expected = figures(reference)
+    assert expected["z_precision_q90_mm"] is not None
+
+    into, index_lost = 0, 0
+    for out, instant in plans:
+        if not out.exists():  # killed while it was created under a temporary name: the path holds nothing
+            continue
+        code, stdout, err = invoke(capsys, "info", out)
+        assert code == 0 and "Traceback" not in err, f"{instant}: labctl info {out}: {err}"
+        index_lost += "its list of steps cannot be read" in stdout
+        code, _, err = invoke(capsys, "resume", out, "--quiet")
+        target = out
+        if code == 2 and "--into NEW.h5" in err:  # damaged by a flush cut short: continue in a new file
+            into += 1
+            target = out.with_name(f"{out.stem}-into.h5")
+            code, _, err = invoke(capsys, "resume", out, "--into", target, "--quiet")
+        assert code == 0, f"{instant}: labctl resume {out}: {err}"
+        assert figures(target) == expected, instant
+    files = sum(1 for out, _ in plans if out.exists())
+    print(f"{INSTANTS} instants, {files} files, {into} continued --into ({index_lost} with the list of steps lost)")
