@@ -3,7 +3,8 @@ it with the key figures of the uninterrupted run.
 
 Half the instants are random times after the run file exists; the other half land on a random write of the
 run (strace injects SIGKILL at the N-th pwrite64, N drawn over all of a run's writes), so many fall in the
-middle of a flush: some of a flush's metadata on disk, the rest not. A file that `resume` finds damaged
+middle of a flush: some of a flush's metadata on disk, the rest not (without strace on the machine, every
+instant is a random time). A file that `resume` finds damaged
 (a flush cut short) is continued with `resume --into NEW.h5`, as its message says; where the cut flush was
 adding a step to the list of steps, that list cannot be read and the new file starts the run over. The runs are
 children forked from this process (no interpreter start-up per instant), two at a time; info and resume

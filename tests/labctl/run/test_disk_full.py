@@ -18,7 +18,7 @@ import time
 import h5py
 import pytest
 
-from tests.conftest import run_labctl
+from tests.conftest import SMALL_MODEL, campaign_text, run_labctl
 from tests.labctl.run.small_fs import fill, small_fs
 
 # 6 steps of 30 frames of 160 x 120: 10.4 MB raw each, about 6 MB stored
@@ -36,6 +36,21 @@ frames = 30
 """
 STEPS = 6
 LEFT_FREE = 3 * 2**20
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    """The campaign, the model, and the key figures of its uninterrupted run (one run for every test here)."""
+    root = tmp_path_factory.mktemp("sweep")
+    campaign, model = root / "campaign.toml", root / "model.toml"
+    campaign.write_text(campaign_text(procedures=PROCEDURES))
+    model.write_text(SMALL_MODEL.format(camera="blaze101", width=160, height=120))
+    reference = root / "reference.h5"
+    result = run_labctl("run", campaign, "--sim", "--model", model, "-o", reference)
+    assert result.returncode == 0, result.stderr
+    expected = figures(reference, root / "reference")
+    assert expected["z_precision_q90_mm"] is not None
+    return campaign, model, expected
 
 
 def figures(run, out) -> dict:
@@ -73,8 +88,8 @@ def run_filling_the_disk_during(step_id: str, campaign, model, out, mnt) -> tupl
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["ext4", "tmpfs"])
-def test_disk_filling_inside_a_step_aborts_cleanly_and_resume_completes(kind, tmp_path, write_campaign, small_model):
-    campaign, model = write_campaign(procedures=PROCEDURES), small_model(width=160, height=120)
+def test_disk_filling_inside_a_step_aborts_cleanly_and_resume_completes(kind, tmp_path, sweep):
+    campaign, model, expected = sweep
     with small_fs(kind, tmp_path, 128) as mnt:
         out = mnt / "run.h5"
         code, err = run_filling_the_disk_during("00002_depth_sweep", campaign, model, out, mnt)
@@ -99,21 +114,15 @@ def test_disk_filling_inside_a_step_aborts_cleanly_and_resume_completes(kind, tm
             assert f.attrs["status"] == "complete"
             assert sorted(f["steps"]) == [f"{i:05d}_{'offset_calibration' if i == 0 else 'depth_sweep'}"
                                           for i in range(STEPS)]
-        resumed_figures = figures(out, tmp_path / "resumed")
-    reference = tmp_path / "reference.h5"
-    assert run_labctl("run", campaign, "--sim", "--model", model, "-o", reference).returncode == 0
-    assert resumed_figures == figures(reference, tmp_path / "reference")
-    assert resumed_figures["z_precision_q90_mm"] is not None
+        assert figures(out, tmp_path / "resumed") == expected
 
 
 @pytest.mark.slow
-def test_a_write_failing_inside_hdf5_ends_the_run_without_a_crash_and_the_run_completes(
-    tmp_path, write_campaign, small_model
-):
+def test_a_write_failing_inside_hdf5_ends_the_run_without_a_crash_and_the_run_completes(tmp_path, sweep):
     """ext4 without extents has no fallocate, so nothing is reserved and the full disk fails HDF5's own writes
     (the path an I/O error takes): exit 1 and a message instead of SIGSEGV; the file keeps its complete steps,
     and resume (in place, or --into a new file when the failed flush left it damaged) completes the run."""
-    campaign, model = write_campaign(procedures=PROCEDURES), small_model(width=160, height=120)
+    campaign, model, expected = sweep
     with small_fs("ext4-noextents", tmp_path, 128) as mnt:
         out = mnt / "run.h5"
         code, err = run_filling_the_disk_during("00002_depth_sweep", campaign, model, out, mnt)
@@ -129,7 +138,4 @@ def test_a_write_failing_inside_hdf5_ends_the_run_without_a_crash_and_the_run_co
             target = tmp_path / "into.h5"
             resumed = run_labctl("resume", out, "--into", target)
         assert resumed.returncode == 0, resumed.stderr
-        resumed_figures = figures(target, tmp_path / "resumed")
-    reference = tmp_path / "reference.h5"
-    assert run_labctl("run", campaign, "--sim", "--model", model, "-o", reference).returncode == 0
-    assert resumed_figures == figures(reference, tmp_path / "reference")
+        assert figures(target, tmp_path / "resumed") == expected
