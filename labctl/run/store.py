@@ -1,7 +1,9 @@
 """The HDF5 run file (docs/runfile.md): layout, crash-safe writing, reading.
 
 Crash safety. A run file must stay readable whatever happens (kill -9, power
-loss during a stack, a full disk, a failing disk). The writer therefore
+loss during a stack, a full disk, a failing disk); HDF5's flushes are not atomic,
+so a kill inside one can damage the file, which labctl.run.salvage recovers.
+The writer therefore
 
 * creates the file under a temporary name and renames it into place, so the
   path either does not exist or holds a valid file;
