@@ -27,6 +27,7 @@ from typing import Any, TypeVar
 from drivers.errors import (
     CameraDisconnected,
     DeviceError,
+    DeviceVanished,
     LimitViolation,
     OperatorActionRequired,
     TransientDeviceError,
@@ -131,6 +132,12 @@ class Runner:
                 f"{reason}; devices are in their safe state and {self.run.path} is marked aborted. "
                 f"Continue with: labctl resume {self.run.path}"
             ) from None
+        except DeviceVanished as exc:
+            self._abort(str(exc))
+            raise RunAborted(
+                f"run aborted: {exc}. The other devices are in their safe state; {self.run.path} keeps every complete "
+                f"step. Once the device is back, continue with: labctl resume {self.run.path}{self._reconnect_option(exc)}"
+            ) from None
         except (DeviceError, FrameError, OSError, RuntimeError) as exc:
             self._abort(str(exc))
             raise RunAborted(
@@ -143,6 +150,16 @@ class Runner:
         finally:
             self.reporter.stop()
             close_all(self.lab, self.reporter.message)
+
+    def _reconnect_option(self, exc: DeviceVanished) -> str:
+        """The resume option that finds a vanished device again if it comes back under another port or address."""
+        devices = self.campaign.devices
+        for role, config in (("stage", devices.stage), ("laser", devices.laser)):
+            if config is not None and config.port == exc.connection:
+                return f" (add --port {role}=NEW_PORT if it came back under another name than {exc.connection})"
+        if devices.robot is not None and devices.robot.host == exc.connection:
+            return f" (add --host robot=NEW_HOST if it came back at another address than {exc.connection})"
+        return ""
 
     def _resolved_distance(self, step: Any) -> float:
         """Camera-wall distance of a ``distance_from`` step: the sharp distance of the run's slanted-edge steps."""

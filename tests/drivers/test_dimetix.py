@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.errors import DeviceError, SerialGarbage, SerialTimeout, TransientDeviceError
+from drivers.errors import DeviceError, DeviceVanished, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.laser import DimetixError, DimetixLaser, DimetixTargetError, read_distances
 from drivers.laser.dimetix import ERROR_CODES, TARGET_ERROR_CODES, UNKNOWN
 from drivers.protocols import RangeMeter
@@ -80,7 +80,7 @@ def test_weak_signal_is_transient_and_temperature_is_fatal(
     dimetix_emulator.inject_error(252)
     with pytest.raises(DimetixError, match="temperature too high") as caught:
         laser.measure_mm()
-    assert not isinstance(caught.value, TransientDeviceError)
+    assert not isinstance(caught.value, TransientDeviceError) and caught.value.connection == port
 
 
 def test_undocumented_error_code(laser: DimetixLaser, dimetix_emulator: DimetixEmulator) -> None:
@@ -125,8 +125,9 @@ def test_other_device_id_gets_no_answer(dimetix_emulator: DimetixEmulator) -> No
 def test_disconnect_is_fatal_and_safe_state_still_returns(
     laser: DimetixLaser, dimetix_emulator: DimetixEmulator
 ) -> None:
+    port = dimetix_emulator.port
     dimetix_emulator.disconnect()
-    with pytest.raises(DeviceError, match="disconnected") as caught:
+    with pytest.raises(DeviceVanished, match="failed or vanished") as caught:
         laser.measure_mm()
     assert not isinstance(caught.value, TransientDeviceError)
     laser.safe_state()
