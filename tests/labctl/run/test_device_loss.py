@@ -1,22 +1,28 @@
 """Devices that vanish in the middle of a real-lab run, and the run continued on the re-plugged device.
 
 A serial adapter unplugged is its pseudo-terminal closed under the driver (the emulator's
-``disconnect``: the next read or write fails with EIO, as on a USB-serial adapter pulled out).
+``disconnect``: the next read or write fails with EIO, as on a USB-serial adapter pulled out);
+a lost robot connection is the UR controller emulator's servers closed under ur-rtde's clients.
 The run must end with exit 1 and one message naming the device and its port, no traceback, the
 other devices in their safe state (what their emulators received), and the run file ``aborted``;
-``labctl resume --port ROLE=NEW`` then finishes it on the device under its new name.
+``labctl resume --port ROLE=NEW`` (``--host robot=NEW``) then finishes it on the device under its
+new name (address).
 """
 
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 
 from sim.emulators import DimetixEmulator, GrblEmulator, ZaberEmulator
-from tests.labctl.run.test_real_lab import STEP, campaign
+from sim.emulators.ur import URControllerProcess
+from tests.drivers.test_ur_rtde_emulator import CENTER_MM, RADIUS_MM, ZERO_POSE_M, circle, home_q
+from tests.labctl.run.test_real_lab import BAG, STEP, campaign
 from tests.pty_terminal import Terminal
 
 SPEED_MM_S = 200.0
@@ -140,3 +146,77 @@ def test_an_unplugged_laser_aborts_cleanly_with_the_stage_stopped_and_resume_con
     assert state == "complete" and complete == 4
     with h5py.File(run_file, "r") as f:
         assert list(f["steps/00003_depth_sweep"].attrs["laser_readings_mm"]) == [1500.0, 1500.0]  # the new laser
+
+
+def robot_campaign(stage_port: str, robot_host: str) -> str:
+    """A remission-angle sweep of the robot from -30 to 30 deg on the emulator's circle, the stage parked."""
+    zero_pose = [float(v) for v in (*(1000.0 * np.array(ZERO_POSE_M[:3])), *ZERO_POSE_M[3:])]
+    return textwrap.dedent(f"""
+        [campaign]
+        name = "robot-lab"
+
+        [devices.camera]
+        backend = "realsense"
+        playback = "{BAG}"
+
+        [devices.stage]
+        {stage_section("zaber", stage_port)}
+        travel_mm = [0, 400]
+        speed_mm_s = 1000
+        settle_s = 0
+        distance_at_zero_mm = 1000
+
+        [devices.robot]
+        host = "{robot_host}"
+        circle_center_mm = {[float(v) for v in CENTER_MM]}
+        zero_pose = {zero_pose}
+        speed_deg_s = 20
+        settle_s = 0
+
+        [[procedure]]
+        kind = "remission_angle"
+        materials = ["ptfe"]
+        angles_deg = [-30, 30, 10]
+        radius_mm = {RADIUS_MM}
+        frames = 2
+    """)
+
+
+@pytest.mark.slow
+def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_address(tmp_path: Path) -> None:
+    """The RTDE emulator's servers close under the real ur-rtde clients after step 00001."""
+    path, run_file = tmp_path / "campaign.toml", tmp_path / "run.h5"
+    with zaber() as stage:
+        robot = URControllerProcess(home_q(), robot_mode="RUNNING")
+        try:
+            path.write_text(robot_campaign(stage.port, robot.host))
+            old_host = robot.host
+            terminal = Terminal("run", path, "-o", run_file)
+            try:
+                terminal.expect(r"OPERATOR: mount the ptfe plate.*\n.*Press Enter when done", timeout=120)
+                terminal.type("\r")
+                terminal.expect("00001_remission_angle complete", timeout=120)
+                robot.close()
+                assert terminal.wait(timeout=60) == 1, terminal.output
+            finally:
+                terminal.close()
+        finally:
+            robot.close()
+        with stage.lock:
+            assert stage.commands[-2:] == ["stop", "get pos"] and not stage.moving
+        output = terminal.output
+        assert "Traceback" not in output
+        assert f"UR5e at {old_host}: the connection to the controller at {old_host} (RTDE port 30004) was lost" in output
+        assert "The other devices are in their safe state" in output
+        assert f"labctl resume {run_file} (add --host robot=NEW_HOST if it came back at another address than {old_host})" in output
+        state, reason, complete = status(run_file)
+        assert state == "aborted" and f"the connection to the controller at {old_host}" in reason
+        assert 2 <= complete < 7, complete
+        with URControllerProcess(home_q(), robot_mode="RUNNING") as new_robot:
+            assert new_robot.host != old_host
+            resume(run_file, "--host", f"robot={new_robot.host}")
+            pose_m = np.asarray(new_robot.call("pose"), float)
+            final = circle().locate(np.concatenate([1000.0 * pose_m[:3], pose_m[3:]]))
+    assert final.angle_deg == pytest.approx(30.0, abs=0.05)  # the last step's angle, reached by the new controller
+    state, _, complete = status(run_file)
+    assert state == "complete" and complete == 7
