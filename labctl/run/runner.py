@@ -362,7 +362,9 @@ class Runner:
                 failures += 1
                 self._note(faults, f"capture frame {k}", exc, failures)
                 if failures >= self.cfg.max_attempts:
-                    raise DeviceError(exc.device, f"capture stuck at frame {k}: {exc.message}") from None
+                    raise DeviceError(exc.device, f"capture stuck at frame {k} of {n} after {failures} attempts: "
+                                      f"{exc.message}; the camera stopped delivering frames: check its cable, power "
+                                      "and network") from None
                 self.lab.clock.sleep(delay)
                 delay = min(2 * delay, self.cfg.backoff_max_s)
                 if isinstance(exc, CameraDisconnected):
