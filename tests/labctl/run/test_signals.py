@@ -66,7 +66,9 @@ def test_sigterm_and_sighup_abort_a_simulated_run_that_resume_completes(
 
 @pytest.mark.slow
 def test_ctrl_c_twice_aborts_a_simulated_run_that_resume_completes(tmp_path: Path, write_campaign, small_model) -> None:
-    """The second Ctrl-C interrupts wherever the run is (KeyboardInterrupt); the abort still runs in full."""
+    """Ctrl-C twice in a row: whether Python runs the handler twice (the second raises KeyboardInterrupt
+    wherever the run is) or once (both arrived before it ran), the abort runs in full. The second Ctrl-C
+    during a device operation, for certain, is the real-lab test below."""
     out = tmp_path / "run.h5"
     proc = start_run(write_campaign(procedures=PROCEDURES), small_model(width=160, height=120), out)
     wait_for_line(proc, "00001_depth_sweep complete")
