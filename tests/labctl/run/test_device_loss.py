@@ -149,7 +149,7 @@ def test_an_unplugged_laser_aborts_cleanly_with_the_stage_stopped_and_resume_con
 
 
 def robot_campaign(stage_port: str, robot_host: str) -> str:
-    """A remission-angle sweep of the robot from -30 to 30 deg on the emulator's circle, the stage parked."""
+    """Two materials, each swept by the robot over -10, 0, 10 deg on the emulator's circle; the stage parked."""
     zero_pose = [float(v) for v in (*(1000.0 * np.array(ZERO_POSE_M[:3])), *ZERO_POSE_M[3:])]
     return textwrap.dedent(f"""
         [campaign]
@@ -175,8 +175,8 @@ def robot_campaign(stage_port: str, robot_host: str) -> str:
 
         [[procedure]]
         kind = "remission_angle"
-        materials = ["ptfe"]
-        angles_deg = [-30, 30, 10]
+        materials = ["ptfe", "molleton"]
+        angles_deg = [-10, 10, 10]
         radius_mm = {RADIUS_MM}
         frames = 2
     """)
@@ -184,7 +184,12 @@ def robot_campaign(stage_port: str, robot_host: str) -> str:
 
 @pytest.mark.slow
 def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_address(tmp_path: Path) -> None:
-    """The RTDE emulator's servers close under the real ur-rtde clients after step 00001."""
+    """The RTDE emulator's servers close under the real ur-rtde clients while the run waits at the second
+    material's prompt; the next move finds the connection gone.
+
+    Not covered: a connection lost while a command is in flight. ur-rtde then waits for the answer forever
+    (seen under load, when the servers closed during a waypoint check), so the test drops the connection
+    while no command is under way and waits until ur-rtde has reported it lost."""
     path, run_file = tmp_path / "campaign.toml", tmp_path / "run.h5"
     with zaber() as stage:
         robot = URControllerProcess(home_q(), robot_mode="RUNNING")
@@ -195,8 +200,11 @@ def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_
             try:
                 terminal.expect(r"OPERATOR: mount the ptfe plate.*\n.*Press Enter when done", timeout=120)
                 terminal.type("\r")
-                terminal.expect("00001_remission_angle complete", timeout=120)
+                terminal.expect(r"OPERATOR: mount the molleton plate.*\n.*Press Enter when done", timeout=120)
                 robot.close()
+                terminal.expect("RTDEReceiveInterface boost system Exception", timeout=60)
+                terminal.expect("Timeout connecting to UR dashboard server", timeout=60)  # its reconnect failed
+                terminal.type("\r")
                 assert terminal.wait(timeout=60) == 1, terminal.output
             finally:
                 terminal.close()
@@ -211,12 +219,12 @@ def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_
         assert f"labctl resume {run_file} (add --host robot=NEW_HOST if it came back at another address than {old_host})" in output
         state, reason, complete = status(run_file)
         assert state == "aborted" and f"the connection to the controller at {old_host}" in reason
-        assert 2 <= complete < 7, complete
+        assert complete == 3  # the ptfe sweep
         with URControllerProcess(home_q(), robot_mode="RUNNING") as new_robot:
             assert new_robot.host != old_host
             resume(run_file, "--host", f"robot={new_robot.host}")
             pose_m = np.asarray(new_robot.call("pose"), float)
             final = circle().locate(np.concatenate([1000.0 * pose_m[:3], pose_m[3:]]))
-    assert final.angle_deg == pytest.approx(30.0, abs=0.05)  # the last step's angle, reached by the new controller
+    assert final.angle_deg == pytest.approx(-10.0, abs=0.05)  # the molleton sweep runs back: 10, 0, -10 deg
     state, _, complete = status(run_file)
-    assert state == "complete" and complete == 7
+    assert state == "complete" and complete == 6
