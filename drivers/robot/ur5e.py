@@ -71,8 +71,10 @@ ROBOT_MODES: dict[int, str] = {
 }
 """``robot_mode`` of the RTDE guide's output list (ur-rtde ``getRobotMode``)."""
 
-ARRIVAL_LAG_S = 0.25
-"""How long the receive stream may lag the control stream after a path ends."""
+ARRIVAL_LAG_S = 2.0
+"""How long the receive stream may lag the control stream after a path ends. The wait ends as soon as the
+pose has arrived, so only a move that really stopped short waits this long; 0.25 s was exceeded on a loaded
+2-core machine (the emulated controller's stream arrived late, the arm had reached its target)."""
 
 SAFE_MODES = frozenset({1, 2})
 ROBOT_RUNNING = 7
