@@ -24,6 +24,16 @@ class DeviceError(RuntimeError):
         self.message = message
 
 
+class DeviceVanished(DeviceError):
+    """The connection to the device is gone: an unplugged or failed USB-serial adapter, a dropped
+    network link. Fatal for the run; ``connection`` is the port or host it was on, so the next
+    session can be pointed at the device again (it may come back under another name)."""
+
+    def __init__(self, device: str, message: str, connection: str) -> None:
+        super().__init__(device, message)
+        self.connection = connection
+
+
 class MissingSDKError(DeviceError):
     """The vendor SDK or GenTL producer a backend needs is not installed."""
 

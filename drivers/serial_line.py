@@ -5,7 +5,8 @@ line settings, writes a request, and reads reply lines that end in a fixed
 terminator. Every wait is bounded; a silent or half-answering device raises
 :class:`~drivers.errors.SerialTimeout` with what arrived so far, bytes that are
 not ASCII raise :class:`~drivers.errors.SerialGarbage`, and a port that fails or
-vanishes (an unplugged USB adapter) raises a fatal :class:`~drivers.errors.DeviceError`.
+vanishes (an unplugged USB adapter: EIO, or pyserial's "returned no data") raises a fatal
+:class:`~drivers.errors.DeviceVanished` naming the port.
 
 pyserial reference: ``serial.Serial`` (``timeout``, ``write_timeout``,
 ``in_waiting``) and ``serial.SerialTimeoutException`` for a write that timed out;
@@ -23,7 +24,7 @@ from typing import Any
 
 import serial
 
-from drivers.errors import DeviceError, SerialGarbage, SerialTimeout
+from drivers.errors import DeviceError, DeviceVanished, SerialGarbage, SerialTimeout
 
 POLL_S = 0.02
 """Read timeout of one ``read()`` call: how often a wait checks its deadline."""
@@ -87,13 +88,19 @@ class SerialLine:
             raise DeviceError(self.name, "not connected: call connect() first")
         return self._serial
 
+    def _vanished(self, during: str, exc: OSError) -> DeviceVanished:
+        return DeviceVanished(
+            self.name, f"the port {self.port} failed or vanished {during} ({exc}): the USB-serial adapter was "
+            "unplugged or lost power; check its cable", self.port,
+        )
+
     def discard_input(self) -> bytes:
         """Drop and return everything received but not read yet (late replies, pushed messages)."""
         port = self._port()
         try:
             stale = bytes(self._buffer) + (port.read(waiting) if (waiting := port.in_waiting) else b"")
         except OSError as exc:  # pyserial's SerialException is an OSError
-            raise DeviceError(self.name, f"port failed or disconnected: {exc}") from exc
+            raise self._vanished("reading", exc) from exc
         self._buffer.clear()
         return stale
 
@@ -105,7 +112,7 @@ class SerialLine:
         except serial.SerialTimeoutException as exc:
             raise SerialTimeout(self.name, f"writing '{what}' timed out after {self.timeout_s} s") from exc
         except OSError as exc:
-            raise DeviceError(self.name, f"port failed or disconnected during '{what}': {exc}") from exc
+            raise self._vanished(f"writing '{what}'", exc) from exc
 
     def read_line(self, expected: str, deadline: float | None = None) -> str:
         """The next line without its terminator, waiting until ``deadline`` (monotonic time;
@@ -124,7 +131,7 @@ class SerialLine:
             try:
                 self._buffer += port.read(port.in_waiting or 1)
             except OSError as exc:
-                raise DeviceError(self.name, f"port failed or disconnected waiting for {expected}: {exc}") from exc
+                raise self._vanished(f"waiting for {expected}", exc) from exc
         raw = bytes(self._buffer[:end])
         del self._buffer[: end + len(self.terminator)]
         if self.terminator == b"\n":

@@ -3,7 +3,7 @@
 * :class:`InputError` — bad configuration, arguments or files: exit 2, one
   paragraph naming the offending field or file, no traceback.
 * :class:`RunAborted` — the run stopped on a device failure: exit 1.
-* :class:`Interrupted` — Ctrl-C / SIGTERM after devices reached a safe state: exit 130.
+* :class:`Interrupted` — Ctrl-C / SIGTERM / SIGHUP after devices reached a safe state: exit 130.
 """
 
 from __future__ import annotations
@@ -28,6 +28,6 @@ class RunAborted(LabctlError):
 
 
 class Interrupted(LabctlError):
-    """The operator interrupted the run (Ctrl-C) or it received SIGTERM."""
+    """The operator interrupted the run (Ctrl-C), or it received SIGTERM or SIGHUP (its terminal closed)."""
 
     exit_code = 130

@@ -78,8 +78,15 @@ class Terminal:
             pass
         return self.process.returncode
 
+    def hang_up(self) -> None:
+        """Close the terminal as a dropped SSH session or a closed terminal window does: the kernel sends
+        SIGHUP to the child, and its further output fails (EIO). Nothing more is read."""
+        if self.master >= 0:
+            os.close(self.master)
+            self.master = -1
+
     def close(self) -> None:
         if self.process.poll() is None:
             self.process.kill()
             self.process.wait()
-        os.close(self.master)
+        self.hang_up()

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.errors import DeviceError, LimitViolation, MissingSDKError, ProtectiveStop
+from drivers.errors import DeviceError, DeviceVanished, LimitViolation, MissingSDKError, ProtectiveStop
 from drivers.protocols import DeviceIdentity
 from drivers.robot.circle import MeasurementCircle
 
@@ -71,8 +71,10 @@ ROBOT_MODES: dict[int, str] = {
 }
 """``robot_mode`` of the RTDE guide's output list (ur-rtde ``getRobotMode``)."""
 
-ARRIVAL_LAG_S = 0.25
-"""How long the receive stream may lag the control stream after a path ends."""
+ARRIVAL_LAG_S = 2.0
+"""How long the receive stream may lag the control stream after a path ends. The wait ends as soon as the
+pose has arrived, so only a move that really stopped short waits this long; 0.25 s was exceeded on a loaded
+2-core machine (the emulated controller's stream arrived late, the arm had reached its target)."""
 
 SAFE_MODES = frozenset({1, 2})
 ROBOT_RUNNING = 7
@@ -156,6 +158,14 @@ def connect_ur_rtde(host: str, timeout_s: float) -> RTDEInterfaces:
     except RuntimeError as exc:
         raise DeviceError(name, f"ur-rtde could not connect: {exc}") from exc
     return RTDEInterfaces(control=control, receive=receive, dashboard=dashboard)
+
+
+def _link_up(rtde: RTDEInterfaces) -> bool:
+    """Whether both RTDE connections are up (ur-rtde ``isConnected``)."""
+    try:
+        return bool(rtde.receive.isConnected() and rtde.control.isConnected())
+    except RuntimeError:
+        return False
 
 
 def _to_controller(pose_mm: np.ndarray) -> list[float]:
@@ -250,18 +260,22 @@ class UR5eRobot:
             raise
 
     def close(self) -> None:
-        """Stop ur-rtde's control script and disconnect all clients (idempotent, never raises)."""
+        """Stop ur-rtde's control script and disconnect all clients (idempotent, never raises).
+        Over a lost connection the script cannot be stopped (ur-rtde would wait for it forever)."""
         rtde, self._rtde = self._rtde, None
         if rtde is None:
             return
-        for action in (rtde.control.stopScript, rtde.control.disconnect, rtde.receive.disconnect, rtde.dashboard.disconnect):
+        actions = [rtde.control.stopScript] if _link_up(rtde) else []
+        for action in (*actions, rtde.control.disconnect, rtde.receive.disconnect, rtde.dashboard.disconnect):
             with contextlib.suppress(Exception):
                 action()
 
     def safe_state(self) -> None:
-        """Decelerate any motion to a stop (``stopL``, then ``stopJ``); never raises."""
+        """Decelerate any motion to a stop (``stopL``, then ``stopJ``); never raises. Over a lost
+        connection nothing can be sent (ur-rtde would wait for the answer forever): a path under way is
+        not stopped from here, so check the cell (the pendant's stop) before going near the arm."""
         rtde = self._rtde
-        if rtde is None:
+        if rtde is None or not _link_up(rtde):
             return
         for stop in (rtde.control.stopL, rtde.control.stopJ):
             with contextlib.suppress(Exception):  # a lost connection must not stop the safe-state sweep
@@ -396,8 +410,14 @@ class UR5eRobot:
     # -- helpers ------------------------------------------------------------------
 
     def _connected(self) -> RTDEInterfaces:
+        """The clients, checked before every use: a command over a lost connection would wait forever."""
         if self._rtde is None:
             raise DeviceError(self.name, "not connected: call connect() first")
+        if not _link_up(self._rtde):
+            raise DeviceVanished(
+                self.name, f"the connection to the controller at {self.host} (RTDE port {RTDE_PORT}) was lost: check the "
+                "network cable and that the controller is on and in Remote Control", self.host,
+            )
         return self._rtde
 
     def _check_safety(self, context: str) -> None:
@@ -446,6 +466,7 @@ class UR5eRobot:
                         )
         q_near = list(rtde.receive.getActualQ())
         for k, pose in enumerate(waypoints):
+            rtde = self._connected()
             target = _to_controller(pose)
             if not rtde.control.isPoseWithinSafetyLimits(target):
                 self._refused(rtde, f"checking {where(k)}")
@@ -477,12 +498,14 @@ class UR5eRobot:
             self._check_safety(what)
             raise DeviceError(self.name, f"{what}: the controller did not accept the path")
         deadline = time.monotonic() + self.move_timeout_s
-        while rtde.control.getAsyncOperationProgressEx().isAsyncOperationRunning():
+        while True:
             try:
-                self._check_safety(what)
+                self._check_safety(what)  # the connection first: a query over a lost one never returns
             except DeviceError:
                 self.safe_state()
                 raise
+            if not rtde.control.getAsyncOperationProgressEx().isAsyncOperationRunning():
+                break
             if time.monotonic() > deadline:
                 self.safe_state()
                 raise DeviceError(self.name, f"{what}: still moving after {self.move_timeout_s} s; stopped")

@@ -43,7 +43,11 @@ from sim.model import ModelError, default_model_text, load_model, parse_model
 
 
 def _echo_err(message: str) -> None:
-    click.echo(message, err=True)
+    """The closing message on stderr; a terminal already gone (SIGHUP: EIO) or a closed pipe leaves the exit code to tell."""
+    try:
+        click.echo(message, err=True)
+    except OSError:
+        pass
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Collection, Sequence
+from typing import Any, TextIO, cast
 
 from rich.console import Console
 from rich.progress import (
@@ -19,6 +20,36 @@ from rich.progress import (
 from labctl.run.planning import PlannedStep, format_duration
 
 
+class VanishingOutput:
+    """A stream (stderr) that may go away: once a write fails (EIO after the terminal closed, EPIPE after
+    the reader of a pipe exited), further output is dropped, so a lost terminal never stops a run before
+    its devices are safe and its file is marked. Everything else is the wrapped stream's."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.lost = False
+
+    def write(self, text: str) -> int:
+        """Write ``text``, or drop it once the stream is gone."""
+        if not self.lost:
+            try:
+                return self.stream.write(text)
+            except OSError:
+                self.lost = True
+        return len(text)
+
+    def flush(self) -> None:
+        """Flush, unless the stream is gone."""
+        if not self.lost:
+            try:
+                self.stream.flush()
+            except OSError:
+                self.lost = True
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
 class Reporter:
     """Progress of a run: the step (k of n) and steps done, frames captured out of the plan's total,
     and the lab time left as planned (labctl.run.planning: moves, settling, laser readings, operator
@@ -29,7 +60,8 @@ class Reporter:
     """
 
     def __init__(self, quiet: bool = False, console: Console | None = None) -> None:
-        self.console = console or Console(stderr=True, quiet=quiet, highlight=False, soft_wrap=True)
+        output = cast(TextIO, VanishingOutput(sys.stderr))
+        self.console = console or Console(file=output, quiet=quiet, highlight=False, soft_wrap=True)
         self.live = self.console.is_terminal
         self.progress = Progress(
             TextColumn("{task.description}"),
@@ -101,7 +133,7 @@ class Reporter:
     def message(self, text: str) -> None:
         self.console.print(text, markup=False)
         if not self.console.is_terminal:
-            sys.stderr.flush()
+            self.console.file.flush()
 
     def stop(self) -> None:
         self.progress.stop()

@@ -7,10 +7,11 @@ It is the only place that handles faults, retries and checkpoints:
   ``runner.max_attempts`` times without progress, and logged in the step's
   ``faults_json`` / ``retries`` attributes;
 * a robot protective stop waits for an operator's confirmation, then recovers;
-* anything else, Ctrl-C and SIGTERM included, puts every device in its safe
-  state, marks the run ``aborted`` and stops (exit 1, or 130 for Ctrl-C);
-  Ctrl-C takes effect at the next frame or device operation (twice, or at an
-  operator prompt: at once);
+* anything else, Ctrl-C, SIGTERM and SIGHUP included, puts every device in
+  its safe state, marks the run ``aborted`` and stops (exit 1, or 130 for a
+  signal); a signal takes effect at the next frame or device operation (a
+  second Ctrl-C, or any at an operator prompt: at once), and none can cut the
+  safe-state sequence short (labctl.run.signals);
 * every step is committed atomically (``complete`` last), so ``resume`` can
   continue at the first step that is not complete.
 """
@@ -20,15 +21,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import signal
-import threading
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from typing import Any, TypeVar
 
 from drivers.errors import (
     CameraDisconnected,
     DeviceError,
+    DeviceVanished,
     LimitViolation,
     OperatorActionRequired,
     TransientDeviceError,
@@ -39,6 +38,7 @@ from labctl.run.lab import Lab
 from labctl.run.operator import Operator, unlock_confirmation
 from labctl.run.planning import PlannedStep, schedule
 from labctl.run.progress import Reporter
+from labctl.run.signals import StopRequests, signals_ignored
 from labctl.run.store import FrameError, RunWriter, StepWriter
 from metrics.stack import RoiMean, central_roi
 from procedures.targets import confirm_mounted_prompt
@@ -46,73 +46,14 @@ from procedures.targets import confirm_mounted_prompt
 T = TypeVar("T")
 
 
-class StopRequests:
-    """Ctrl-C and SIGTERM become a stop request that the runner honours at the next safe point.
-
-    A KeyboardInterrupt raised at an arbitrary bytecode can land in a finalizer
-    or callback, where Python ignores it; a flag checked between frames and
-    device operations cannot be lost. A second Ctrl-C interrupts at once, and
-    so does the first while an operator prompt waits (:meth:`at_once`).
-    """
-
-    def __init__(self) -> None:
-        self.reason: str | None = None
-        self._waiting = False
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        if self.reason is not None and signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        self.reason = "interrupted by the operator (Ctrl-C)" if signum == signal.SIGINT else "terminated by SIGTERM"
-        if self._waiting:
-            raise Interrupted(self.reason)
-
-    @contextmanager
-    def at_once(self) -> Iterator[None]:
-        """While a person is asked (a prompt waits for Enter), a stop request interrupts at once."""
-        self.check()
-        self._waiting = True
-        try:
-            yield
-        finally:
-            self._waiting = False
-
-    def check(self) -> None:
-        """Raise Interrupted if a stop was requested."""
-        if self.reason is not None:
-            raise Interrupted(self.reason)
-
-    @contextmanager
-    def installed(self) -> Iterator[None]:
-        """The handlers, in the main thread; a run in another thread (a Dask worker's task, labctl batch)
-        leaves the signals to the process that owns that thread (Python delivers them to the main thread)."""
-        if not _main_thread():
-            yield
-            return
-        previous = {sig: signal.signal(sig, self._handle) for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-
-
 def bring_to_safe_state(lab: Lab, report: Callable[[str], None]) -> None:
-    """safe_state() on every device; further Ctrl-C is ignored until all are safe (in the main thread)."""
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
-    try:
+    """safe_state() on every device; Ctrl-C, SIGTERM and SIGHUP are ignored until all are safe (in the main thread)."""
+    with signals_ignored():
         for role, device in lab.devices().items():
             try:
                 device.safe_state()
             except Exception as exc:  # a device that cannot even stop must not stop the others
                 report(f"warning: {role} safe_state failed: {exc}")
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-
-
-def _main_thread() -> bool:
-    """Whether this is the main thread, the only one that may set signal handlers (Python's signal module)."""
-    return threading.current_thread() is threading.main_thread()
 
 
 def close_all(lab: Lab, report: Callable[[str], None]) -> None:
@@ -162,7 +103,14 @@ class Runner:
 
     # ------------------------------------------------------------------ driver
     def execute(self) -> None:
-        """Run every step that is not complete yet; raise Interrupted / RunAborted on failure."""
+        """Run every step that is not complete yet; raise Interrupted / RunAborted on failure.
+
+        The signal handlers stay installed until the devices are safe and the run file is marked,
+        so a signal during that sequence is recorded, never a cause to skip it."""
+        with self.stop.installed():
+            self._execute()
+
+    def _execute(self) -> None:
         plan = schedule(self.campaign)
         done = self.run.completed()
         for attrs in done.values():
@@ -171,11 +119,11 @@ class Runner:
                 self.offset_mm = float(offset)
         self.reporter.start(plan, done)
         try:
-            with self.stop.installed():
-                for planned in plan:
-                    if planned.step.step_id not in done:
-                        self._execute_step(planned)
-                bring_to_safe_state(self.lab, self.reporter.message)
+            for planned in plan:
+                if planned.step.step_id not in done:
+                    self._execute_step(planned)
+            self.stop.hold()
+            bring_to_safe_state(self.lab, self.reporter.message)
             self.run.set_status("complete")
         except (KeyboardInterrupt, Interrupted) as exc:
             reason = "interrupted by the operator (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else exc.args[0]
@@ -183,6 +131,12 @@ class Runner:
             raise Interrupted(
                 f"{reason}; devices are in their safe state and {self.run.path} is marked aborted. "
                 f"Continue with: labctl resume {self.run.path}"
+            ) from None
+        except DeviceVanished as exc:
+            self._abort(str(exc))
+            raise RunAborted(
+                f"run aborted: {exc}. The other devices are in their safe state; {self.run.path} keeps every complete "
+                f"step. Once the device is back, continue with: labctl resume {self.run.path}{self._reconnect_option(exc)}"
             ) from None
         except (DeviceError, FrameError, OSError, RuntimeError) as exc:
             self._abort(str(exc))
@@ -196,6 +150,16 @@ class Runner:
         finally:
             self.reporter.stop()
             close_all(self.lab, self.reporter.message)
+
+    def _reconnect_option(self, exc: DeviceVanished) -> str:
+        """The resume option that finds a vanished device again if it comes back under another port or address."""
+        devices = self.campaign.devices
+        for role, config in (("stage", devices.stage), ("laser", devices.laser)):
+            if config is not None and config.port == exc.connection:
+                return f" (add --port {role}=NEW_PORT if it came back under another name than {exc.connection})"
+        if devices.robot is not None and devices.robot.host == exc.connection:
+            return f" (add --host robot=NEW_HOST if it came back at another address than {exc.connection})"
+        return ""
 
     def _resolved_distance(self, step: Any) -> float:
         """Camera-wall distance of a ``distance_from`` step: the sharp distance of the run's slanted-edge steps."""
@@ -223,6 +187,8 @@ class Runner:
         return position
 
     def _abort(self, reason: str) -> None:
+        """Every device to its safe state, then the file marked aborted; later signals are only recorded."""
+        self.stop.hold()
         bring_to_safe_state(self.lab, self.reporter.message)
         try:
             self.run.set_status("aborted", reason)
@@ -396,7 +362,9 @@ class Runner:
                 failures += 1
                 self._note(faults, f"capture frame {k}", exc, failures)
                 if failures >= self.cfg.max_attempts:
-                    raise DeviceError(exc.device, f"capture stuck at frame {k}: {exc.message}") from None
+                    raise DeviceError(exc.device, f"capture stuck at frame {k} of {n} after {failures} attempts: "
+                                      f"{exc.message}; the camera stopped delivering frames: check its cable, power "
+                                      "and network") from None
                 self.lab.clock.sleep(delay)
                 delay = min(2 * delay, self.cfg.backoff_max_s)
                 if isinstance(exc, CameraDisconnected):

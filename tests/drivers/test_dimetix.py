@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.errors import DeviceError, SerialGarbage, SerialTimeout, TransientDeviceError
+from drivers.errors import DeviceError, DeviceVanished, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.laser import DimetixError, DimetixLaser, DimetixTargetError, read_distances
 from drivers.laser.dimetix import ERROR_CODES, TARGET_ERROR_CODES, UNKNOWN
 from drivers.protocols import RangeMeter
@@ -125,10 +125,11 @@ def test_other_device_id_gets_no_answer(dimetix_emulator: DimetixEmulator) -> No
 def test_disconnect_is_fatal_and_safe_state_still_returns(
     laser: DimetixLaser, dimetix_emulator: DimetixEmulator
 ) -> None:
+    port = dimetix_emulator.port
     dimetix_emulator.disconnect()
-    with pytest.raises(DeviceError, match="disconnected") as caught:
+    with pytest.raises(DeviceVanished, match="failed or vanished") as caught:
         laser.measure_mm()
-    assert not isinstance(caught.value, TransientDeviceError)
+    assert not isinstance(caught.value, TransientDeviceError) and caught.value.connection == port
     laser.safe_state()
     laser.close()
 

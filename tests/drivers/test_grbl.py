@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout, TransientDeviceError
+from drivers.errors import DeviceError, DeviceVanished, LimitViolation, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.protocols import LinearStage
 from drivers.stage import GrblAlarm, GrblError, GrblStage, move_stage
 from drivers.stage.grbl import ALARM_CODES, ERROR_CODES
@@ -217,12 +217,13 @@ def test_garbage_reply(homed: GrblStage, grbl_emulator: GrblEmulator) -> None:
 
 def test_disconnect_during_a_move(homed: GrblStage, grbl_emulator: GrblEmulator) -> None:
     homed.feed_mm_min = 6000.0
+    port = grbl_emulator.port
     cable = threading.Timer(0.05, grbl_emulator.disconnect)
     cable.start()
-    with pytest.raises(DeviceError, match="disconnected") as caught:
+    with pytest.raises(DeviceVanished, match="failed or vanished") as caught:
         homed.move_to(399.0)
     cable.join()
-    assert not isinstance(caught.value, TransientDeviceError)
+    assert not isinstance(caught.value, TransientDeviceError) and caught.value.connection == port
     homed.safe_state()  # must not raise
     homed.close()
 

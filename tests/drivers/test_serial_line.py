@@ -9,7 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.errors import DeviceError, SerialGarbage, SerialTimeout
+from drivers.errors import DeviceError, DeviceVanished, SerialGarbage, SerialTimeout
 from drivers.serial_line import SerialLine
 
 
@@ -84,9 +84,9 @@ def test_a_vanished_port_is_fatal(pty_pair: tuple[int, str]) -> None:
     master, port = pty_pair
     line = open_line(port)
     os.close(master)
-    with pytest.raises(DeviceError, match="disconnected") as caught:
+    with pytest.raises(DeviceVanished, match=f"the port {port} failed or vanished waiting for a reply") as caught:
         line.read_line("a reply")
-    assert not isinstance(caught.value, SerialTimeout)
+    assert not isinstance(caught.value, SerialTimeout) and caught.value.connection == port
 
 
 def test_unopened_and_missing_ports() -> None:

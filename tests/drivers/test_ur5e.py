@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from drivers.errors import DeviceError, LimitViolation, OperatorActionRequired, ProtectiveStop
+from drivers.errors import DeviceError, DeviceVanished, LimitViolation, OperatorActionRequired, ProtectiveStop
 from drivers.protocols import Robot
 from drivers.robot import MeasurementCircle, UR5eRobot
 from drivers.robot.ur5e import DASHBOARD_GREETING, DASHBOARD_PORT, RTDE_PORT, RTDEInterfaces
@@ -147,6 +147,7 @@ class FakeController:
     motion_polls: int = 2
     stop_during_motion: str | None = None
     unlock_refusals: int = 0
+    connected: bool = True
     pose_ok: Callable[[list[float]], bool] = lambda pose: True
     ik: Callable[[list[float]], list[float] | None] = lambda pose: [0.1, -1.2, 1.5, -0.3, 1.57, 0.0]
     _polls: int = 0
@@ -158,6 +159,9 @@ class FakeController:
 
     def names(self) -> list[str]:
         return [name for name, _ in self.calls]
+
+    def isConnected(self) -> bool:  # noqa: N802 - ur-rtde's names (receive and control)
+        return self.connected
 
     # control
     def moveL(self, path: list[list[float]], asynchronous: bool) -> bool:  # noqa: N802 - ur-rtde's names
@@ -371,6 +375,19 @@ def test_a_move_that_does_not_finish_is_stopped(controller: FakeController) -> N
     with pytest.raises(DeviceError, match="still moving after 0.05 s; stopped"):
         device.move_on_circle(10.0, RADIUS)
     assert {"stopL", "stopJ"} <= set(controller.names())
+
+
+def test_a_lost_connection_sends_nothing_more(controller: FakeController) -> None:
+    """ur-rtde waits forever for the answer to a command sent over a lost connection: nothing is sent."""
+    device = connected(controller)
+    controller.connected = False
+    sent = len(controller.calls)
+    with pytest.raises(DeviceVanished, match="the connection to the controller at ursim .* was lost") as caught:
+        device.move_on_circle(10.0, RADIUS)
+    assert caught.value.connection == "ursim"
+    device.safe_state()
+    device.close()
+    assert controller.names()[sent:] == ["disconnect"] * 3  # control, receive, dashboard; no stop, no stopScript
 
 
 def test_safe_state_never_raises(controller: FakeController) -> None:

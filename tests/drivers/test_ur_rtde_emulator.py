@@ -27,7 +27,7 @@ import rtde_control
 import rtde_receive
 from scipy.spatial.transform import Rotation
 
-from drivers.errors import DeviceError, LimitViolation, ProtectiveStop
+from drivers.errors import DeviceError, DeviceVanished, LimitViolation, ProtectiveStop
 from drivers.robot import MeasurementCircle, UR5eRobot
 from sim.emulators.ur import SafetyPlane, URControllerProcess
 from sim.emulators.ur.kinematics import inverse
@@ -281,6 +281,32 @@ def test_adapter_emergency_stop_is_fatal(emulator: URControllerProcess) -> None:
             robot.move_on_circle(10.0, RADIUS_MM)
         with pytest.raises(DeviceError, match="emergency stop is engaged"):
             robot.recover()
+
+
+def test_adapter_a_dropped_connection_during_a_move_is_a_vanished_robot(emulator: URControllerProcess) -> None:
+    """The controller's servers close (a pulled network cable, a controller restart) while the arm moves:
+    ur-rtde's clients report the connection down, and the adapter raises at once instead of sending over
+    it (ur-rtde then waits for an answer forever); safe_state and close return."""
+    def pull_the_cable() -> None:
+        wait_for(lambda: emulator.call("moving"), 10.0)
+        emulator.close()
+
+    robot = adapter(emulator.host, speed_deg_s=10.0)  # 4 s to 40°
+    robot.connect()
+    cable = threading.Thread(target=pull_the_cable)
+    cable.start()
+    try:
+        with pytest.raises(DeviceVanished, match=f"the connection to the controller at {emulator.host} .* was lost") as caught:
+            robot.move_on_circle(40.0, RADIUS_MM)
+    finally:
+        cable.join()
+    assert caught.value.connection == emulator.host
+    with pytest.raises(DeviceVanished):
+        robot.pose_mm()  # no stale pose from the last package received
+    started = time.monotonic()
+    robot.safe_state()
+    robot.close()
+    assert time.monotonic() - started < 30.0
 
 
 @pytest.mark.parametrize("emulator", [{"remote_control": False}], indirect=True)

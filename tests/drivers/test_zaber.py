@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import pytest
 import serial
 
-from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout, TransientDeviceError
+from drivers.errors import DeviceError, DeviceVanished, LimitViolation, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.protocols import LinearStage
 from drivers.stage import ZaberFlagError, ZaberRejection, ZaberStage, move_stage
 from drivers.stage.zaber import MOTION_FAILURES, REJECTION_REASONS, WARNING_FLAGS
@@ -193,12 +193,13 @@ def test_garbage_reply(homed: ZaberStage, zaber_emulator: ZaberEmulator) -> None
 
 def test_disconnect_during_a_move(homed: ZaberStage, zaber_emulator: ZaberEmulator) -> None:
     zaber_emulator.speed_mm_s = 100.0  # 4 s of travel; the cable goes after 0.05 s
+    port = zaber_emulator.port
     cable = threading.Timer(0.05, zaber_emulator.disconnect)
     cable.start()
-    with pytest.raises(DeviceError, match="disconnected") as caught:
+    with pytest.raises(DeviceVanished, match="failed or vanished") as caught:
         homed.move_to(399.0)
     cable.join()
-    assert not isinstance(caught.value, TransientDeviceError)
+    assert not isinstance(caught.value, TransientDeviceError) and caught.value.connection == port
     homed.safe_state()  # must not raise
     homed.close()
 

@@ -130,8 +130,10 @@ def build(tmp_path, write_campaign, small_model, wrap=None):
 
 
 def test_persistent_fault_aborts_safely_and_keeps_complete_steps(tmp_path, write_campaign, small_model):
+    """A camera that stops delivering frames (a simulated camera wrapped to drop every frame after the 15th)."""
     runner, run, lab = build(tmp_path, write_campaign, small_model, wrap=lambda cam: StuckCamera(cam, 15))
-    with pytest.raises(RunAborted, match="capture stuck at frame 3"):
+    with pytest.raises(RunAborted, match="capture stuck at frame 3 of 6 after 5 attempts: no frame; the camera stopped "
+                                         "delivering frames: check its cable, power and network"):
         runner.execute()
     assert lab.camera.safe_calls == 1
     run.close()
@@ -140,6 +142,9 @@ def test_persistent_fault_aborts_safely_and_keeps_complete_steps(tmp_path, write
         assert "capture stuck" in f.attrs["status_reason"]
         complete = [k for k, g in f["steps"].items() if g.attrs["complete"]]
     assert complete == ["00000_offset_calibration", "00001_depth_sweep"]
+    assert invoke("resume", tmp_path / "r.h5", "--quiet") == 0  # the camera delivers again
+    with h5py.File(tmp_path / "r.h5", "r") as f:
+        assert f.attrs["status"] == "complete" and all(g.attrs["complete"] for g in f["steps"].values())
 
 
 class CtrlCStage:
