@@ -29,10 +29,13 @@ sensor's pattern: the random stripes and the pixel map are drawn on
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import numpy as np
 from pydantic import Field
 
 from sim.effects.base import EffectParams
+from sim.profiles import MAX_SENSOR_PX
 from sim.seeding import stream
 
 NAME = "fixed_pattern"
@@ -48,8 +51,8 @@ class Params(EffectParams):
     row_sigma_mm: float = Field(0.0, ge=0.0, le=100.0, description="random row stripes, mm (1 sigma)")
     pixel_sigma_mm: float = Field(0.0, ge=0.0, le=100.0, description="random per-pixel offsets, mm (1 sigma)")
     seed: int = Field(0, ge=0, description="seed of the random stripes and pixel map")
-    grid_px: list[int] | None = Field(None, min_length=2, max_length=2,
-                                      description="[width, height] the random parts are drawn on")
+    grid_px: list[Annotated[int, Field(ge=1, le=MAX_SENSOR_PX)]] | None = Field(
+        None, min_length=2, max_length=2, description="[width, height] the random parts are drawn on")
 
 
 def cell_average(n_cells: int, n_out: int) -> np.ndarray:
