@@ -43,10 +43,13 @@ TECHNOLOGIES = ("tof",)
 SOURCE = ("pmd/Royale FPPN; Lindner, Schiller, Kolb & Koch 2010; Kahlmann, Remondino & Ingensand 2006; "
           "Fuchs & Hirzinger 2008")
 
+#: one cell of a column or row profile, within the +-1000 mm the empirical corrections allow too
+Offset = Annotated[float, Field(ge=-1000.0, le=1000.0)]
+
 
 class Params(EffectParams):
-    column_offsets_mm: list[float] = Field(default_factory=list, description="column profile cells, mm")
-    row_offsets_mm: list[float] = Field(default_factory=list, description="row profile cells, mm")
+    column_offsets_mm: list[Offset] = Field(default_factory=list, description="column profile cells, mm")
+    row_offsets_mm: list[Offset] = Field(default_factory=list, description="row profile cells, mm")
     column_sigma_mm: float = Field(0.0, ge=0.0, le=100.0, description="random column stripes, mm (1 sigma)")
     row_sigma_mm: float = Field(0.0, ge=0.0, le=100.0, description="random row stripes, mm (1 sigma)")
     pixel_sigma_mm: float = Field(0.0, ge=0.0, le=100.0, description="random per-pixel offsets, mm (1 sigma)")

@@ -81,6 +81,8 @@ BAD_MODELS = [
     ("[lab]\ncamera_mount_error_mm = -5000", "lab.camera_mount_error_mm", "(got -5000)"),
     ("[lab]\nlaser_noise_mm = 1e12", "lab.laser_noise_mm", "(got 1000000000000.0)"),
     ("[effects.fixed_pattern]\npixel_sigma_mm = 1\ngrid_px = [0, 24]", "effects.fixed_pattern: grid_px.0", "(got 0)"),
+    ("[effects.fixed_pattern]\ncolumn_offsets_mm = [0.5, 1e300]", "effects.fixed_pattern: column_offsets_mm.1",
+     "(got 1e+300)"),
     ("[effects.empirical_range]\nrange_mm = [0, nan]\ncorrection_mm = [0, 1]", "effects.empirical_range: range_mm.1",
      "(got nan)"),
     ("[effects.wiggling]\nperiod_mm = 0", "effects.wiggling: period_mm", "(got 0)"),
