@@ -33,7 +33,7 @@ def _model(camera: str | None, model_path: Path | None):
     return parse_model(default_model_text(camera), f"built-in profile {camera}")
 
 
-def _number_of(default: object, value: object) -> bool:
+def _same_kind(default: object, value: object) -> bool:
     """Whether ``value`` has the kind of ``default``: a whole number, a number, true/false or a list of numbers."""
     def number(v: object) -> bool:
         return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
@@ -67,7 +67,7 @@ def _param(values: tuple[str, ...], target: str) -> dict[str, object]:
             value = json.loads(raw)
         except json.JSONDecodeError:
             value = raw
-        if not _number_of(known[key], value):
+        if not _same_kind(known[key], value):
             kind = KIND_OF.get(type(known[key]), "a number")
             raise InputError(f"--param {item!r}: {key} of {target} is {kind} (default {json.dumps(known[key])}), "
                              f"got {raw!r}")
