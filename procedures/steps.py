@@ -15,9 +15,10 @@ from pydantic import BaseModel, ConfigDict
 
 
 class StrictModel(BaseModel):
-    """Base of every configuration model: unknown keys are an error."""
+    """Base of every configuration model: unknown keys are an error, and so are NaN and infinity (TOML
+    spells them ``nan`` and ``inf``; no configuration number may be either)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 @dataclass(frozen=True)

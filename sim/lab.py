@@ -16,10 +16,13 @@ from procedures.steps import StrictModel
 
 
 class LabGeometry(StrictModel):
-    camera_mount_error_mm: float = 6.0
-    laser_offset_mm: float = 42.0
+    """Each value within what a lab can have without noticing (a camera a metre off its mount, or a laser
+    reading with metres of noise, is no hidden error but another lab)."""
+
+    camera_mount_error_mm: float = Field(6.0, ge=-200.0, le=200.0)
+    laser_offset_mm: float = Field(42.0, ge=-1000.0, le=1000.0)
     laser_bias_mm: float = Field(0.4, ge=-1.0, le=1.0)
-    laser_noise_mm: float = Field(0.15, ge=0.0)
-    laser_resolution_mm: float = Field(0.1, gt=0.0)
+    laser_noise_mm: float = Field(0.15, ge=0.0, le=10.0)
+    laser_resolution_mm: float = Field(0.1, gt=0.0, le=10.0)
     tilt_x_deg: float = Field(0.0, ge=-10, le=10)
     tilt_y_deg: float = Field(0.0, ge=-10, le=10)

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 T61 = "Thesis 2024, Table 6-1 (manufacturer datasheets)"
+#: largest sensor side a model may give (px): beyond every camera the simulator stands for
+MAX_SENSOR_PX = 8192
 
 
 @dataclass(frozen=True)

@@ -58,7 +58,8 @@ def batch_sweep(sweep: Sweep, outdir: Path, cluster: Cluster, quiet: bool = Fals
                 (p, outdir / "points" / p.name, sweep.evaluate, sweep.reconcile, sweep.keep_runs))
             for p in sweep.points]
     summaries = _run(jobs, cluster, quiet)
-    figures = list(sweep.figures) + (["reconcile.gap_after"] if sweep.reconcile else [])
+    figures = list(sweep.figures) + (["reconcile.gap_after"] if sweep.reconcile and "reconcile.gap_after" not in
+                                     sweep.figures else [])
     calibration = null_calibration(summaries) if sweep.reconcile else None
     extra = {"kind": "sweep", "sweep": {"name": sweep.name, "axes": sweep.axes, "evaluate": sweep.evaluate,
                                         "reconcile": sweep.reconcile, "keep_runs": sweep.keep_runs,

@@ -37,13 +37,16 @@ import tomli_w
 
 from labctl.batch.tasks import Summary, guarded, process_run
 from labctl.errors import InputError
+from labctl.evaluation.keyfigures import FIGURE_BY_NAME
 from labctl.reconcile.workflow import BACKEND_PROFILES
-from labctl.run.config import parse_campaign
+from labctl.run.config import model_camera_mismatch, parse_campaign
 from sim.model import ModelError, parse_model
 from sim.profiles import default_effects, get_profile
 
 #: figures tabled and plotted when the sweep file names none
 DEFAULT_FIGURES = ["z_trueness_q90_mm", "z_precision_q90_mm", "z_accuracy_q90_mm", "z_repeatability_center_mm"]
+#: the reconcile's numbers a sweep can table over its grid besides the key figures
+RECONCILE_FIGURES = ("reconcile.gap_before", "reconcile.gap_after", "reconcile.gap_floor")
 SWEEP_KEYS = {"campaign", "model", "camera", "evaluate", "reconcile", "keep_runs", "figures", "name"}
 PROFILE_BACKENDS = {profile: backend for backend, profile in BACKEND_PROFILES.items()}
 
@@ -180,17 +183,26 @@ def load_sweep(path: Path) -> Sweep:
         if seed is not None and (not isinstance(seed, int) or seed < 0):
             raise InputError(f"{where}: seed must be a whole number >= 0")
         campaign_toml, model_toml = tomli_w.dumps(point_campaign), tomli_w.dumps(model)
-        parse_campaign(campaign_toml, f"{where}: campaign")
+        backend = parse_campaign(campaign_toml, f"{where}: campaign").devices.camera.backend
         try:
             parse_model(model_toml, f"{where}: model")
         except ModelError as exc:  # a sweep file's bad point is bad input like any other field of it
             raise InputError(str(exc)) from None
+        mismatch = model_camera_mismatch(backend, camera)
+        if mismatch is not None:
+            raise InputError(f"{where}: {mismatch}; set [sweep] camera = \"{camera}\" (it sets the campaign's "
+                             "backend too) or use a model of the campaign's camera")
         reconcile_toml = tomli_w.dumps(reference) if model_file is not None else None
         null = model.get("effects", {}) == reference.get("effects", {})
         points.append(Point(name, parameters, campaign_toml, model_toml, reconcile_toml, seed, null))
     figures = head.get("figures", DEFAULT_FIGURES)
     if not isinstance(figures, list) or not all(isinstance(f, str) for f in figures):
         raise InputError(f"{path}: [sweep] figures is a list of key figure names")
+    unknown_figures = [f for f in figures if f not in FIGURE_BY_NAME and f not in RECONCILE_FIGURES]
+    if unknown_figures:
+        raise InputError(f"{path}: [sweep] figures: unknown key figure(s) {', '.join(map(repr, unknown_figures))}; "
+                         f"the names are those of docs/keyfigures.md (e.g. {', '.join(DEFAULT_FIGURES)}) and "
+                         f"{', '.join(RECONCILE_FIGURES)}")
     flags = {key: head.get(key, default) for key, default in (("evaluate", True), ("reconcile", False),
                                                               ("keep_runs", True))}
     for key, value in flags.items():

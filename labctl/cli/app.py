@@ -26,7 +26,7 @@ from labctl.cli import simulate as cli_sim
 from labctl.cli.outputs import output_directory, output_file
 from labctl.errors import InputError, LabctlError
 from labctl.run.compression import COMPRESSIONS
-from labctl.run.config import Campaign, load_campaign, parse_campaign
+from labctl.run.config import Campaign, load_campaign, model_camera_mismatch, parse_campaign
 from labctl.run.diskspace import ensure_free, format_bytes
 from labctl.run.lab import Lab, build_real_lab, build_sim_lab
 from labctl.run.operator import Operator
@@ -122,6 +122,17 @@ def _sim_lab_from(campaign: Campaign, model_text: str, model_source: str, seed: 
     return build_sim_lab(campaign, model, seed)
 
 
+def _same_camera(campaign: Campaign, model_camera: str, campaign_path: Path, model_path: Path) -> None:
+    """Refuse a model of another camera than the campaign's: the run file would record one camera's campaign
+    holding another camera's data, and reconcile and the reports would compare the wrong camera."""
+    why = model_camera_mismatch(campaign.devices.camera.backend, model_camera)
+    if why is not None:
+        profile = campaign.devices.camera.sim_profile
+        raise InputError(f"--model {model_path} does not fit campaign {campaign_path}: {why}. Give a model with "
+                         f"camera = \"{profile}\", or set backend = \"{model_camera}\" under [devices.camera] of the "
+                         "campaign to simulate that camera")
+
+
 def _ensure_room(run_file: Path, campaign: Campaign, compression: str, steps: list[Step], camera: CameraInfo) -> None:
     """Refuse to start (exit 1) when the disk cannot hold the expected size of the steps to run."""
     raw, expected = expected_run_bytes(campaign, compression, steps, camera)
@@ -169,8 +180,9 @@ def run(
     reporter = Reporter(quiet=quiet)
     if sim:
         if model is not None:
-            _, model_text = load_model(model)
+            sim_model, model_text = load_model(model)
             source = str(model)
+            _same_camera(config, sim_model.camera, campaign, model)
         else:
             model_text, source = default_model_text(config.devices.camera.sim_profile), "built-in profile"
         run_seed = config.sim.seed if seed is None else seed

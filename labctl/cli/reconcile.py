@@ -34,7 +34,10 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
     def progress(what: str) -> None:
         reporter.message(f"[{time.monotonic() - start:6.1f} s] {what}")
 
-    result = run_reconcile(measured, model, progress=progress)
+    def warn(message: str) -> None:
+        click.echo(f"labctl: warning: {model_path}: {message}", err=True)
+
+    result = run_reconcile(measured, model, progress=progress, warn=warn)
     report, model_file, doc = write_reconcile(result, measured, output)
     if as_json:
         click.echo(dumps_strict(doc, indent=2))

@@ -61,7 +61,7 @@ from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout, layout, raw_residuals
 from labctl.reconcile.score import Fit, score
 from sim.model import SimModel, parse_model
-from sim.profiles import default_effects, get_profile
+from sim.profiles import PROFILES, default_effects, get_profile
 
 DBIC_THRESHOLD = 30.0
 CORNER_NAMES = {c.name for c in CORNER_CANDIDATES}
@@ -143,13 +143,29 @@ class ReconcileResult:
         return tomli_w.dumps(self.model.model_dump(mode="json", exclude_defaults=False))
 
 
-def base_model(info: dict[str, Any]) -> SimModel:
-    """The camera's built-in model at the run's sensor size and reported FOV (without ``--model``)."""
+def run_camera(info: dict[str, Any]) -> tuple[str, str]:
+    """The measured run's camera backend and the simulated profile that stands for it."""
     try:
         backend = tomllib.loads(info["campaign_toml"] or "")["devices"]["camera"]["backend"]
     except (tomllib.TOMLDecodeError, KeyError, TypeError):
         backend = info.get("backend", "")
-    profile_name = BACKEND_PROFILES.get(backend, backend)
+    return backend, BACKEND_PROFILES.get(backend, backend)
+
+
+def camera_mismatch(info: dict[str, Any], model: SimModel) -> str | None:
+    """A warning when ``model`` simulates another camera than the measured run's (None when they agree or the
+    run's camera has no profile): the comparison then measures the difference of two cameras."""
+    backend, profile_name = run_camera(info)
+    if profile_name not in PROFILES or profile_name == model.camera:
+        return None
+    return (f"the model simulates camera {model.camera!r} but the run was taken with backend {backend!r} (profile "
+            f"{profile_name!r}): what is found is the difference between two cameras; give a {profile_name} model, "
+            "or no --model for the camera's built-in one")
+
+
+def base_model(info: dict[str, Any]) -> SimModel:
+    """The camera's built-in model at the run's sensor size and reported FOV (without ``--model``)."""
+    backend, profile_name = run_camera(info)
     try:
         profile = get_profile(profile_name)
     except KeyError:
@@ -460,12 +476,18 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
     return stage, model
 
 
-def reconcile(path: str | Path, model: SimModel | None = None,
-              progress: Callable[[str], None] | None = None) -> ReconcileResult:
-    """Name, fit and add the effects the model is missing to explain the measured run at ``path``."""
+def reconcile(path: str | Path, model: SimModel | None = None, progress: Callable[[str], None] | None = None,
+              warn: Callable[[str], None] | None = None) -> ReconcileResult:
+    """Name, fit and add the effects the model is missing to explain the measured run at ``path``; ``warn``
+    hears what is legal but likely a mistake (a model of another camera), which the notes keep as well."""
     say = progress or (lambda _: None)
     say("reading the measured run")
     observations, info, notes = observe_run(path)
+    mismatch = camera_mismatch(info, model) if model is not None else None
+    if mismatch is not None:
+        notes.append(f"camera mismatch: {mismatch}")
+        if warn is not None:
+            warn(mismatch)
     model = model or base_model(info)
     fov = (float(info["fov_deg"][0]), float(info["fov_deg"][1]))
     corner_obs, corner_notes = observe_corner_run(path, fov)

@@ -31,6 +31,18 @@ SIM_PROFILE_OF_BACKEND = {
     "d455": "d455",
     "blaze101": "blaze101",
 }
+
+
+def model_camera_mismatch(backend: str, model_camera: str) -> str | None:
+    """Why a simulation model of camera ``model_camera`` does not stand for a campaign's ``backend``
+    (None when it does, or when the backend has no simulated profile)."""
+    profile = SIM_PROFILE_OF_BACKEND.get(backend)
+    if profile is None or profile == model_camera:
+        return None
+    return (f"the model simulates camera {model_camera!r}, but the campaign's [devices.camera] backend = {backend!r} "
+            f"is simulated as {profile!r}")
+
+
 #: campaign ``backend`` -> real driver name
 DRIVER_OF_BACKEND = {
     "realsense": "realsense",

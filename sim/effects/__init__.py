@@ -55,6 +55,12 @@ def apply_empirical(values: np.ndarray, effects: dict[str, EffectParams]) -> np.
     return values
 
 
+def _got(error: Any) -> str:
+    """`` (got VALUE)`` for an error about one value; nothing for a missing field or a whole table."""
+    value = error.get("input")
+    return "" if error["type"] in {"missing", "model_type", "value_error"} or isinstance(value, dict) else f" (got {value!r})"
+
+
 def parse_effects(raw: dict[str, dict[str, Any]], technology: str) -> dict[str, EffectParams]:
     """Validate an ``[effects]`` table; ValueError names the effect and the bad parameter."""
     parsed: dict[str, EffectParams] = {}
@@ -69,7 +75,7 @@ def parse_effects(raw: dict[str, dict[str, Any]], technology: str) -> dict[str, 
         except ValidationError as exc:
             problems = "; ".join(
                 f"unknown parameter {'.'.join(str(p) for p in e['loc'])!r}" if e["type"] == "extra_forbidden"
-                else f"{'.'.join(str(p) for p in e['loc']) or name}: {e['msg'].removeprefix('Value error, ')}"
+                else f"{'.'.join(str(p) for p in e['loc']) or name}: {e['msg'].removeprefix('Value error, ')}{_got(e)}"
                 for e in exc.errors()
             )
             raise ValueError(f"effects.{name}: {problems}") from None

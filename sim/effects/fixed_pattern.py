@@ -29,10 +29,13 @@ sensor's pattern: the random stripes and the pixel map are drawn on
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import numpy as np
 from pydantic import Field
 
 from sim.effects.base import EffectParams
+from sim.profiles import MAX_SENSOR_PX
 from sim.seeding import stream
 
 NAME = "fixed_pattern"
@@ -40,16 +43,19 @@ TECHNOLOGIES = ("tof",)
 SOURCE = ("pmd/Royale FPPN; Lindner, Schiller, Kolb & Koch 2010; Kahlmann, Remondino & Ingensand 2006; "
           "Fuchs & Hirzinger 2008")
 
+#: one cell of a column or row profile, within the +-1000 mm the empirical corrections allow too
+Offset = Annotated[float, Field(ge=-1000.0, le=1000.0)]
+
 
 class Params(EffectParams):
-    column_offsets_mm: list[float] = Field(default_factory=list, description="column profile cells, mm")
-    row_offsets_mm: list[float] = Field(default_factory=list, description="row profile cells, mm")
+    column_offsets_mm: list[Offset] = Field(default_factory=list, description="column profile cells, mm")
+    row_offsets_mm: list[Offset] = Field(default_factory=list, description="row profile cells, mm")
     column_sigma_mm: float = Field(0.0, ge=0.0, le=100.0, description="random column stripes, mm (1 sigma)")
     row_sigma_mm: float = Field(0.0, ge=0.0, le=100.0, description="random row stripes, mm (1 sigma)")
     pixel_sigma_mm: float = Field(0.0, ge=0.0, le=100.0, description="random per-pixel offsets, mm (1 sigma)")
     seed: int = Field(0, ge=0, description="seed of the random stripes and pixel map")
-    grid_px: list[int] | None = Field(None, min_length=2, max_length=2,
-                                      description="[width, height] the random parts are drawn on")
+    grid_px: list[Annotated[int, Field(ge=1, le=MAX_SENSOR_PX)]] | None = Field(
+        None, min_length=2, max_length=2, description="[width, height] the random parts are drawn on")
 
 
 def cell_average(n_cells: int, n_out: int) -> np.ndarray:

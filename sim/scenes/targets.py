@@ -32,6 +32,7 @@ of a material (``ptfe``, ``molleton``, ``silicone``, ``gelatine``,
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Mapping
 from typing import Any
 
@@ -176,3 +177,18 @@ def build_scene(target: str, params: Mapping[str, Any], wavelength_nm: float, di
     if target in PLATE_MATERIALS:
         return plate_scene(target, wavelength_nm, **params)
     raise KeyError(f"no simulated scene for target {target!r}; known: {', '.join(TARGETS)}")
+
+
+def scene_parameters(target: str) -> dict[str, Any]:
+    """The parameters ``build_scene`` (or ``plate_scene``) takes for ``target``, each with its default; the
+    distance, the wavelength, the chart's white cover and a plate's offset (from the model) are not among them."""
+    if target in PLATE_MATERIALS:
+        builder, fixed = plate_scene, {"material", "wavelength_nm", "offset_mm"}
+    elif target == "white_sheet":
+        builder, fixed = chart_scene, {"distance_mm", "wavelength_nm", "white"}
+    elif target in STAGE_TARGETS:
+        builder, fixed = STAGE_TARGETS[target], {"distance_mm", "wavelength_nm"}
+    else:
+        raise KeyError(f"no simulated scene for target {target!r}; known: {', '.join(TARGETS)}")
+    return {name: param.default for name, param in inspect.signature(builder).parameters.items()
+            if name not in fixed and param.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD}
