@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from labctl.cli.outputs import output_file
+from labctl.cli.outputs import OutputFile, png_file
 from labctl.errors import InputError
 from metrics.jsonsafe import dumps_strict
 
@@ -84,7 +84,7 @@ def _fov_deg(text: str) -> tuple[float, float]:
 @click.option("--fov-deg", "fov_text", required=True, help="the camera's given FOV H,V in degrees")
 @click.option("--cloud", type=click.Path(dir_okay=False, path_type=Path),
               help="organized point cloud of the same view: .pcd, or .npy H x W x 3 in mm, NaN invalid")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--plot", "plot_path", type=OutputFile("plot.png"),
               help="write the found and expected corners as a PNG figure")
 @click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout")
 def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str, cloud: Path | None,
@@ -95,7 +95,7 @@ def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str,
 
     fov = _fov_deg(fov_text)
     if plot_path is not None:
-        output_file(plot_path, "--plot")
+        png_file(plot_path, "--plot")
     if tile_mm <= 0 or distance_mm <= 0:
         raise InputError("--tile-mm and --distance-mm must be positive")
     try:
@@ -193,7 +193,7 @@ def _organized_cloud(path: Path):
 @click.option("--binning", "binning_text", default="auto", show_default=True,
               help="1 mm rings evaluated together: a number, or auto (2, more where the points lie further apart)")
 @click.option("--fov-deg", "fov_text", help="the camera's FOV H,V in degrees: the sensor resolution not to beat")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--plot", "plot_path", type=OutputFile("plot.png"),
               help="write the star and its clusters per ring as a PNG figure")
 @click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout")
 def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov_text: str | None,
@@ -203,7 +203,7 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
 
     fov = _fov_deg(fov_text) if fov_text is not None else None
     if plot_path is not None:
-        output_file(plot_path, "--plot")
+        png_file(plot_path, "--plot")
     if segments < 16 or segments % 2:
         raise InputError(f"--segments {segments}: a Böhler star has an even number of segments (72 or 24)")
     if inlier_mm <= 0:

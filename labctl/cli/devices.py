@@ -19,7 +19,7 @@ import numpy as np
 
 from drivers.errors import DeviceError, LimitViolation
 from drivers.protocols import DepthCamera
-from labctl.cli.outputs import output_file
+from labctl.cli.outputs import OutputFile, output_file
 from labctl.errors import InputError, RunAborted
 from labctl.run.operator import Operator, unlock_confirmation
 from labctl.run.store import RunWriter
@@ -159,7 +159,7 @@ def _capture_file(
 @click.option("--backend", required=True, type=click.Choice(["realsense", "blaze", "amt100", "flexx2"]))
 @click.option("--playback", type=click.Path(dir_okay=False, path_type=Path), help="recording (.bag, .rrf)")
 @click.option("--frames", type=click.IntRange(min=1), default=1, show_default=True)
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="run file")
+@click.option("-o", "--output", required=True, type=OutputFile("capture.h5"), help="run file")
 @click.option("--serial", help="which camera, if several are connected")
 @click.option("--producer", type=click.Path(dir_okay=False, path_type=Path), help="GenTL producer .cti")
 @click.option("--sdk", type=click.Choice(["pypylon", "harvesters"]), default="pypylon", show_default=True)

@@ -9,6 +9,7 @@ import click
 
 from labctl.cli.outputs import output_directory
 from labctl.run.progress import Reporter
+from labctl.run.store import RunReader
 from metrics.jsonsafe import dumps_strict
 
 
@@ -26,9 +27,10 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
     from labctl.reconcile.workflow import reconcile as run_reconcile
     from sim.model import load_model
 
+    model = load_model(model_path)[0] if model_path is not None else None
+    RunReader(measured).close()  # a file that is not a run fails here, before the output folder is made
     output_directory(output)
     reporter = Reporter(quiet=quiet)
-    model = load_model(model_path)[0] if model_path is not None else None
     start = time.monotonic()
 
     def progress(what: str) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from labctl.cli.outputs import output_file
+from labctl.cli.outputs import OutputFile, png_file
 from labctl.errors import InputError
 from sim.model import default_model_text, load_model, parse_model
 from sim.profiles import PROFILES, SOURCES
@@ -48,12 +48,12 @@ def _param(values: tuple[str, ...]) -> dict[str, object]:
 @click.option("--angle-deg", type=float, default=0.0, show_default=True, help="robot angle (material plates)")
 @click.option("--param", multiple=True, help="target parameter KEY=VALUE (e.g. segments=24)")
 @click.option("--projector/--no-projector", default=True, help="stereo dot projector")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="PNG to write")
+@click.option("-o", "--output", required=True, type=OutputFile("preview.png"), help="PNG to write")
 def preview(camera, model_path, target, distance_mm, angle_deg, param, projector, output) -> None:
     """Render a simulated frame (intensity and depth) of a scene to a PNG."""
     from sim.preview import GALLERY, preview_figure
 
-    output_file(output, "-o")
+    png_file(output, "-o")
     model = _model(camera, model_path)
     if target is None:
         targets = [(name, dict(where)) for name, where in GALLERY.items()]

@@ -91,7 +91,10 @@ def test_analyze_plots_into_a_missing_directory(capsys, tmp_path: Path) -> None:
 def test_output_directories_that_cannot_be_created(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("")
-    for command in (["evaluate", blank_mask_run], ["reconcile", blank_mask_run], ["compare", tmp_path]):
+    evaluation = tmp_path / "evaluation"
+    evaluation.mkdir()
+    (evaluation / "keyfigures.json").write_text('{"camera": {"model": "m"}, "figures": {}}')
+    for command in (["evaluate", blank_mask_run], ["reconcile", blank_mask_run], ["compare", evaluation]):
         code, _, err = labctl(capsys, *command, "-o", blocker / "out")
         assert code == 2 and f"cannot create the directory {blocker / 'out'} for -o" in err, (command, err)
         code, _, err = labctl(capsys, *command, "-o", blocker)
@@ -234,3 +237,131 @@ def test_a_run_whose_laser_port_refuses_its_settings_stops_with_the_port_named(c
         assert not stage.moving
     assert code == 1 and f"cannot connect devices: Dimetix laser on {port}: cannot open the port" in err
     assert not (tmp_path / "run.h5").exists()
+
+
+# ---------------------------------------------------------------------- files that are not what the command reads
+def test_an_empty_or_a_text_file_given_as_a_run_is_named_for_what_it_is(capsys, tmp_path: Path) -> None:
+    empty, text = tmp_path / "empty.h5", tmp_path / "notes.h5"
+    empty.write_bytes(b"")
+    text.write_text("distance 1000 mm\n")
+    for path, kind in ((empty, "is empty (0 bytes)"), (text, "is a text file (it begins 'distance 1000 mm')")):
+        for command in (["info", path], ["evaluate", path, "-o", tmp_path / "out"], ["resume", path],
+                        ["export", path, "--step", "s", "--format", "pcd", "-o", tmp_path / "c.pcd"]):
+            code, _, err = labctl(capsys, *command)
+            assert code == 2, (command, err)
+            assert f"{path} {kind}, not a labctl run file: a run file is the HDF5 file 'labctl run" in err, (command, err)
+    assert empty.read_bytes() == b""  # resume did not open it for writing (HDF5 would have made it a file of 800 bytes)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_run_file_given_as_the_campaign(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    for command in (["plan", blank_mask_run], ["run", blank_mask_run, "--sim", "-o", tmp_path / "r.h5"]):
+        code, _, err = labctl(capsys, *command)
+        assert code == 2 and "utf-8" not in err
+        assert (f"{blank_mask_run} is a labctl run file, not a campaign; did you mean 'labctl resume {blank_mask_run}' "
+                f"or 'labctl evaluate {blank_mask_run} -o DIR'?") in err
+    assert not (tmp_path / "r.h5").exists()
+
+
+# ---------------------------------------------------------------------- outputs that cannot be written
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc, where no file can be created")
+def test_outputs_where_no_file_can_be_created_say_so(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    """Root passes every permission check, but no file can be created in /proc: the cause is named, not a lack
+    of free space (run) or a missing file (export)."""
+    campaign = tmp_path / "c.toml"
+    campaign.write_text(campaign_text())
+    code, _, err = labctl(capsys, "run", campaign, "--sim", "-o", "/proc/run.h5")
+    assert code == 2 and "-o /proc/run.h5: no file can be created in /proc" in err and "free" not in err
+    code, _, err = labctl(capsys, "export", blank_mask_run, "--step", "00001_depth_sweep", "--format", "ply",
+                          "-o", "/proc/a.ply")
+    assert code == 2 and "-o /proc/a.ply: no file can be created in /proc" in err
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", "/proc/evaluation", "--quiet")
+    assert code == 2 and "cannot create the directory /proc/evaluation for -o" in err and "(/proc accepts no new" in err
+
+
+def test_a_file_output_named_like_a_directory_is_refused(capsys, tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("c.toml").write_text(campaign_text())
+    code, _, err = labctl(capsys, "run", "c.toml", "--sim", "-o", "newdir/")
+    assert code == 2 and "-o newdir/ names a directory; give a file name in it, e.g. newdir/run.h5" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+def test_a_plot_that_is_not_a_png_is_refused_before_the_analysis(capsys, tmp_path: Path) -> None:
+    cloud = tmp_path / "cloud.npy"
+    np.save(cloud, np.zeros((20, 30, 3)))
+    code, _, err = labctl(capsys, "analyze", "boehler", cloud, "--segments", "72", "--plot", tmp_path / "b.txt")
+    assert code == 2 and f"--plot {tmp_path / 'b.txt'}: the figure is written as PNG; name it {tmp_path / 'b.png'}" in err
+
+
+def test_export_format_and_file_extension_must_agree(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    step = ("--step", "00001_depth_sweep")
+    code, _, err = labctl(capsys, "export", blank_mask_run, *step, "--format", "ply", "-o", tmp_path / "b.pcd")
+    assert code == 2
+    assert f"--format ply does not match -o {tmp_path / 'b.pcd'}, a .pcd name: write -o {tmp_path / 'b.ply'}" in err
+    assert not (tmp_path / "b.pcd").exists()
+    code, _, err = labctl(capsys, "export", blank_mask_run, *step, "--format", "pcd", "-o", tmp_path / "b.txt")
+    assert code == 0 and f"warning: -o {tmp_path / 'b.txt'} has no .pcd extension" in err
+    assert (tmp_path / "b.txt").read_bytes().startswith(b"# .PCD")
+
+
+# ---------------------------------------------------------------------- the same input twice, one evaluation
+def test_evaluate_counts_a_run_given_twice_once(capsys, tmp_path: Path, blank_mask_run: Path, monkeypatch) -> None:
+    monkeypatch.chdir(blank_mask_run.parent)
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run.name, f"./{blank_mask_run.name}", blank_mask_run,
+                          "-o", tmp_path / "out", "--quiet")
+    assert code == 0
+    assert err.count(f"warning: run file {blank_mask_run.name} given twice") == 2
+    assert f"(also as {blank_mask_run}): used once" in err
+    doc = json.loads((tmp_path / "out" / "keyfigures.json").read_text())
+    assert doc["runs"] == [blank_mask_run.name]
+    assert [row["step"] for row in doc["depth_sweep"]] == ["00001_depth_sweep"]  # the run's one depth step, once
+
+
+@pytest.fixture(scope="module")
+def evaluation(tmp_path_factory: pytest.TempPathFactory, blank_mask_run: Path) -> Path:
+    """``labctl evaluate`` of the face-mask run: no slanted edge, so no inter-eye distance to chart."""
+    out = tmp_path_factory.mktemp("evaluation") / "ev"
+    with pytest.raises(SystemExit) as done:
+        main(["evaluate", str(blank_mask_run), "-o", str(out), "--quiet"])
+    assert done.value.code == 0
+    return out
+
+
+def test_compare_warns_on_one_evaluation_and_on_the_same_twice(capsys, tmp_path: Path, evaluation: Path) -> None:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code, out, err = labctl(capsys, "compare", evaluation, f"{evaluation}/", "-o", tmp_path / "cmp")
+    assert code == 0 and out.strip() == f"comparison: {tmp_path / 'cmp' / 'compare.html'}"
+    assert f"warning: evaluation {evaluation} given twice" in err
+    assert f"warning: one evaluation ({evaluation}): compare puts two or more cameras side by side" in err
+    # every camera without an inter-eye distance: the chart's "n/a" once fell outside the axes and matplotlib warned
+    assert not [str(w.message) for w in caught if "layout" in str(w.message)]
+    assert json.loads((tmp_path / "cmp" / "compare.json").read_text())
+
+
+def test_a_failed_compare_or_reconcile_leaves_no_output_folder(capsys, tmp_path: Path, evaluation: Path) -> None:
+    code, _, err = labctl(capsys, "compare", evaluation, tmp_path / "nope", "-o", tmp_path / "cmp")
+    assert code == 2 and f"{tmp_path / 'nope'} has no keyfigures.json" in err
+    text = tmp_path / "c.toml"
+    text.write_text(campaign_text())
+    code, _, err = labctl(capsys, "reconcile", text, "-o", tmp_path / "rec", "--quiet")
+    assert code == 2 and f"{text} is a text file (it begins '[campaign]'), not a labctl run file" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+# ---------------------------------------------------------------------- a serial port where nothing answers
+def test_a_silent_laser_port_gets_a_hint_to_check_power_and_line_settings(capsys) -> None:
+    """A real pseudo-terminal that nobody reads or answers: a sensor switched off or at another baud rate."""
+    import os
+
+    master, slave = os.openpty()
+    try:
+        port = os.ttyname(slave)
+        code, _, err = labctl(capsys, "device", "laser", "--port", port, "--baud", "9600", "--count", "1")
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert code == 1
+    assert f"Dimetix laser on {port}: no complete reply" in err and "in reply to 's0c'" in err
+    assert "is the sensor powered and wired to this port, set to 9600 baud 7E1 and device ID 0?" in err
