@@ -233,6 +233,8 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
         "clamped_h": result.clamped_h,
         "clamped_v": result.clamped_v,
         "segments": result.segments,
+        "star_found": result.star_found,
+        "modulation": result.modulation,
         "distance_mm": result.distance_mm,
         "centre_mm": list(result.centre_mm),
         "normal": list(result.normal),
@@ -254,7 +256,9 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
         click.echo(dumps_strict(doc))
         return
     x, y, z = result.centre_mm
-    click.echo(f"{cloud}: {segments}-segment star at {result.distance_mm:.0f} mm, centre ({x:.1f}, {y:.1f}, {z:.1f}) mm")
+    click.echo(f"{cloud}: {segments}-segment star at {result.distance_mm:.0f} mm, centre ({x:.1f}, {y:.1f}, {z:.1f}) mm"
+               if result.star_found else
+               f"{cloud}: no {segments}-segment star found on the nearest plane facing the camera ({result.distance_mm:.0f} mm)")
     for name, radius, lateral, angular in (("horizontal", result.radius_h_mm, result.resolution_h_mm, result.angular_h_deg),
                                            ("vertical", result.radius_v_mm, result.resolution_v_mm, result.angular_v_deg)):
         click.echo(f"{name}: not resolved" if radius != radius else

@@ -365,3 +365,26 @@ def test_a_silent_laser_port_gets_a_hint_to_check_power_and_line_settings(capsys
     assert code == 1
     assert f"Dimetix laser on {port}: no complete reply" in err and "in reply to 's0c'" in err
     assert "is the sensor powered and wired to this port, set to 9600 baud 7E1 and device ID 0?" in err
+
+
+# ---------------------------------------------------------------------- a wall analysed as a star
+def test_analyze_boehler_of_a_plain_wall_reports_no_star(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    """The depth-sweep step of a simulated run is a plain wall at 2000 mm: once reported as a "72-segment
+    star at 2006 mm"; a ray-cast star is still reported as one."""
+    from tests.metrics.test_boehler import star_cloud
+
+    wall = tmp_path / "wall.pcd"
+    assert labctl(capsys, "export", blank_mask_run, "--step", "00001_depth_sweep", "--format", "pcd", "-o", wall)[0] == 0
+    code, out, _ = labctl(capsys, "analyze", "boehler", wall, "--segments", "72")
+    assert code == 0
+    assert out.startswith(f"{wall}: no 72-segment star found on the nearest plane facing the camera (")
+    assert "warning: no 72-segment star found: no ring on the plane at" in out and "segment star at" not in out
+    code, out, _ = labctl(capsys, "analyze", "boehler", wall, "--segments", "72", "--json")
+    doc = strict_json(out)
+    assert code == 0 and doc["star_found"] is False and doc["resolution_mm"] is None
+    star = tmp_path / "star.npy"
+    np.save(star, star_cloud(24, 0.0, 0.0, size=(160, 120)))
+    code, out, _ = labctl(capsys, "analyze", "boehler", star, "--segments", "24")
+    assert code == 0 and out.startswith(f"{star}: 24-segment star at 50") and "star found" not in out
+    doc = strict_json(labctl(capsys, "analyze", "boehler", star, "--segments", "24", "--json")[1])
+    assert doc["star_found"] is True and doc["distance_mm"] == pytest.approx(math.hypot(40.0, 30.0, 500.0), abs=1.0)
