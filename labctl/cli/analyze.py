@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from labctl.cli.inputs import POSITIVE
 from labctl.cli.outputs import OutputFile, png_file
 from labctl.errors import InputError
 from metrics.jsonsafe import dumps_strict
@@ -79,8 +80,8 @@ def _fov_deg(text: str) -> tuple[float, float]:
 
 @analyze_group.command("checkerboard")
 @click.argument("image", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--tile-mm", type=float, required=True, help="checkerboard tile size in mm")
-@click.option("--distance-mm", type=float, required=True, help="camera - board distance in mm")
+@click.option("--tile-mm", type=POSITIVE, required=True, help="checkerboard tile size in mm")
+@click.option("--distance-mm", type=POSITIVE, required=True, help="camera - board distance in mm")
 @click.option("--fov-deg", "fov_text", required=True, help="the camera's given FOV H,V in degrees")
 @click.option("--cloud", type=click.Path(dir_okay=False, path_type=Path),
               help="organized point cloud of the same view: .pcd, or .npy H x W x 3 in mm, NaN invalid")
@@ -96,8 +97,6 @@ def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str,
     fov = _fov_deg(fov_text)
     if plot_path is not None:
         png_file(plot_path, "--plot")
-    if tile_mm <= 0 or distance_mm <= 0:
-        raise InputError("--tile-mm and --distance-mm must be positive")
     try:
         pixels = load_image(image)
     except (FileNotFoundError, ValueError, OSError) as exc:
@@ -189,7 +188,7 @@ def _organized_cloud(path: Path):
 @analyze_group.command("boehler")
 @click.argument("cloud", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--segments", type=int, required=True, help="segments of the star (72 or 24)")
-@click.option("--inlier-mm", type=float, default=20.0, show_default=True, help="star inliers: distance to its plane")
+@click.option("--inlier-mm", type=POSITIVE, default=20.0, show_default=True, help="star inliers: distance to its plane")
 @click.option("--binning", "binning_text", default="auto", show_default=True,
               help="1 mm rings evaluated together: a number, or auto (2, more where the points lie further apart)")
 @click.option("--fov-deg", "fov_text", help="the camera's FOV H,V in degrees: the sensor resolution not to beat")
@@ -206,8 +205,6 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
         png_file(plot_path, "--plot")
     if segments < 16 or segments % 2:
         raise InputError(f"--segments {segments}: a Böhler star has an even number of segments (72 or 24)")
-    if inlier_mm <= 0:
-        raise InputError(f"--inlier-mm {inlier_mm:g}: must be positive")
     binning = None if binning_text == "auto" else (int(binning_text) if binning_text.isdigit() else 0)
     if binning is not None and binning < 1:
         raise InputError(f"--binning {binning_text}: must be auto or a whole number of at least 1")

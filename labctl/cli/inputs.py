@@ -1,9 +1,11 @@
-"""Checks of the files and directories a command reads, beyond their existence: a path given twice."""
+"""Checks of what a command reads beyond click's own: a path given twice, numbers that are not finite."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -25,3 +27,29 @@ def distinct(paths: Sequence[Path], what: str) -> list[Path]:
             continue
         kept[key] = path
     return list(kept.values())
+
+
+class Number(click.ParamType):
+    """A finite number (no nan, no inf), optionally above 0 (``positive``) or at least ``minimum`` (``why`` says
+    what the minimum means)."""
+
+    name = "number"
+
+    def __init__(self, *, positive: bool = False, minimum: float | None = None, why: str = "") -> None:
+        self.positive = positive
+        self.minimum = minimum
+        self.why = why
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> float:
+        """``value`` as a float, or click's usage error naming the option and the value."""
+        number = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        if self.positive and number <= 0:
+            self.fail(f"{value!r} is not positive", param, ctx)
+        if self.minimum is not None and number < self.minimum:
+            self.fail(f"{value!r} is below {self.minimum:g}{self.why}", param, ctx)
+        return number
+
+
+POSITIVE = Number(positive=True)

@@ -388,3 +388,26 @@ def test_analyze_boehler_of_a_plain_wall_reports_no_star(capsys, tmp_path: Path,
     assert code == 0 and out.startswith(f"{star}: 24-segment star at 50") and "star found" not in out
     doc = strict_json(labctl(capsys, "analyze", "boehler", star, "--segments", "24", "--json")[1])
     assert doc["star_found"] is True and doc["distance_mm"] == pytest.approx(math.hypot(40.0, 30.0, 500.0), abs=1.0)
+
+
+# ---------------------------------------------------------------------- numbers that are not numbers
+@pytest.mark.parametrize("args,message", [
+    (["analyze", "boehler", "c.npy", "--segments", "72", "--inlier-mm", "nan"], "'--inlier-mm': 'nan' is not a finite number"),
+    (["analyze", "checkerboard", "i.npy", "--tile-mm", "-3", "--distance-mm", "600", "--fov-deg", "67,51"],
+     "'--tile-mm': '-3' is not positive"),
+    (["analyze", "checkerboard", "i.npy", "--tile-mm", "19", "--distance-mm", "inf", "--fov-deg", "67,51"],
+     "'--distance-mm': 'inf' is not a finite number"),
+    (["device", "stage", "--port", "/dev/null", "--protocol", "zaber", "--mm-per-microstep", "inf"],
+     "'--mm-per-microstep': 'inf' is not a finite number"),
+    (["device", "stage", "--port", "/dev/null", "--protocol", "zaber", "--mm-per-microstep", "0.1", "--move-mm", "-5"],
+     "'--move-mm': '-5' is below 0: positions count from home"),
+    (["device", "camera", "--backend", "blaze", "--exposure-us", "nan", "-o", "x.h5"],
+     "'--exposure-us': 'nan' is not a finite number"),
+])
+def test_numbers_that_are_not_finite_or_out_of_range_are_refused(capsys, tmp_path: Path, monkeypatch, args, message) -> None:
+    """--inlier-mm nan was a traceback; --mm-per-microstep inf moved nothing and printed 'nan mm'."""
+    monkeypatch.chdir(tmp_path)
+    np.save("c.npy", np.zeros((20, 30, 3)))
+    np.save("i.npy", np.zeros((20, 30)))
+    code, _, err = labctl(capsys, *args)
+    assert code == 2 and message in err
