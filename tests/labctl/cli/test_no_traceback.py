@@ -411,3 +411,19 @@ def test_numbers_that_are_not_finite_or_out_of_range_are_refused(capsys, tmp_pat
     np.save("i.npy", np.zeros((20, 30)))
     code, _, err = labctl(capsys, *args)
     assert code == 2 and message in err
+
+
+# ---------------------------------------------------------------------- batch inputs
+def test_batch_refuses_a_run_file_as_the_sweep_and_a_text_file_as_a_run(capsys, tmp_path: Path,
+                                                                         blank_mask_run: Path) -> None:
+    """The sweep file was read as UTF-8 (a UnicodeDecodeError traceback); a text file named as a run started a
+    cluster and failed as a task (exit 1)."""
+    code, _, err = labctl(capsys, "batch", "sweep", blank_mask_run, "-o", tmp_path / "sweep")
+    assert code == 2
+    assert (f"sweep file {blank_mask_run} is an HDF5 file, not a TOML text file (a run file is evaluated with "
+            "'labctl batch runs')") in err
+    notes = tmp_path / "notes.h5"
+    notes.write_text("run 3: laser off\n")
+    code, _, err = labctl(capsys, "batch", "runs", notes, "-o", tmp_path / "runs", "--workers", "1")
+    assert code == 2 and f"{notes} is a text file (it begins 'run 3: laser off'), not a labctl run file" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.h5"]
