@@ -17,6 +17,14 @@ def analyze_group() -> None:
     """Analyze single images or point clouds."""
 
 
+def _unreadable(what: str, path: Path, exc: Exception) -> InputError:
+    """Why ``path`` cannot be read; an end of file (which click would report as "aborted") as a short file."""
+    if isinstance(exc, EOFError):
+        return InputError(f"cannot read {what} {path}: the file ends before its data ({path.stat().st_size} bytes; "
+                          "empty or truncated)")
+    return InputError(f"cannot read {what} {path}: {exc}")
+
+
 def _roi(text: str | None) -> tuple[int, int, int, int] | None:
     if text is None:
         return None
@@ -42,8 +50,8 @@ def sfr(image: Path, roi: str | None, sfrmat5: bool, as_json: bool) -> None:
     region = _roi(roi)
     try:
         pixels = load_image(image)
-    except (FileNotFoundError, ValueError, OSError) as exc:
-        raise InputError(f"cannot read image {image}: {exc}") from None
+    except (FileNotFoundError, ValueError, OSError, EOFError) as exc:
+        raise _unreadable("image", image, exc) from None
     try:
         result = analyze_image(pixels, region, bin_correction=not sfrmat5)
     except ValueError as exc:
@@ -99,8 +107,8 @@ def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str,
         png_file(plot_path, "--plot")
     try:
         pixels = load_image(image)
-    except (FileNotFoundError, ValueError, OSError) as exc:
-        raise InputError(f"cannot read image {image}: {exc}") from None
+    except (FileNotFoundError, ValueError, OSError, EOFError) as exc:
+        raise _unreadable("image", image, exc) from None
     points = _organized_cloud(cloud) if cloud is not None else None
     if points is not None and points.shape[:2] != pixels.shape:
         raise InputError(f"cloud {cloud}: {points.shape[0]} x {points.shape[1]} points do not match the image's "
@@ -178,8 +186,8 @@ def _organized_cloud(path: Path):
             cloud = read_pcd(path).xyz
         else:
             raise InputError(f"cloud {path}: unsupported type {suffix!r}; use .pcd or .npy (H x W x 3 in mm)")
-    except (ValueError, OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read cloud {path}: {exc}") from None
+    except (ValueError, OSError, UnicodeDecodeError, EOFError) as exc:
+        raise _unreadable("cloud", path, exc) from None
     if cloud.ndim != 3 or cloud.shape[2] != 3 or cloud.shape[0] < 2 or not np.issubdtype(cloud.dtype, np.number):
         raise InputError(f"cloud {path}: shape {cloud.shape} is not an organized H x W x 3 cloud (x, y, z in mm)")
     return cloud.astype(float)

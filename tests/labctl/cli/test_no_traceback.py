@@ -427,3 +427,14 @@ def test_batch_refuses_a_run_file_as_the_sweep_and_a_text_file_as_a_run(capsys, 
     code, _, err = labctl(capsys, "batch", "runs", notes, "-o", tmp_path / "runs", "--workers", "1")
     assert code == 2 and f"{notes} is a text file (it begins 'run 3: laser off'), not a labctl run file" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.h5"]
+
+
+def test_an_empty_npy_file_is_bad_input_not_an_abort(capsys, tmp_path: Path) -> None:
+    """numpy raises EOFError on an empty .npy, which click turns into "aborted" with exit 130 (as for Ctrl-C)."""
+    empty = tmp_path / "empty.npy"
+    empty.write_bytes(b"")
+    for args, what in ((["sfr", empty], "image"), (["boehler", empty, "--segments", "24"], "cloud"),
+                       (["checkerboard", empty, "--tile-mm", "19", "--distance-mm", "600", "--fov-deg", "67,51"], "image")):
+        code, _, err = labctl(capsys, "analyze", *args)
+        assert code == 2 and "aborted" not in err
+        assert f"cannot read {what} {empty}: the file ends before its data (0 bytes; empty or truncated)" in err
