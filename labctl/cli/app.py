@@ -24,7 +24,7 @@ from labctl.cli import info as cli_info
 from labctl.cli import reconcile as cli_reconcile
 from labctl.cli import simulate as cli_sim
 from labctl.cli.inputs import distinct, warn
-from labctl.cli.outputs import OutputFile, output_directory, output_file
+from labctl.cli.outputs import OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
 from labctl.run.compression import COMPRESSIONS
 from labctl.run.config import Campaign, load_campaign, parse_campaign
@@ -279,11 +279,11 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
 
     runs = distinct(runs, "run file")
     steps = count_complete_steps(runs)
-    output_directory(output)
     reporter = Reporter(quiet=quiet)
-    with EvaluationProgress(steps, quiet=quiet) as progress:
-        evaluation = evaluate_runs(runs, progress=progress)
-    json_path, report = write_outputs(evaluation, output)
+    with output_directory_for(output):
+        with EvaluationProgress(steps, quiet=quiet) as progress:
+            evaluation = evaluate_runs(runs, progress=progress)
+        json_path, report = write_outputs(evaluation, output)
     reporter.message(f"key figures: {json_path}")
     click.echo(f"report: {report}")
 
@@ -302,8 +302,8 @@ def compare(evaluations: Sequence[Path], output: Path) -> None:
     if len(directories) == 1:
         warn(f"one evaluation ({directories[0]}): compare puts two or more cameras side by side; "
              "this comparison shows one camera")
-    output_directory(output)
-    click.echo(f"comparison: {write_comparison(directories, output)}")
+    with output_directory_for(output):
+        click.echo(f"comparison: {write_comparison(directories, output)}")
 
 
 # ---------------------------------------------------------------------- device, devices, sim, analyze

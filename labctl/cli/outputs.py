@@ -12,6 +12,8 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -91,3 +93,20 @@ def output_directory(path: Path, option: str = "-o") -> Path:
         raise InputError(f"directory {path} for {option} is not writable")
     _try_creating_a_file(path, option, path)
     return path
+
+
+@contextmanager
+def output_directory_for(path: Path, option: str = "-o") -> Iterator[Path]:
+    """:func:`output_directory` for the work in the ``with`` block: the folders it made are removed again
+    when the work fails before writing anything into them."""
+    made = [p for p in (path, *path.parents) if not p.exists()]
+    output_directory(path, option)
+    try:
+        yield path
+    except BaseException:
+        for folder in made:  # innermost first; one that holds something stays, and so do its parents
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise

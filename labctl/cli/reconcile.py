@@ -7,9 +7,8 @@ from pathlib import Path
 
 import click
 
-from labctl.cli.outputs import output_directory
+from labctl.cli.outputs import output_directory_for
 from labctl.run.progress import Reporter
-from labctl.run.store import RunReader
 from metrics.jsonsafe import dumps_strict
 
 
@@ -28,16 +27,15 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
     from sim.model import load_model
 
     model = load_model(model_path)[0] if model_path is not None else None
-    RunReader(measured).close()  # a file that is not a run fails here, before the output folder is made
-    output_directory(output)
     reporter = Reporter(quiet=quiet)
     start = time.monotonic()
 
     def progress(what: str) -> None:
         reporter.message(f"[{time.monotonic() - start:6.1f} s] {what}")
 
-    result = run_reconcile(measured, model, progress=progress)
-    report, model_file, doc = write_reconcile(result, measured, output)
+    with output_directory_for(output):
+        result = run_reconcile(measured, model, progress=progress)
+        report, model_file, doc = write_reconcile(result, measured, output)
     if as_json:
         click.echo(dumps_strict(doc, indent=2))
         return

@@ -438,3 +438,19 @@ def test_an_empty_npy_file_is_bad_input_not_an_abort(capsys, tmp_path: Path) -> 
         code, _, err = labctl(capsys, "analyze", *args)
         assert code == 2 and "aborted" not in err
         assert f"cannot read {what} {empty}: the file ends before its data (0 bytes; empty or truncated)" in err
+
+
+def test_a_failed_evaluate_removes_the_output_folder_it_made(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    """Runs of two cameras: refused after the output folder was made, which is removed again (its parents
+    too); an existing output folder stays."""
+    (tmp_path / "flexx2.toml").write_text(campaign_text(backend="flexx2", procedures=textwrap.dedent(MASK_RUN)))
+    (tmp_path / "model.toml").write_text(SMALL.replace("blaze101", "flexx2"))
+    other = tmp_path / "flexx2.h5"
+    assert labctl(capsys, "run", tmp_path / "flexx2.toml", "--sim", "--model", tmp_path / "model.toml", "-o", other,
+                  "--quiet")[0] == 0
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "new" / "out", "--quiet")
+    assert code == 2 and "evaluate one camera at a time" in err
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "kept").mkdir()
+    assert labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "kept", "--quiet")[0] == 2
+    assert (tmp_path / "kept").is_dir()
