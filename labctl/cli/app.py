@@ -23,7 +23,7 @@ from labctl.cli import export as cli_export
 from labctl.cli import info as cli_info
 from labctl.cli import reconcile as cli_reconcile
 from labctl.cli import simulate as cli_sim
-from labctl.cli.inputs import distinct, warn
+from labctl.cli.inputs import distinct, warn, warn_run_suffix
 from labctl.cli.outputs import OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
 from labctl.run.compression import COMPRESSIONS
@@ -160,6 +160,7 @@ def run(
     if output.exists():
         raise InputError(existing_output_advice(output))
     output_file(output, "-o")
+    warn_run_suffix(output)
     if (model is not None or seed is not None) and not sim:
         raise InputError("--model and --seed only apply to simulated runs (--sim)")
     compression = compression or config.runner.compression

@@ -19,7 +19,7 @@ import numpy as np
 
 from drivers.errors import DeviceError, LimitViolation
 from drivers.protocols import DepthCamera
-from labctl.cli.inputs import POSITIVE, Number
+from labctl.cli.inputs import POSITIVE, Number, warn_run_suffix
 from labctl.cli.outputs import OutputFile, output_file
 from labctl.errors import InputError, RunAborted
 from labctl.run.operator import Operator, unlock_confirmation
@@ -178,6 +178,7 @@ def camera(
     if output.exists():
         raise InputError(f"{output} already exists; choose another -o")
     output_file(output, "-o")
+    warn_run_suffix(output)
     for path, option in ((playback, "--playback"), (producer, "--producer")):
         if path is not None and not path.is_file():
             raise InputError(f"{option} file {path} does not exist")

@@ -9,6 +9,8 @@ from typing import Any
 
 import click
 
+from labctl.batch.inputs import RUN_SUFFIXES
+
 
 def warn(message: str) -> None:
     """One warning line on stderr: the input is legal but likely a mistake."""
@@ -53,3 +55,11 @@ class Number(click.ParamType):
 
 
 POSITIVE = Number(positive=True)
+
+
+def warn_run_suffix(output: Path, option: str = "-o") -> None:
+    """Warn when a run file to be written is not named ``.h5``/``.hdf5``: a directory given to ``labctl batch
+    runs`` would not find it."""
+    if output.suffix not in RUN_SUFFIXES:
+        warn(f"{option} {output}: run files are named .h5 (labctl batch runs finds only *.h5 and *.hdf5 in a "
+             f"directory); name it {output.with_suffix('.h5')}")

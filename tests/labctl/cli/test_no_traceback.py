@@ -454,3 +454,15 @@ def test_a_failed_evaluate_removes_the_output_folder_it_made(capsys, tmp_path: P
     (tmp_path / "kept").mkdir()
     assert labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "kept", "--quiet")[0] == 2
     assert (tmp_path / "kept").is_dir()
+
+
+def test_a_run_file_not_named_h5_is_written_with_a_warning(capsys, tmp_path: Path) -> None:
+    """Legal, but 'labctl batch runs DIRECTORY' finds only *.h5 and *.hdf5."""
+    campaign = tmp_path / "c.toml"
+    campaign.write_text(campaign_text(procedures='[[procedure]]\nkind = "offset_calibration"\nframes = 2\n'))
+    model = tmp_path / "m.toml"
+    model.write_text(SMALL)
+    code, _, err = labctl(capsys, "run", campaign, "--sim", "--model", model, "-o", tmp_path / "run.txt", "--quiet")
+    assert code == 0 and (tmp_path / "run.txt").is_file()
+    assert (f"warning: -o {tmp_path / 'run.txt'}: run files are named .h5 (labctl batch runs finds only *.h5 and "
+            f"*.hdf5 in a directory); name it {tmp_path / 'run.h5'}") in err
