@@ -2,9 +2,8 @@
 
 A missing or unwritable output location is bad input (exit 2) and is reported
 naming the option and the path, instead of a traceback after the work is done.
-Writability is tried by creating a file there, not only asked of the
-permissions: root passes every permission check, yet cannot create a file in
-/proc or on a read-only disk.
+Writability is tried by creating a file there, not asked of the permissions:
+root passes every permission check, yet cannot create a file in /proc.
 """
 
 from __future__ import annotations
@@ -58,8 +57,6 @@ def output_file(path: Path, option: str, *, force: bool | None = None) -> Path:
     directory = path.parent
     if not directory.is_dir():
         raise InputError(f"directory {directory} for {option} does not exist")
-    if not os.access(directory, os.W_OK | os.X_OK):
-        raise InputError(f"directory {directory} for {option} is not writable")
     if path.is_dir():
         raise InputError(f"{option} {path} is a directory, not a file")
     if force is False and path.exists():
@@ -89,8 +86,6 @@ def output_directory(path: Path, option: str = "-o") -> Path:
         refused = parent is not None and exc.errno in (errno.ENOENT, errno.EACCES, errno.EROFS)
         where = f" ({parent} accepts no new entries)" if refused else ""
         raise InputError(f"cannot create the directory {path} for {option}: {exc.strerror}{where}; {ADVICE}") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise InputError(f"directory {path} for {option} is not writable")
     _try_creating_a_file(path, option, path)
     return path
 

@@ -466,3 +466,29 @@ def test_a_run_file_not_named_h5_is_written_with_a_warning(capsys, tmp_path: Pat
     assert code == 0 and (tmp_path / "run.txt").is_file()
     assert (f"warning: -o {tmp_path / 'run.txt'}: run files are named .h5 (labctl batch runs finds only *.h5 and "
             f"*.hdf5 in a directory); name it {tmp_path / 'run.h5'}") in err
+
+
+@pytest.fixture
+def read_only_disk(tmp_path: Path):
+    """A small tmpfs mounted read-only (root only), unmounted again whatever the test does."""
+    import os
+    import subprocess
+
+    if os.geteuid() != 0:
+        pytest.skip("mounting a read-only tmpfs needs root")
+    mount = tmp_path / "ro"
+    mount.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(mount)], check=True)
+    yield mount
+    subprocess.run(["umount", str(mount)], check=True)
+
+
+def test_outputs_on_a_read_only_disk_say_so(capsys, tmp_path: Path, read_only_disk: Path, blank_mask_run: Path) -> None:
+    campaign = tmp_path / "c.toml"
+    campaign.write_text(campaign_text())
+    code, _, err = labctl(capsys, "run", campaign, "--sim", "-o", read_only_disk / "run.h5")
+    assert code == 2 and f"-o {read_only_disk / 'run.h5'}: no file can be created in {read_only_disk} (Read-only" in err
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", read_only_disk / "ev", "--quiet")
+    assert code == 2
+    assert f"cannot create the directory {read_only_disk / 'ev'} for -o: Read-only file system ({read_only_disk} " \
+           "accepts no new entries)" in err
