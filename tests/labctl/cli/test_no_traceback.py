@@ -492,3 +492,24 @@ def test_outputs_on_a_read_only_disk_say_so(capsys, tmp_path: Path, read_only_di
     assert code == 2
     assert f"cannot create the directory {read_only_disk / 'ev'} for -o: Read-only file system ({read_only_disk} " \
            "accepts no new entries)" in err
+
+
+def test_a_stage_port_where_no_zaber_answers_gets_a_hint(capsys) -> None:
+    """A real pseudo-terminal nobody answers, and a Grbl controller given as a Zaber stage."""
+    import os
+
+    from sim.emulators import GrblEmulator
+
+    hint = "is a Zaber controller (ASCII protocol, device 1) powered and wired to this port at 115200 baud?"
+    master, slave = os.openpty()
+    try:
+        port = os.ttyname(slave)
+        code, _, err = labctl(capsys, "device", "stage", "--port", port, "--protocol", "zaber", "--mm-per-microstep", "0.001")
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert code == 1 and f"Zaber stage 1/1 on {port}: no complete reply" in err and hint in err
+    with GrblEmulator(max_travel_mm=300.0) as grbl:
+        port = grbl.port
+        code, _, err = labctl(capsys, "device", "stage", "--port", port, "--protocol", "zaber", "--mm-per-microstep", "0.001")
+    assert code == 1 and f"Zaber stage 1/1 on {port}: reply" in err and hint in err
