@@ -24,7 +24,7 @@ from labctl.cli import info as cli_info
 from labctl.cli import reconcile as cli_reconcile
 from labctl.cli import simulate as cli_sim
 from labctl.cli.inputs import distinct, warn, warn_run_suffix
-from labctl.cli.outputs import OutputFile, output_directory_for, output_file
+from labctl.cli.outputs import OutputDirectory, OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
 from labctl.run.compression import COMPRESSIONS
 from labctl.run.config import Campaign, load_campaign, parse_campaign
@@ -271,7 +271,7 @@ def _stored_text(writer: RunWriter, group: str, name: str) -> str:
 # ---------------------------------------------------------------------- evaluate
 @cli.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 @click.option("--quiet", is_flag=True, help="no progress output")
 def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     """Compute every metric RUNS allow: OUTPUT/keyfigures.json and OUTPUT/report.html."""
@@ -291,7 +291,7 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
 
 @cli.command()
 @click.argument("evaluations", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 def compare(evaluations: Sequence[Path], output: Path) -> None:
     """Compare cameras side by side from EVALUATIONS (output directories of 'labctl evaluate')."""
     from labctl.report.compare import compare as write_comparison

@@ -32,11 +32,33 @@ class OutputFile(click.Path):
         self.example = example
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        """Click's conversion, after refusing a directory name."""
+        """Click's conversion, after refusing an empty name and a directory name."""
+        _refuse_empty(value, param)
         if isinstance(value, str) and value.endswith(("/", os.sep)):
-            option = param.opts[0] if param is not None and param.opts else "the output"
-            raise InputError(f"{option} {value} names a directory; give a file name in it, e.g. {value}{self.example}")
+            raise InputError(f"{_option(param)} {value} names a directory; give a file name in it, e.g. "
+                             f"{value}{self.example}")
         return super().convert(value, param, ctx)
+
+
+class OutputDirectory(click.Path):
+    """A directory to write into, as a Path; refuses an empty name, which Path would read as the current directory."""
+
+    def __init__(self) -> None:
+        super().__init__(file_okay=False, path_type=Path)
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        """Click's conversion, after refusing an empty name."""
+        _refuse_empty(value, param)
+        return super().convert(value, param, ctx)
+
+
+def _option(param: click.Parameter | None) -> str:
+    return param.opts[0] if param is not None and param.opts else "the output"
+
+
+def _refuse_empty(value: Any, param: click.Parameter | None) -> None:
+    if isinstance(value, str) and not value.strip():
+        raise InputError(f"{_option(param)} {value!r} is empty: give the output's name")
 
 
 def _try_creating_a_file(directory: Path, option: str, path: Path) -> None:

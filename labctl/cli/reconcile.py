@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from labctl.cli.outputs import output_directory_for
+from labctl.cli.outputs import OutputDirectory, output_directory_for
 from labctl.run.progress import Reporter
 from metrics.jsonsafe import dumps_strict
 
@@ -16,7 +16,7 @@ from metrics.jsonsafe import dumps_strict
 @click.argument("measured", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--model", "model_path", type=click.Path(dir_okay=False, path_type=Path),
               help="simulation model to correct (default: the camera's built-in model)")
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 @click.option("--json", "as_json", is_flag=True, help="print reconcile.json on stdout")
 @click.option("--quiet", is_flag=True, help="no progress output")
 def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bool, quiet: bool) -> None:

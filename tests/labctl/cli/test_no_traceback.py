@@ -513,3 +513,14 @@ def test_a_stage_port_where_no_zaber_answers_gets_a_hint(capsys) -> None:
         port = grbl.port
         code, _, err = labctl(capsys, "device", "stage", "--port", port, "--protocol", "zaber", "--mm-per-microstep", "0.001")
     assert code == 1 and f"Zaber stage 1/1 on {port}: reply" in err and hint in err
+
+
+def test_an_empty_output_name_is_refused(capsys, tmp_path: Path, blank_mask_run: Path, monkeypatch) -> None:
+    """-o '' was the current directory: evaluate wrote its report there, run said '. already exists'."""
+    monkeypatch.chdir(tmp_path)
+    Path("c.toml").write_text(campaign_text())
+    for command in (["evaluate", blank_mask_run, "--quiet"], ["run", "c.toml", "--sim"],
+                    ["export", blank_mask_run, "--step", "00001_depth_sweep", "--format", "pcd"]):
+        code, _, err = labctl(capsys, *command, "-o", "")
+        assert code == 2 and "-o '' is empty: give the output's name" in err, (command, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
