@@ -205,7 +205,7 @@ def test_cluster_options_are_checked(tmp_path: Path, monkeypatch: pytest.MonkeyP
     from labctl.batch import cluster
 
     run = tmp_path / "unit.h5"
-    run.write_bytes(b"")
+    run.write_bytes(b"\x89HDF\r\n\x1a\n")  # taken for a run file: the options are what is refused
     assert _labctl("batch", "runs", run, "-o", tmp_path / "a", "--scheduler", "tcp://127.0.0.1:1",
                    "--workers", 2) == 2
     monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 1.0)
