@@ -68,6 +68,12 @@ _STAR_FRACTION = 0.25  # a ring is on the star while at least this share of its 
 _PROFILE_RINGS = 5  # smoothing of that share over 5 rings (10 mm)
 _MIN_SYMMETRY = 0.2  # mean N/2-th angular phasor of the outer inliers needed to refine the centre
 _RIM_MARGIN = 0.03  # rings this share of the radius inside the rim are not evaluated (rim blur)
+#: chance that a cloud without the star's pattern passes the pattern test in any of its rings (star_pattern)
+PATTERN_FALSE_ALARM = 1e-6
+#: modulation depth a ring needs to show the star (star_pattern): twice what one feature that does not
+#: repeat with the segments (an edge, an object, the image border) can put into the N/2-th harmonic of a
+#: 24-segment star (at most 2/(N/2) = 0.17 per feature, 0.06 for N = 72)
+MIN_MODULATION = 0.33
 
 
 @dataclass(frozen=True)
@@ -84,7 +90,9 @@ class BoehlerResult:
     star across the sector's segments; ``clamped_*`` when it would have been),
     ``resolution_mm`` the worse of h and v; all NaN where the star is not
     resolved out to the evaluated rim. ``filled_phase_deg``: angle of a
-    filled segment's centre, modulo a segment pair.
+    filled segment's centre, modulo a segment pair. ``star_found``: some
+    ring shows the star's alternation of segments and slots
+    (:func:`star_pattern`); ``modulation``: the deepest such ring's depth.
     """
 
     segments: int
@@ -117,6 +125,8 @@ class BoehlerResult:
     clamped_v: bool
     filled_phase_deg: float
     warnings: tuple[str, ...]
+    star_found: bool = True
+    modulation: float = math.nan
 
     @property
     def plane_offset_mm(self) -> float:
@@ -223,6 +233,33 @@ def evaluate_rings(radius_mm: np.ndarray, angle_rad: np.ndarray, inlier: np.ndar
         clusters_h=per_sector[:, 0], clusters_v=per_sector[:, 1], points_h=points[:, 0], points_v=points[:, 1],
         expected_h=expected_h, expected_v=expected_v, resolved_h=resolved_h, resolved_v=resolved_v,
     )
+
+
+def star_pattern(ring: np.ndarray, angle_rad: np.ndarray, inlier: np.ndarray, segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per ring, the depth and the significance of the star's N/2-fold alternation of inliers (docs/metrics.md,
+    Böhler star, "Is it a star?").
+
+    On a ring the camera resolves, the star's segments are on the star plane and its slots show the wall
+    behind: whether a sample is an inlier alternates with the angle as a square wave of N/2 periods. With
+    the ring's inlier share p, S = sum over its n samples of (inlier - p) exp(i N/2 theta); a perfect square
+    wave has |S| / n = sin(pi p) / pi, so the depth M = pi |S| / (n sin(pi p)) is 1 for sharp segments and 0
+    where there are none (a plain wall: every sample an inlier; a star blurred into a disc). Where being an
+    inlier does not depend on the angle (samples with a fixed chance p each), |S|^2 / (n p (1 - p)) is
+    exponentially distributed with mean 1: Z, the significance, exceeds t with probability exp(-t).
+    ``ring``: ring index per sample; returns (M, Z) per ring, both 0 where every sample or none is an inlier.
+    """
+    ring = np.asarray(ring, np.int64)
+    n_rings = int(ring.max()) + 1 if ring.size else 0
+    on = np.asarray(inlier, float)
+    n = np.bincount(ring, minlength=n_rings).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = np.bincount(ring, on, minlength=n_rings) / n
+        term = (on - p[ring]) * np.exp(1j * (segments // 2) * np.asarray(angle_rad, float))
+        s = np.abs(np.bincount(ring, term.real, minlength=n_rings) + 1j * np.bincount(ring, term.imag, minlength=n_rings))
+        mixed = (p > 0) & (p < 1)
+        depth = np.where(mixed, math.pi * s / (n * np.sin(math.pi * p)), 0.0)
+        significance = np.where(mixed, s**2 / (n * p * (1 - p)), 0.0)
+    return depth, significance
 
 
 def resolution_radius(radii_mm: np.ndarray, resolved: np.ndarray) -> float:
@@ -526,6 +563,16 @@ def analyze_boehler(cloud: np.ndarray, segments: int, *, inlier_mm: float = DEFA
     radius, angle = np.hypot(da, db), np.mod(np.arctan2(db, da), 2 * math.pi)
     phase = _filled_phase(angle, radius, inlier[sample], segments, outer)
     rings = evaluate_rings(radius, angle, inlier[sample], segments, outer, phase, ring_mm=ring_mm, binning=binning)
+    inside = radius < len(rings.radii_mm) * width
+    depth, significance = star_pattern((radius[inside] // width).astype(np.int64), angle[inside],
+                                       inlier[sample][inside], segments)
+    showing = significance > math.log(max(len(depth), 1) / PATTERN_FALSE_ALARM)
+    modulation = float(depth[showing].max()) if showing.any() else 0.0
+    star_found = modulation >= MIN_MODULATION
+    if not star_found:
+        warnings.append(f"no {segments}-segment star found: no ring on the plane at {distance:.0f} mm alternates "
+                        f"between segments and slots (modulation depth {modulation:.2f}, a star needs "
+                        f"{MIN_MODULATION:g}); a plain wall, or a star whose segments this cloud resolves nowhere")
 
     if max(spacing_h, spacing_v) > width:
         warnings.append(f"the point spacing on the star ({max(spacing_h, spacing_v):.1f} mm) exceeds the ring width "
@@ -548,5 +595,5 @@ def analyze_boehler(cloud: np.ndarray, segments: int, *, inlier_mm: float = DEFA
         resolution_h_mm=lateral_h, resolution_v_mm=lateral_v, resolution_mm=float(np.max([lateral_h, lateral_v])),
         angular_h_deg=angular_h, angular_v_deg=angular_v, sensor_h_mm=spacing_v, sensor_v_mm=spacing_h,
         clamped_h=clamped_h, clamped_v=clamped_v, filled_phase_deg=math.degrees(phase) % (720 / segments),
-        warnings=tuple(warnings + warn_h + warn_v),
+        warnings=tuple(warnings + warn_h + warn_v), star_found=star_found, modulation=modulation,
     )

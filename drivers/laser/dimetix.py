@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from types import TracebackType
 from typing import Any
 
-from drivers.errors import DeviceError, SerialGarbage, TransientDeviceError
+from drivers.errors import DeviceError, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.protocols import DeviceIdentity
 from drivers.serial_line import SerialLine
 
@@ -147,7 +147,7 @@ class DimetixLaser:
             return
         self._line.open()
         try:
-            self._request("c", "?")
+            self._first_answer()
             serial_number = self._optional_identity("sn", "serial number")
             version = self._optional_identity("sv", "software version")
         except Exception:
@@ -159,6 +159,16 @@ class DimetixLaser:
             serial=serial_number,
             firmware=version,
         )
+
+    def _first_answer(self) -> None:
+        """``sNc``, the first request: silence here means no sensor listens on these line settings."""
+        try:
+            self._request("c", "?")
+        except SerialTimeout as exc:
+            raise SerialTimeout(
+                self.name, f"{exc.message}: is the sensor powered and wired to this port, set to {self.baud} baud "
+                f"{self.bytesize}{self.parity}{self.stopbits} and device ID {self.device_id}?"
+            ) from exc
 
     def _optional_identity(self, command: str, what: str) -> str:
         """The answer to identity query ``sN<command>``, or :data:`UNKNOWN` if the sensor rejects it."""

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
-from drivers.errors import DeviceError, LimitViolation, SerialGarbage
+from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout
 from drivers.protocols import DeviceIdentity
 from drivers.serial_line import SerialLine
 
@@ -284,8 +284,20 @@ class ZaberStage:
 
     # -- motion helpers -------------------------------------------------------------
 
+    def _first_answer(self) -> str:
+        """``get deviceid``, the first request: silence or a foreign reply here means no Zaber controller
+        listens on this port with these settings."""
+        hint = (f"is a Zaber controller (ASCII protocol, device {self.device}) powered and wired to this port at "
+                f"{self.baud} baud?")
+        try:
+            return self._send("get deviceid", axis=0).data
+        except SerialTimeout as exc:
+            raise SerialTimeout(self.name, f"{exc.message}: {hint}") from exc
+        except SerialGarbage as exc:
+            raise SerialGarbage(self.name, f"{exc.message}: {hint}") from exc
+
     def _read_device(self) -> None:
-        device_id = self._send("get deviceid", axis=0).data
+        device_id = self._first_answer()
         version = self._send("get version", axis=0).data
         try:
             serial_number = self._send("get system.serial", axis=0).data

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from labctl.errors import InputError
+from labctl.run.filekind import not_a_run_file
 
 #: suffixes of run files (docs/runfile.md)
 RUN_SUFFIXES = (".h5", ".hdf5")
@@ -16,7 +17,8 @@ RUN_SUFFIXES = (".h5", ".hdf5")
 def expand_runs(arguments: Sequence[str]) -> list[Path]:
     """Every run file named by ``arguments``: a file as it is, a directory's ``*.h5`` / ``*.hdf5`` files
     (recursively), a glob pattern's matches (``**`` crosses directories). Sorted, each once; InputError naming
-    the argument that matches nothing."""
+    the argument that matches nothing, or a file named as such that is not HDF5 (found ones are reported by
+    their tasks)."""
     found: dict[Path, None] = {}
     for argument in arguments:
         path = Path(argument)
@@ -25,6 +27,8 @@ def expand_runs(arguments: Sequence[str]) -> list[Path]:
             if not matches:
                 raise InputError(f"directory {argument} holds no run file (*.h5, *.hdf5)")
         elif path.is_file():
+            if (wrong := not_a_run_file(path)) is not None:  # named by the user: refused before any task
+                raise InputError(wrong)
             matches = [path]
         elif glob.has_magic(argument):
             matches = sorted(Path(p) for p in glob.glob(argument, recursive=True) if Path(p).is_file())

@@ -40,6 +40,7 @@ from labctl.errors import InputError
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME
 from labctl.reconcile.workflow import BACKEND_PROFILES
 from labctl.run.config import model_camera_mismatch, parse_campaign
+from labctl.run.filekind import describe, is_hdf5
 from sim.model import ModelError, parse_model
 from sim.profiles import default_effects, get_profile
 
@@ -133,6 +134,11 @@ def _read_toml(path: Path, what: str) -> tuple[dict[str, Any], str]:
         return tomllib.loads(text), text
     except FileNotFoundError:
         raise InputError(f"{what} {path} does not exist") from None
+    except UnicodeDecodeError:  # a run file (HDF5) or another binary file
+        run = " (a run file is evaluated with 'labctl batch runs')" if is_hdf5(path) else ""
+        raise InputError(f"{what} {path} is {describe(path)}, not a TOML text file{run}") from None
+    except OSError as exc:
+        raise InputError(f"cannot read {what} {path}: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{what} {path}: not valid TOML: {exc}") from None
 

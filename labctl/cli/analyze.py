@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from labctl.cli.outputs import output_file
+from labctl.cli.inputs import POSITIVE
+from labctl.cli.outputs import OutputFile, png_file
 from labctl.errors import InputError
 from metrics.jsonsafe import dumps_strict
 
@@ -14,6 +15,14 @@ from metrics.jsonsafe import dumps_strict
 @click.group("analyze")
 def analyze_group() -> None:
     """Analyze single images or point clouds."""
+
+
+def _unreadable(what: str, path: Path, exc: Exception) -> InputError:
+    """Why ``path`` cannot be read; an end of file (which click would report as "aborted") as a short file."""
+    if isinstance(exc, EOFError):
+        return InputError(f"cannot read {what} {path}: the file ends before its data ({path.stat().st_size} bytes; "
+                          "empty or truncated)")
+    return InputError(f"cannot read {what} {path}: {exc}")
 
 
 def _roi(text: str | None) -> tuple[int, int, int, int] | None:
@@ -41,8 +50,8 @@ def sfr(image: Path, roi: str | None, sfrmat5: bool, as_json: bool) -> None:
     region = _roi(roi)
     try:
         pixels = load_image(image)
-    except (FileNotFoundError, ValueError, OSError) as exc:
-        raise InputError(f"cannot read image {image}: {exc}") from None
+    except (FileNotFoundError, ValueError, OSError, EOFError) as exc:
+        raise _unreadable("image", image, exc) from None
     try:
         result = analyze_image(pixels, region, bin_correction=not sfrmat5)
     except ValueError as exc:
@@ -79,12 +88,12 @@ def _fov_deg(text: str) -> tuple[float, float]:
 
 @analyze_group.command("checkerboard")
 @click.argument("image", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--tile-mm", type=float, required=True, help="checkerboard tile size in mm")
-@click.option("--distance-mm", type=float, required=True, help="camera - board distance in mm")
+@click.option("--tile-mm", type=POSITIVE, required=True, help="checkerboard tile size in mm")
+@click.option("--distance-mm", type=POSITIVE, required=True, help="camera - board distance in mm")
 @click.option("--fov-deg", "fov_text", required=True, help="the camera's given FOV H,V in degrees")
 @click.option("--cloud", type=click.Path(dir_okay=False, path_type=Path),
               help="organized point cloud of the same view: .pcd, or .npy H x W x 3 in mm, NaN invalid")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--plot", "plot_path", type=OutputFile("plot.png"),
               help="write the found and expected corners as a PNG figure")
 @click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout")
 def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str, cloud: Path | None,
@@ -95,13 +104,11 @@ def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str,
 
     fov = _fov_deg(fov_text)
     if plot_path is not None:
-        output_file(plot_path, "--plot")
-    if tile_mm <= 0 or distance_mm <= 0:
-        raise InputError("--tile-mm and --distance-mm must be positive")
+        png_file(plot_path, "--plot")
     try:
         pixels = load_image(image)
-    except (FileNotFoundError, ValueError, OSError) as exc:
-        raise InputError(f"cannot read image {image}: {exc}") from None
+    except (FileNotFoundError, ValueError, OSError, EOFError) as exc:
+        raise _unreadable("image", image, exc) from None
     points = _organized_cloud(cloud) if cloud is not None else None
     if points is not None and points.shape[:2] != pixels.shape:
         raise InputError(f"cloud {cloud}: {points.shape[0]} x {points.shape[1]} points do not match the image's "
@@ -179,8 +186,8 @@ def _organized_cloud(path: Path):
             cloud = read_pcd(path).xyz
         else:
             raise InputError(f"cloud {path}: unsupported type {suffix!r}; use .pcd or .npy (H x W x 3 in mm)")
-    except (ValueError, OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read cloud {path}: {exc}") from None
+    except (ValueError, OSError, UnicodeDecodeError, EOFError) as exc:
+        raise _unreadable("cloud", path, exc) from None
     if cloud.ndim != 3 or cloud.shape[2] != 3 or cloud.shape[0] < 2 or not np.issubdtype(cloud.dtype, np.number):
         raise InputError(f"cloud {path}: shape {cloud.shape} is not an organized H x W x 3 cloud (x, y, z in mm)")
     return cloud.astype(float)
@@ -189,11 +196,11 @@ def _organized_cloud(path: Path):
 @analyze_group.command("boehler")
 @click.argument("cloud", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--segments", type=int, required=True, help="segments of the star (72 or 24)")
-@click.option("--inlier-mm", type=float, default=20.0, show_default=True, help="star inliers: distance to its plane")
+@click.option("--inlier-mm", type=POSITIVE, default=20.0, show_default=True, help="star inliers: distance to its plane")
 @click.option("--binning", "binning_text", default="auto", show_default=True,
               help="1 mm rings evaluated together: a number, or auto (2, more where the points lie further apart)")
 @click.option("--fov-deg", "fov_text", help="the camera's FOV H,V in degrees: the sensor resolution not to beat")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--plot", "plot_path", type=OutputFile("plot.png"),
               help="write the star and its clusters per ring as a PNG figure")
 @click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout")
 def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov_text: str | None,
@@ -203,11 +210,9 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
 
     fov = _fov_deg(fov_text) if fov_text is not None else None
     if plot_path is not None:
-        output_file(plot_path, "--plot")
+        png_file(plot_path, "--plot")
     if segments < 16 or segments % 2:
         raise InputError(f"--segments {segments}: a Böhler star has an even number of segments (72 or 24)")
-    if inlier_mm <= 0:
-        raise InputError(f"--inlier-mm {inlier_mm:g}: must be positive")
     binning = None if binning_text == "auto" else (int(binning_text) if binning_text.isdigit() else 0)
     if binning is not None and binning < 1:
         raise InputError(f"--binning {binning_text}: must be auto or a whole number of at least 1")
@@ -233,6 +238,8 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
         "clamped_h": result.clamped_h,
         "clamped_v": result.clamped_v,
         "segments": result.segments,
+        "star_found": result.star_found,
+        "modulation": result.modulation,
         "distance_mm": result.distance_mm,
         "centre_mm": list(result.centre_mm),
         "normal": list(result.normal),
@@ -254,7 +261,9 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
         click.echo(dumps_strict(doc))
         return
     x, y, z = result.centre_mm
-    click.echo(f"{cloud}: {segments}-segment star at {result.distance_mm:.0f} mm, centre ({x:.1f}, {y:.1f}, {z:.1f}) mm")
+    click.echo(f"{cloud}: {segments}-segment star at {result.distance_mm:.0f} mm, centre ({x:.1f}, {y:.1f}, {z:.1f}) mm"
+               if result.star_found else
+               f"{cloud}: no {segments}-segment star found on the nearest plane facing the camera ({result.distance_mm:.0f} mm)")
     for name, radius, lateral, angular in (("horizontal", result.radius_h_mm, result.resolution_h_mm, result.angular_h_deg),
                                            ("vertical", result.radius_v_mm, result.resolution_v_mm, result.angular_v_deg)):
         click.echo(f"{name}: not resolved" if radius != radius else

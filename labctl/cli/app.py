@@ -23,11 +23,13 @@ from labctl.cli import export as cli_export
 from labctl.cli import info as cli_info
 from labctl.cli import reconcile as cli_reconcile
 from labctl.cli import simulate as cli_sim
-from labctl.cli.outputs import output_directory, output_file
+from labctl.cli.inputs import distinct, warn, warn_run_suffix
+from labctl.cli.outputs import OutputDirectory, OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
 from labctl.run.compression import COMPRESSIONS
 from labctl.run.config import Campaign, load_campaign, model_camera_mismatch, parse_campaign
 from labctl.run.diskspace import ensure_free, format_bytes
+from labctl.run.filekind import not_a_run_file
 from labctl.run.lab import Lab, build_real_lab, build_sim_lab
 from labctl.run.operator import Operator
 from labctl.run.overrides import ATTRIBUTE as OVERRIDES_ATTRIBUTE
@@ -158,7 +160,7 @@ INTERACTIVE_HELP = ("with --sim: ask at every operator prompt as on real hardwar
 
 @cli.command()
 @click.argument("campaign", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="run file to create")
+@click.option("-o", "--output", required=True, type=OutputFile("run.h5"), help="run file to create")
 @click.option("--sim", is_flag=True, help="replace every device by its simulated fake")
 @click.option("--model", type=click.Path(dir_okay=False, path_type=Path), help="simulation model file (with --sim)")
 @click.option("--seed", type=click.IntRange(min=0), help="simulation seed (default: [sim].seed)")
@@ -174,6 +176,7 @@ def run(
     if output.exists():
         raise InputError(existing_output_advice(output))
     output_file(output, "-o")
+    warn_run_suffix(output)
     if (model is not None or seed is not None) and not sim:
         raise InputError("--model and --seed only apply to simulated runs (--sim)")
     compression = compression or config.runner.compression
@@ -239,6 +242,8 @@ def resume(
     new += [(role, "host", value) for role, value in parse_overrides("host", hosts).items()]
     if not run_file.is_file():
         raise InputError(f"run file {run_file} does not exist")
+    if (wrong := not_a_run_file(run_file)) is not None:  # before opening it for writing, which would change it
+        raise InputError(wrong)
     reporter = Reporter(quiet=quiet)
     if into is not None:
         output_file(into, "--into")
@@ -308,32 +313,40 @@ def _stored_text(writer: RunWriter, group: str, name: str) -> str:
 # ---------------------------------------------------------------------- evaluate
 @cli.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 @click.option("--quiet", is_flag=True, help="no progress output")
 def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
     """Compute every metric RUNS allow: OUTPUT/keyfigures.json and OUTPUT/report.html."""
     from labctl.evaluation.evaluate import count_complete_steps, evaluate_runs
     from labctl.report.html import write_outputs
 
+    runs = distinct(runs, "run file")
     steps = count_complete_steps(runs)
-    output_directory(output)
     reporter = Reporter(quiet=quiet)
-    with EvaluationProgress(steps, quiet=quiet) as progress:
-        evaluation = evaluate_runs(runs, progress=progress)
-    json_path, report = write_outputs(evaluation, output)
+    with output_directory_for(output):
+        with EvaluationProgress(steps, quiet=quiet) as progress:
+            evaluation = evaluate_runs(runs, progress=progress)
+        json_path, report = write_outputs(evaluation, output)
     reporter.message(f"key figures: {json_path}")
     click.echo(f"report: {report}")
 
 
 @cli.command()
 @click.argument("evaluations", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 def compare(evaluations: Sequence[Path], output: Path) -> None:
     """Compare cameras side by side from EVALUATIONS (output directories of 'labctl evaluate')."""
     from labctl.report.compare import compare as write_comparison
+    from labctl.report.compare import load_evaluation
 
-    output_directory(output)
-    click.echo(f"comparison: {write_comparison(list(evaluations), output)}")
+    directories = distinct(evaluations, "evaluation")
+    for directory in directories:  # every input readable before the output folder is made
+        load_evaluation(directory)
+    if len(directories) == 1:
+        warn(f"one evaluation ({directories[0]}): compare puts two or more cameras side by side; "
+             "this comparison shows one camera")
+    with output_directory_for(output):
+        click.echo(f"comparison: {write_comparison(directories, output)}")
 
 
 # ---------------------------------------------------------------------- device, devices, sim, analyze

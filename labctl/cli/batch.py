@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from labctl.cli.outputs import output_directory
+from labctl.cli.outputs import OutputDirectory, output_directory
 from labctl.errors import InputError, RunAborted
 from labctl.run.progress import Reporter
 
@@ -34,7 +34,7 @@ def batch() -> None:
 
 @batch.command("runs")
 @click.argument("runs", nargs=-1, required=True)
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 @click.option("--evaluate/--no-evaluate", default=True, show_default=True, help="labctl evaluate of every run")
 @click.option("--reconcile", is_flag=True, help="labctl reconcile of every run as well")
 @click.option("--model", "model_path", type=click.Path(dir_okay=False, path_type=Path),
@@ -67,7 +67,7 @@ def runs_command(runs: Sequence[str], output: Path, evaluate: bool, reconcile: b
 
 @batch.command("sweep")
 @click.argument("sweep_file", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 @click.option("--scheduler", help=SCHEDULER_HELP)
 @click.option("--workers", type=int, help=WORKERS_HELP)
 @click.option("--quiet", is_flag=True, help="no progress output")

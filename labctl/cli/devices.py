@@ -19,7 +19,8 @@ import numpy as np
 
 from drivers.errors import DeviceError, LimitViolation
 from drivers.protocols import DepthCamera
-from labctl.cli.outputs import output_file
+from labctl.cli.inputs import POSITIVE, Number, warn_run_suffix
+from labctl.cli.outputs import OutputFile, output_file
 from labctl.errors import InputError, RunAborted
 from labctl.run.operator import Operator, unlock_confirmation
 from labctl.run.store import RunWriter
@@ -75,8 +76,9 @@ def laser(port: str, baud: int, count: int, as_json: bool) -> None:
 @click.option("--protocol", required=True, type=click.Choice(["zaber", "grbl"]))
 @click.option("--baud", type=click.IntRange(min=1), help="default: 115200")
 @click.option("--home", is_flag=True, help="run the homing cycle first")
-@click.option("--move-mm", type=float, help="absolute target position in mm")
-@click.option("--mm-per-microstep", type=click.FloatRange(min=0, min_open=True), help="Zaber: microstep size")
+@click.option("--move-mm", type=Number(minimum=0.0, why=": positions count from home"),
+              help="absolute target position in mm (from home, 0 mm)")
+@click.option("--mm-per-microstep", type=POSITIVE, help="Zaber: microstep size")
 @click.option("--axis", help="Zaber: axis number (1); Grbl: axis letter (X)")
 @click.option("--unlock-alarm", is_flag=True,
               help="Grbl: unlock ($X) an alarm found at connect without asking (default: ask on a terminal)")
@@ -159,11 +161,11 @@ def _capture_file(
 @click.option("--backend", required=True, type=click.Choice(["realsense", "blaze", "amt100", "flexx2"]))
 @click.option("--playback", type=click.Path(dir_okay=False, path_type=Path), help="recording (.bag, .rrf)")
 @click.option("--frames", type=click.IntRange(min=1), default=1, show_default=True)
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="run file")
+@click.option("-o", "--output", required=True, type=OutputFile("capture.h5"), help="run file")
 @click.option("--serial", help="which camera, if several are connected")
 @click.option("--producer", type=click.Path(dir_okay=False, path_type=Path), help="GenTL producer .cti")
 @click.option("--sdk", type=click.Choice(["pypylon", "harvesters"]), default="pypylon", show_default=True)
-@click.option("--exposure-us", type=click.FloatRange(min=0, min_open=True))
+@click.option("--exposure-us", type=POSITIVE)
 @click.option("--setting", "settings", multiple=True, help="backend setting KEY=VALUE (repeatable)")
 @click.option("--json", "as_json", is_flag=True, help="print a JSON summary")
 def camera(
@@ -176,6 +178,7 @@ def camera(
     if output.exists():
         raise InputError(f"{output} already exists; choose another -o")
     output_file(output, "-o")
+    warn_run_suffix(output)
     for path, option in ((playback, "--playback"), (producer, "--producer")):
         if path is not None and not path.is_file():
             raise InputError(f"{option} file {path} does not exist")

@@ -7,7 +7,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from labctl.cli.outputs import output_file
+from labctl.cli.inputs import warn
+from labctl.cli.outputs import OutputFile, output_file
 from labctl.errors import InputError
 from labctl.report.pointcloud_io import write_pcd, write_ply
 from labctl.run.store import RunReader, StepRecord
@@ -40,11 +41,23 @@ def _complete_step(reader: RunReader, step_id: str) -> StepRecord:
     return reader.step(step_id)
 
 
+def _matching_suffix(output: Path, fmt: str) -> None:
+    """Refuse a .pcd file holding PLY (or the reverse); warn when the name has neither extension, since point-cloud
+    tools choose their reader by it."""
+    named = {".pcd": "pcd", ".ply": "ply"}.get(output.suffix.lower())
+    if named is not None and named != fmt:
+        raise InputError(f"--format {fmt} does not match -o {output}, a .{named} name: write -o "
+                         f"{output.with_suffix('.' + fmt)}, or give --format {named}")
+    if named is None:
+        warn(f"-o {output} has no .{fmt} extension; CloudCompare and Open3D choose their reader by it: "
+             f"name it {output.with_suffix('.' + fmt)}")
+
+
 @click.command("export")
 @click.argument("run_file", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--step", "step_id", required=True, help="step id, e.g. 00002_boehler_star")
 @click.option("--format", "fmt", required=True, type=click.Choice(["pcd", "ply"]), help="file format")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="file to write")
+@click.option("-o", "--output", required=True, type=OutputFile("cloud.pcd"), help="file to write")
 @click.option("--frame", type=int, help="export frame K (0-based) instead of the mean of the step's frames")
 @click.option("--ascii", "as_text", is_flag=True, help="text data instead of binary")
 @click.option("--force", is_flag=True, help="overwrite an existing output file")
@@ -57,6 +70,7 @@ def export(run_file: Path, step_id: str, fmt: str, output: Path, frame: int | No
     """
     if output.exists() and output.resolve() == run_file.resolve():
         raise InputError(f"-o {output} is the run file itself")
+    _matching_suffix(output, fmt)
     output_file(output, "-o", force=force)
     with RunReader(run_file) as reader:
         record = _complete_step(reader, step_id)

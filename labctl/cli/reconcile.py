@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from labctl.cli.outputs import output_directory
+from labctl.cli.outputs import OutputDirectory, output_directory_for
 from labctl.run.progress import Reporter
 from metrics.jsonsafe import dumps_strict
 
@@ -16,7 +16,7 @@ from metrics.jsonsafe import dumps_strict
 @click.argument("measured", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--model", "model_path", type=click.Path(dir_okay=False, path_type=Path),
               help="simulation model to correct (default: the camera's built-in model)")
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path), help="output directory")
+@click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 @click.option("--json", "as_json", is_flag=True, help="print reconcile.json on stdout")
 @click.option("--quiet", is_flag=True, help="no progress output")
 def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bool, quiet: bool) -> None:
@@ -26,9 +26,8 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
     from labctl.reconcile.workflow import reconcile as run_reconcile
     from sim.model import load_model
 
-    output_directory(output)
-    reporter = Reporter(quiet=quiet)
     model = load_model(model_path)[0] if model_path is not None else None
+    reporter = Reporter(quiet=quiet)
     start = time.monotonic()
 
     def progress(what: str) -> None:
@@ -37,8 +36,9 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
     def warn(message: str) -> None:
         click.echo(f"labctl: warning: {model_path}: {message}", err=True)
 
-    result = run_reconcile(measured, model, progress=progress, warn=warn)
-    report, model_file, doc = write_reconcile(result, measured, output)
+    with output_directory_for(output):
+        result = run_reconcile(measured, model, progress=progress, warn=warn)
+        report, model_file, doc = write_reconcile(result, measured, output)
     if as_json:
         click.echo(dumps_strict(doc, indent=2))
         return

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from labctl.cli.outputs import output_file
+from labctl.cli.outputs import OutputFile, png_file
 from labctl.errors import InputError
 from sim.model import default_model_text, load_model, parse_model
 from sim.profiles import PROFILES, SOURCES
@@ -94,13 +94,13 @@ def _given(ctx: click.Context, name: str) -> bool:
               show_default=True, help="robot angle (material plates)")
 @click.option("--param", multiple=True, help="target parameter KEY=VALUE (e.g. segments=24)")
 @click.option("--projector/--no-projector", default=True, help="stereo dot projector")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="PNG to write")
+@click.option("-o", "--output", required=True, type=OutputFile("preview.png"), help="PNG to write")
 @click.pass_context
 def preview(ctx, camera, model_path, target, distance_mm, angle_deg, param, projector, output) -> None:
     """Render a simulated frame (intensity and depth) of a scene to a PNG."""
     from sim.preview import GALLERY, preview_figure
 
-    output_file(output, "-o")
+    png_file(output, "-o")
     model = _model(camera, model_path)
     if target is None:
         given = [f"--{name.replace('_', '-')}" for name in ("param", "distance_mm", "angle_deg") if _given(ctx, name)]

@@ -179,6 +179,7 @@ def ied_figure(ied: dict[str, float | None], labels: list[str]) -> Figure:
             ax.text(k, 2.0, "n/a", ha="center", va="bottom", fontsize=9, fontweight="bold", color="tab:gray")
     ax.set_xlim(-0.5, len(labels) - 0.5)  # every camera keeps its place, with or without a bar
     ax.axhline(IED_MIN_PX, color="black", linestyle="--", label=f"required {IED_MIN_PX:g} px (ISO/IEC 39794-5)")
+    ax.set_ylim(bottom=0)  # the "n/a" labels at the foot stay inside the axes when no camera has a bar
     ax.set_ylabel("px across 62.5 mm\nat the hyperfocal distance")
     ax.set_title(IED_TITLE, pad=24)
     ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False, fontsize=8)  # above the bars, never on them

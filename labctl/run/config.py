@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from labctl.errors import InputError
+from labctl.run.filekind import describe, is_hdf5
 from procedures import PROCEDURES, ProcedureConfig, Step
 from procedures.steps import StrictModel
 from procedures.targets import with_target_prompts
@@ -342,8 +343,32 @@ def parse_campaign(text: str, source: str = "campaign") -> Campaign:
 def load_campaign(path: str | Path) -> tuple[Campaign, str]:
     """Read a campaign file; returns the validated campaign and its text (stored in the run file)."""
     path = Path(path)
+    if is_hdf5(path):
+        raise InputError(not_a_campaign(path))
     try:
         text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read campaign file {path}: {exc}") from None
+    except FileNotFoundError:
+        raise InputError(f"campaign file {path} does not exist") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path} is {describe(path)}, not a campaign file: a campaign is a TOML text file "
+                         "(docs/campaign.md; examples/*.toml)") from None
+    except OSError as exc:
+        raise InputError(f"cannot read campaign file {path}: {exc.strerror or exc}") from None
     return parse_campaign(text, str(path)), text
+
+
+def not_a_campaign(path: Path) -> str:
+    """The message for an HDF5 file given as the campaign: a run file points to the commands that take one."""
+    import h5py
+
+    from labctl.run.store import FORMAT
+
+    try:
+        with h5py.File(path, "r") as f:
+            is_run = f.attrs.get("format") == FORMAT
+    except OSError:
+        is_run = False
+    if is_run:
+        return (f"{path} is a labctl run file, not a campaign; did you mean 'labctl resume {path}' or "
+                f"'labctl evaluate {path} -o DIR'?")
+    return f"{path} is an HDF5 file, not a campaign file: a campaign is a TOML text file (docs/campaign.md)"

@@ -59,6 +59,7 @@ from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.errors import InputError
 from labctl.run import compression as codecs
 from labctl.run.diskspace import DiskSpaceLow, ensure_free, frame_bytes, mount_point, release, reserve
+from labctl.run.filekind import not_a_run_file
 from procedures.steps import Step
 
 FORMAT = "labctl-run"
@@ -524,7 +525,8 @@ class RunReader:
         try:
             self.file = h5py.File(self.path, "r")
         except OSError as exc:
-            raise InputError(f"{self.path} cannot be read as HDF5 (is a run still writing it?): {exc}") from None
+            raise InputError(not_a_run_file(self.path) or f"{self.path} is an HDF5 file that cannot be opened "
+                             f"(is a run still writing it, or is it damaged?): {exc}") from None
         try:
             _check_format(self.file, self.path)
         except InputError:

@@ -29,7 +29,14 @@ import math
 import numpy as np
 import pytest
 
-from metrics.boehler import MIN_SAMPLES_PER_SEGMENT, analyze_boehler, evaluate_rings, resolution_radius
+from metrics.boehler import (
+    MIN_MODULATION,
+    MIN_SAMPLES_PER_SEGMENT,
+    analyze_boehler,
+    evaluate_rings,
+    resolution_radius,
+    star_pattern,
+)
 from sim.model import parse_model
 from sim.preview import simulate_frame
 
@@ -279,3 +286,69 @@ def test_auto_binning_reaches_the_sampling_limit_of_a_coarse_cloud(seed):
                                         rotation_deg=17.0 * seed, merged="mean"), 72, binning=None)
     assert merged.radius_h_mm == pytest.approx(120.0, abs=merged.ring_width_mm)
     assert merged.radius_v_mm == pytest.approx(96.0, abs=merged.ring_width_mm)
+
+
+# ---------------------------------------------------------------------- is it a star?
+@pytest.mark.parametrize("share", [0.5, 0.3, 0.8])
+def test_star_pattern_of_a_sharp_square_wave_is_one(share):
+    """Inliers on [0, share) of every one of the N/2 periods: the depth M is 1 whatever the share (the
+    fundamental of a square wave of duty p is sin(pi p) / pi), and Z = n M^2 sin^2(pi p) / (pi^2 p (1 - p))."""
+    n, segments = 3600, 24
+    angle = (np.arange(n) + 0.5) * 2 * math.pi / n
+    inlier = np.mod(angle * segments / 2 / (2 * math.pi), 1.0) < share
+    depth, significance = star_pattern(np.zeros(n, np.int64), angle, inlier, segments)
+    assert depth[0] == pytest.approx(1.0, abs=0.01)
+    p = inlier.mean()
+    assert significance[0] == pytest.approx(n * math.sin(math.pi * p) ** 2 / (math.pi**2 * p * (1 - p)), rel=0.02)
+
+
+def test_star_pattern_without_a_pattern_is_noise():
+    """Inliers drawn independently of the angle: Z is exponential with mean 1 (P(Z > t) = exp(-t)), so over
+    2000 rings its mean is 1 within 4 standard errors and about exp(-3) = 5 % exceed 3; every sample an inlier
+    (a plain wall) gives 0."""
+    rng = np.random.default_rng(1)
+    rings, n = 2000, 400
+    ring = np.repeat(np.arange(rings), n)
+    angle = rng.uniform(0, 2 * math.pi, rings * n)
+    depth, significance = star_pattern(ring, angle, rng.random(rings * n) < 0.7, 72)
+    assert significance.mean() == pytest.approx(1.0, abs=4 / math.sqrt(rings))
+    assert (significance > 3).mean() == pytest.approx(math.exp(-3), abs=4 * math.sqrt(math.exp(-3) / rings))
+    assert np.median(depth) < 0.1
+    wall_depth, wall_significance = star_pattern(ring, angle, np.ones(rings * n, bool), 72)
+    assert not wall_depth.any() and not wall_significance.any()
+
+
+def simulated_wall(camera: str, distance_mm: float) -> np.ndarray:
+    """The camera's simulated wall, with flying pixels on a ToF camera (outliers off the plane)."""
+    effects = "" if camera == "d455" else "[effects.flying_pixels]\n"
+    model = parse_model(f'camera = "{camera}"\n{effects}', "test model")
+    x, y, z, *_ = simulate_frame(model, "wall", {}, distance_mm=distance_mm)
+    return np.dstack([x, y, z])
+
+
+@pytest.mark.parametrize("camera,distance_mm,segments", [("blaze101", 1000.0, 72), ("flexx2", 600.0, 24),
+                                                         ("d455", 2500.0, 72)])
+def test_a_plain_wall_is_no_star(camera, distance_mm, segments):
+    """A simulated wall: every sample is on the plane, nothing alternates, so no star is reported there."""
+    result = analyze_boehler(simulated_wall(camera, distance_mm), segments, binning=None)
+    assert not result.star_found and result.modulation == 0.0
+    assert any(w.startswith(f"no {segments}-segment star found: no ring on the plane at") for w in result.warnings)
+    assert math.isnan(result.resolution_mm)
+
+
+@pytest.mark.parametrize("segments,size", [(72, (640, 480)), (24, (640, 480)), (72, (160, 120))])
+def test_a_star_is_found_with_the_depth_of_sharp_segments(segments, size):
+    """Ray-cast stars with sharp segments: the resolved rings alternate fully (M about 1; the pixel grid of
+    a coarse cloud moves a ring's M by some 20 %), and so does the simulated blaze-101's star."""
+    result = analyze_boehler(star_cloud(segments, 0.0, 0.0, size=size), segments, binning=None)
+    assert result.star_found and result.modulation == pytest.approx(1.0, abs=0.25)
+    assert not any("star found" in w for w in result.warnings)
+    simulated = analyze_boehler(simulated_star("[effects.defocus]\nhyperfocal_mm = 400.0\n"), 72)
+    assert simulated.star_found and simulated.modulation == pytest.approx(1.0, abs=0.25)
+
+
+def test_a_star_blurred_into_a_disc_is_not_found_but_explained():
+    """Segments merged into a filled disc out to beyond the rim: a disc in front of the wall, no alternation."""
+    result = analyze_boehler(star_cloud(72, 250.0, 250.0), 72)
+    assert not result.star_found and result.modulation < MIN_MODULATION
+    assert any("a plain wall, or a star whose segments this cloud resolves nowhere" in w for w in result.warnings)

@@ -128,12 +128,14 @@ def test_run_arguments_expand_to_files(tmp_path: Path) -> None:
     (tmp_path / "lot1").mkdir()
     (tmp_path / "lot2").mkdir()
     for path in ("lot1/a.h5", "lot1/b.hdf5", "lot2/a.h5", "lot2/notes.txt"):
-        (tmp_path / path).write_bytes(b"")
+        (tmp_path / path).write_bytes(b"\x89HDF\r\n\x1a\n")  # the HDF5 signature: what a run file starts with
     found = expand_runs([str(tmp_path), str(tmp_path / "lot1" / "*.h5"), str(tmp_path / "lot2" / "a.h5")])
     assert found == sorted((tmp_path / p).resolve() for p in ("lot1/a.h5", "lot1/b.hdf5", "lot2/a.h5"))
     assert run_names(found) == ["lot1__a", "lot1__b", "lot2__a"]
+    (tmp_path / "empty.h5").write_bytes(b"")
     for bad, message in (("missing.h5", "does not exist"), ("*.nothing", "matches no file"),
-                         ("lot2/notes.txt/..", "holds no run file")):
+                         ("lot2/notes.txt/..", "holds no run file"),
+                         ("empty.h5", r"empty.h5 is empty \(0 bytes\), not a labctl run file")):
         with pytest.raises(InputError, match=message):
             expand_runs([str(tmp_path / bad)] if bad != "lot2/notes.txt/.." else [str(_empty_dir(tmp_path))])
 
@@ -203,7 +205,7 @@ def test_cluster_options_are_checked(tmp_path: Path, monkeypatch: pytest.MonkeyP
     from labctl.batch import cluster
 
     run = tmp_path / "unit.h5"
-    run.write_bytes(b"")
+    run.write_bytes(b"\x89HDF\r\n\x1a\n")  # taken for a run file: the options are what is refused
     assert _labctl("batch", "runs", run, "-o", tmp_path / "a", "--scheduler", "tcp://127.0.0.1:1",
                    "--workers", 2) == 2
     monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 1.0)

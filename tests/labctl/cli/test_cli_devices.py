@@ -76,7 +76,7 @@ def test_grbl_stage_home_and_move(labctl_main) -> None:
         assert code == 0, err
         assert json.loads(out) == {"position_mm": pytest.approx(12.0)}
         code, out, err = labctl_main("device", "stage", "--port", grbl.port, "--protocol", "grbl", "--move-mm", "-5")
-        assert code == 2 and "outside the soft limits" in err and "nothing moved" in err
+        assert code == 2 and "'--move-mm': '-5' is below 0: positions count from home" in err  # before connecting
         assert grbl.position_mm == pytest.approx(12.0)
 
 

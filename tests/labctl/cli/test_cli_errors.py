@@ -30,7 +30,7 @@ def test_broken_campaign_exits_2_without_traceback_or_run_file(case, tmp_path, l
 
 def test_missing_campaign_file(tmp_path, labctl):
     result = labctl("plan", tmp_path / "nope.toml")
-    assert result.returncode == 2 and "cannot read campaign file" in result.stderr
+    assert result.returncode == 2 and f"campaign file {tmp_path / 'nope.toml'} does not exist" in result.stderr
 
 
 def test_bad_arguments_exit_2(labctl):

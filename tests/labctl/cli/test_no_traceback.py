@@ -91,7 +91,10 @@ def test_analyze_plots_into_a_missing_directory(capsys, tmp_path: Path) -> None:
 def test_output_directories_that_cannot_be_created(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("")
-    for command in (["evaluate", blank_mask_run], ["reconcile", blank_mask_run], ["compare", tmp_path]):
+    evaluation = tmp_path / "evaluation"
+    evaluation.mkdir()
+    (evaluation / "keyfigures.json").write_text('{"camera": {"model": "m"}, "figures": {}}')
+    for command in (["evaluate", blank_mask_run], ["reconcile", blank_mask_run], ["compare", evaluation]):
         code, _, err = labctl(capsys, *command, "-o", blocker / "out")
         assert code == 2 and f"cannot create the directory {blocker / 'out'} for -o" in err, (command, err)
         code, _, err = labctl(capsys, *command, "-o", blocker)
@@ -234,3 +237,290 @@ def test_a_run_whose_laser_port_refuses_its_settings_stops_with_the_port_named(c
         assert not stage.moving
     assert code == 1 and f"cannot connect devices: Dimetix laser on {port}: cannot open the port" in err
     assert not (tmp_path / "run.h5").exists()
+
+
+# ---------------------------------------------------------------------- files that are not what the command reads
+def test_an_empty_or_a_text_file_given_as_a_run_is_named_for_what_it_is(capsys, tmp_path: Path) -> None:
+    empty, text = tmp_path / "empty.h5", tmp_path / "notes.h5"
+    empty.write_bytes(b"")
+    text.write_text("distance 1000 mm\n")
+    for path, kind in ((empty, "is empty (0 bytes)"), (text, "is a text file (it begins 'distance 1000 mm')")):
+        for command in (["info", path], ["evaluate", path, "-o", tmp_path / "out"], ["resume", path],
+                        ["export", path, "--step", "s", "--format", "pcd", "-o", tmp_path / "c.pcd"]):
+            code, _, err = labctl(capsys, *command)
+            assert code == 2, (command, err)
+            assert f"{path} {kind}, not a labctl run file: a run file is the HDF5 file 'labctl run" in err, (command, err)
+    assert empty.read_bytes() == b""  # resume did not open it for writing (HDF5 would have made it a file of 800 bytes)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_run_file_given_as_the_campaign(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    for command in (["plan", blank_mask_run], ["run", blank_mask_run, "--sim", "-o", tmp_path / "r.h5"]):
+        code, _, err = labctl(capsys, *command)
+        assert code == 2 and "utf-8" not in err
+        assert (f"{blank_mask_run} is a labctl run file, not a campaign; did you mean 'labctl resume {blank_mask_run}' "
+                f"or 'labctl evaluate {blank_mask_run} -o DIR'?") in err
+    assert not (tmp_path / "r.h5").exists()
+
+
+# ---------------------------------------------------------------------- outputs that cannot be written
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc, where no file can be created")
+def test_outputs_where_no_file_can_be_created_say_so(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    """Root passes every permission check, but no file can be created in /proc: the cause is named, not a lack
+    of free space (run) or a missing file (export)."""
+    campaign = tmp_path / "c.toml"
+    campaign.write_text(campaign_text())
+    code, _, err = labctl(capsys, "run", campaign, "--sim", "-o", "/proc/run.h5")
+    assert code == 2 and "-o /proc/run.h5: no file can be created in /proc" in err and "free" not in err
+    code, _, err = labctl(capsys, "export", blank_mask_run, "--step", "00001_depth_sweep", "--format", "ply",
+                          "-o", "/proc/a.ply")
+    assert code == 2 and "-o /proc/a.ply: no file can be created in /proc" in err
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", "/proc/evaluation", "--quiet")
+    assert code == 2 and "cannot create the directory /proc/evaluation for -o" in err and "(/proc accepts no new" in err
+
+
+def test_a_file_output_named_like_a_directory_is_refused(capsys, tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("c.toml").write_text(campaign_text())
+    code, _, err = labctl(capsys, "run", "c.toml", "--sim", "-o", "newdir/")
+    assert code == 2 and "-o newdir/ names a directory; give a file name in it, e.g. newdir/run.h5" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+def test_a_plot_that_is_not_a_png_is_refused_before_the_analysis(capsys, tmp_path: Path) -> None:
+    cloud = tmp_path / "cloud.npy"
+    np.save(cloud, np.zeros((20, 30, 3)))
+    code, _, err = labctl(capsys, "analyze", "boehler", cloud, "--segments", "72", "--plot", tmp_path / "b.txt")
+    assert code == 2 and f"--plot {tmp_path / 'b.txt'}: the figure is written as PNG; name it {tmp_path / 'b.png'}" in err
+
+
+def test_export_format_and_file_extension_must_agree(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    step = ("--step", "00001_depth_sweep")
+    code, _, err = labctl(capsys, "export", blank_mask_run, *step, "--format", "ply", "-o", tmp_path / "b.pcd")
+    assert code == 2
+    assert f"--format ply does not match -o {tmp_path / 'b.pcd'}, a .pcd name: write -o {tmp_path / 'b.ply'}" in err
+    assert not (tmp_path / "b.pcd").exists()
+    code, _, err = labctl(capsys, "export", blank_mask_run, *step, "--format", "pcd", "-o", tmp_path / "b.txt")
+    assert code == 0 and f"warning: -o {tmp_path / 'b.txt'} has no .pcd extension" in err
+    assert (tmp_path / "b.txt").read_bytes().startswith(b"# .PCD")
+
+
+# ---------------------------------------------------------------------- the same input twice, one evaluation
+def test_evaluate_counts_a_run_given_twice_once(capsys, tmp_path: Path, blank_mask_run: Path, monkeypatch) -> None:
+    monkeypatch.chdir(blank_mask_run.parent)
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run.name, f"./{blank_mask_run.name}", blank_mask_run,
+                          "-o", tmp_path / "out", "--quiet")
+    assert code == 0
+    assert err.count(f"warning: run file {blank_mask_run.name} given twice") == 2
+    assert f"(also as {blank_mask_run}): used once" in err
+    doc = json.loads((tmp_path / "out" / "keyfigures.json").read_text())
+    assert doc["runs"] == [blank_mask_run.name]
+    assert [row["step"] for row in doc["depth_sweep"]] == ["00001_depth_sweep"]  # the run's one depth step, once
+
+
+@pytest.fixture(scope="module")
+def evaluation(tmp_path_factory: pytest.TempPathFactory, blank_mask_run: Path) -> Path:
+    """``labctl evaluate`` of the face-mask run: no slanted edge, so no inter-eye distance to chart."""
+    out = tmp_path_factory.mktemp("evaluation") / "ev"
+    with pytest.raises(SystemExit) as done:
+        main(["evaluate", str(blank_mask_run), "-o", str(out), "--quiet"])
+    assert done.value.code == 0
+    return out
+
+
+def test_compare_warns_on_one_evaluation_and_on_the_same_twice(capsys, tmp_path: Path, evaluation: Path) -> None:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code, out, err = labctl(capsys, "compare", evaluation, f"{evaluation}/", "-o", tmp_path / "cmp")
+    assert code == 0 and out.strip() == f"comparison: {tmp_path / 'cmp' / 'compare.html'}"
+    assert f"warning: evaluation {evaluation} given twice" in err
+    assert f"warning: one evaluation ({evaluation}): compare puts two or more cameras side by side" in err
+    # every camera without an inter-eye distance: the chart's "n/a" once fell outside the axes and matplotlib warned
+    assert not [str(w.message) for w in caught if "layout" in str(w.message)]
+    assert json.loads((tmp_path / "cmp" / "compare.json").read_text())
+
+
+def test_a_failed_compare_or_reconcile_leaves_no_output_folder(capsys, tmp_path: Path, evaluation: Path) -> None:
+    code, _, err = labctl(capsys, "compare", evaluation, tmp_path / "nope", "-o", tmp_path / "cmp")
+    assert code == 2 and f"{tmp_path / 'nope'} has no keyfigures.json" in err
+    text = tmp_path / "c.toml"
+    text.write_text(campaign_text())
+    code, _, err = labctl(capsys, "reconcile", text, "-o", tmp_path / "rec", "--quiet")
+    assert code == 2 and f"{text} is a text file (it begins '[campaign]'), not a labctl run file" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+# ---------------------------------------------------------------------- a serial port where nothing answers
+def test_a_silent_laser_port_gets_a_hint_to_check_power_and_line_settings(capsys) -> None:
+    """A real pseudo-terminal that nobody reads or answers: a sensor switched off or at another baud rate."""
+    import os
+
+    master, slave = os.openpty()
+    try:
+        port = os.ttyname(slave)
+        code, _, err = labctl(capsys, "device", "laser", "--port", port, "--baud", "9600", "--count", "1")
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert code == 1
+    assert f"Dimetix laser on {port}: no complete reply" in err and "in reply to 's0c'" in err
+    assert "is the sensor powered and wired to this port, set to 9600 baud 7E1 and device ID 0?" in err
+
+
+# ---------------------------------------------------------------------- a wall analysed as a star
+def test_analyze_boehler_of_a_plain_wall_reports_no_star(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    """The depth-sweep step of a simulated run is a plain wall at 2000 mm: once reported as a "72-segment
+    star at 2006 mm"; a ray-cast star is still reported as one."""
+    from tests.metrics.test_boehler import star_cloud
+
+    wall = tmp_path / "wall.pcd"
+    assert labctl(capsys, "export", blank_mask_run, "--step", "00001_depth_sweep", "--format", "pcd", "-o", wall)[0] == 0
+    code, out, _ = labctl(capsys, "analyze", "boehler", wall, "--segments", "72")
+    assert code == 0
+    assert out.startswith(f"{wall}: no 72-segment star found on the nearest plane facing the camera (")
+    assert "warning: no 72-segment star found: no ring on the plane at" in out and "segment star at" not in out
+    code, out, _ = labctl(capsys, "analyze", "boehler", wall, "--segments", "72", "--json")
+    doc = strict_json(out)
+    assert code == 0 and doc["star_found"] is False and doc["resolution_mm"] is None
+    star = tmp_path / "star.npy"
+    np.save(star, star_cloud(24, 0.0, 0.0, size=(160, 120)))
+    code, out, _ = labctl(capsys, "analyze", "boehler", star, "--segments", "24")
+    assert code == 0 and out.startswith(f"{star}: 24-segment star at 50") and "star found" not in out
+    doc = strict_json(labctl(capsys, "analyze", "boehler", star, "--segments", "24", "--json")[1])
+    assert doc["star_found"] is True and doc["distance_mm"] == pytest.approx(math.hypot(40.0, 30.0, 500.0), abs=1.0)
+
+
+# ---------------------------------------------------------------------- numbers that are not numbers
+@pytest.mark.parametrize("args,message", [
+    (["analyze", "boehler", "c.npy", "--segments", "72", "--inlier-mm", "nan"], "'--inlier-mm': 'nan' is not a finite number"),
+    (["analyze", "checkerboard", "i.npy", "--tile-mm", "-3", "--distance-mm", "600", "--fov-deg", "67,51"],
+     "'--tile-mm': '-3' is not positive"),
+    (["analyze", "checkerboard", "i.npy", "--tile-mm", "19", "--distance-mm", "inf", "--fov-deg", "67,51"],
+     "'--distance-mm': 'inf' is not a finite number"),
+    (["device", "stage", "--port", "/dev/null", "--protocol", "zaber", "--mm-per-microstep", "inf"],
+     "'--mm-per-microstep': 'inf' is not a finite number"),
+    (["device", "stage", "--port", "/dev/null", "--protocol", "zaber", "--mm-per-microstep", "0.1", "--move-mm", "-5"],
+     "'--move-mm': '-5' is below 0: positions count from home"),
+    (["device", "camera", "--backend", "blaze", "--exposure-us", "nan", "-o", "x.h5"],
+     "'--exposure-us': 'nan' is not a finite number"),
+])
+def test_numbers_that_are_not_finite_or_out_of_range_are_refused(capsys, tmp_path: Path, monkeypatch, args, message) -> None:
+    """--inlier-mm nan was a traceback; --mm-per-microstep inf moved nothing and printed 'nan mm'."""
+    monkeypatch.chdir(tmp_path)
+    np.save("c.npy", np.zeros((20, 30, 3)))
+    np.save("i.npy", np.zeros((20, 30)))
+    code, _, err = labctl(capsys, *args)
+    assert code == 2 and message in err
+
+
+# ---------------------------------------------------------------------- batch inputs
+def test_batch_refuses_a_run_file_as_the_sweep_and_a_text_file_as_a_run(capsys, tmp_path: Path,
+                                                                         blank_mask_run: Path) -> None:
+    """The sweep file was read as UTF-8 (a UnicodeDecodeError traceback); a text file named as a run started a
+    cluster and failed as a task (exit 1)."""
+    code, _, err = labctl(capsys, "batch", "sweep", blank_mask_run, "-o", tmp_path / "sweep")
+    assert code == 2
+    assert (f"sweep file {blank_mask_run} is an HDF5 file, not a TOML text file (a run file is evaluated with "
+            "'labctl batch runs')") in err
+    notes = tmp_path / "notes.h5"
+    notes.write_text("run 3: laser off\n")
+    code, _, err = labctl(capsys, "batch", "runs", notes, "-o", tmp_path / "runs", "--workers", "1")
+    assert code == 2 and f"{notes} is a text file (it begins 'run 3: laser off'), not a labctl run file" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.h5"]
+
+
+def test_an_empty_npy_file_is_bad_input_not_an_abort(capsys, tmp_path: Path) -> None:
+    """numpy raises EOFError on an empty .npy, which click turns into "aborted" with exit 130 (as for Ctrl-C)."""
+    empty = tmp_path / "empty.npy"
+    empty.write_bytes(b"")
+    for args, what in ((["sfr", empty], "image"), (["boehler", empty, "--segments", "24"], "cloud"),
+                       (["checkerboard", empty, "--tile-mm", "19", "--distance-mm", "600", "--fov-deg", "67,51"], "image")):
+        code, _, err = labctl(capsys, "analyze", *args)
+        assert code == 2 and "aborted" not in err
+        assert f"cannot read {what} {empty}: the file ends before its data (0 bytes; empty or truncated)" in err
+
+
+def test_a_failed_evaluate_removes_the_output_folder_it_made(capsys, tmp_path: Path, blank_mask_run: Path) -> None:
+    """Runs of two cameras: refused after the output folder was made, which is removed again (its parents
+    too); an existing output folder stays."""
+    (tmp_path / "flexx2.toml").write_text(campaign_text(backend="flexx2", procedures=textwrap.dedent(MASK_RUN)))
+    (tmp_path / "model.toml").write_text(SMALL.replace("blaze101", "flexx2"))
+    other = tmp_path / "flexx2.h5"
+    assert labctl(capsys, "run", tmp_path / "flexx2.toml", "--sim", "--model", tmp_path / "model.toml", "-o", other,
+                  "--quiet")[0] == 0
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "new" / "out", "--quiet")
+    assert code == 2 and "evaluate one camera at a time" in err
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "kept").mkdir()
+    assert labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "kept", "--quiet")[0] == 2
+    assert (tmp_path / "kept").is_dir()
+
+
+def test_a_run_file_not_named_h5_is_written_with_a_warning(capsys, tmp_path: Path) -> None:
+    """Legal, but 'labctl batch runs DIRECTORY' finds only *.h5 and *.hdf5."""
+    campaign = tmp_path / "c.toml"
+    campaign.write_text(campaign_text(procedures='[[procedure]]\nkind = "offset_calibration"\nframes = 2\n'))
+    model = tmp_path / "m.toml"
+    model.write_text(SMALL)
+    code, _, err = labctl(capsys, "run", campaign, "--sim", "--model", model, "-o", tmp_path / "run.txt", "--quiet")
+    assert code == 0 and (tmp_path / "run.txt").is_file()
+    assert (f"warning: -o {tmp_path / 'run.txt'}: run files are named .h5 (labctl batch runs finds only *.h5 and "
+            f"*.hdf5 in a directory); name it {tmp_path / 'run.h5'}") in err
+
+
+@pytest.fixture
+def read_only_disk(tmp_path: Path):
+    """A small tmpfs mounted read-only (root only), unmounted again whatever the test does."""
+    import os
+    import subprocess
+
+    if os.geteuid() != 0:
+        pytest.skip("mounting a read-only tmpfs needs root")
+    mount = tmp_path / "ro"
+    mount.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(mount)], check=True)
+    yield mount
+    subprocess.run(["umount", str(mount)], check=True)
+
+
+def test_outputs_on_a_read_only_disk_say_so(capsys, tmp_path: Path, read_only_disk: Path, blank_mask_run: Path) -> None:
+    campaign = tmp_path / "c.toml"
+    campaign.write_text(campaign_text())
+    code, _, err = labctl(capsys, "run", campaign, "--sim", "-o", read_only_disk / "run.h5")
+    assert code == 2 and f"-o {read_only_disk / 'run.h5'}: no file can be created in {read_only_disk} (Read-only" in err
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", read_only_disk / "ev", "--quiet")
+    assert code == 2
+    assert f"cannot create the directory {read_only_disk / 'ev'} for -o: Read-only file system ({read_only_disk} " \
+           "accepts no new entries)" in err
+
+
+def test_a_stage_port_where_no_zaber_answers_gets_a_hint(capsys) -> None:
+    """A real pseudo-terminal nobody answers, and a Grbl controller given as a Zaber stage."""
+    import os
+
+    from sim.emulators import GrblEmulator
+
+    hint = "is a Zaber controller (ASCII protocol, device 1) powered and wired to this port at 115200 baud?"
+    master, slave = os.openpty()
+    try:
+        port = os.ttyname(slave)
+        code, _, err = labctl(capsys, "device", "stage", "--port", port, "--protocol", "zaber", "--mm-per-microstep", "0.001")
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert code == 1 and f"Zaber stage 1/1 on {port}: no complete reply" in err and hint in err
+    with GrblEmulator(max_travel_mm=300.0) as grbl:
+        port = grbl.port
+        code, _, err = labctl(capsys, "device", "stage", "--port", port, "--protocol", "zaber", "--mm-per-microstep", "0.001")
+    assert code == 1 and f"Zaber stage 1/1 on {port}: reply" in err and hint in err
+
+
+def test_an_empty_output_name_is_refused(capsys, tmp_path: Path, blank_mask_run: Path, monkeypatch) -> None:
+    """-o '' was the current directory: evaluate wrote its report there, run said '. already exists'."""
+    monkeypatch.chdir(tmp_path)
+    Path("c.toml").write_text(campaign_text())
+    for command in (["evaluate", blank_mask_run, "--quiet"], ["run", "c.toml", "--sim"],
+                    ["export", blank_mask_run, "--step", "00001_depth_sweep", "--format", "pcd"]):
+        code, _, err = labctl(capsys, *command, "-o", "")
+        assert code == 2 and "-o '' is empty: give the output's name" in err, (command, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
