@@ -216,7 +216,8 @@ def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_
         assert "Traceback" not in output
         assert f"UR5e at {old_host}: the connection to the controller at {old_host} (RTDE port 30004) was lost" in output
         assert "The other devices are in their safe state" in output
-        assert f"labctl resume {run_file} (add --host robot=NEW_HOST if it came back at another address than {old_host})" in output
+        advice = f"labctl resume {run_file} (add --host robot=NEW_HOST if it came back at another address than {old_host})"
+        assert advice in output
         state, reason, complete = status(run_file)
         assert state == "aborted" and f"the connection to the controller at {old_host}" in reason
         assert complete == 3  # the ptfe sweep
