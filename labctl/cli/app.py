@@ -29,7 +29,7 @@ from labctl.errors import InputError, LabctlError
 from labctl.run.compression import COMPRESSIONS
 from labctl.run.config import Campaign, load_campaign, model_camera_mismatch, parse_campaign
 from labctl.run.diskspace import ensure_free, format_bytes
-from labctl.run.filekind import not_a_run_file
+from labctl.run.filekind import describe, is_binary_data, not_a_run_file
 from labctl.run.lab import Lab, build_real_lab, build_sim_lab
 from labctl.run.operator import Operator
 from labctl.run.overrides import ATTRIBUTE as OVERRIDES_ATTRIBUTE
@@ -243,6 +243,8 @@ def resume(
     if not run_file.is_file():
         raise InputError(f"run file {run_file} does not exist")
     if (wrong := not_a_run_file(run_file)) is not None:  # before opening it for writing, which would change it
+        if is_binary_data(run_file):  # a run file whose header was overwritten, or another binary file
+            raise _damaged(run_file, f"it is {describe(run_file)}: the HDF5 header is overwritten, or it was never a run file")
         raise InputError(wrong)
     reporter = Reporter(quiet=quiet)
     if into is not None:

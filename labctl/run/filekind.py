@@ -32,6 +32,26 @@ def is_hdf5(path: Path) -> bool:
         return False
 
 
+def _text(head: bytes) -> str | None:
+    """``head`` decoded, when it is printable UTF-8 text; None otherwise."""
+    try:  # incremental: a character cut at the 512th byte is not an error
+        text = codecs.getincrementaldecoder("utf-8")().decode(head, final=False)
+    except UnicodeDecodeError:
+        return None
+    return text if text and all(c.isprintable() or c in "\r\n\t" for c in text) else None
+
+
+def is_binary_data(path: Path) -> bool:
+    """True if ``path`` holds bytes that are neither empty, text nor HDF5 (a run file whose header was
+    overwritten looks like this; a wrong file given by mistake usually does not)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(512)
+    except OSError:
+        return False
+    return bool(head) and not is_hdf5(path) and _text(head) is None
+
+
 def describe(path: Path) -> str:
     """What ``path`` holds, as a phrase: "empty (0 bytes)", "a text file (it begins '...')", "an HDF5 file",
     or "neither text nor HDF5 (it begins with the bytes ...)"."""
@@ -44,11 +64,8 @@ def describe(path: Path) -> str:
         return "empty (0 bytes)"
     if is_hdf5(path):
         return "an HDF5 file"
-    try:  # incremental: a character cut at the 512th byte is not an error
-        text = codecs.getincrementaldecoder("utf-8")().decode(head, final=False)
-    except UnicodeDecodeError:
-        text = ""
-    if text and all(c.isprintable() or c in "\r\n\t" for c in text):
+    text = _text(head)
+    if text is not None:
         first = text.strip().splitlines()[0][:40] if text.strip() else ""
         return f"a text file (it begins {first!r})"
     return f"neither text nor HDF5 (it begins with the bytes {head[:8].hex(' ')})"
