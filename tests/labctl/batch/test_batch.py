@@ -24,6 +24,9 @@ from labctl.batch.inputs import expand_runs, run_names
 from labctl.batch.sweep import load_sweep
 from labctl.cli import main
 from labctl.errors import InputError
+from tests.conftest import REALTIME_GROUP
+
+pytestmark = pytest.mark.xdist_group(REALTIME_GROUP)  # a local Dask cluster takes both cores: never beside a realtime test
 
 SEEDS = [11, 12, 13, 14, 15, 16]
 #: four steps of 5 frames: the offset position and a wall at 1, 2 and 3 m (reconcile needs two comparable steps)
