@@ -89,11 +89,8 @@ def emulator() -> Iterator[GrblEmulator]:
 
 @pytest.fixture
 def link(emulator: GrblEmulator) -> Iterator[Link]:
+    emulator.wait_quiet(timeout_s=REPLY_WITHIN_S)  # the power-up banner written, then dropped as the port opens
     terminal = Link(emulator.port)
-    deadline, banner = time.monotonic() + REPLY_WITHIN_S, b""
-    while not banner.endswith(BANNER):  # the power-up banner, whenever the emulator's thread writes it
-        assert time.monotonic() < deadline, banner
-        banner += terminal.port.read(4096)
     yield terminal
     terminal.port.close()
 
