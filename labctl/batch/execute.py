@@ -72,7 +72,7 @@ def run_jobs(client: Client, jobs: Sequence[Job], progress: BatchProgress, ctrl_
     the tasks still pending and raises KeyboardInterrupt."""
     batch = uuid.uuid4().hex[:8]
     finished: queue.SimpleQueue[Future] = queue.SimpleQueue()
-    futures = {}
+    futures: dict[Future, Job] = {}
     for job in jobs:
         future = client.submit(job.function, *job.args, key=f"labctl-{batch}-{job.name}", pure=False)
         future.add_done_callback(finished.put)  # called on a thread of the client's
