@@ -20,6 +20,18 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # every worker starting a thread per core (oversubscribed, the suite ran twice as long)
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+#: the xdist group of the tests that need the CPU on time and of those that take every core
+REALTIME_GROUP = "realtime"
+
+
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """A test marked ``realtime`` runs in the xdist group of the same name (``--dist loadgroup``: on one
+    worker, one after another), where the batch tests' Dask clusters run too: never two of them at once.
+    (Marked as it is collected: pytest-xdist names the groups when the collection is modified.)"""
+    if item.get_closest_marker("realtime") is not None and item.get_closest_marker("xdist_group") is None:
+        item.add_marker(pytest.mark.xdist_group(REALTIME_GROUP))
+
+
 SMALL_MODEL = """\
 camera = "{camera}"
 [camera_overrides]

@@ -51,7 +51,7 @@ class Terminal:
         self.output += data.decode(errors="replace")
         return True
 
-    def expect(self, pattern: str, timeout: float = 60.0) -> re.Match[str]:
+    def expect(self, pattern: str, timeout: float = 120.0) -> re.Match[str]:
         """Wait until the output matches ``pattern`` (searched over everything printed so far)."""
         deadline = time.monotonic() + timeout
         while (found := re.search(pattern, self.output)) is None:
@@ -63,7 +63,7 @@ class Terminal:
     def type(self, text: str) -> None:
         os.write(self.master, text.encode())
 
-    def wait(self, timeout: float = 30.0) -> int:
+    def wait(self, timeout: float = 120.0) -> int:
         """The exit code; everything printed until then is in :attr:`output`."""
         deadline = time.monotonic() + timeout
         while self.process.poll() is None and time.monotonic() < deadline:

@@ -54,27 +54,34 @@ class Cluster:
 
 
 @contextmanager
-def _children_ignore_ctrl_c() -> Iterator[None]:
-    """Processes started inside ignore SIGINT: Ctrl-C at a terminal signals the whole foreground process
-    group, and the local cluster's workers would each die with a traceback. An ignored signal stays ignored
-    across exec, and Python then installs no KeyboardInterrupt handler (Python docs, ``signal``: "SIGINT is
-    translated into a KeyboardInterrupt exception if the parent process has not changed it"). This process
-    keeps its handler: it cancels the pending tasks and closes the cluster, which ends the workers. (A
-    Ctrl-C during the few seconds the workers take to start is not seen.)"""
+def _workers_block_ctrl_c() -> Iterator[None]:
+    """Threads and processes started inside never receive SIGINT: Ctrl-C at a terminal signals the whole
+    foreground process group, and the local cluster's workers would each die with a traceback.
+
+    SIGINT is blocked in this thread while the cluster starts. The cluster's event-loop thread starts here and
+    inherits the mask (``pthread_sigmask``: a new thread inherits its creator's signal mask), and so does
+    every thread it starts, among them those that start (and restart) the worker processes; a process keeps
+    its mask across fork and exec, so a worker holds Ctrl-C pending and never acts on it. multiprocessing's
+    resource tracker is started first: its start unblocks SIGINT in the thread that starts it. A Ctrl-C
+    during the start stays pending in this process and reaches its handler when this thread unblocks it."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 @contextmanager
 def open_client(cluster: Cluster) -> Iterator[Client]:
     """A connected Dask client of ``cluster``; a local cluster is closed on the way out. The local scheduler's
-    HTTP server (its dashboard when the ``bokeh`` package is installed) listens on a free port."""
+    HTTP server (its dashboard when the ``bokeh`` package is installed) listens on a free port. Used inside
+    :func:`labctl.batch.interrupt.deferred_ctrl_c`, Ctrl-C interrupts none of the client's calls."""
     from distributed import Client, LocalCluster
 
     scheduler = cluster.scheduler
@@ -88,7 +95,7 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
         finally:
             client.close()
         return
-    with _children_ignore_ctrl_c():
+    with _workers_block_ctrl_c():
         local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
                              dashboard_address=":0", silence_logs=logging.ERROR, env=WORKER_ENVIRONMENT)
     try:

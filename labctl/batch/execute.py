@@ -3,6 +3,7 @@ as they come, every run's summary returned in submission order."""
 
 from __future__ import annotations
 
+import queue
 import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -11,10 +12,11 @@ from typing import TYPE_CHECKING, Any
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from labctl.batch.interrupt import POLL_S, CtrlC
 from labctl.batch.tasks import Summary, error_message
 
 if TYPE_CHECKING:
-    from distributed import Client
+    from distributed import Client, Future
 
 
 @dataclass(frozen=True)
@@ -63,18 +65,26 @@ class BatchProgress:
         self.progress.stop()
 
 
-def run_jobs(client: Client, jobs: Sequence[Job], progress: BatchProgress) -> list[Summary]:
+def run_jobs(client: Client, jobs: Sequence[Job], progress: BatchProgress, ctrl_c: CtrlC) -> list[Summary]:
     """Every job as a Dask task (one worker process each, as many at once as the cluster has threads); the
     summaries in the order of ``jobs``. A task lost on the cluster (a worker killed, e.g. out of memory)
-    is reported like a failed run. Ctrl-C cancels the tasks still pending."""
-    from distributed import as_completed
-
+    is reported like a failed run. Ctrl-C (``ctrl_c``, checked every :data:`POLL_S` while waiting) cancels
+    the tasks still pending and raises KeyboardInterrupt."""
     batch = uuid.uuid4().hex[:8]
-    futures = {client.submit(job.function, *job.args, key=f"labctl-{batch}-{job.name}", pure=False): job
-               for job in jobs}
+    finished: queue.SimpleQueue[Future] = queue.SimpleQueue()
+    futures: dict[Future, Job] = {}
+    for job in jobs:
+        future = client.submit(job.function, *job.args, key=f"labctl-{batch}-{job.name}", pure=False)
+        future.add_done_callback(finished.put)  # called on a thread of the client's
+        futures[future] = job
     summaries: dict[str, Summary] = {}
     try:
-        for future in as_completed(futures):
+        while len(summaries) < len(jobs):
+            ctrl_c.check()
+            try:
+                future = finished.get(timeout=POLL_S)
+            except queue.Empty:
+                continue
             job = futures[future]
             try:
                 summary = future.result()

@@ -12,6 +12,7 @@ from labctl.batch.cluster import Cluster, open_client
 from labctl.batch.execute import BatchProgress, Job, run_jobs
 from labctl.batch.index import counts, write_index
 from labctl.batch.inputs import run_names
+from labctl.batch.interrupt import deferred_ctrl_c
 from labctl.batch.report import write_report
 from labctl.batch.sweep import Sweep, run_point
 from labctl.batch.tasks import Summary, process_run
@@ -31,11 +32,12 @@ class Outcome:
 
 
 def _run(jobs: Sequence[Job], cluster: Cluster, quiet: bool) -> list[Summary]:
-    with open_client(cluster) as client, BatchProgress(len(jobs), quiet) as progress:
+    with deferred_ctrl_c() as ctrl_c, open_client(cluster) as client, BatchProgress(len(jobs), quiet) as progress:
+        ctrl_c.check()  # pressed while the cluster started
         if not quiet:
             workers = len(client.scheduler_info(n_workers=-1)["workers"])
             progress.message(f"{len(jobs)} runs on {workers} Dask worker(s) at {client.scheduler.address}")
-        return run_jobs(client, jobs, progress)
+        return run_jobs(client, jobs, progress, ctrl_c)
 
 
 def batch_runs(paths: Sequence[Path], outdir: Path, evaluate: bool, reconcile: bool, model_text: str | None,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import pytest
 
@@ -29,8 +29,8 @@ def make_stage(emulator: GrblEmulator, **options: object) -> GrblStage:
         "travel_mm": (0.0, 400.0),
         "feed_mm_min": FEED,
         "timeout_s": FAST,
-        "home_timeout_s": 2.0,
-        "move_timeout_s": 5.0,
+        "home_timeout_s": 30.0,
+        "move_timeout_s": 60.0,  # longer than any move a test interrupts, however late the interruption
         "poll_interval_s": 0.005,
     }
     settings.update(options)
@@ -49,6 +49,22 @@ def stage(grbl_emulator: GrblEmulator) -> Iterator[GrblStage]:
 def homed(stage: GrblStage) -> GrblStage:
     stage.home()
     return stage
+
+
+def once_moving(emulator: GrblEmulator, action: Callable[[], object], beyond_mm: float = 0.0) -> threading.Thread:
+    """A started thread that calls ``action`` once the emulated axis jogs or runs (and is past ``beyond_mm``),
+    within a minute."""
+
+    def wait_then_act() -> None:
+        deadline = time.monotonic() + 60.0
+        while emulator.state not in ("Jog", "Run") or emulator.position_mm <= beyond_mm:
+            assert time.monotonic() < deadline, "the axis did not move"
+            time.sleep(0.005)
+        action()
+
+    thread = threading.Thread(target=wait_then_act)
+    thread.start()
+    return thread
 
 
 def jogs_sent(emulator: GrblEmulator) -> list[str]:
@@ -132,9 +148,8 @@ def test_each_error_code_maps_to_its_meaning(homed: GrblStage, grbl_emulator: Gr
 
 @pytest.mark.parametrize("code", sorted(ALARM_CODES))
 def test_each_alarm_during_a_move_maps_to_its_meaning(homed: GrblStage, grbl_emulator: GrblEmulator, code: int) -> None:
-    homed.feed_mm_min = 6000.0  # 4 s of travel; the alarm comes after 0.03 s
-    alarm = threading.Timer(0.03, grbl_emulator.inject_alarm, args=(code,))
-    alarm.start()
+    homed.feed_mm_min = 600.0  # 40 s of travel; the alarm comes once the axis moves
+    alarm = once_moving(grbl_emulator, lambda: grbl_emulator.inject_alarm(code))
     with pytest.raises(GrblAlarm) as caught:
         homed.move_to(399.0)
     alarm.join()
@@ -200,9 +215,8 @@ def test_slow_reply_times_out_then_recovers(homed: GrblStage, grbl_emulator: Grb
 
 
 def test_a_late_status_report_during_a_move_is_asked_for_again(homed: GrblStage, grbl_emulator: GrblEmulator) -> None:
-    homed.feed_mm_min = 30_000.0  # 0.8 s for 400 mm
-    late = threading.Timer(0.1, grbl_emulator.delay_replies, args=(FAST + 0.1,))
-    late.start()
+    homed.feed_mm_min = 6000.0  # 4 s for 400 mm; the late report comes while the axis moves
+    late = once_moving(grbl_emulator, lambda: grbl_emulator.delay_replies(FAST + 0.1))
     homed.move_to(400.0)
     late.join()
     assert grbl_emulator.position_mm == pytest.approx(400.0) and grbl_emulator.state == "Idle"
@@ -216,10 +230,9 @@ def test_garbage_reply(homed: GrblStage, grbl_emulator: GrblEmulator) -> None:
 
 
 def test_disconnect_during_a_move(homed: GrblStage, grbl_emulator: GrblEmulator) -> None:
-    homed.feed_mm_min = 6000.0
+    homed.feed_mm_min = 1200.0  # 20 s of travel; the cable goes once the axis moves
     port = grbl_emulator.port
-    cable = threading.Timer(0.05, grbl_emulator.disconnect)
-    cable.start()
+    cable = once_moving(grbl_emulator, grbl_emulator.disconnect)
     with pytest.raises(DeviceVanished, match="failed or vanished") as caught:
         homed.move_to(399.0)
     cable.join()
@@ -229,9 +242,8 @@ def test_disconnect_during_a_move(homed: GrblStage, grbl_emulator: GrblEmulator)
 
 
 def test_feed_hold_from_another_thread_interrupts_a_move(homed: GrblStage, grbl_emulator: GrblEmulator) -> None:
-    homed.feed_mm_min = 6000.0
-    hold = threading.Timer(0.05, homed.safe_state)
-    hold.start()
+    homed.feed_mm_min = 1200.0  # 20 s of travel; held once the axis is 1 mm on its way
+    hold = once_moving(grbl_emulator, homed.safe_state, beyond_mm=1.0)
     with pytest.raises(DeviceError, match="stopped at .* instead of 399.0 mm"):
         homed.move_to(399.0)
     hold.join()
@@ -239,7 +251,7 @@ def test_feed_hold_from_another_thread_interrupts_a_move(homed: GrblStage, grbl_
 
 
 def test_move_timeout_stops_the_jog(grbl_emulator: GrblEmulator) -> None:
-    stage = make_stage(grbl_emulator, move_timeout_s=0.05)
+    stage = make_stage(grbl_emulator, move_timeout_s=0.05, feed_mm_min=1200.0)  # 20 s: still moving, however late
     stage.connect()
     stage.home()
     with pytest.raises(DeviceError, match="still moving after 0.05 s; stopped"):

@@ -18,6 +18,8 @@ from drivers.stage.grbl import ALARM_CODES, ERROR_CODES
 from sim.emulators import GrblEmulator
 from tests.drivers.manuals import load
 
+pytestmark = pytest.mark.realtime  # transient states (a hold decelerating for 0.5 s) read on time
+
 BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
 UNLOCK = b"[MSG:'$H'|'$X' to unlock]\r\n"
 
@@ -35,6 +37,10 @@ def test_alarm_table_is_the_documented_list() -> None:
     assert ALARM_CODES == documented("alarm")
 
 
+#: seconds within which the emulator answers (generous: its thread may wait for a loaded CPU)
+REPLY_WITHIN_S = 10.0
+
+
 class Link:
     """Raw bytes to and from the emulator, as a terminal would send them."""
 
@@ -45,10 +51,10 @@ class Link:
         self.port.write(data)
 
     def expect(self, data: bytes, reply: bytes) -> None:
-        """Send ``data``; exactly ``reply`` must come back (waiting up to 2 s for its length,
+        """Send ``data``; exactly ``reply`` must come back (waiting up to REPLY_WITHIN_S for its length,
         then 0.1 s for anything more; 0.2 s when nothing is expected)."""
         self.port.write(data)
-        deadline, received = time.monotonic() + 2.0, b""
+        deadline, received = time.monotonic() + REPLY_WITHIN_S, b""
         while len(received) < len(reply) and time.monotonic() < deadline:
             received += self.port.read(4096)
         assert received + self.read(0.1 if reply else 0.2) == reply
@@ -63,13 +69,13 @@ class Link:
     def state(self) -> str:
         """The state from a status report; nothing else may arrive meanwhile."""
         self.port.write(b"?")
-        deadline, report = time.monotonic() + 2.0, b""
+        deadline, report = time.monotonic() + REPLY_WITHIN_S, b""
         while not report.endswith(b">\r\n") and time.monotonic() < deadline:
             report += self.port.read(4096)
         assert report.startswith(b"<"), report
         return report[1:].split(b"|")[0].decode()
 
-    def wait_for(self, state: str, timeout_s: float = 3.0) -> None:
+    def wait_for(self, state: str, timeout_s: float = 30.0) -> None:
         deadline = time.monotonic() + timeout_s
         while (now := self.state()) != state:
             assert time.monotonic() < deadline, f"still {now}, expected {state}"
@@ -83,8 +89,8 @@ def emulator() -> Iterator[GrblEmulator]:
 
 @pytest.fixture
 def link(emulator: GrblEmulator) -> Iterator[Link]:
+    emulator.wait_quiet(timeout_s=REPLY_WITHIN_S)  # the power-up banner written, then dropped as the port opens
     terminal = Link(emulator.port)
-    terminal.read(0.05)  # the power-up banner
     yield terminal
     terminal.port.close()
 

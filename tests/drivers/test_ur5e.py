@@ -76,6 +76,7 @@ def robot(host: str, **options: Any) -> UR5eRobot:
     return UR5eRobot(host, circle(), connect_timeout_s=0.3, **options)
 
 
+@pytest.mark.realtime
 def test_nothing_listening_is_a_quick_error_naming_the_host() -> None:
     host = loopback_host()
     start = time.monotonic()
@@ -84,6 +85,7 @@ def test_nothing_listening_is_a_quick_error_naming_the_host() -> None:
     assert time.monotonic() - start < 1.0
 
 
+@pytest.mark.realtime
 def test_a_silent_server_times_out(serve: Callable[[str, int, bytes | None], None]) -> None:
     host = loopback_host()
     serve(host, DASHBOARD_PORT, None)
@@ -100,6 +102,7 @@ def test_a_foreign_server_is_not_taken_for_a_robot(serve: Callable[[str, int, by
         robot(host).connect()
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("rtde_listens", [False, True])
 def test_a_dashboard_without_an_rtde_server(serve: Callable[[str, int, bytes | None], None], rtde_listens: bool) -> None:
     """ur-rtde itself would wait forever for a silent RTDE server; the probe does not."""

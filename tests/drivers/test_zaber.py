@@ -19,7 +19,12 @@ from tests.drivers.manuals import load
 DOCUMENTED_REASONS = [entry["code"] for entry in load("zaber_ascii.toml")["reason"]]
 DOCUMENTED_FAULTS = [entry["code"] for entry in load("zaber_ascii.toml")["flag"] if entry["code"].startswith("F")]
 
-FAST = 0.3  # driver reply timeout (s) in these tests
+#: driver reply timeout (s) in these tests: generous, the emulator's thread may wait for a loaded CPU
+REPLY_TIMEOUT_S = 3.0
+#: long enough for a move the test interrupts, however late its interruption comes
+MOVE_TIMEOUT_S = 60.0
+#: seconds within which a request that the emulator drops would have been answered
+FAST = 0.3
 MM_PER_MICROSTEP = 0.000125  # an unround resolution, so that a mm/microstep mix-up cannot pass
 
 
@@ -34,8 +39,8 @@ def make_stage(emulator: ZaberEmulator, **options: object) -> ZaberStage:
     settings: dict[str, object] = {
         "travel_mm": (0.0, 400.0),
         "mm_per_microstep": MM_PER_MICROSTEP,
-        "timeout_s": FAST,
-        "move_timeout_s": 5.0,
+        "timeout_s": REPLY_TIMEOUT_S,
+        "move_timeout_s": MOVE_TIMEOUT_S,
         "poll_interval_s": 0.005,
     }
     settings.update(options)
@@ -48,6 +53,14 @@ def stage(zaber_emulator: ZaberEmulator) -> Iterator[ZaberStage]:
     device.connect()
     yield device
     device.close()
+
+
+def wait_until_moving(emulator: ZaberEmulator, beyond_mm: float = 0.0) -> None:
+    """Until the carriage moves (and is past ``beyond_mm``), within a minute."""
+    deadline = time.monotonic() + 60.0
+    while not (emulator.moving and emulator.position_mm > beyond_mm):
+        assert time.monotonic() < deadline, "the carriage did not move"
+        time.sleep(0.005)
 
 
 @pytest.fixture
@@ -175,11 +188,11 @@ def test_homing_that_cannot_reach_the_home_sensor(stage: ZaberStage, zaber_emula
 
 
 def test_slow_reply_times_out_and_the_late_reply_is_ignored(homed: ZaberStage, zaber_emulator: ZaberEmulator) -> None:
-    zaber_emulator.delay_replies(FAST + 0.1)
+    zaber_emulator.delay_replies(REPLY_TIMEOUT_S + 0.5)
     with pytest.raises(SerialTimeout, match=r"expected '@01 1 \d\d \.\.\.' in reply to 'get pos'") as caught:
         homed.position_mm()
     assert isinstance(caught.value, TransientDeviceError)
-    zaber_emulator.delay_replies(0.05)  # the late reply now arrives while the next command waits
+    zaber_emulator.delay_replies(0.05)  # the late reply arrives while the next command waits (or before it)
     homed.move_to(7.0)
     assert homed.position_mm() == pytest.approx(7.0)
 
@@ -192,9 +205,9 @@ def test_garbage_reply(homed: ZaberStage, zaber_emulator: ZaberEmulator) -> None
 
 
 def test_disconnect_during_a_move(homed: ZaberStage, zaber_emulator: ZaberEmulator) -> None:
-    zaber_emulator.speed_mm_s = 100.0  # 4 s of travel; the cable goes after 0.05 s
+    zaber_emulator.speed_mm_s = 20.0  # 20 s of travel; the cable goes once the carriage moves
     port = zaber_emulator.port
-    cable = threading.Timer(0.05, zaber_emulator.disconnect)
+    cable = threading.Thread(target=lambda: (wait_until_moving(zaber_emulator), zaber_emulator.disconnect()))
     cable.start()
     with pytest.raises(DeviceVanished, match="failed or vanished") as caught:
         homed.move_to(399.0)
@@ -205,8 +218,8 @@ def test_disconnect_during_a_move(homed: ZaberStage, zaber_emulator: ZaberEmulat
 
 
 def test_stop_from_another_thread_interrupts_a_move(homed: ZaberStage, zaber_emulator: ZaberEmulator) -> None:
-    zaber_emulator.speed_mm_s = 100.0
-    stopper = threading.Timer(0.05, homed.safe_state)
+    zaber_emulator.speed_mm_s = 20.0  # 20 s of travel; stopped once the carriage has moved 1 mm
+    stopper = threading.Thread(target=lambda: (wait_until_moving(zaber_emulator, beyond_mm=1.0), homed.safe_state()))
     stopper.start()
     with pytest.raises(DeviceError, match="stopped at .* instead of 399.0 mm"):
         homed.move_to(399.0)
@@ -228,6 +241,7 @@ def test_move_timeout_stops_the_stage(zaber_emulator: ZaberEmulator) -> None:
     stage = make_stage(zaber_emulator)
     stage.connect()
     stage.home()  # with the default time limit: a loaded machine may need more than 0.05 s
+    zaber_emulator.speed_mm_s = 20.0  # 19 s of travel: still moving when the driver looks, however late
     stage.move_timeout_s = 0.05
     with pytest.raises(DeviceError, match="still moving after 0.05 s; sent stop"):
         stage.move_to(399.0)

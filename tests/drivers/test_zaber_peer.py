@@ -129,8 +129,8 @@ def test_motion_busy_move_while_moving_stop_and_estop(emulator: ZaberEmulator, c
     wait_idle(connection)
     assert command(connection, "get pos").warning_flag == "--"
     with emulator.lock:
-        emulator.speed_mm_s = 100.0
-    assert command(connection, "move abs 1600000").status == "BUSY"  # 200 mm at 100 mm/s
+        emulator.speed_mm_s = 10.0  # slow: every move below is still under way when the next command comes
+    assert command(connection, "move abs 1600000").status == "BUSY"  # 200 mm at 10 mm/s
     busy = command(connection, "get pos")
     assert busy.status == "BUSY" and 0 < int(busy.data) < 1_600_000
     replaced = command(connection, "move abs 80000")  # accepted while moving: the new target wins

@@ -6,14 +6,17 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import h5py
 import numpy as np
+import psutil
 import pytest
 
 from labctl.batch.calibration import null_calibration
@@ -21,6 +24,9 @@ from labctl.batch.inputs import expand_runs, run_names
 from labctl.batch.sweep import load_sweep
 from labctl.cli import main
 from labctl.errors import InputError
+from tests.conftest import REALTIME_GROUP
+
+pytestmark = pytest.mark.xdist_group(REALTIME_GROUP)  # a local Dask cluster takes both cores: never beside a realtime test
 
 SEEDS = [11, 12, 13, 14, 15, 16]
 #: four steps of 5 frames: the offset position and a wall at 1, 2 and 3 m (reconcile needs two comparable steps)
@@ -214,28 +220,92 @@ def test_cluster_options_are_checked(tmp_path: Path, monkeypatch: pytest.MonkeyP
             pass
 
 
-def test_ctrl_c_cancels_the_pending_runs_and_stops_the_cluster(serial: Path) -> None:
+def _workers(pid: int) -> list[psutil.Process]:
+    """The local cluster's worker processes of the command ``pid`` (multiprocessing's spawned children; its
+    resource tracker is not one)."""
+    try:
+        children = psutil.Process(pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        return []
+    workers = []
+    for child in children:
+        try:
+            if any("spawn_main" in arg for arg in child.cmdline()):
+                workers.append(child)
+        except psutil.Error:  # gone meanwhile
+            pass
+    return workers
+
+
+def _reads_a_run(workers: list[psutil.Process]) -> bool:
+    for worker in workers:
+        try:
+            if any(f.path.endswith(".h5") for f in worker.open_files()):
+                return True
+        except psutil.Error:
+            pass
+    return False
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+#: the moment of the Ctrl-C: (what the command is doing, whether it has happened yet, given the stderr lines so
+#: far and the command's pid)
+PHASES = {
+    "the cluster starts": lambda lines, pid: bool(_workers(pid)) and not lines,
+    "the tasks are submitted": lambda lines, pid: any(" runs on 1 Dask worker(s) at " in line for line in lines),
+    "a task runs": lambda lines, pid: _reads_a_run(_workers(pid)) and not any(" done in " in line for line in lines),
+    "results are gathered": lambda lines, pid: any(line.startswith(f"1/{len(SEEDS)} ") for line in lines),
+}
+
+
+@pytest.mark.parametrize("attempt", [1, 2])
+@pytest.mark.parametrize("phase", list(PHASES))
+def test_ctrl_c_cancels_the_pending_runs_and_stops_the_cluster(serial: Path, tmp_path: Path, phase: str,
+                                                                attempt: int) -> None:
     """Ctrl-C at the terminal (SIGINT to the command's whole process group, the cluster's worker processes
-    included) once the first run is done: exit 130 with one line and no traceback, the runs still pending never
-    evaluated, and no process of the group left behind."""
-    out = serial / "interrupted"
+    included) while the cluster starts, as the tasks are submitted, while the first runs and once it is done:
+    exit 130 with one line and no traceback, the runs still pending never evaluated, and no process of the
+    group left behind. The moment is an event seen from outside (a worker process started, a line on stderr,
+    a worker reading a run file), each phase twice."""
+    out = tmp_path / "interrupted"
     root = Path(__file__).resolve().parents[3]
     proc = subprocess.Popen([sys.executable, "-m", "labctl", "batch", "runs", str(serial / "runs"), "-o", str(out),
-                             "--workers", "1", "--quiet"], cwd=root, start_new_session=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--workers", "1"], cwd=root, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint)  # pytest started in the background ignores SIGINT,
+    # and so would the command: a terminal's Ctrl-C reaches a foreground command, which has its default handler
+    lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+    reader = threading.Thread(target=lambda: [lines.put(line.rstrip("\n")) for line in proc.stderr], daemon=True)
+    reader.start()
+    before: list[str] = []
     try:
         deadline = time.monotonic() + 300
-        while not list(out.glob("runs/*/evaluation/keyfigures.json")):
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "no run finished"
-            time.sleep(0.2)
+        while not PHASES[phase](before, proc.pid):
+            assert proc.poll() is None, f"the batch ended before {phase}: {before}"
+            assert time.monotonic() < deadline, f"not seen within 300 s: {phase}"
+            try:
+                before.append(lines.get(timeout=0.05))
+            except queue.Empty:
+                pass
         os.killpg(proc.pid, signal.SIGINT)
-        _, stderr = proc.communicate(timeout=120)
+        stdout = proc.stdout.read()
+        proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    reader.join(timeout=30)
+    after = []
+    while not lines.empty():
+        after.append(lines.get())
+    stderr = "\n".join(before + ["--- SIGINT ---"] + after)
     assert proc.returncode == 130, stderr
-    assert "Traceback" not in stderr and stderr.strip().splitlines()[-1] == "labctl: aborted", stderr
+    # after the Ctrl-C: a run that finished meanwhile may still be counted, then the one line
+    assert [line for line in after if line.strip() and " done in " not in line] == ["labctl: aborted"], stderr
+    assert stdout == ""
     assert len(list(out.glob("runs/*/evaluation/keyfigures.json"))) < len(SEEDS)
     deadline = time.monotonic() + 30
     while True:  # the cluster's processes end with the command

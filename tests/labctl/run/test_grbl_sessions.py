@@ -48,11 +48,21 @@ def move(capsys: pytest.CaptureFixture[str]) -> Callable[..., Session]:
     return session
 
 
-def raw(port: str, data: bytes) -> None:
-    """What an earlier session (or a terminal) sent, without waiting for answers."""
+#: seconds the emulator may take to act on bytes written to it (generous: its thread may wait for a loaded CPU)
+ACTS_WITHIN_S = 30.0
+
+
+def raw(port: str, data: bytes, grbl: GrblEmulator | None = None, state: str | None = None) -> None:
+    """What an earlier session (or a terminal) sent, without waiting for answers; with ``state``, until the
+    emulator's state (its ``?`` report, ``Hold`` matching ``Hold:0`` and ``Hold:1``) is that."""
     with serial.Serial(port, 115200, timeout=0.1) as link:
         link.write(data)
-        time.sleep(0.1)
+        link.flush()
+        if grbl is not None and state is not None:
+            deadline = time.monotonic() + ACTS_WITHIN_S
+            while not grbl.status_state.startswith(state):
+                assert time.monotonic() < deadline, f"after {data!r}: {grbl.status_state}, not {state}"
+                time.sleep(0.01)
 
 
 def test_two_sessions_back_to_back(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
@@ -63,28 +73,24 @@ def test_two_sessions_back_to_back(grbl: GrblEmulator, move: Callable[..., Sessi
 
 
 def test_a_session_after_a_feed_hold(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
-    raw(grbl.port, b"!")  # the former end-of-session stop: Hold:0, where no line is answered
-    assert grbl.status_state == "Hold:0"
+    raw(grbl.port, b"!", grbl, "Hold:0")  # the former end-of-session stop: Hold:0, where no line is answered
     result = move(grbl.port, "12.5")
     assert result.returncode == 0, result.stderr
     assert grbl.position_mm == pytest.approx(12.5) and grbl.status_state == "Idle"
 
 
 def test_a_session_after_a_held_program_does_not_resume_it(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
-    raw(grbl.port, b"G1X300F600\n")
-    time.sleep(0.1)
-    raw(grbl.port, b"!")
-    time.sleep(0.1)
+    raw(grbl.port, b"G1X300F600\n", grbl, "Run")
+    raw(grbl.port, b"!", grbl, "Hold")
     result = move(grbl.port, "12.5")
     assert result.returncode == 0, result.stderr
-    time.sleep(0.2)
+    time.sleep(0.2)  # a resumed G1 would move on meanwhile (on a busy machine this checks less, never fails)
     assert grbl.position_mm == pytest.approx(12.5) and grbl.status_state == "Idle"  # the G1 was flushed
 
 
 def test_a_session_after_an_alarm(grbl: GrblEmulator, move: Callable[..., Session]) -> None:
-    raw(grbl.port, b"$J=G53G90G21X300F6000\n")
-    raw(grbl.port, b"\x18")  # reset while jogging: ALARM:3
-    assert grbl.status_state == "Alarm"
+    raw(grbl.port, b"$J=G53G90G21X300F600\n", grbl, "Jog")  # 30 s: still jogging when the reset comes
+    raw(grbl.port, b"\x18", grbl, "Alarm")  # reset while jogging: ALARM:3
     refused = move(grbl.port, "12.5")  # no terminal to ask: the alarm stays
     assert refused.returncode == 1
     assert "no terminal to ask" in refused.stderr and "stays locked" in refused.stderr
@@ -168,12 +174,12 @@ def test_campaigns_after_a_feed_hold_and_after_a_hard_limit(
     with GrblEmulator(max_travel_mm=400.0, max_rate_mm_min=120_000.0, start_mm=150.0) as grbl:
         path = tmp_path / "campaign.toml"
         path.write_text(campaign(f'protocol = "grbl"\nport = "{grbl.port}"', None))
-        raw(grbl.port, b"!")  # a hold left behind: every line would wait unanswered
-        assert grbl.status_state == "Alarm"  # the power-up homing lock ignores a hold
-        raw(grbl.port, b"$H\n")
-        time.sleep(0.1)
-        raw(grbl.port, b"!")
-        assert grbl.status_state == "Hold:0"
+        with serial.Serial(grbl.port, 115200, timeout=ACTS_WITHIN_S) as link:
+            link.write(b"!?")  # a hold left behind (every line would wait unanswered), then a status request
+            report = link.read_until(b">").rsplit(b"<", 1)[-1]
+        assert report.startswith(b"Alarm|"), report  # answered after the hold: the power-up homing lock ignored it
+        raw(grbl.port, b"$H\n", grbl, "Idle")
+        raw(grbl.port, b"!", grbl, "Hold:0")
         code, err = run("after_hold.h5")
         assert (code, err) == (0, ""), err
         assert grbl.status_state == "Idle"

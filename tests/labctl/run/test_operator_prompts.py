@@ -98,7 +98,7 @@ def test_ctrl_c_at_a_prompt_aborts_at_once_and_the_run_resumes(tmp_path: Path, w
     try:
         terminal.expect(r"OPERATOR: mount the slanted-edge chart.*\n.*Press Enter when done \(Ctrl-C aborts safely\)")
         terminal.type("\x03")  # Ctrl-C, nothing else: no Enter follows
-        assert terminal.wait(timeout=15) == 130, terminal.output
+        assert terminal.wait() == 130, terminal.output
     finally:
         terminal.close()
     assert "interrupted by the operator (Ctrl-C); devices are in their safe state" in terminal.output
@@ -138,7 +138,7 @@ def test_resume_in_a_target_block_reconfirms_the_target(tmp_path: Path, write_ca
         terminal.expect("Press Enter when done")
         assert terminal.process.poll() is None  # it waits for the operator
         terminal.type("\r")
-        assert terminal.wait(timeout=60) == 0, terminal.output
+        assert terminal.wait() == 0, terminal.output
     finally:
         terminal.close()
     with h5py.File(out, "r") as f:

@@ -44,7 +44,7 @@ def test_ctrl_c_at_a_prompt_leaves_the_devices_safe_and_resume_moves_them_to_new
         try:
             terminal.expect(r"OPERATOR: mount the slanted-edge chart.*\n.*Press Enter when done", timeout=120)
             terminal.type("\x03")
-            assert terminal.wait(timeout=20) == 130, terminal.output
+            assert terminal.wait() == 130, terminal.output
         finally:
             terminal.close()
         assert "devices are in their safe state" in terminal.output and "Traceback" not in terminal.output
@@ -63,7 +63,7 @@ def test_ctrl_c_at_a_prompt_leaves_the_devices_safe_and_resume_moves_them_to_new
             terminal.expect(f"stage port: {stage.port}")
             terminal.expect(r"OPERATOR: mount the slanted-edge chart.*\n.*Press Enter when done", timeout=120)
             terminal.type("\x03")
-            assert terminal.wait(timeout=20) == 130, terminal.output
+            assert terminal.wait() == 130, terminal.output
         finally:
             terminal.close()
         # a later resume keeps the recorded stage port; the laser moved once more
@@ -76,7 +76,7 @@ def test_ctrl_c_at_a_prompt_leaves_the_devices_safe_and_resume_moves_them_to_new
                 terminal.type("\r")
                 terminal.expect(r"OPERATOR: cover the slanted-edge chart with the white sheet.*\n.*Press Enter when done")
                 terminal.type("\r")
-                assert terminal.wait(timeout=60) == 0, terminal.output
+                assert terminal.wait() == 0, terminal.output
             finally:
                 terminal.close()
             assert not third_laser.laser_on
