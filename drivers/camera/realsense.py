@@ -320,9 +320,12 @@ class RealSenseCamera:
         while True:
             try:
                 ok, frames = self._pipeline.try_wait_for_frames(20)
+                # "stopped" before the first frame may also be a playback whose reader has not started yet
+                # (seen on a loaded machine): only the frame timeout ends a recording that delivered nothing
                 ended = (
                     not ok
                     and self.playback is not None
+                    and (self._delivered > 0 or time.monotonic() > deadline)
                     and self._profile.get_device().as_playback().current_status() == rs.playback_status.stopped
                 )
                 if ended:  # frames still queued arrive within a moment
