@@ -248,14 +248,15 @@ def carry_over(source: Path, target: Path, report: Callable[[str], None]) -> Sal
                 if name in src:
                     src.copy(src[name], dst, name=name)
             steps = dst.create_group("steps")
-            if STEP_INDEX in src:
-                create_step_index(dst, src[STEP_INDEX].shape[0])
+            length = _index_length(src)
+            if length is not None:
+                create_step_index(dst, length)
             compression = str(src.attrs.get("compression", "none"))
             groups, _ = _locate_steps(src)
             for step_id in salvage.complete:
                 copy = steps.create_group(step_id)
                 _copy_step(groups[step_id], copy, compression)
-                if STEP_INDEX in dst and int(copy.attrs["index"]) < dst[STEP_INDEX].shape[0]:
+                if length is not None and 0 <= int(copy.attrs["index"]) < length:
                     dst[STEP_INDEX][int(copy.attrs["index"])] = copy.ref
                 report(f"recovered {step_id}")
             dst.flush()
@@ -265,6 +266,14 @@ def carry_over(source: Path, target: Path, report: Callable[[str], None]) -> Sal
         tmp.unlink(missing_ok=True)
         raise
     return salvage
+
+
+def _index_length(f: h5py.File) -> int | None:
+    """The length of the file's step index; None when it has none (written before it existed) or it cannot be read."""
+    try:
+        return int(f[STEP_INDEX].shape[0]) if STEP_INDEX in f else None
+    except READ_ERRORS:
+        return None
 
 
 def _copy_step(src: h5py.Group, dst: h5py.Group, compression: str) -> None:
