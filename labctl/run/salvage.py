@@ -240,8 +240,11 @@ def carry_over(source: Path, target: Path, report: Callable[[str], None]) -> Sal
     try:
         src, _ = _open(source)
         with src, h5py.File(tmp, "w") as dst:
-            for key, value in src.attrs.items():
-                dst.attrs[key] = value
+            for key in src.attrs.keys():
+                try:
+                    dst.attrs[key] = src.attrs[key]
+                except READ_ERRORS:  # e.g. a status whose flush was cut short: set below
+                    continue
             dst.attrs["status"] = "aborted"
             dst.attrs["status_reason"] = f"recovered from the damaged run file {source}"
             for name in ("devices", "camera", "sim"):

@@ -35,6 +35,11 @@ storage) is not reachable from h5py, would still rewrite several blocks per
 flush, and needs the largest number of steps fixed at creation. Files written
 before the index existed have none and are read and resumed as before.
 
+The run's status attributes are created with the file and changed in place
+(``attrs.modify``, HDF5's attribute write): the root's object header never grows
+into a new block, so a kill in a status flush can leave the new status unreadable
+(the file then counts as damaged; resume --into continues it), never the root.
+
 Why reserve rather than recover: HDF5 cannot take back a failed write. With a
 write failed, the next flush writes part of the dirty metadata (in-place updates
 succeed, appended ones fail), leaving committed structures pointing past the end
@@ -219,6 +224,7 @@ class RunWriter:
             raise DamagedRunFile(f"HDF5 cannot open it: {str(exc).splitlines()[0]}") from None
         try:
             _check_format(self.file, self.path)
+            dict(self.file.attrs)  # a status cut short by a kill in its flush: its new value never reached the disk
             self.file["steps"].keys()
         except (OSError, KeyError, RuntimeError, ValueError) as exc:
             self.file.close()
@@ -298,6 +304,7 @@ class RunWriter:
                 created=now_iso(),
                 campaign_toml=campaign_toml,
                 status="running",
+                status_reason="",
                 simulated=bool(simulated),
                 compression=compression,
             )
@@ -383,8 +390,8 @@ class RunWriter:
             self._reopen()
         self._reserve(METADATA_ALLOWANCE, f"marking the run {status}")
         with self.guarded(f"status {status}"):
-            self.file.attrs["status"] = status
-            self.file.attrs["status_reason"] = reason
+            self.file.attrs.modify("status", status)  # in place (H5Awrite): the root's object header does not grow
+            self.file.attrs.modify("status_reason", reason)
             _fsync(self.file)
 
     # ------------------------------------------------------------------ steps
@@ -506,8 +513,13 @@ class StepRecord:
 
 
 def _attrs(obj: h5py.HLObject) -> dict[str, Any]:
+    """The object's attributes as Python values; one whose value cannot be read (its flush cut short) is left out."""
     out = {}
-    for key, value in obj.attrs.items():
+    for key in obj.attrs.keys():
+        try:
+            value = obj.attrs[key]
+        except (OSError, KeyError, RuntimeError, ValueError):
+            continue
         if isinstance(value, bytes):
             value = value.decode()
         elif isinstance(value, np.generic):

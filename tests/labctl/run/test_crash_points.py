@@ -12,7 +12,8 @@ children forked from this process (no interpreter start-up per instant), two at 
 then run in this process, and each resumed file is compared with the uninterrupted run step by step, bit for
 bit, and by its key figures for the first five and every file continued with --into. No committed step is
 lost: every step the run reported complete on stderr before the kill is among the steps that `resume` (in place
-or --into) carries over. ``CRASH_POINTS_SEED`` draws another set of instants (default 21).
+or --into) carries over. With strace, the run is also killed at each of its last writes (the last step's commit
+and the status change to complete). ``CRASH_POINTS_SEED`` draws another set of instants (default 21).
 """
 
 from __future__ import annotations
@@ -39,7 +40,8 @@ from labctl.evaluation.evaluate import evaluate_runs
 from labctl.evaluation.keyfigures import clean
 
 INSTANTS = 50
-PWRITES = 352  # pwrite64 calls of one run of the default test campaign (strace -c); targets are drawn below it
+PWRITES = 359  # pwrite64 calls of one run of the default test campaign (strace -c); targets are drawn up to it
+LAST_WRITES = 9  # with strace, a kill at each of the last 9 of them too (the last commit and status flushes)
 
 
 def invoke(capsys, *args) -> tuple[int, str, str]:
@@ -140,6 +142,8 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
             instants.append((out, rng.randint(1, PWRITES), None))
         else:
             instants.append((out, None, rng.uniform(0, run_s)))
+    if targeted:  # and each write of the last flushes: the last step's commit, the status change to complete
+        instants += [(tmp_path / f"last{n}.h5", n, None) for n in range(PWRITES - LAST_WRITES + 1, PWRITES + 1)]
 
     def kill(instant: tuple[Path, int | None, float | None]) -> tuple[Path, str, datetime]:
         out, write, delay = instant
@@ -179,6 +183,7 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
             checked_figures += 1
             assert figures(target) == expected, instant
     files = sum(1 for out, _, _ in plans if out.exists())
-    print(f"{INSTANTS} instants, {files} files, {into} continued --into ({index_lost} with the list of steps lost), "
+    print(f"{len(instants)} instants, {files} files, {into} continued --into ({index_lost} with the list of steps lost), "
           f"{len(lost)} losing committed steps")
     assert not lost, f"committed steps lost: {lost}"
+
