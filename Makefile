@@ -3,7 +3,7 @@
 #   make test  - the whole test suite
 # Both create (or refresh, when pyproject.toml changed) the virtual environment .venv, then check that
 # every native SDK imports (labctl/setup_check.py): as root a missing system library is installed with
-# apt-get, otherwise the set-up stops with the command to run. No root is needed on Debian/Ubuntu: the
+# apt-get (and so is the optional test tool strace), otherwise the set-up stops with the command to run. No root is needed on Debian/Ubuntu: the
 # one system library (libusb-1.0, for pyrealsense2) comes from the libusb-package wheel.
 
 PYTHON ?= $(shell for p in python3.11 python3.12 python3; do \

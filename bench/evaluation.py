@@ -31,7 +31,7 @@ def make_run(path: Path, width: int = WIDTH, height: int = HEIGHT, frames: int =
     camera = CameraInfo(width, height, (67.0, 51.0), 10.0, 30.0, 940.0, "uint16")
     run = RunWriter.create(
         path, campaign_toml="", simulated=True,
-        devices={"camera": (DeviceIdentity("bench", "bench", "0", "0"), {})}, camera=camera,
+        devices={"camera": (DeviceIdentity("bench", "bench", "0", "0"), {})}, camera=camera, steps=len(distances),
     )
     rng = np.random.default_rng(seed)
     noise = rng.standard_normal((frames + 7, height, width), dtype=np.float32)

@@ -54,7 +54,8 @@ def _store(directory: Path, frames: list[Frame], camera: CameraInfo, compression
     path = directory / f"run{tag}.h5"
     run = RunWriter.create(
         path, campaign_toml="", simulated=True,
-        devices={"camera": (DeviceIdentity("bench", "bench", "0", "0"), {})}, camera=camera, compression=compression,
+        devices={"camera": (DeviceIdentity("bench", "bench", "0", "0"), {})}, camera=camera, steps=1,
+        compression=compression,
     )
     writer = run.begin_step(Step(0, "depth_sweep", "wall", FRAMES), None)
     for k in range(FRAMES):

@@ -8,6 +8,9 @@ on a missing shared library (``libX.so.N: cannot open shared object file``, dlop
 check names it; a known Debian package is installed with apt-get when running as root
 (``--install``), otherwise the exact command is printed and the exit status is 1.
 
+Optional test tools (``TEST_TOOLS``) are installed the same way when missing (as root, ``--install``);
+without root the check names the command and still succeeds: the tests that use them run without them.
+
 Usage: ``python -m labctl.setup_check [--install] [--system-only]``
 (``--system-only``: do not fall back to the wheel's libusb, check the system's libraries).
 """
@@ -34,6 +37,9 @@ MODULES = (
 """Modules with native code that labctl or its tests import (pmd's roypy is optional: not on PyPI)."""
 DEBIAN_PACKAGES = {SONAME: DEBIAN_PACKAGE}
 """Shared libraries the check knows the Debian/Ubuntu package of."""
+TEST_TOOLS = {"strace": "strace"}
+"""Optional programs the tests use when present, with their Debian/Ubuntu package: strace lets
+tests/labctl/run/test_crash_points.py kill a run at a chosen write (without it, at random times only)."""
 _MISSING_LIBRARY = re.compile(r"([\w.+-]+\.so(?:\.[\w.]+)?): cannot open shared object file")
 
 
@@ -64,12 +70,35 @@ def apt_command(packages: Sequence[str], as_root: bool) -> list[str]:
     return command if as_root else ["sudo", *command]
 
 
+def _apt_install(packages: Sequence[str]) -> bool:
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    print(f"set-up check: installing {' '.join(packages)} with apt-get", file=sys.stderr)
+    return subprocess.run(["apt-get", "update", "-qq"], env=env).returncode == 0 and \
+        subprocess.run(apt_command(packages, True), env=env).returncode == 0
+
+
+def check_test_tools(install: bool) -> list[str]:
+    """Install the missing optional test tools with apt-get when ``install`` (as root); the packages of those
+    still missing, each named on stderr with the command that installs it."""
+    missing = [package for tool, package in TEST_TOOLS.items() if shutil.which(tool) is None]
+    if missing and install and shutil.which("apt-get"):
+        _apt_install(missing)
+        missing = [package for tool, package in TEST_TOOLS.items() if shutil.which(tool) is None]
+    if missing:
+        as_root = hasattr(os, "geteuid") and os.geteuid() == 0
+        print(f"set-up check: optional test tools missing (their tests run without them): {' '.join(missing)}; "
+              f"run: {' '.join(apt_command(missing, as_root))}", file=sys.stderr)
+    return missing
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m labctl.setup_check", description=__doc__.split("\n\n")[0])
     parser.add_argument("--install", action="store_true", help="as root: apt-get install missing system libraries")
     parser.add_argument("--system-only", action="store_true", help="do not use the libusb shipped by libusb-package")
     args = parser.parse_args(argv)
     ensure_libusb(bundled=not args.system_only)
+    as_root = hasattr(os, "geteuid") and os.geteuid() == 0
+    check_test_tools(install=args.install and as_root)
     failures = check_imports(MODULES)
     if not failures:
         print("set-up check: every SDK imports")
@@ -79,13 +108,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     packages = [DEBIAN_PACKAGES[f.library] for f in failures if f.library in DEBIAN_PACKAGES]
     unknown = sorted({f.library for f in failures if f.library and f.library not in DEBIAN_PACKAGES})
     others = [f.module for f in failures if f.library is None]
-    as_root = hasattr(os, "geteuid") and os.geteuid() == 0
     if packages and args.install and as_root and shutil.which("apt-get") and not unknown and not others:
-        env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-        print(f"set-up check: installing {' '.join(packages)} with apt-get", file=sys.stderr)
-        installed = subprocess.run(["apt-get", "update", "-qq"], env=env).returncode == 0 and \
-            subprocess.run(apt_command(packages, True), env=env).returncode == 0
-        if installed:  # check again in a fresh process: this one has already failed to load the library
+        if _apt_install(packages):  # check again in a fresh process: this one has already failed to load the library
             rest = [a for a in (argv if argv is not None else sys.argv[1:]) if a != "--install"]
             return subprocess.run([sys.executable, "-m", "labctl.setup_check", *rest]).returncode
     if packages:

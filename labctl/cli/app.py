@@ -204,6 +204,7 @@ def run(
             simulated=sim,
             devices={role: (dev.identity(), dev.settings()) for role, dev in lab.devices().items()},
             camera=lab.camera.info(),
+            steps=len(config.steps()),
             sim=sim_record,
             compression=compression,
         )

@@ -132,7 +132,7 @@ def _capture_file(
     step = Step(index=0, procedure="capture", target="scene", frames=frames, exposure_us=exposure_us)
     writer = RunWriter.create(
         output, campaign_toml=description, simulated=False,
-        devices={"camera": (camera.identity(), camera.settings())}, camera=camera.info(),
+        devices={"camera": (camera.identity(), camera.settings())}, camera=camera.info(), steps=1,
     )
     try:
         steps = writer.begin_step(step, None)

@@ -6,6 +6,12 @@ the middle of one), garbage written over it. ``labctl resume DAMAGED`` then says
 recovered and ``labctl resume DAMAGED --into NEW.h5`` copies the header and every complete step
 whose data read back whole into NEW (written aside and renamed into place, like a new run), and
 the run continues there. DAMAGED itself is only read.
+
+Steps are found through the list of steps (``/steps``) and through the step index (``/step_index``),
+which reaches each committed step's group by its address: HDF5 rewrites the list of steps in place at
+every flush that adds a step, so a flush cut short can leave the list unreadable, while the index
+changes only by an 8-byte data write at a fixed address and the groups it points to never change after
+their commit. Files written before the index existed have only the list.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ import h5py
 
 from labctl.errors import InputError
 from labctl.run import compression as codecs
-from labctl.run.store import CHANNELS, FORMAT, existing_output_advice
+from labctl.run.store import CHANNELS, FORMAT, STEP_INDEX, create_step_index, existing_output_advice
 
 READ_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError)
 """What h5py raises on damaged structures: OSError (HDF5 errors, "addr overflow", "truncated file"),
@@ -47,10 +53,12 @@ class Salvage:
         """One paragraph for the operator."""
         if self.header is not None:
             return f"nothing can be recovered from {self.path}: its header cannot be read ({self.header})"
-        if self.index is not None:
+        if self.index is not None and not self.complete:
             return (f"its list of steps cannot be read ({self.index}): no step can be recovered, the campaign, "
                     "devices, camera and simulation can; in a new file the run starts over")
         text = f"{len(self.complete)} complete step(s) can be recovered"
+        if self.index is not None:
+            text = f"its list of steps cannot be read ({self.index}); from the step index, " + text
         if self.complete:
             text += f" ({self.complete[0]} .. {self.complete[-1]})"
         if self.lost:
@@ -142,6 +150,56 @@ def _step_readable(group: h5py.Group, cut: int) -> None:
         dataset[()]
 
 
+def _indexed_steps(f: h5py.File) -> dict[str, h5py.Group]:
+    """The step groups the step index points to, by step id (``<NNNNN>_<procedure>``, from the group's own
+    attributes); elements that are null or do not lead to step i's group are left out."""
+    found: dict[str, h5py.Group] = {}
+    try:
+        refs = f[STEP_INDEX][()] if STEP_INDEX in f else []
+    except READ_ERRORS:
+        return found
+    for i, ref in enumerate(refs):
+        if not ref:
+            continue
+        try:
+            group = f[ref]
+            if not isinstance(group, h5py.Group) or int(group.attrs["index"]) != i:
+                continue
+            procedure = group.attrs["procedure"]
+            procedure = procedure.decode() if isinstance(procedure, bytes) else str(procedure)
+        except READ_ERRORS:
+            continue
+        found[f"{i:05d}_{procedure}"] = group
+    return found
+
+
+def _locate_steps(f: h5py.File) -> tuple[dict[str, h5py.Group], str | None]:
+    """Every step group the file leads to (through the list of steps and the step index), by step id, and
+    why the list of steps cannot be read (None when it can)."""
+    groups = _indexed_steps(f)
+    try:
+        listed = f["steps"]
+        ids = list(listed.keys())
+    except READ_ERRORS as exc:
+        return dict(sorted(groups.items())), _first_line(exc)
+    for step_id in ids:
+        try:
+            group = listed[step_id]
+        except READ_ERRORS:
+            continue
+        indexed = groups.get(step_id)
+        if indexed is None or not _complete(indexed) or _complete(group):
+            groups[step_id] = group
+    return dict(sorted(groups.items())), None
+
+
+def _complete(group: h5py.Group) -> bool:
+    try:
+        return bool(group.attrs.get("complete", False))
+    except READ_ERRORS:
+        return False
+
+
 def inspect(path: Path) -> Salvage:
     """Read ``path`` (read-only) and report its readable header and complete steps."""
     salvage = Salvage(path)
@@ -156,14 +214,9 @@ def inspect(path: Path) -> Salvage:
         except READ_ERRORS as exc:
             salvage.header = _first_line(exc)
             return salvage
-        try:
-            ids = sorted(f["steps"].keys())
-        except READ_ERRORS as exc:
-            salvage.index = _first_line(exc)
-            return salvage
-        for step_id in ids:
+        groups, salvage.index = _locate_steps(f)
+        for step_id, group in groups.items():
             try:
-                group = f["steps"][step_id]
                 if not bool(group.attrs.get("complete", False)):
                     continue
                 _step_readable(group, cut)
@@ -187,17 +240,27 @@ def carry_over(source: Path, target: Path, report: Callable[[str], None]) -> Sal
     try:
         src, _ = _open(source)
         with src, h5py.File(tmp, "w") as dst:
-            for key, value in src.attrs.items():
-                dst.attrs[key] = value
+            for key in src.attrs.keys():
+                try:
+                    dst.attrs[key] = src.attrs[key]
+                except READ_ERRORS:  # e.g. a status whose flush was cut short: set below
+                    continue
             dst.attrs["status"] = "aborted"
             dst.attrs["status_reason"] = f"recovered from the damaged run file {source}"
             for name in ("devices", "camera", "sim"):
                 if name in src:
                     src.copy(src[name], dst, name=name)
             steps = dst.create_group("steps")
+            length = _index_length(src)
+            if length is not None:
+                create_step_index(dst, length)
             compression = str(src.attrs.get("compression", "none"))
+            groups, _ = _locate_steps(src)
             for step_id in salvage.complete:
-                _copy_step(src["steps"][step_id], steps.create_group(step_id), compression)
+                copy = steps.create_group(step_id)
+                _copy_step(groups[step_id], copy, compression)
+                if length is not None and 0 <= int(copy.attrs["index"]) < length:
+                    dst[STEP_INDEX][int(copy.attrs["index"])] = copy.ref
                 report(f"recovered {step_id}")
             dst.flush()
             os.fsync(dst.id.get_vfd_handle())
@@ -206,6 +269,14 @@ def carry_over(source: Path, target: Path, report: Callable[[str], None]) -> Sal
         tmp.unlink(missing_ok=True)
         raise
     return salvage
+
+
+def _index_length(f: h5py.File) -> int | None:
+    """The length of the file's step index; None when it has none (written before it existed) or it cannot be read."""
+    try:
+        return int(f[STEP_INDEX].shape[0]) if STEP_INDEX in f else None
+    except READ_ERRORS:
+        return None
 
 
 def _copy_step(src: h5py.Group, dst: h5py.Group, compression: str) -> None:

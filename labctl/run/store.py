@@ -18,8 +18,27 @@ The writer therefore
   unchanged), so no write inside the step can meet a full disk even when another
   process takes the free space meanwhile: the disk filling becomes DiskSpaceLow
   before the step writes anything, and the file stays as its last flush left it;
-* writes the step's attributes at the end, ``complete = True`` last, then
-  flushes and fsyncs.
+* writes the step's attributes at the end, ``complete = True`` last, then records
+  the step's group in the step index (``/step_index``), then flushes and fsyncs.
+
+Why a step index. HDF5 keeps ``/steps``'s links in an old-style symbol table (local
+heap, B-tree, symbol-table nodes) and rewrites it in place when a step is added,
+in the same flush as the blocks it now points to (a grown heap, a split node): a
+kill inside that flush can leave the list pointing past the end of the file. The
+index is a contiguous dataset of object references (group addresses) allocated
+when the file is created, so recording a step is an 8-byte data write at a fixed
+address (one pwrite of the dataset at the flush; no metadata moves), and the
+groups it points to never change after their commit: labctl.run.salvage reaches
+the committed steps through it when the list is unreadable. Keeping the table
+itself in place (H5Pset_sym_k, a local-heap size hint, pre-sized new-style link
+storage) is not reachable from h5py, would still rewrite several blocks per
+flush, and needs the largest number of steps fixed at creation. Files written
+before the index existed have none and are read and resumed as before.
+
+The run's status attributes are created with the file and changed in place
+(``attrs.modify``, HDF5's attribute write): the root's object header never grows
+into a new block, so a kill in a status flush can leave the new status unreadable
+(the file then counts as damaged; resume --into continues it), never the root.
 
 Why reserve rather than recover: HDF5 cannot take back a failed write. With a
 write failed, the next flush writes part of the dirty metadata (in-place updates
@@ -69,6 +88,8 @@ STATUSES = ("running", "complete", "aborted")
 METADATA_ALLOWANCE = 2**20
 """Bytes reserved beyond a step's worst-case frame data, and before a status change, for HDF5 metadata
 (object headers, attributes, group and chunk indices; a 10-step file of 100 frames each holds about 0.2 MB)."""
+STEP_INDEX = "step_index"
+"""Root dataset: element i holds an object reference to step i's group once the step is committed (docs/runfile.md)."""
 CHUNK_OVERHEAD = 16 + 64
 """Worst-case bytes a compressed chunk takes beyond its raw size (Blosc's header, BLOSC_MAX_OVERHEAD = 16)
 plus its share of the chunk index."""
@@ -186,6 +207,7 @@ class StepWriter:
                 self.group.attrs[key] = value
             self.group.attrs["finished"] = now_iso()
             self.group.attrs["complete"] = True
+            self.run.index_step(self.step.index, self.group)
             _fsync(self.run.file)
             release(self.run.file.id.get_vfd_handle())
 
@@ -203,6 +225,7 @@ class RunWriter:
             raise DamagedRunFile(f"HDF5 cannot open it: {str(exc).splitlines()[0]}") from None
         try:
             _check_format(self.file, self.path)
+            dict(self.file.attrs)  # a status cut short by a kill in its flush: its new value never reached the disk
             self.file["steps"].keys()
         except (OSError, KeyError, RuntimeError, ValueError) as exc:
             self.file.close()
@@ -212,6 +235,13 @@ class RunWriter:
             raise
         _keep_metadata_until_flush(self.file)
         self.failure: str | None = None
+
+    def index_step(self, index: int, group: h5py.Group) -> None:
+        """Record ``group`` as step ``index`` in the step index (files written before it existed have none):
+        a raw-data write of 8 bytes at a fixed address, no HDF5 metadata changes."""
+        index_dataset = self.file.get(STEP_INDEX)
+        if index_dataset is not None and 0 <= index < index_dataset.shape[0]:
+            index_dataset[index] = group.ref
 
     # ------------------------------------------------------------------ faults
     @contextmanager
@@ -256,11 +286,12 @@ class RunWriter:
         simulated: bool,
         devices: Mapping[str, tuple[DeviceIdentity, Mapping[str, Any]]],
         camera: CameraInfo,
+        steps: int,
         sim: tuple[str, int] | None = None,
         compression: str = codecs.DEFAULT,
     ) -> RunWriter:
-        """Create a new run file (atomically: written aside, then renamed into place); frames are
-        stored with ``compression`` (one of labctl.run.compression.COMPRESSIONS)."""
+        """Create a new run file (atomically: written aside, then renamed into place) for a campaign of
+        ``steps`` steps; frames are stored with ``compression`` (one of labctl.run.compression.COMPRESSIONS)."""
         path = Path(path)
         codecs.dataset_options(compression)  # an unknown name fails before anything is written
         if path.exists():
@@ -274,6 +305,7 @@ class RunWriter:
                 created=now_iso(),
                 campaign_toml=campaign_toml,
                 status="running",
+                status_reason="",
                 simulated=bool(simulated),
                 compression=compression,
             )
@@ -290,6 +322,7 @@ class RunWriter:
                 wavelength_nm=camera.wavelength_nm, confidence_dtype=camera.confidence_dtype,
             )
             f.create_group("steps")
+            create_step_index(f, steps)
             if sim is not None:
                 g = f.create_group("sim")
                 g.attrs.update(model_toml=sim[0], seed=int(sim[1]))
@@ -358,8 +391,8 @@ class RunWriter:
             self._reopen()
         self._reserve(METADATA_ALLOWANCE, f"marking the run {status}")
         with self.guarded(f"status {status}"):
-            self.file.attrs["status"] = status
-            self.file.attrs["status_reason"] = reason
+            self.file.attrs.modify("status", status)  # in place (H5Awrite): the root's object header does not grow
+            self.file.attrs.modify("status_reason", reason)
             _fsync(self.file)
 
     # ------------------------------------------------------------------ steps
@@ -414,6 +447,14 @@ class RunWriter:
         if self.file.id.valid:
             with self.guarded("closing"):
                 self.file.close()
+
+
+def create_step_index(f: h5py.File, steps: int) -> None:
+    """The root dataset indexing ``steps`` steps by object reference, all null: contiguous and allocated
+    (zero-filled) now, so that recording a step later writes only its element, at a fixed address."""
+    dcpl = _early_alloc_dcpl()
+    dcpl.set_fill_time(h5py.h5d.FILL_TIME_ALLOC)
+    f.create_dataset(STEP_INDEX, shape=(steps,), dtype=h5py.ref_dtype, dcpl=dcpl)
 
 
 def _errno_text(exc: OSError | RuntimeError) -> str:
@@ -473,8 +514,13 @@ class StepRecord:
 
 
 def _attrs(obj: h5py.HLObject) -> dict[str, Any]:
+    """The object's attributes as Python values; one whose value cannot be read (its flush cut short) is left out."""
     out = {}
-    for key, value in obj.attrs.items():
+    for key in obj.attrs.keys():
+        try:
+            value = obj.attrs[key]
+        except (OSError, KeyError, RuntimeError, ValueError):
+            continue
         if isinstance(value, bytes):
             value = value.decode()
         elif isinstance(value, np.generic):

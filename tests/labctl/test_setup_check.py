@@ -42,3 +42,14 @@ def test_without_the_wheel_libusb_a_missing_system_library_stops_with_the_apt_co
 def test_apt_command_uses_sudo_unless_root():
     assert apt_command(["libusb-1.0-0", "libusb-1.0-0"], as_root=True) == ["apt-get", "install", "-y", "libusb-1.0-0"]
     assert apt_command(["libusb-1.0-0"], as_root=False) == ["sudo", "apt-get", "install", "-y", "libusb-1.0-0"]
+
+
+def test_a_missing_optional_test_tool_is_named_with_its_command_and_the_check_still_passes(tmp_path):
+    """With a PATH holding neither strace nor apt-get (so nothing can be installed, even as root), the check
+    names strace and the command that installs it, and succeeds: the tests that use it run without it."""
+    result = subprocess.run([sys.executable, "-m", "labctl.setup_check", "--install"], capture_output=True, text=True,
+                            timeout=300, env={**os.environ, "PATH": str(tmp_path)})
+    assert result.returncode == 0, result.stderr
+    assert "every SDK imports" in result.stdout
+    prefix = "" if os.geteuid() == 0 else "sudo "
+    assert "optional test tools missing" in result.stderr and f"run: {prefix}apt-get install -y strace" in result.stderr

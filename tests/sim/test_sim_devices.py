@@ -92,7 +92,7 @@ def test_frames_depend_only_on_seed_step_and_index():
 def test_dry_run_spends_planned_lab_time_on_virtual_clock(tmp_path):
     campaign, lab = sim_lab()
     run = RunWriter.create(tmp_path / "r.h5", campaign_toml=campaign_text(), simulated=True,
-                           devices={}, camera=lab.camera.info(), sim=(MODEL, 3))
+                           devices={}, camera=lab.camera.info(), steps=len(campaign.steps()), sim=(MODEL, 3))
     reporter = Reporter(quiet=True)
     Runner(campaign, lab, run, reporter, Operator(True, reporter.message)).execute()
     planned = schedule(campaign)

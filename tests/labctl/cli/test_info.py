@@ -31,7 +31,7 @@ def interrupted_run(tmp_path):
     steps = parse_campaign(text).steps()
     path = tmp_path / "run.h5"
     run = RunWriter.create(path, campaign_toml=text, simulated=True,
-                           devices={"camera": (DeviceIdentity("sim", "cam", "1", "1"), {})}, camera=CAMERA)
+                           devices={"camera": (DeviceIdentity("sim", "cam", "1", "1"), {})}, camera=CAMERA, steps=len(steps))
     a = np.full((6, 8), 1000.0, np.float32)
     writer = run.begin_step(steps[0], stage_position_mm=1234.5)
     for k in range(steps[0].frames):

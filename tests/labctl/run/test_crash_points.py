@@ -6,10 +6,14 @@ run (strace injects SIGKILL at the N-th pwrite64, N drawn over all of a run's wr
 middle of a flush: some of a flush's metadata on disk, the rest not (without strace on the machine, every
 instant is a random time). A file that `resume` finds damaged
 (a flush cut short) is continued with `resume --into NEW.h5`, as its message says; where the cut flush was
-adding a step to the list of steps, that list cannot be read and the new file starts the run over. The runs are
+adding a step to the list of steps, that list cannot be read and the committed steps are carried over through the
+step index. The runs are
 children forked from this process (no interpreter start-up per instant), two at a time; info and resume
 then run in this process, and each resumed file is compared with the uninterrupted run step by step, bit for
-bit, and by its key figures for the first five and every file continued with --into.
+bit, and by its key figures for the first five and every file continued with --into. No committed step is
+lost: every step the run reported complete on stderr before the kill is among the steps that `resume` (in place
+or --into) carries over. With strace, the run is also killed at each of its last writes (the last step's commit
+and the status change to complete). ``CRASH_POINTS_SEED`` draws another set of instants (default 21).
 """
 
 from __future__ import annotations
@@ -17,11 +21,14 @@ from __future__ import annotations
 import multiprocessing
 import os
 import random
+import re
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime
 from pathlib import Path
 
 import h5py
@@ -33,7 +40,8 @@ from labctl.evaluation.evaluate import evaluate_runs
 from labctl.evaluation.keyfigures import clean
 
 INSTANTS = 50
-PWRITES = 352  # pwrite64 calls of one run of the default test campaign (strace -c); targets are drawn below it
+PWRITES = 359  # pwrite64 calls of one run of the default test campaign (strace -c); targets are drawn up to it
+LAST_WRITES = 9  # with strace, a kill at each of the last 9 of them too (the last commit and status flushes)
 
 
 def invoke(capsys, *args) -> tuple[int, str, str]:
@@ -48,18 +56,29 @@ def figures(run: Path) -> dict:
     return {name: clean(f.value) for name, f in evaluate_runs([run]).figures.items()}
 
 
-def _run_in_child(args: list[str], stop_first: bool) -> None:
-    """The forked child: ``labctl run`` (its imports already loaded: no interpreter start-up per instant)."""
+def _run_in_child(args: list[str], stop_first: bool, log: Path) -> None:
+    """The forked child: ``labctl run`` (its imports already loaded: no interpreter start-up per instant),
+    its progress messages line by line into ``log``."""
+    sys.stderr = open(log, "w", buffering=1)  # noqa: SIM115 (the child's stderr until it is killed)
     if stop_first:  # wait, stopped, for strace to attach
         os.kill(os.getpid(), signal.SIGSTOP)
     main(args)
 
 
 def start_run(campaign: Path, model: Path, out: Path, stop_first: bool = False) -> multiprocessing.Process:
-    args = ["run", str(campaign), "--sim", "--model", str(model), "-o", str(out), "--quiet"]
-    child = multiprocessing.get_context("fork").Process(target=_run_in_child, args=(args, stop_first))
+    args = ["run", str(campaign), "--sim", "--model", str(model), "-o", str(out)]
+    child = multiprocessing.get_context("fork").Process(target=_run_in_child, args=(args, stop_first, log(out)))
     child.start()
     return child
+
+
+def log(out: Path) -> Path:
+    return out.with_suffix(".log")
+
+
+def reported_complete(out: Path) -> set[str]:
+    """The steps the run reported complete (after their commit returned) before it was killed."""
+    return set(re.findall(r"^(\d{5}_\w+) complete", log(out).read_text(), re.MULTILINE))
 
 
 def kill_after(child: multiprocessing.Process, out: Path, delay_s: float) -> str:
@@ -114,7 +133,7 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
     assert child.exitcode == 0
     run_s = time.monotonic() - started
 
-    rng = random.Random(21)
+    rng = random.Random(int(os.environ.get("CRASH_POINTS_SEED", "21")))
     targeted = shutil.which("strace") is not None
     instants = []
     for i in range(INSTANTS):
@@ -123,12 +142,16 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
             instants.append((out, rng.randint(1, PWRITES), None))
         else:
             instants.append((out, None, rng.uniform(0, run_s)))
+    if targeted:  # and each write of the last flushes: the last step's commit, the status change to complete
+        instants += [(tmp_path / f"last{n}.h5", n, None) for n in range(PWRITES - LAST_WRITES + 1, PWRITES + 1)]
 
-    def kill(instant: tuple[Path, int | None, float | None]) -> tuple[Path, str]:
+    def kill(instant: tuple[Path, int | None, float | None]) -> tuple[Path, str, datetime]:
         out, write, delay = instant
         if write is not None:
-            return out, kill_at_write(start_run(campaign, model, out, stop_first=True), write)
-        return out, kill_after(start_run(campaign, model, out), out, delay)
+            what = kill_at_write(start_run(campaign, model, out, stop_first=True), write)
+        else:
+            what = kill_after(start_run(campaign, model, out), out, delay)
+        return out, what, datetime.now(UTC)  # the run is dead: every step it finished, it finished before this
 
     # two runs at a time; all are forked before this process evaluates anything (numba's OpenMP threads
     # would make a later fork unsafe)
@@ -137,8 +160,8 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
     expected = figures(reference)
     assert expected["z_precision_q90_mm"] is not None
 
-    into, index_lost, checked_figures = 0, 0, 0
-    for out, instant in plans:
+    into, index_lost, checked_figures, lost = 0, 0, 0, {}
+    for out, instant, killed in plans:
         if not out.exists():  # killed while it was created under a temporary name: the path holds nothing
             continue
         code, stdout, err = invoke(capsys, "info", out)
@@ -152,8 +175,15 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
             code, _, err = invoke(capsys, "resume", out, "--into", target, "--quiet")
         assert code == 0, f"{instant}: labctl resume {out}: {err}"
         assert_same_steps(target, reference, instant)
+        with h5py.File(target, "r") as f:  # a step run again after the kill finished after it
+            rerun = {s for s in reported_complete(out) if datetime.fromisoformat(f["steps"][s].attrs["finished"]) > killed}
+        if rerun:
+            lost[instant] = sorted(rerun)
         if target != out or checked_figures < 5:  # the key figures themselves for the first and every --into run
             checked_figures += 1
             assert figures(target) == expected, instant
-    files = sum(1 for out, _ in plans if out.exists())
-    print(f"{INSTANTS} instants, {files} files, {into} continued --into ({index_lost} with the list of steps lost)")
+    files = sum(1 for out, _, _ in plans if out.exists())
+    print(f"{len(instants)} instants, {files} files, {into} continued --into ({index_lost} with the list of steps lost), "
+          f"{len(lost)} losing committed steps")
+    assert not lost, f"committed steps lost: {lost}"
+

@@ -111,3 +111,64 @@ def test_a_destroyed_header_is_refused_with_a_message(aborted_run, tmp_path, cap
     assert code == 2 and f"{run} is damaged" in err and "nothing can be recovered" in err
     code, err = invoke(capsys, "resume", run, "--into", tmp_path / "new.h5")
     assert code == 2 and "nothing can be recovered" in err and not (tmp_path / "new.h5").exists()
+
+
+def point_list_of_steps_past_the_end(path) -> None:
+    """What a kill -9 in the middle of a flush that adds a step can leave: the /steps group's symbol table
+    message (HDF5 object header v1, message type 0x11: B-tree address, local heap address) pointing its local
+    heap past the end of the file, the block it was moved to never written."""
+    with h5py.File(path, "r") as f:
+        header = h5py.h5o.get_info(f["steps"].id).addr
+    with open(path, "rb") as f:
+        f.seek(header)
+        data = f.read(512)
+    position, messages = 16, int.from_bytes(data[2:4], "little")  # after the 16-byte prefix of a v1 header
+    for _ in range(messages):
+        kind = int.from_bytes(data[position:position + 2], "little")
+        size = int.from_bytes(data[position + 2:position + 4], "little")
+        if kind == 0x11:
+            overwrite(path, header + position + 8 + 8, (os.path.getsize(path) + 2**20).to_bytes(8, "little"))
+            return
+        position += 8 + size
+    raise AssertionError("no symbol table message in the header of /steps")
+
+
+def test_a_list_of_steps_pointing_past_the_end_loses_no_committed_step(aborted_run, tmp_path, capsys):
+    run, expected = aborted_run
+    point_list_of_steps_past_the_end(run)
+    with h5py.File(run, "r") as f, pytest.raises((OSError, KeyError, RuntimeError)):
+        list(f["steps"])
+
+    code, err = invoke(capsys, "resume", run)
+    assert code == 2 and "--into NEW.h5" in err and f"4 complete step(s) can be recovered ({STEPS[0]} .. {STEPS[3]})" in err
+    new = tmp_path / "new.h5"
+    code, err = invoke(capsys, "resume", run, "--into", new)
+    assert code == 0, err
+    assert all(f"recovered {step_id}" in err for step_id in STEPS[:4]) and f"recovered {STEPS[4]}" not in err
+    with h5py.File(run, "r") as damaged, h5py.File(new, "r") as f:
+        assert f.attrs["status"] == "complete" and sorted(f["steps"]) == STEPS
+        for i, step_id in enumerate(STEPS):  # the new file's index leads to every step
+            assert f[f["step_index"][i]].name == f"/steps/{step_id}"
+        for step_id in STEPS[:4]:  # carried over, not run again
+            assert f["steps"][step_id].attrs["finished"] == damaged[damaged["step_index"][int(step_id[:5])]].attrs["finished"]
+    assert figures(new) == expected
+
+
+def test_a_file_without_a_step_index_still_reads_and_resumes(aborted_run, tmp_path, capsys):
+    run, expected = aborted_run
+    with h5py.File(run, "r+") as f:  # as written before the step index existed
+        del f["step_index"]
+    code, err = invoke(capsys, "info", run)
+    assert code == 0, err
+    code, err = invoke(capsys, "resume", run, "--quiet")
+    assert code == 0, err
+    assert figures(run) == expected
+
+    point_list_of_steps_past_the_end(run)  # without the index, a lost list of steps loses the steps
+    new = tmp_path / "new.h5"
+    code, err = invoke(capsys, "resume", run, "--into", new)
+    assert code == 0, err
+    assert "no step can be recovered" in err and "recovered 0000" not in err
+    with h5py.File(new, "r") as f:
+        assert "step_index" not in f and sorted(f["steps"]) == STEPS
+    assert figures(new) == expected

@@ -100,13 +100,15 @@ def test_ctrl_c_at_a_prompt_leaves_the_devices_safe_and_resume_moves_them_to_new
 def aborted_run(tmp_path: Path, laser_port: str) -> Path:
     """A real-hardware run file stopped after connecting (no step done): written as labctl run leaves it."""
     from drivers.protocols import CameraInfo, DeviceIdentity
+    from labctl.run.config import parse_campaign
     from labctl.run.store import RunWriter
 
     text = campaign(stage_section("/dev/ttyUSB0"), laser_port)
     camera = CameraInfo(width=4, height=3, fov_deg=(60.0, 45.0), pixel_pitch_um=3.0, frame_rate_hz=30.0,
                         wavelength_nm=850.0)
     writer = RunWriter.create(tmp_path / "run.h5", campaign_toml=text, simulated=False,
-                              devices={"camera": (DeviceIdentity("realsense", "D435", "1", "1"), {})}, camera=camera)
+                              devices={"camera": (DeviceIdentity("realsense", "D435", "1", "1"), {})}, camera=camera,
+                              steps=len(parse_campaign(text).steps()))
     writer.set_status("aborted", "test")
     writer.close()
     return tmp_path / "run.h5"

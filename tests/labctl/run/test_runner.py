@@ -123,7 +123,7 @@ def build(tmp_path, write_campaign, small_model, wrap=None):
     run = RunWriter.create(
         tmp_path / "r.h5", campaign_toml=text, simulated=True,
         devices={r: (d.identity(), d.settings()) for r, d in lab.devices().items()},
-        camera=lab.camera.info(), sim=(model_text, 1),
+        camera=lab.camera.info(), steps=len(campaign.steps()), sim=(model_text, 1),
     )
     reporter = Reporter(quiet=True)
     return Runner(campaign, lab, run, reporter, Operator(True, reporter.message)), run, lab
@@ -263,7 +263,7 @@ def alignment_runner(tmp_path, write_campaign, small_model, operator_answers, ex
     run = RunWriter.create(
         tmp_path / "a.h5", campaign_toml=text, simulated=True,
         devices={r: (d.identity(), d.settings()) for r, d in lab.devices().items()},
-        camera=lab.camera.info(), sim=(model_text, 1),
+        camera=lab.camera.info(), steps=len(campaign.steps()), sim=(model_text, 1),
     )
     messages: list[str] = []
     operator = ScriptedOperator(list(operator_answers), messages.append)

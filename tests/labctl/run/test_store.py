@@ -21,7 +21,7 @@ def make_run(path, sim=None, **kwargs):
     return RunWriter.create(
         path, campaign_toml="[campaign]\nname='x'\n", simulated=sim is not None,
         devices={"camera": (DeviceIdentity("sim", "cam", "S1", "1.0"), {"exposure_us": 100})},
-        camera=CAMERA, sim=sim, **kwargs,
+        camera=CAMERA, sim=sim, **{"steps": 4, **kwargs},
     )
 
 
