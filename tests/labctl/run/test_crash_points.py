@@ -8,7 +8,7 @@ instant is a random time). A file that `resume` finds damaged
 (a flush cut short) is continued with `resume --into NEW.h5`, as its message says; where the cut flush was
 adding a step to the list of steps, that list cannot be read and the committed steps are carried over through the
 step index. The runs are
-children forked from this process (no interpreter start-up per instant), two at a time; info and resume
+children forked from a fork server with labctl imported (no interpreter start-up per instant), two at a time; info and resume
 then run in this process, and each resumed file is compared with the uninterrupted run step by step, bit for
 bit, and by its key figures for the first five and every file continued with --into. No committed step is
 lost: every step the run reported complete on stderr before the kill is among the steps that `resume` (in place
@@ -57,17 +57,24 @@ def figures(run: Path) -> dict:
 
 
 def _run_in_child(args: list[str], stop_first: bool, log: Path) -> None:
-    """The forked child: ``labctl run`` (its imports already loaded: no interpreter start-up per instant),
-    its progress messages line by line into ``log``."""
+    """The child: ``labctl run`` (its imports already loaded in the fork server: no interpreter start-up per
+    instant), its progress messages line by line into ``log``."""
     sys.stderr = open(log, "w", buffering=1)  # noqa: SIM115 (the child's stderr until it is killed)
     if stop_first:  # wait, stopped, for strace to attach
         os.kill(os.getpid(), signal.SIGSTOP)
     main(args)
 
 
+#: the runs are forked from a fork server, a fresh process with labctl imported: never from this process, whose
+#: earlier tests may have started numba's OpenMP threads (a fork is then refused: "fork() called from a process
+#: already using GNU OpenMP", and the child exits 1)
+RUNS = multiprocessing.get_context("forkserver")
+RUNS.set_forkserver_preload(["labctl.cli", __name__])
+
+
 def start_run(campaign: Path, model: Path, out: Path, stop_first: bool = False) -> multiprocessing.Process:
     args = ["run", str(campaign), "--sim", "--model", str(model), "-o", str(out)]
-    child = multiprocessing.get_context("fork").Process(target=_run_in_child, args=(args, stop_first, log(out)))
+    child = RUNS.Process(target=_run_in_child, args=(args, stop_first, log(out)))
     child.start()
     return child
 
@@ -153,8 +160,7 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
             what = kill_after(start_run(campaign, model, out), out, delay)
         return out, what, datetime.now(UTC)  # the run is dead: every step it finished, it finished before this
 
-    # two runs at a time; all are forked before this process evaluates anything (numba's OpenMP threads
-    # would make a later fork unsafe)
+    # two runs at a time
     with ThreadPoolExecutor(2) as pool:
         plans = list(pool.map(kill, instants))
     expected = figures(reference)
