@@ -169,13 +169,23 @@ def _describe(error: Any) -> str:
     return f"{where or 'model'}: {message}{shown}"
 
 
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+"""The first bytes of an HDF5 file (HDF5 File Format Specification, "Format Signature"): a run file given as a model."""
+
+
 def load_model(path: str | Path) -> tuple[SimModel, str]:
     """Read a model file; returns the model and its text (recorded under /sim)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(f"cannot read model file {path}: {exc}") from None
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ModelError(f"cannot read model file {path}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        kind = "an HDF5 file (a run file?)" if raw.startswith(HDF5_SIGNATURE) else "not text"
+        raise ModelError(f"model file {path} is {kind}, it begins with the bytes {raw[:8].hex(' ')}: a model file is "
+                         "TOML text (docs/simulation.md, Model files)") from None
     return parse_model(text, str(path)), text
 
 

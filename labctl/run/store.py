@@ -567,7 +567,8 @@ class RunReader:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise InputError(f"run file {self.path} does not exist")
+            what = "is not a regular file" if self.path.exists() else "does not exist"
+            raise InputError(f"run file {self.path} {what}")
         try:
             self.file = h5py.File(self.path, "r")
         except OSError as exc:

@@ -234,3 +234,18 @@ def test_a_sweep_whose_model_is_of_another_camera(capsys, tmp_path: Path) -> Non
     assert ("point p0000 (no grid): the model simulates camera 'blaze101', but the campaign's [devices.camera] "
             "backend = 'flexx2' is simulated as 'flexx2'; set [sweep] camera = \"blaze101\"") in err
     assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------------- a file that is no model
+def test_a_run_file_or_binary_data_given_as_the_model_is_named_for_what_it_is(capsys, tmp_path: Path) -> None:
+    (tmp_path / "campaign.toml").write_text(campaign_text())
+    run = tmp_path / "earlier.h5"
+    with h5py.File(run, "w"):
+        pass
+    binary = tmp_path / "model.toml"
+    binary.write_bytes(bytes([0xFF, 0xFE, 0x00, 0x01]) * 4)
+    for model, kind in ((run, "an HDF5 file (a run file?)"), (binary, "not text")):
+        code, _, err = labctl(capsys, "run", tmp_path / "campaign.toml", "--sim", "--model", model,
+                              "-o", tmp_path / "run.h5", "--quiet")
+        assert code == 2 and f"model file {model} is {kind}" in err and "a model file is TOML text" in err
+        assert "codec" not in err and not (tmp_path / "run.h5").exists()

@@ -524,3 +524,8 @@ def test_an_empty_output_name_is_refused(capsys, tmp_path: Path, blank_mask_run:
         code, _, err = labctl(capsys, *command, "-o", "")
         assert code == 2 and "-o '' is empty: give the output's name" in err, (command, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+def test_a_device_file_given_as_a_run_is_not_called_missing(capsys) -> None:
+    code, _, err = labctl(capsys, "info", "/dev/null")
+    assert code == 2 and "run file /dev/null is not a regular file" in err
