@@ -25,6 +25,11 @@ if TYPE_CHECKING:
 
 #: a worker's compiled kernels run on its one core (numba would start a thread per core in every worker)
 WORKER_ENVIRONMENT = {"NUMBA_NUM_THREADS": "1"}
+#: the local cluster's own log lines shown: none below CRITICAL. Its scheduler, nannies and workers log their
+#: errors with tracebacks (a worker's heartbeat that meets the scheduler already closing after a Ctrl-C is
+#: one, a race inside Dask's shutdown); the batch reports every run's outcome itself, a task lost on the
+#: cluster included, so those lines would only bury its own.
+CLUSTER_LOG_LEVEL = logging.CRITICAL
 #: seconds to wait for a remote scheduler before giving up
 CONNECT_TIMEOUT_S = 20.0
 
@@ -97,7 +102,7 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
         return
     with _workers_block_ctrl_c():
         local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
-                             dashboard_address=":0", silence_logs=logging.ERROR, env=WORKER_ENVIRONMENT)
+                             dashboard_address=":0", silence_logs=CLUSTER_LOG_LEVEL, env=WORKER_ENVIRONMENT)
     try:
         with Client(local) as client:
             yield client
