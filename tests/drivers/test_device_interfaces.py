@@ -2,12 +2,16 @@
 ``drivers/device.py`` and has every method of its protocol in ``drivers/protocols.py`` with the
 protocol's signature; a simulated device has no public method its protocol lacks."""
 
+import importlib
 import inspect
+import pkgutil
 from collections.abc import Iterator, Mapping
 from typing import Any
 
 import pytest
 
+import drivers
+import sim.devices
 from drivers.camera.blaze import PylonBlazeCamera
 from drivers.camera.flexx2 import Flexx2Camera
 from drivers.camera.gentl import GenTLCamera
@@ -65,7 +69,24 @@ def drift(protocol: type, cls: type) -> list[str]:
     return problems
 
 
-def test_every_kind_of_device_is_covered():
+def device_classes() -> set[type]:
+    """Every concrete class with ``connect`` and ``safe_state`` defined in ``drivers`` or ``sim/devices.py``."""
+    modules = [importlib.import_module(m.name) for m in pkgutil.walk_packages(drivers.__path__, "drivers.")]
+    return {
+        cls
+        for module in [*modules, sim.devices]
+        for _, cls in inspect.getmembers(module, inspect.isclass)
+        if cls.__module__ == module.__name__
+        and hasattr(cls, "connect")
+        and hasattr(cls, "safe_state")
+        and not getattr(cls, "_is_protocol", False)
+        and not inspect.isabstract(cls)
+    }
+
+
+def test_every_device_is_checked():
+    """A new adapter or simulated device must be listed above, with its protocol and base class."""
+    assert device_classes() == {cls for _, _, cls in IMPLEMENTATIONS}
     protocols = {protocol for protocol, _, _ in IMPLEMENTATIONS}
     assert protocols == {LinearStage, RangeMeter, Robot, DepthCamera}
     assert all(issubclass(protocol, Device) for protocol in protocols)
