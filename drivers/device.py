@@ -62,6 +62,7 @@ class BaseDevice(ABC):
         return self._identity
 
     def __enter__(self) -> Self:
+        """Connect."""
         self.connect()
         return self
 
@@ -71,6 +72,7 @@ class BaseDevice(ABC):
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
+        """Put the device in its safe state, then close it, also when the block raised."""
         self.safe_state()
         self.close()
 
