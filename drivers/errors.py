@@ -24,6 +24,12 @@ class DeviceError(RuntimeError):
         self.message = message
 
 
+def not_connected(device: str) -> DeviceError:
+    """The error for a command given to ``device`` (its name, which names its port or host)
+    before it was connected."""
+    return DeviceError(device, "not connected: call connect() first")
+
+
 class DeviceVanished(DeviceError):
     """The connection to the device is gone: an unplugged or failed USB-serial adapter, a dropped
     network link. Fatal for the run; ``connection`` is the port or host it was on, so the next

@@ -2,7 +2,8 @@
 
 Real adapters (``drivers/<kind>/...``) and simulated fakes (``sim/devices.py``)
 implement the same protocols, so procedures and the runner never know which
-one they drive. Units: millimetres, degrees, seconds, microseconds for exposure.
+one they drive; both derive from the base classes in ``drivers/device.py``.
+Units: millimetres, degrees, seconds, microseconds for exposure.
 """
 
 from __future__ import annotations

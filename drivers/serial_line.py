@@ -24,7 +24,7 @@ from typing import Any
 
 import serial
 
-from drivers.errors import DeviceError, DeviceVanished, SerialGarbage, SerialTimeout
+from drivers.errors import DeviceError, DeviceVanished, SerialGarbage, SerialTimeout, not_connected
 
 POLL_S = 0.02
 """Read timeout of one ``read()`` call: how often a wait checks its deadline."""
@@ -85,7 +85,7 @@ class SerialLine:
 
     def _port(self) -> serial.Serial:
         if self._serial is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
+            raise not_connected(self.name)
         return self._serial
 
     def _vanished(self, during: str, exc: OSError) -> DeviceVanished:

@@ -4,6 +4,8 @@ They run on the world's virtual clock and spend exactly the lab time that
 the campaign planner plans for (motion at the configured speeds; measurement and
 set-up from ``drivers.timing``; all without sleeping), draw their noise from per-step random streams and
 raise the same exceptions as real adapters when the fault injector says so.
+They derive from the adapters' base classes (``drivers/device.py``), so they offer
+the same interface.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 from typing import Any
 
+from drivers.device import BaseDevice, CameraDevice
 from drivers.errors import (
     CameraDisconnected,
     DroppedFrame,
@@ -38,25 +41,35 @@ def _serial_exchange(world: SimWorld, device: str) -> None:
         raise SerialGarbage(device, "reply does not parse: b'\\x8fg1g+00\\x03'")
 
 
-class SimStage:
+class SimDevice(BaseDevice):
+    """A simulated device in ``world``: nothing to open, close or stop, its identity known from the start."""
+
+    def __init__(self, world: SimWorld, name: str, identity: DeviceIdentity) -> None:
+        super().__init__(name)
+        self.world = world
+        self._identity = identity
+
+    def connect(self) -> None:
+        """Nothing to open."""
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    def safe_state(self) -> None:
+        """Nothing moves or emits between commands."""
+
+
+class SimStage(SimDevice):
     """Linear stage with travel limits and a constant speed."""
 
     def __init__(self, world: SimWorld, config: StageSettings) -> None:
-        self.world = world
+        identity = DeviceIdentity("sim", f"simulated {config.protocol} stage", "SIM-STAGE", "sim")
+        super().__init__(world, f"stage (simulated {config.protocol})", identity)
         self.config = config
-        self.name = f"stage (simulated {config.protocol})"
 
     def connect(self) -> None:
+        """The stage starts at the low end of its travel."""
         self.world.stage_position_mm = self.config.travel_mm[0]
-
-    def close(self) -> None:
-        pass
-
-    def safe_state(self) -> None:
-        pass
-
-    def identity(self) -> DeviceIdentity:
-        return DeviceIdentity("sim", f"simulated {self.config.protocol} stage", "SIM-STAGE", "sim")
 
     def settings(self) -> Mapping[str, Any]:
         return {"speed_mm_s": self.config.speed_mm_s, "travel_mm": list(self.config.travel_mm)}
@@ -78,30 +91,17 @@ class SimStage:
         return self.world.stage_position_mm
 
     def stop(self) -> None:
-        pass
+        """A simulated move has ended when :meth:`move_to` returns: nothing to stop."""
 
 
-class SimLaser:
+class SimLaser(SimDevice):
     """Laser distance meter: true distance + constant bias + Gaussian repeatability, 0.1 mm steps."""
 
-    name = "laser (simulated Dimetix)"
-
     def __init__(self, world: SimWorld) -> None:
-        self.world = world
+        identity = DeviceIdentity("sim", "simulated DAN-10-150", "SIM-LASER", "sim")
+        super().__init__(world, "laser (simulated Dimetix)", identity)
         self._readings = 0
         self._step = -1
-
-    def connect(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-    def safe_state(self) -> None:
-        pass
-
-    def identity(self) -> DeviceIdentity:
-        return DeviceIdentity("sim", "simulated DAN-10-150", "SIM-LASER", "sim")
 
     def settings(self) -> Mapping[str, Any]:
         return {"resolution_mm": self.world.lab.laser_resolution_mm}
@@ -118,27 +118,13 @@ class SimLaser:
         return round(value / lab.laser_resolution_mm) * lab.laser_resolution_mm
 
 
-class SimRobot:
+class SimRobot(SimDevice):
     """Robot carrying the camera on a circle; may enter a protective stop."""
 
-    name = "robot (simulated UR5e)"
-
     def __init__(self, world: SimWorld, config: RobotSettings) -> None:
-        self.world = world
+        super().__init__(world, "robot (simulated UR5e)", DeviceIdentity("sim", "simulated UR5e", "SIM-ROBOT", "sim"))
         self.config = config
         self.stopped = False
-
-    def connect(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-    def safe_state(self) -> None:
-        pass
-
-    def identity(self) -> DeviceIdentity:
-        return DeviceIdentity("sim", "simulated UR5e", "SIM-ROBOT", "sim")
 
     def settings(self) -> Mapping[str, Any]:
         return {"speed_deg_s": self.config.speed_deg_s}
@@ -162,18 +148,18 @@ class SimRobot:
         self.stopped = False
 
 
-class SimCamera:
+class SimCamera(SimDevice, CameraDevice):
     """Physical camera model: the world's scene seen through ToF or stereo sensor physics."""
 
     def __init__(self, world: SimWorld) -> None:
-        self.world = world
         profile = world.profile
+        identity = DeviceIdentity("sim", f"{profile.vendor} {profile.model} (simulated)", "SIM-CAMERA", "sim")
+        super().__init__(world, f"camera (simulated {profile.model})", identity)
         self.profile = profile
         if profile.technology == "tof":
             self.sensor: ToFSensor | StereoSensor = ToFSensor(profile, world.effects)
         else:
             self.sensor = StereoSensor(profile, world.effects)
-        self.name = f"camera (simulated {profile.model})"
         self.connected = False
         self.exposure_us = profile.exposure_us
         self._settings: dict[str, Any] = {}
@@ -181,16 +167,12 @@ class SimCamera:
         self._prepared: Any = None
 
     def connect(self) -> None:
+        """Capture works until :meth:`close` or a simulated disconnect."""
         self.connected = True
 
     def close(self) -> None:
+        """Capture fails until the next :meth:`connect`."""
         self.connected = False
-
-    def safe_state(self) -> None:
-        pass
-
-    def identity(self) -> DeviceIdentity:
-        return DeviceIdentity("sim", f"{self.profile.vendor} {self.profile.model} (simulated)", "SIM-CAMERA", "sim")
 
     def settings(self) -> Mapping[str, Any]:
         return {"exposure_us": self.exposure_us, **self._settings}

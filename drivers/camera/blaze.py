@@ -37,7 +37,8 @@ from drivers.camera.gentl import (
     read_scan3d,
     readable,
 )
-from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame, MissingSDKError
+from drivers.device import CameraDevice
+from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame, MissingSDKError, not_connected
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 
 DEVICE_CLASS = "BaslerGTC/Basler/GenTL_Producer_for_Basler_blaze_101_cameras"
@@ -161,23 +162,23 @@ def pylon_transport_layers(pylon: Any) -> list[str]:
     return [tl.GetDeviceClass() for tl in pylon.TlFactory.GetInstance().EnumerateTls()]
 
 
-class PylonBlazeCamera:
+class PylonBlazeCamera(CameraDevice):
     """A blaze through pypylon as a :class:`~drivers.protocols.DepthCamera` (``serial``: which one)."""
 
     def __init__(self, serial: str | None = None, *, timeout_s: float = 5.0) -> None:
         self.serial = serial
         self.timeout_s = timeout_s
-        self.name = f"Basler blaze {serial}" if serial else "Basler blaze"
+        super().__init__(f"Basler blaze {serial}" if serial else "Basler blaze")
         self._pylon: Any = None
         self._camera: Any = None
         self._nodes: PylonNodes | None = None
         self._scan3d = Scan3d()
         self._tick_hz = 1e9
         self._settings: dict[str, Any] = {}
-        self._identity: DeviceIdentity | None = None
 
     def connect(self) -> None:
-        """Find the blaze through the blaze GenTL producer's transport layer and open it."""
+        """Find the blaze through the blaze GenTL producer's transport layer and open it; its identity
+        is vendor, model, serial number and device version from pylon's device info."""
         if self._camera is not None:
             return
         pylon = self._pylon = import_sdk("pypylon.pylon", self.name, INSTALL_PYPYLON)
@@ -227,12 +228,6 @@ class PylonBlazeCamera:
             with contextlib.suppress(Exception):
                 self._camera.StopGrabbing()
 
-    def identity(self) -> DeviceIdentity:
-        """Vendor, model, serial number and device version from pylon's device info."""
-        if self._identity is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._identity
-
     def settings(self) -> Mapping[str, Any]:
         """Settings as applied and read back."""
         return dict(self._settings)
@@ -275,7 +270,7 @@ class PylonBlazeCamera:
 
     def _ready(self) -> PylonNodes:
         if self._nodes is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
+            raise not_connected(self.name)
         return self._nodes
 
     def _retrieve(self, k: int) -> Frame:

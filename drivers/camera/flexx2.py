@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from drivers.camera.frames import import_sdk, invalidate
-from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame
+from drivers.device import CameraDevice
+from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame, not_connected
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 
 INSTALL = (
@@ -56,7 +57,7 @@ def frame_from_points(points: np.ndarray, timestamp_us: float) -> Frame:
     return Frame(x, y, z, points[..., 4].astype(np.float32), confidence.astype(np.uint16), timestamp_us / 1e6)
 
 
-class Flexx2Camera:
+class Flexx2Camera(CameraDevice):
     """A pmd flexx2 as a :class:`~drivers.protocols.DepthCamera`: live (``serial`` = Royale camera ID,
     default the only one) or playing a ``.rrf`` recording (``playback``)."""
 
@@ -64,16 +65,18 @@ class Flexx2Camera:
         self.serial = serial
         self.playback = Path(playback) if playback is not None else None
         self.timeout_s = timeout_s
-        self.name = f"pmd flexx2 playback of {self.playback}" if self.playback else f"pmd flexx2 {serial or ''}".strip()
+        super().__init__(
+            f"pmd flexx2 playback of {self.playback}" if self.playback else f"pmd flexx2 {serial or ''}".strip()
+        )
         self._roypy: ModuleType | None = None
         self._camera: Any = None
         self._listener: Any = None
         self._frames: queue.Queue[tuple[np.ndarray, float]] = queue.Queue()
         self._settings: dict[str, Any] = {}
-        self._identity: DeviceIdentity | None = None
 
     def connect(self) -> None:
-        """Open the camera or recording through ``CameraManager``, initialize it and register the listener."""
+        """Open the camera or recording through ``CameraManager``, initialize it and register the listener;
+        its identity is the camera name and ID from Royale, and the Royale version."""
         if self._camera is not None:
             return
         roypy = self._roypy = import_sdk("roypy", self.name, INSTALL)
@@ -112,12 +115,6 @@ class Flexx2Camera:
             with contextlib.suppress(Exception):
                 if self._camera.isCapturing():
                     self._camera.stopCapture()
-
-    def identity(self) -> DeviceIdentity:
-        """Camera name and ID from Royale, and the Royale version."""
-        if self._identity is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._identity
 
     def settings(self) -> Mapping[str, Any]:
         """Use case and exposure as applied."""
@@ -177,7 +174,7 @@ class Flexx2Camera:
 
     def _ready(self) -> Any:
         if self._camera is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
+            raise not_connected(self.name)
         return self._camera
 
     def _check(self, status: Any, call: str) -> None:

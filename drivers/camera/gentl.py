@@ -30,7 +30,8 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from drivers.camera.frames import backproject, import_sdk, invalidate, pinhole_fov_deg
-from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame, MissingSDKError
+from drivers.device import CameraDevice
+from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame, MissingSDKError, not_connected
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 
 INSTALL = "pip install harvesters (it installs the genicam package too)"
@@ -313,7 +314,7 @@ GENERIC_SETTINGS = ("nodes", "focal_length_px", "principal_point_px")
 backend's own settings), and intrinsics for depth-only cameras whose producer lacks them."""
 
 
-class GenTLCamera:
+class GenTLCamera(CameraDevice):
     """A 3D camera behind a GenTL producer, via harvesters, as a :class:`~drivers.protocols.DepthCamera`.
 
     ``producers``: ``.cti`` files to load (default: those on ``GENICAM_GENTL64_PATH``);
@@ -334,20 +335,20 @@ class GenTLCamera:
         self.producers = [Path(p) for p in producers] if producers is not None else None
         self.serial = serial
         self.timeout_s = timeout_s
-        self.name = f"{profile.label} {serial}" if serial else profile.label
+        super().__init__(f"{profile.label} {serial}" if serial else profile.label)
         self._harvester: Any = None
         self._acquirer: Any = None
         self._nodes: GenApiNodes | None = None
         self._scan3d = Scan3d()
         self._intrinsics: tuple[float, tuple[float, float]] | None = None
         self._settings: dict[str, Any] = {}
-        self._identity: DeviceIdentity | None = None
         self._timeout_error: type[Exception] = TimeoutError
 
     # -- DepthCamera ----------------------------------------------------------------
 
     def connect(self) -> None:
-        """Load the producers, find the camera, open it and enable its components."""
+        """Load the producers, find the camera, open it and enable its components; the identity is
+        vendor, model, serial number and firmware version of the GenTL device."""
         if self._acquirer is not None:
             return
         core = import_sdk("harvesters.core", self.name, INSTALL)
@@ -409,12 +410,6 @@ class GenTLCamera:
             with contextlib.suppress(Exception):
                 if self._acquirer.is_acquiring():
                     self._acquirer.stop()
-
-    def identity(self) -> DeviceIdentity:
-        """Vendor, model, serial number and firmware version of the GenTL device."""
-        if self._identity is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._identity
 
     def settings(self) -> Mapping[str, Any]:
         """Settings as applied (read back from the camera where it reports them)."""
@@ -481,7 +476,7 @@ class GenTLCamera:
 
     def _ready(self) -> GenApiNodes:
         if self._nodes is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
+            raise not_connected(self.name)
         return self._nodes
 
     def _choose(self, infos: Sequence[Any], producers: Sequence[Path]) -> tuple[int, Any]:

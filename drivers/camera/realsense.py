@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from drivers.camera.frames import import_sdk, invalidate
-from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame
+from drivers.device import CameraDevice
+from drivers.errors import CameraDisconnected, DeviceError, DroppedFrame, not_connected
 from drivers.libusb import ensure_libusb
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 
@@ -90,7 +91,7 @@ def frame_from_frameset(
                  meta={"frame_number": depth.get_frame_number()})
 
 
-class RealSenseCamera:
+class RealSenseCamera(CameraDevice):
     """A RealSense D4xx as a :class:`~drivers.protocols.DepthCamera`.
 
     Live (``serial``: which camera, default the only one) it streams depth and left IR at
@@ -115,7 +116,9 @@ class RealSenseCamera:
         self.width, self.height, self.fps = width, height, fps
         self.timeout_s = timeout_s
         self.flush_frames = flush_frames
-        self.name = f"RealSense playback of {self.playback}" if self.playback else f"RealSense camera {serial or ''}".strip()
+        super().__init__(
+            f"RealSense playback of {self.playback}" if self.playback else f"RealSense camera {serial or ''}".strip()
+        )
         self._rs: ModuleType | None = None
         self._pipeline: Any = None
         self._profile: Any = None
@@ -126,13 +129,13 @@ class RealSenseCamera:
         self._filters: list[Any] = []
         self._settings: dict[str, Any] = {}
         self._exposure_us: float | None = None
-        self._identity: DeviceIdentity | None = None
 
     # -- DepthCamera ----------------------------------------------------------------
 
     def connect(self) -> None:
         """Find the camera (``rs.context().query_devices()``) and start streaming, or check the
-        recording (``rs.config.resolve``) and read its streams."""
+        recording (``rs.config.resolve``) and read its streams. The identity is product name, serial
+        number and firmware from ``rs.camera_info`` (a recording keeps the recorded camera's)."""
         if self._profile is not None:
             return
         rs = self._rs = sdk()
@@ -165,12 +168,6 @@ class RealSenseCamera:
                 self._pipeline.stop()
         self._pipeline = None
 
-    def identity(self) -> DeviceIdentity:
-        """Product name, serial number and firmware from ``rs.camera_info`` (a recording keeps the recorded camera's)."""
-        if self._identity is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._identity
-
     def settings(self) -> Mapping[str, Any]:
         """Applied settings, exposure and (for recordings) the file played."""
         current = dict(self._settings)
@@ -184,7 +181,7 @@ class RealSenseCamera:
         """Resolution, FOV (``rs.rs2_fov`` of the depth intrinsics) and frame rate of the depth stream."""
         rs = self._rs
         if rs is None or self._profile is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
+            raise not_connected(self.name)
         stream = self._profile.get_stream(rs.stream.depth).as_video_stream_profile()
         fov = rs.rs2_fov(stream.get_intrinsics())
         model = self.identity().model
@@ -249,7 +246,7 @@ class RealSenseCamera:
 
     def _ready(self) -> ModuleType:
         if self._rs is None or self._profile is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
+            raise not_connected(self.name)
         return self._rs
 
     def _config(self) -> Any:

@@ -15,12 +15,11 @@ import re
 import threading
 import time
 from collections.abc import Mapping
-from types import TracebackType
 from typing import Any
 
+from drivers.device import SerialDevice
 from drivers.errors import DeviceError, SerialGarbage, SerialTimeout, TransientDeviceError
 from drivers.protocols import DeviceIdentity
-from drivers.serial_line import SerialLine
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +89,7 @@ def _error(device: str, command: str, code: int) -> DimetixError:
     return cls(device, command, code)
 
 
-class DimetixLaser:
+class DimetixLaser(SerialDevice):
     """A Dimetix DLS/FLS/D-series sensor as a :class:`~drivers.protocols.RangeMeter`.
 
     ``timeout_s`` bounds every reply; measuring a poor target can take seconds,
@@ -111,18 +110,15 @@ class DimetixLaser:
     ) -> None:
         if not 0 <= device_id <= 9:
             raise ValueError(f"Dimetix device ID must be 0..9, got {device_id}")
-        self.port = port
-        self.baud = baud
         self.device_id = device_id
         self.bytesize = bytesize
         self.parity = parity
         self.stopbits = stopbits
         self.timeout_s = timeout_s
-        self.name = f"Dimetix laser on {port}"
-        self._line = SerialLine(
-            self.name,
+        super().__init__(
             port,
             baud,
+            f"Dimetix laser on {port}",
             terminator=b"\r\n",
             timeout_s=timeout_s,
             bytesize=bytesize,
@@ -130,7 +126,6 @@ class DimetixLaser:
             stopbits=stopbits,
         )
         self._lock = threading.RLock()  # safe_state() may come from another thread
-        self._identity: DeviceIdentity | None = None
 
     # -- RangeMeter -----------------------------------------------------------------
 
@@ -181,10 +176,6 @@ class DimetixLaser:
             )  # fmt: skip
             return UNKNOWN
 
-    def close(self) -> None:
-        """Close the port (idempotent)."""
-        self._line.close()
-
     def safe_state(self) -> None:
         """Stop tracking (``sNc``) and switch the laser off (``sNp``); never raises.
 
@@ -193,12 +184,6 @@ class DimetixLaser:
         for command in ("c", "p"):
             with contextlib.suppress(Exception):  # a dead or missing port must not stop the safe-state sweep
                 self._request(command, "?")
-
-    def identity(self) -> DeviceIdentity:
-        """Serial number and software version read at :meth:`connect`."""
-        if self._identity is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._identity
 
     def settings(self) -> Mapping[str, Any]:
         """Serial line settings and device ID."""
@@ -247,19 +232,6 @@ class DimetixLaser:
     def stop_tracking(self) -> None:
         """Stop tracking (manual, "STOP/CLEAR command (sNc)")."""
         self._request("c", "?")
-
-    def __enter__(self) -> DimetixLaser:
-        self.connect()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.safe_state()
-        self.close()
 
     # -- serial exchange ----------------------------------------------------------------
 

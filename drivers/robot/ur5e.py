@@ -24,12 +24,12 @@ import struct
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from types import TracebackType
 from typing import Any
 
 import numpy as np
 
-from drivers.errors import DeviceError, DeviceVanished, LimitViolation, MissingSDKError, ProtectiveStop
+from drivers.device import LinkedDevice
+from drivers.errors import DeviceError, DeviceVanished, LimitViolation, MissingSDKError, ProtectiveStop, not_connected
 from drivers.protocols import DeviceIdentity
 from drivers.robot.circle import MeasurementCircle
 
@@ -176,7 +176,7 @@ def _from_controller(pose_m: Sequence[float]) -> np.ndarray:
     return np.array([*(1000.0 * v for v in pose_m[:3]), *pose_m[3:]], float)
 
 
-class UR5eRobot:
+class UR5eRobot(LinkedDevice):
     """A UR5e as a :class:`~drivers.protocols.Robot` moving the camera on a :class:`MeasurementCircle`.
 
     Limits: ``angle_limits_deg`` and ``radius_max_mm`` on the circle; ``tcp_box_mm``
@@ -211,7 +211,7 @@ class UR5eRobot:
             raise ValueError(f"joint_limits_deg needs six [min, max] pairs, got {len(joint_limits_deg)}")
         if tcp_box_mm is not None and len(tcp_box_mm) != 3:
             raise ValueError("tcp_box_mm needs three [min, max] pairs (x, y, z)")
-        self.host = host
+        super().__init__(host, f"UR5e at {host}")
         self.circle = circle
         self.angle_limits_deg = angle_limits_deg
         self.radius_max_mm = radius_max_mm
@@ -226,10 +226,13 @@ class UR5eRobot:
         self.connect_timeout_s = connect_timeout_s
         self.move_timeout_s = move_timeout_s
         self.poll_interval_s = poll_interval_s
-        self.name = f"UR5e at {host}"
         self._open_interfaces = interfaces
         self._rtde: RTDEInterfaces | None = None
-        self._identity: DeviceIdentity | None = None
+
+    @property
+    def host(self) -> str:
+        """The controller's network host (name or IP address)."""
+        return self.connection
 
     # -- Robot --------------------------------------------------------------------
 
@@ -280,12 +283,6 @@ class UR5eRobot:
         for stop in (rtde.control.stopL, rtde.control.stopJ):
             with contextlib.suppress(Exception):  # a lost connection must not stop the safe-state sweep
                 stop()
-
-    def identity(self) -> DeviceIdentity:
-        """Model, serial number and PolyScope version from the dashboard server."""
-        if self._identity is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._identity
 
     def settings(self) -> Mapping[str, Any]:
         """Circle geometry, limits and motion parameters."""
@@ -394,25 +391,12 @@ class UR5eRobot:
         rtde.control.reuploadScript()
         self._wait_for_control_script(rtde, "after recovery")
 
-    def __enter__(self) -> UR5eRobot:
-        self.connect()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.safe_state()
-        self.close()
-
     # -- helpers ------------------------------------------------------------------
 
     def _connected(self) -> RTDEInterfaces:
         """The clients, checked before every use: a command over a lost connection would wait forever."""
         if self._rtde is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
+            raise not_connected(self.name)
         if not _link_up(self._rtde):
             raise DeviceVanished(
                 self.name, f"the connection to the controller at {self.host} (RTDE port {RTDE_PORT}) was lost: check the "

@@ -31,12 +31,11 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
-from types import TracebackType
 from typing import Any
 
+from drivers.device import SerialDevice
 from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout
 from drivers.protocols import DeviceIdentity
-from drivers.serial_line import SerialLine
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +133,7 @@ class GrblAlarm(DeviceError):
         super().__init__(device, f"{context}: {label}: {self.meaning}")
 
 
-class GrblStage:
+class GrblStage(SerialDevice):
     """One axis (``axis``, e.g. ``"X"``) of a Grbl controller as a :class:`~drivers.protocols.LinearStage`.
 
     ``travel_mm`` are soft limits in machine coordinates, checked before every move;
@@ -167,8 +166,6 @@ class GrblStage:
             raise ValueError(f"axis must be one of {', '.join(AXES)}, got {axis!r}")
         if feed_mm_min <= 0:
             raise ValueError(f"feed_mm_min must be positive, got {feed_mm_min}")
-        self.port = port
-        self.baud = baud
         self.travel_mm = (float(low), float(high))
         self.axis = axis.upper()
         self.feed_mm_min = feed_mm_min
@@ -178,10 +175,8 @@ class GrblStage:
         self.poll_interval_s = poll_interval_s
         self.home_on_connect = home_on_connect
         self.confirm_unlock = confirm_unlock
-        self.name = f"Grbl stage ({self.axis} axis) on {port}"
-        self._line = SerialLine(self.name, port, baud, terminator=b"\n", timeout_s=timeout_s)
+        super().__init__(port, baud, f"Grbl stage ({self.axis} axis) on {port}", terminator=b"\n", timeout_s=timeout_s)
         self._lock = threading.RLock()
-        self._identity: DeviceIdentity | None = None
         self._grbl_settings: dict[str, str] = {}
         self._alarm: int | None = None
         self._reset_required = False
@@ -195,6 +190,8 @@ class GrblStage:
         Response Messages", "Real-time Status Reports", "Feedback Messages"). In the
         Alarm state it homes with ``home_on_connect``, else unlocks (``$X``) only if
         ``confirm_unlock`` agrees. With ``home_on_connect`` it runs the homing cycle.
+        The identity's firmware is the build version from ``$I``, its serial the ``$I`` user
+        string (Grbl has no serial number).
         """
         if self._line.is_open:
             return
@@ -222,10 +219,6 @@ class GrblStage:
             self.close()
             raise
 
-    def close(self) -> None:
-        """Close the port (idempotent)."""
-        self._line.close()
-
     def safe_state(self) -> None:
         """Stop motion and leave Grbl Idle for the next session (:meth:`stop`); never raises.
 
@@ -239,12 +232,6 @@ class GrblStage:
             log.warning("%s: safe state: %s", self.name, exc)
             with contextlib.suppress(Exception):
                 self._line.write(b"\x85!", "jog cancel and feed hold")
-
-    def identity(self) -> DeviceIdentity:
-        """Build version from ``$I``; the serial is the ``$I`` user string (Grbl has no serial number)."""
-        if self._identity is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._identity
 
     def settings(self) -> Mapping[str, Any]:
         """Configuration plus Grbl's ``$$`` settings as read at :meth:`connect`."""
@@ -329,19 +316,6 @@ class GrblStage:
             state = self._status_until(deadline)[0]
         if state == "Hold:0":  # at rest: a reset now keeps the position and leaves the hold
             self._soft_reset()
-
-    def __enter__(self) -> GrblStage:
-        self.connect()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.safe_state()
-        self.close()
 
     # -- state recovery -------------------------------------------------------------
 

@@ -18,12 +18,11 @@ import threading
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
-from types import TracebackType
 from typing import Any
 
+from drivers.device import SerialDevice
 from drivers.errors import DeviceError, LimitViolation, SerialGarbage, SerialTimeout
 from drivers.protocols import DeviceIdentity
-from drivers.serial_line import SerialLine
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +132,7 @@ class ZaberFlagError(DeviceError):
         super().__init__(device, f"{context}: warning flag {flag}: {self.meaning}")
 
 
-class ZaberStage:
+class ZaberStage(SerialDevice):
     """One axis of a Zaber device as a :class:`~drivers.protocols.LinearStage`.
 
     ``travel_mm`` are the soft limits checked before every move; ``mm_per_microstep``
@@ -164,8 +163,6 @@ class ZaberStage:
             raise ValueError(f"travel_mm must be (min, max) with min < max, got {travel_mm}")
         if mm_per_microstep <= 0:
             raise ValueError(f"mm_per_microstep must be positive, got {mm_per_microstep}")
-        self.port = port
-        self.baud = baud
         self.travel_mm = (float(low), float(high))
         self.mm_per_microstep = mm_per_microstep
         self.device = device
@@ -175,17 +172,16 @@ class ZaberStage:
         self.poll_interval_s = poll_interval_s
         self.home_on_connect = home_on_connect
         self.checksums = checksums
-        self.name = f"Zaber stage {device}/{axis} on {port}"
-        self._line = SerialLine(self.name, port, baud, terminator=b"\r\n", timeout_s=timeout_s)
+        super().__init__(port, baud, f"Zaber stage {device}/{axis} on {port}", terminator=b"\r\n", timeout_s=timeout_s)
         self._lock = threading.RLock()
         self._message_id = 0
-        self._identity: DeviceIdentity | None = None
         self._device_settings: dict[str, Any] = {}
 
     # -- LinearStage ----------------------------------------------------------------
 
     def connect(self) -> None:
-        """Open the port, read identity and travel range, and check ``travel_mm`` lies within it.
+        """Open the port, read identity (device ID, serial number, firmware version) and travel
+        range, and check ``travel_mm`` lies within it.
 
         Manual, "Command Reference": ``get deviceid``, ``get version``, ``get system.serial``,
         ``get limit.min``, ``get limit.max``, ``get maxspeed``. With ``home_on_connect`` it homes too.
@@ -201,20 +197,10 @@ class ZaberStage:
             self.close()
             raise
 
-    def close(self) -> None:
-        """Close the port (idempotent)."""
-        self._line.close()
-
     def safe_state(self) -> None:
         """Stop motion (``stop``); never raises."""
         with contextlib.suppress(Exception):  # a dead or missing port must not stop the safe-state sweep
             self.stop()
-
-    def identity(self) -> DeviceIdentity:
-        """Device ID, serial number and firmware version read at :meth:`connect`."""
-        if self._identity is None:
-            raise DeviceError(self.name, "not connected: call connect() first")
-        return self._identity
 
     def settings(self) -> Mapping[str, Any]:
         """Configuration and the device's own travel range and speed limit."""
@@ -268,19 +254,6 @@ class ZaberStage:
         """Decelerate to a stop and wait until idle (manual, ``stop``)."""
         self._send("stop", check_faults=False)
         self._wait_idle("stop", check_faults=False)
-
-    def __enter__(self) -> ZaberStage:
-        self.connect()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.safe_state()
-        self.close()
 
     # -- motion helpers -------------------------------------------------------------
 
