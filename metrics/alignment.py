@@ -28,6 +28,14 @@ class AlignmentFields:
     tilt_y_deg: float  # yaw: positive when the camera looks right (the right side is farther)
 
     def depths(self) -> dict[str, float]:
+        """Mean z (mm) of each corner field.
+
+        Examples
+        --------
+        >>> fields = {name: (0.0, 0.0, 1000.0 + k) for k, name in enumerate(CORNERS)}
+        >>> AlignmentFields(fields, tilt_x_deg=0.0, tilt_y_deg=0.0).depths()
+        {'top_left': 1000.0, 'top_right': 1001.0, 'bottom_left': 1002.0, 'bottom_right': 1003.0}
+        """
         return {name: xyz[2] for name, xyz in self.fields.items()}
 
 
@@ -38,6 +46,16 @@ def field_slices(height: int, width: int, field_px: int = 10, margin_px: int | N
     clear of the dark corners of a ToF image and of an active-stereo camera's
     invalid band along the left border (the D455's is f B / z, about 20 px at
     2 m on 640 px).
+
+    Examples
+    --------
+    A 200 x 100 image: margins of 10 % (10 rows, 20 columns), fields of 10 x 10 px.
+
+    >>> fields = field_slices(100, 200)
+    >>> fields["top_left"]
+    (slice(10, 20, None), slice(20, 30, None))
+    >>> fields["bottom_right"]
+    (slice(80, 90, None), slice(170, 180, None))
     """
     mr, mc = ((max(field_px, round(0.1 * height)), max(field_px, round(0.1 * width))) if margin_px is None
               else (margin_px, margin_px))
@@ -50,7 +68,18 @@ def field_slices(height: int, width: int, field_px: int = 10, margin_px: int | N
 
 def alignment_fields(x: np.ndarray, y: np.ndarray, z: np.ndarray, field_px: int = 10,
                      margin_px: int | None = None) -> AlignmentFields:
-    """Corner-field means of a (stack-mean) cloud and the tilt they imply."""
+    """Corner-field means of a (stack-mean) cloud and the tilt they imply.
+
+    Examples
+    --------
+    A wall whose depth grows by 0.1 mm per mm to the right and 0.2 mm per mm upwards (y grows
+    downwards): tilts of atan(0.1) = 5.711 deg (yaw) and atan(0.2) = 11.310 deg (pitch).
+
+    >>> y, x = np.mgrid[-50:50, -100:100].astype(float)
+    >>> fields = alignment_fields(x, y, 1000.0 + 0.1 * x - 0.2 * y)
+    >>> round(fields.tilt_y_deg, 3), round(fields.tilt_x_deg, 3)
+    (5.711, 11.31)
+    """
     means: dict[str, tuple[float, float, float]] = {}
     for name, (rows, cols) in field_slices(*z.shape, field_px, margin_px).items():
         part = [a[rows, cols] for a in (x, y, z)]

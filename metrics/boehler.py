@@ -172,7 +172,18 @@ def _ring_cluster_labels(ring: np.ndarray, theta: np.ndarray, gap_rad: float) ->
 
 def sector_bounds(segments: int, phase_rad: float) -> np.ndarray:
     """The four sector boundaries (rad), each at the slot centre nearest to 45, 135, 225, 315 deg (docs/metrics.md Böhler step 6);
-    ``phase_rad``: a filled segment's centre angle."""
+    ``phase_rad``: a filled segment's centre angle.
+
+    Examples
+    --------
+    24 segments, a filled one centred at 0 deg: slots centred at 15 + k 30 deg, 45 deg among them;
+    with the filled segment at 10 deg the slots nearest 45 deg lie at 55 deg (and 145, ...).
+
+    >>> np.round(np.degrees(sector_bounds(24, 0.0)), 6).tolist()
+    [45.0, 135.0, 225.0, 315.0]
+    >>> np.round(np.degrees(sector_bounds(24, np.radians(10.0))), 6).tolist()
+    [55.0, 145.0, 235.0, 325.0]
+    """
     pair = 4 * math.pi / segments
     slot = phase_rad + pair / 2
     return slot + np.round((_NOMINAL_BOUNDS - slot) / pair) * pair
@@ -182,7 +193,17 @@ def sectors(angle_rad: np.ndarray, segments: int, phase_rad: float) -> tuple[np.
     """Sector index (0-3, counted from the boundary near 45 deg) of each angle, and the filled segments of each
     sector (docs/metrics.md, Böhler star step 6). Sectors 0 and 2 are vertical (around 90 and 270 deg), 1 and 3 horizontal; every
     boundary lies at the slot centre nearest to its nominal 45 + k 90 deg, ``phase_rad`` being a filled
-    segment's centre angle."""
+    segment's centre angle.
+
+    Examples
+    --------
+    Angles 0, 90, 180, 270 deg lie in the sectors 3 (horizontal), 0 (vertical), 1, 2; each sector of
+    90 deg holds 3 of the 24 segments' 12 filled ones.
+
+    >>> index, filled = sectors(np.radians([0.0, 90.0, 180.0, 270.0]), 24, 0.0)
+    >>> index.tolist(), filled.tolist()
+    ([3, 0, 1, 2], [3, 3, 3, 3])
+    """
     bounds = sector_bounds(segments, phase_rad)
     relative = np.mod(np.asarray(angle_rad, float) - bounds[0], 2 * math.pi)
     index = np.searchsorted(np.mod(bounds - bounds[0], 2 * math.pi), relative, side="right") - 1
@@ -199,6 +220,19 @@ def evaluate_rings(radius_mm: np.ndarray, angle_rad: np.ndarray, inlier: np.ndar
     valid sample (1-D); ``inlier``: on the star. ``phase_rad``: the angle of a
     filled segment's centre (it places the sector boundaries in slots).
     Rings of ``ring_mm`` x ``binning`` from 0 to ``max_radius_mm``.
+
+    Examples
+    --------
+    Rings of 2 mm out to 50 mm, 720 samples each: a sharp 24-segment star (a filled segment centred at
+    7.5 deg) outside 20 mm, inside it every sample on the star (the segments merged into a disc). Each
+    orientation holds 6 filled segments; the rings are resolved from 20 mm on.
+
+    >>> theta = (np.arange(720) + 0.5) * 2 * np.pi / 720
+    >>> star = np.mod(theta * 12 / np.pi, 2) < 1
+    >>> radius, angle = np.repeat(np.arange(25) * 2.0 + 1.0, 720), np.tile(theta, 25)
+    >>> rings = evaluate_rings(radius, angle, (radius < 20) | np.tile(star, 25), 24, 50.0, np.radians(7.5))
+    >>> rings.expected_h, rings.expected_v, float(rings.radii_mm[rings.resolved_h].min()), bool(rings.resolved_h[10:].all())
+    (6, 6, 20.0, True)
     """
     if segments < 16 or segments % 2:
         raise ValueError(f"segments must be an even number >= 16, got {segments}")
@@ -247,6 +281,18 @@ def star_pattern(ring: np.ndarray, angle_rad: np.ndarray, inlier: np.ndarray, se
     inlier does not depend on the angle (samples with a fixed chance p each), |S|^2 / (n p (1 - p)) is
     exponentially distributed with mean 1: Z, the significance, exceeds t with probability exp(-t).
     ``ring``: ring index per sample; returns (M, Z) per ring, both 0 where every sample or none is an inlier.
+
+    Examples
+    --------
+    A ring of 720 samples on a sharp 24-segment star (half of them inliers, in 12 runs) and a ring on
+    a plain wall: depths 1 and 0; the star's significance is n 4 / pi^2 = 292.
+
+    >>> theta = (np.arange(720) + 0.5) * 2 * np.pi / 720
+    >>> star = np.mod(theta * 12 / np.pi, 2) < 1
+    >>> depth, significance = star_pattern(np.repeat([0, 1], 720), np.tile(theta, 2),
+    ...                                    np.concatenate([star, np.ones(720, bool)]), 24)
+    >>> np.round(depth, 2).tolist(), round(float(significance[0]))
+    ([1.0, 0.0], 292)
     """
     ring = np.asarray(ring, np.int64)
     n_rings = int(ring.max()) + 1 if ring.size else 0
@@ -263,7 +309,16 @@ def star_pattern(ring: np.ndarray, angle_rad: np.ndarray, inlier: np.ndarray, se
 
 
 def resolution_radius(radii_mm: np.ndarray, resolved: np.ndarray) -> float:
-    """Smallest radius from which every larger ring is resolved (docs/metrics.md, Böhler step 7); NaN if the outermost isn't."""
+    """Smallest radius from which every larger ring is resolved (docs/metrics.md, Böhler step 7); NaN if the outermost isn't.
+
+    Examples
+    --------
+    >>> radii = np.array([0.0, 2.0, 4.0, 6.0, 8.0])
+    >>> resolution_radius(radii, [False, True, False, True, True]), resolution_radius(radii, [True] * 5)
+    (6.0, 0.0)
+    >>> resolution_radius(radii, [True, True, True, True, False])
+    nan
+    """
     resolved = np.asarray(resolved, bool)
     if not resolved.size or not resolved[-1]:
         return math.nan
@@ -306,6 +361,18 @@ def find_star_plane(points: np.ndarray, tolerance_mm: float) -> tuple[np.ndarray
     ``tolerance_mm``; of those facing the camera (normal within 60 deg of the
     optical axis) the one with the smallest median depth wins and is refitted
     on all its points. ValueError if none qualifies.
+
+    Examples
+    --------
+    A 24-segment star of 200 mm radius 1000 mm away, the wall 1500 mm away seen through its slots and
+    around it (f = 200 px): the nearer plane, z = 1000 mm.
+
+    >>> v, u = np.mgrid[-50:50, -50:50] + 0.5
+    >>> on_star = (np.hypot(u, v) < 40) & (np.mod(np.arctan2(v, u) * 12 / np.pi, 2) < 1)
+    >>> z = np.where(on_star, 1000.0, 1500.0)
+    >>> normal, offset = find_star_plane(np.column_stack([(u * z / 200).ravel(), (v * z / 200).ravel(), z.ravel()]), 5.0)
+    >>> round(float(normal[2]), 6), round(offset, 6)
+    (1.0, 1000.0)
     """
     rng = np.random.default_rng(0)
     sample = points[rng.choice(len(points), min(len(points), _RANSAC_SAMPLE), replace=False)]
@@ -429,6 +496,18 @@ def find_centre(a: np.ndarray, b: np.ndarray, inlier: np.ndarray, weight: np.nda
     ``a``, ``b``: in-plane coordinates of every valid sample; ``weight``: their
     area; ``border_mm``: (K, 2) in-plane coordinates of the image border.
     Returns (centre, star radius, radius visible inside the image).
+
+    Examples
+    --------
+    A 24-segment star of radius 50 mm about (10, -5) mm, sampled every 1 mm, searched from (0, 0).
+
+    >>> b, a = np.mgrid[-80:80, -80:80] + 0.5
+    >>> da, db = a - 10.0, b + 5.0
+    >>> inlier = (np.hypot(da, db) < 50) & (np.mod(np.arctan2(db, da) * 12 / np.pi, 2) < 1)
+    >>> centre, radius, visible = find_centre(a.ravel(), b.ravel(), inlier.ravel(), np.ones(a.size), np.zeros(2),
+    ...                                       2.0, np.empty((0, 2)), 24)
+    >>> [round(c) for c in centre], round(radius), visible
+    ([10, -5], 50, inf)
     """
     centre, radius = _windowed_centroid(a, b, inlier, weight, start, width_mm)
     visible = float(np.min(np.hypot(*(border_mm - centre).T))) if len(border_mm) else math.inf
@@ -457,6 +536,20 @@ def star_coordinates(cloud: np.ndarray, result: BoehlerResult) -> tuple[np.ndarr
     """(radius mm, angle rad, inlier) per pixel of ``cloud`` in the star plane of ``result`` (docs/metrics.md, Böhler step 3).
 
     Angles run counter-clockwise as seen by the camera from the camera's x axis.
+
+    Examples
+    --------
+    The star of :func:`analyze_boehler`'s example: the pixel 40.5 px right of and 0.5 px below the
+    principal point sees the wall past the rim, along a ray that meets the star plane 202.5 mm right
+    of and 2.5 mm below the centre: radius 202.515 mm, angle -atan(2.5 / 202.5) = -0.707 deg.
+
+    >>> v, u = np.mgrid[-50:50, -50:50] + 0.5
+    >>> on_star = (np.hypot(u, v) < 40) & (np.mod(np.arctan2(v, u) * 12 / np.pi, 2) < 1)
+    >>> z = np.where(on_star, 1000.0, 1500.0)
+    >>> cloud = np.dstack([u * z / 200, v * z / 200, z])
+    >>> radius, angle, inlier = star_coordinates(cloud, analyze_boehler(cloud, 24))
+    >>> round(float(radius[50, 90]), 2), round(float(np.degrees(angle[50, 90])) - 360.0, 2), bool(inlier[50, 90])
+    (202.52, -0.71, False)
     """
     cloud = np.asarray(cloud, float)
     normal, offset = np.asarray(result.normal), result.plane_offset_mm
@@ -476,6 +569,11 @@ def auto_binning(spacing_mm: float, ring_mm: float = DEFAULT_RING_MM) -> int:
     there, so it falls apart into too many clusters well outside the sampling
     limit; two spacings put about two points across the ring at every angle.
     Never less than the default 2 (Thesis 2024, 5.1.3: 2 mm rings).
+
+    Examples
+    --------
+    >>> auto_binning(0.5), auto_binning(3.2), auto_binning(float("nan"))  # 2 spacings: 1 mm, 6.4 mm
+    (2, 7, 2)
     """
     if not math.isfinite(spacing_mm):
         return DEFAULT_BINNING
@@ -521,6 +619,20 @@ def analyze_boehler(cloud: np.ndarray, segments: int, *, inlier_mm: float = DEFA
     the binning from the median point spacing on the star (``auto_binning``:
     rings at least two spacings wide). ValueError on a malformed
     cloud, too few valid points or no star plane.
+
+    Examples
+    --------
+    A sharp 24-segment star of 200 mm radius facing the camera 1000 mm away, the wall 1500 mm away
+    (f = 200 px: 5 mm per pixel on the star).
+
+    >>> v, u = np.mgrid[-50:50, -50:50] + 0.5
+    >>> on_star = (np.hypot(u, v) < 40) & (np.mod(np.arctan2(v, u) * 12 / np.pi, 2) < 1)
+    >>> z = np.where(on_star, 1000.0, 1500.0)
+    >>> result = analyze_boehler(np.dstack([u * z / 200, v * z / 200, z]), 24)
+    >>> result.star_found, [round(c) for c in result.centre_mm], round(result.star_radius_mm, 3)
+    (True, [0, 0, 1000], 200.0)
+    >>> round(result.distance_mm, 3), round(result.sensor_h_mm, 3)
+    (1000.0, 5.0)
     """
     cloud = np.asarray(cloud, dtype=float)
     if cloud.ndim != 3 or cloud.shape[2] != 3:

@@ -64,6 +64,18 @@ def plane_fit(x: np.ndarray, y: np.ndarray, z: np.ndarray, noise_q90_mm: float) 
     """Fit a plane to the organized mean cloud (H, W) and judge whether the scene is planar (module docstring).
 
     None when fewer than 3 points are valid.
+
+    Examples
+    --------
+    z = 1000 + 0.1 x + 0.2 y: planar, 1000 mm on the axis, normal turned by -atan(0.2) = -11.310 deg
+    towards +y and -atan(0.1) = -5.711 deg towards +x, no residual.
+
+    >>> y, x = np.mgrid[-10:10, -10:10].astype(float)
+    >>> fit = plane_fit(x, y, 1000.0 + 0.1 * x + 0.2 * y, noise_q90_mm=1.0)
+    >>> fit.planar, round(fit.distance_on_axis_mm, 6), round(fit.tilt_about_x_deg, 3), round(fit.tilt_about_y_deg, 3)
+    (True, 1000.0, -11.31, -5.711)
+    >>> round(fit.rms_mm, 6)
+    0.0
     """
     ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & (z != 0)
     points = np.stack([x[ok], y[ok], z[ok]], axis=-1).astype(np.float64)
@@ -87,7 +99,19 @@ def plane_fit(x: np.ndarray, y: np.ndarray, z: np.ndarray, noise_q90_mm: float) 
 
 def summarize_capture(x: np.ndarray, y: np.ndarray, z: np.ndarray, intensity: np.ndarray | None = None
                       ) -> CaptureSummary:
-    """Maps and summary of (N, H, W) stacks of x, y, z (mm, NaN or 0 invalid) and optionally intensity."""
+    """Maps and summary of (N, H, W) stacks of x, y, z (mm, NaN or 0 invalid) and optionally intensity.
+
+    Examples
+    --------
+    Three frames of a wall at 1000 mm seen 1 mm nearer, at and 1 mm farther: all pixels valid,
+    median depth 1000 mm, temporal noise (sample std) 1 mm.
+
+    >>> y, x = np.mgrid[-2:2, -2:2].astype(float)
+    >>> z = np.stack([np.full(x.shape, 1000.0 + k) for k in (-1.0, 0.0, 1.0)])
+    >>> s = summarize_capture(np.broadcast_to(x, z.shape), np.broadcast_to(y, z.shape), z)
+    >>> s.frames, s.valid_fraction, s.depth_median_mm, s.temporal_noise_median_mm, s.plane.planar
+    (3, 1.0, 1000.0, 1.0, True)
+    """
     z = np.where(np.asarray(z) == 0, np.nan, np.asarray(z, dtype=np.float32))
     frames = z.shape[0]
     sz = stack_stats(z)

@@ -87,7 +87,13 @@ Grid = dict[tuple[int, int], np.ndarray]
 
 
 def pixel_aspect_ratio(fov_h_deg: float, fov_v_deg: float, width: int, height: int) -> float:
-    """Angular pixel height / angular pixel width (Thesis 2024, eq. 5-1, Table 6-2 "1 : ratio")."""
+    """Angular pixel height / angular pixel width (Thesis 2024, eq. 5-1, Table 6-2 "1 : ratio").
+
+    Examples
+    --------
+    >>> pixel_aspect_ratio(64.0, 60.0, 640, 480)  # (60 / 480) / (64 / 640) = 0.125 / 0.1
+    1.25
+    """
     return sensor_angular_resolution_deg(fov_v_deg, height) / sensor_angular_resolution_deg(fov_h_deg, width)
 
 
@@ -113,7 +119,15 @@ class Corners:
         return self.uv[np.flatnonzero((self.ij == 0).all(axis=1))[0]]
 
     def subset(self, keep: np.ndarray) -> Corners:
-        """The corners where ``keep`` is true."""
+        """The corners where ``keep`` is true.
+
+        Examples
+        --------
+        >>> corners = Corners(np.array([[10.0, 10.0], [30.0, 10.0], [50.0, 10.0]]), np.array([[-1, 0], [0, 0], [1, 0]]),
+        ...                   (20, 60), "given", (20.0, 20.0))
+        >>> corners.subset(np.array([False, True, True])).ij.tolist()
+        [[0, 0], [1, 0]]
+        """
         return Corners(self.uv[keep], self.ij[keep], self.image_shape, self.detector, self.tile_px)
 
 
@@ -341,6 +355,16 @@ def detect_corners(image: np.ndarray, pattern: tuple[int, int] | None = None) ->
     below half a tile) and the grid is grown to the image border. NaN pixels
     count as dark. Raises ValueError when no board of at least
     ``MIN_CORNERS`` corners (three per row and column) is found.
+
+    Examples
+    --------
+    A board of 20 px tiles, tile edges between pixels 19 and 20, 39 and 40, ...: 9 x 7 inner corners
+    at 19.5, 39.5, ...; the one nearest the image centre is (99.5, 79.5).
+
+    >>> v, u = np.mgrid[0:160, 0:200]
+    >>> corners = detect_corners(((u // 20 + v // 20) % 2) * 200.0 + 20.0)
+    >>> len(corners.uv), np.round(corners.centre_uv, 2).tolist(), np.round(corners.tile_px, 2).tolist()
+    (63, [99.5, 79.5], [20.0, 20.0])
     """
     image = np.asarray(image, dtype=float)
     if image.ndim != 2:
@@ -376,7 +400,18 @@ def refine_corners(image: np.ndarray, corners: Corners) -> np.ndarray:
     """The given corners refined again on another image of the same board (e.g. one frame of the stack whose
     mean they were found in): ``cornerSubPix`` from their positions, with the detector's normalization and
     half-window (below half a tile). Returns (N, 2) positions; NaN where a corner moved by more than a quarter
-    tile (refined onto another feature) or the image has no finite pixels."""
+    tile (refined onto another feature) or the image has no finite pixels.
+
+    Examples
+    --------
+    The same board moved by 2 px right and 1 px down: every corner follows.
+
+    >>> v, u = np.mgrid[0:160, 0:200]
+    >>> corners = detect_corners(((u // 20 + v // 20) % 2) * 200.0 + 20.0)
+    >>> moved = refine_corners((((u - 2) // 20 + (v - 1) // 20) % 2) * 200.0 + 20.0, corners)
+    >>> np.round(moved - corners.uv, 2).max(axis=0).tolist(), np.round(moved - corners.uv, 2).min(axis=0).tolist()
+    ([2.0, 1.0], [2.0, 1.0])
+    """
     image = np.asarray(image, dtype=float)
     finite = np.isfinite(image)
     out = np.full(corners.uv.shape, np.nan)
@@ -467,6 +502,19 @@ def distortion(corners: Corners, tile_mm: float, distance_mm: float,
     ``distance_mm``: camera - board distance; ``fov_deg``: the given
     (datasheet) [h, v] field of view. The principal point and the centre of
     radial distortion are taken at the image centre ((W-1)/2, (H-1)/2).
+
+    Examples
+    --------
+    A pinhole camera of 90 x 90 deg over 480 x 480 px (f = 240 px) sees 50 mm tiles 1000 mm away
+    12 px apart; with radial distortion k1 = 0.1 (R^2 = 115200 px^2) the outermost corner, 60 px
+    out in u and v, moves out by 60 x 0.1 x 7200 / 115200 = 0.375 px: 0.078 % of the width.
+
+    >>> ij = np.array([(i, j) for j in range(-5, 6) for i in range(-5, 6)])
+    >>> ideal = 12.0 * ij
+    >>> found = 239.5 + ideal * (1.0 + 0.1 * np.sum(ideal**2, axis=1, keepdims=True) / 115200.0)
+    >>> result = distortion(Corners(found, ij, (480, 480), "given", (12.0, 12.0)), 50.0, 1000.0, (90.0, 90.0))
+    >>> round(result.k1, 6), round(result.radial_distortion_w_pct, 3), [round(f, 3) for f in result.fov_estimate_deg]
+    (0.1, 0.078, [90.0, 90.0])
     """
     if tile_mm <= 0 or distance_mm <= 0:
         raise ValueError("tile size and distance must be positive")
@@ -530,7 +578,18 @@ def distortion(corners: Corners, tile_mm: float, distance_mm: float,
 # -------------------------------------------------------------------------------------- point cloud
 def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear (N, 3) samples of an organized (H, W, 3) cloud at sub-pixel (u, v) (not rounded, cf.
-    Thesis 2024, 5.2.2); NaN where one of the four neighbouring points is invalid (any NaN) or outside."""
+    Thesis 2024, 5.2.2); NaN where one of the four neighbouring points is invalid (any NaN) or outside.
+
+    Examples
+    --------
+    A cloud with x = u, y = v is sampled exactly between pixels; a sample touching an invalid point is NaN.
+
+    >>> v, u = np.mgrid[0:4, 0:4].astype(float)
+    >>> cloud = np.dstack([u, v, np.full(u.shape, 1000.0)])
+    >>> cloud[3, 3] = np.nan
+    >>> sample_cloud(cloud, np.array([[1.25, 0.5], [2.5, 2.5]])).tolist()
+    [[1.25, 0.5, 1000.0], [nan, nan, nan]]
+    """
     cloud = np.asarray(cloud, dtype=float)
     cloud = np.where(np.isfinite(cloud).all(axis=2, keepdims=True), cloud, np.nan)
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
@@ -577,6 +636,19 @@ def cloud_distortion(cloud: np.ndarray, corners: Corners, tile_mm: float,
     The expected grid has the tile size in mm and is centred on the valid
     corner nearest the image centre; its axes follow the cloud's (x along i,
     y along j, each with the sign the cloud shows).
+
+    Examples
+    --------
+    The corners of an undistorted 12 px grid (f = 240 px, 50 mm tiles at 1000 mm) on a cloud 1 % too
+    large: the corner 5 tiles out lies 2.5 mm out, 0.125 % of the 2000 mm view (2 x 1000 x tan 45 deg).
+
+    >>> ij = np.array([(i, j) for j in range(-5, 6) for i in range(-5, 6)])
+    >>> corners = Corners(239.5 + 12.0 * ij, ij, (480, 480), "given", (12.0, 12.0))
+    >>> v, u = np.mgrid[0:480, 0:480].astype(float)
+    >>> cloud = np.dstack([1.01 * (u - 239.5) * 1000.0 / 240.0, 1.01 * (v - 239.5) * 1000.0 / 240.0, np.full(u.shape, 1000.0)])
+    >>> result = cloud_distortion(cloud, corners, 50.0, (90.0, 90.0))
+    >>> round(result.distortion_w_pct, 6), round(result.distortion_h_pct, 6), [round(e, 6) for e in result.extent_mm]
+    (0.125, 0.125, [2000.0, 2000.0])
     """
     cloud = np.asarray(cloud, dtype=float)
     if cloud.ndim != 3 or cloud.shape[2] != 3 or cloud.shape[:2] != corners.image_shape:

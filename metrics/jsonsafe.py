@@ -18,7 +18,13 @@ import numpy as np
 
 def json_safe(value: Any) -> Any:
     """``value`` with every non-finite float (NaN, +-inf) replaced by None, numpy scalars and
-    arrays as Python numbers and lists, tuples as lists; dict keys are kept."""
+    arrays as Python numbers and lists, tuples as lists; dict keys are kept.
+
+    Examples
+    --------
+    >>> json_safe({"a": np.float64(1.5), "b": float("nan"), "c": (1, np.int64(2))})
+    {'a': 1.5, 'b': None, 'c': [1, 2]}
+    """
     if isinstance(value, dict):
         return {key: json_safe(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
@@ -33,5 +39,11 @@ def json_safe(value: Any) -> Any:
 
 
 def dumps_strict(value: Any, **options: Any) -> str:
-    """``json.dumps`` of :func:`json_safe` (``value``), refusing anything that is not valid JSON."""
+    """``json.dumps`` of :func:`json_safe` (``value``), refusing anything that is not valid JSON.
+
+    Examples
+    --------
+    >>> dumps_strict({"x": float("inf"), "y": np.array([1.0, 2.0])})
+    '{"x": null, "y": [1.0, 2.0]}'
+    """
     return json.dumps(json_safe(value), allow_nan=False, **options)

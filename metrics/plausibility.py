@@ -34,6 +34,13 @@ def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
     The step is the smallest difference between distinct values of a sample;
     the values count as quantized when every one is a whole number of steps
     from the smallest (within 0.1 % of a step) and the step is at least 10 um.
+
+    Examples
+    --------
+    >>> quantization_step(np.array([1000.0, 1002.0, 1001.0, 1005.0]))  # whole millimetres
+    1.0
+    >>> quantization_step(np.array([1.0, 1.5, 2.2]))  # 2.2 is no whole number of 0.5 steps from 1.0
+    nan
     """
     finite = np.asarray(values, dtype=float)
     finite = finite[np.isfinite(finite)]
@@ -50,16 +57,34 @@ def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
 
 
 def above_nyquist(sfr10_cy_px: float) -> bool:
-    """True when an SFR10 lies above the Nyquist frequency (0.5 cy/px)."""
+    """True when an SFR10 lies above the Nyquist frequency (0.5 cy/px).
+
+    Examples
+    --------
+    >>> above_nyquist(0.6), above_nyquist(0.3)
+    (True, False)
+    """
     return math.isfinite(sfr10_cy_px) and sfr10_cy_px > NYQUIST_CY_PX
 
 
 def at_quantization_step(value_mm: float, step_mm: float) -> bool:
-    """True when a spread or error (mm) is below one quantization step of the output."""
+    """True when a spread or error (mm) is below one quantization step of the output.
+
+    Examples
+    --------
+    >>> at_quantization_step(0.4, 1.0), at_quantization_step(1.2, 1.0)
+    (True, False)
+    """
     return math.isfinite(value_mm) and math.isfinite(step_mm) and 0.0 <= abs(value_mm) < step_mm
 
 
 def near_axis(coordinate_mm: float, distance_mm: float) -> bool:
-    """True when a pixel's x (or y) is within 1 % of the distance of 0: on the principal axis."""
+    """True when a pixel's x (or y) is within 1 % of the distance of 0: on the principal axis.
+
+    Examples
+    --------
+    >>> near_axis(5.0, 1000.0), near_axis(15.0, 1000.0)  # 0.5 % and 1.5 % of the distance
+    (True, False)
+    """
     return math.isfinite(coordinate_mm) and math.isfinite(distance_mm) and \
         abs(coordinate_mm) < NEAR_AXIS_RATIO * abs(distance_mm)

@@ -14,7 +14,15 @@ from scipy import stats
 
 
 def upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
-    """One-sided Clopper-Pearson upper bound of a rate observed ``k`` times in ``n`` trials (1.0 when k = n)."""
+    """One-sided Clopper-Pearson upper bound of a rate observed ``k`` times in ``n`` trials (1.0 when k = n).
+
+    Examples
+    --------
+    No event in 100 trials: 1 - 0.05^(1/100) = 0.0295, about 3 / n; 9 of 10: 0.95^(1/10) = 0.9949.
+
+    >>> round(upper_bound(0, 100), 4), round(upper_bound(9, 10), 4), upper_bound(3, 3)
+    (0.0295, 0.9949, 1.0)
+    """
     if n < 1 or not 0 <= k <= n:
         raise ValueError(f"need 0 <= k <= n and n >= 1, got k={k}, n={n}")
     if k == n:

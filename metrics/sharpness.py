@@ -35,7 +35,15 @@ def _sorted_valid(distances: Sequence[float], values: Sequence[float], valid: Se
 
 
 def plateau(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool]) -> float:
-    """Median SFR area over the far half of the valid positions (Thesis 2024, 5.1.2)."""
+    """Median SFR area over the far half of the valid positions (Thesis 2024, 5.1.2).
+
+    Examples
+    --------
+    The far half of six positions (1000, 1200, 1400 mm) has the median of 0.9, 1.0, 0.95.
+
+    >>> plateau([400, 600, 800, 1000, 1200, 1400], [0.2, 0.5, 0.8, 0.9, 1.0, 0.95], [True] * 6)
+    0.95
+    """
     d, v = _sorted_valid(distances, sfr_area, valid)
     if not d.size:
         return math.nan
@@ -44,7 +52,15 @@ def plateau(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequen
 
 def hyperfocal_distance(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool],
                         fraction: float = PLATEAU_FRACTION) -> float:
-    """Nearest distance from which every valid SFR area stays >= ``fraction`` x plateau (Thesis 2024, 5.1.2)."""
+    """Nearest distance from which every valid SFR area stays >= ``fraction`` x plateau (Thesis 2024, 5.1.2).
+
+    Examples
+    --------
+    Plateau 0.95, level 0.9 x 0.95 = 0.855: every area from 1000 mm on is at or above it, 0.8 at 800 mm is not.
+
+    >>> hyperfocal_distance([400, 600, 800, 1000, 1200, 1400], [0.2, 0.5, 0.8, 0.9, 1.0, 0.95], [True] * 6)
+    1000.0
+    """
     d, v = _sorted_valid(distances, sfr_area, valid)
     if not d.size:
         return math.nan
@@ -71,6 +87,13 @@ def best_focus_distance(distances: Sequence[float], sfr_area: Sequence[float], v
     One definition for the key figure and for where sharp targets go: "if there
     are multiple distances with high focus, the smallest distance is chosen"
     (Thesis 2024, 5.2.1), which keeps checkerboard tiles and star segments large.
+
+    Examples
+    --------
+    The 3-point medians are 0.2, 0.5, 0.8, 0.9, 0.95, 0.95; within 5 % of 0.95 (>= 0.9025) first at 1200 mm.
+
+    >>> best_focus_distance([400, 600, 800, 1000, 1200, 1400], [0.2, 0.5, 0.8, 0.9, 1.0, 0.95], [True] * 6)
+    1200.0
     """
     d, smoothed = _smoothed(distances, sfr_area, valid)
     if not d.size:
@@ -84,6 +107,13 @@ def sharpness_peak_at_sweep_end(distances: Sequence[float], sfr_area: Sequence[f
 
     A peak at an end of the sweep means the true maximum may lie beyond it: the
     best focus is then a bound, not a measurement.
+
+    Examples
+    --------
+    >>> sharpness_peak_at_sweep_end([400, 600, 800, 1000], [0.2, 0.5, 0.8, 0.9], [True] * 4)
+    'far'
+    >>> print(sharpness_peak_at_sweep_end([400, 600, 800, 1000, 1200], [0.2, 0.6, 1.0, 0.6, 0.2], [True] * 5))
+    None
     """
     d, smoothed = _smoothed(distances, sfr_area, valid)
     if d.size < 2:
@@ -95,20 +125,40 @@ def sharpness_peak_at_sweep_end(distances: Sequence[float], sfr_area: Sequence[f
 
 
 def imagery_resolution_deg(sensor_resolution_deg: float, sfr10_cy_px: float) -> float:
-    """Angular imagery resolution: sensor angular resolution divided by SFR10 (Thesis 2024, 6.3.1)."""
+    """Angular imagery resolution: sensor angular resolution divided by SFR10 (Thesis 2024, 6.3.1).
+
+    Examples
+    --------
+    >>> round(imagery_resolution_deg(0.1, 0.25), 6)  # 0.1 deg / 0.25
+    0.4
+    """
     if not sfr10_cy_px > 0:
         return math.nan
     return sensor_resolution_deg / sfr10_cy_px
 
 
 def lateral_mm(angular_deg: float, distance_mm: float) -> float:
-    """Size covered by ``angular_deg`` at ``distance_mm`` (Thesis 2024, eq. 5-2)."""
+    """Size covered by ``angular_deg`` at ``distance_mm`` (Thesis 2024, eq. 5-2).
+
+    Examples
+    --------
+    >>> round(lateral_mm(90.0, 500.0), 6)  # 2 x 500 mm x tan(45 deg)
+    1000.0
+    """
     return 2.0 * distance_mm * math.tan(math.radians(angular_deg) / 2.0)
 
 
 def ied_pixels(resolution_deg: float, distance_mm: float, ied_mm: float = IED_MM) -> float:
     """Pixels across the inter-eye distance at ``distance_mm`` with the mean angular pixel size FOV / pixels
-    (Thesis 2024, eq. 6-2). It over-counts at the image centre, where a pixel subtends more than the mean angle."""
+    (Thesis 2024, eq. 6-2). It over-counts at the image centre, where a pixel subtends more than the mean angle.
+
+    Examples
+    --------
+    62.5 mm / (tan(0.1 deg) x 1000 mm) = 62.5 / 1.74533 = 35.81 px.
+
+    >>> round(ied_pixels(0.1, 1000.0), 2)
+    35.81
+    """
     return ied_mm / (math.tan(math.radians(resolution_deg)) * distance_mm)
 
 
@@ -120,6 +170,13 @@ def ied_pixels_at_centre(fov_deg: float, pixels: int, distance_mm: float, ied_mm
     spans L f / d pixels. Near the axis a pixel subtends 1 / f rad, more than
     the mean FOV / pixels, so the centre is where the face gets the fewest
     pixels (Hartley & Zisserman, Multiple View Geometry, 2nd ed., 6.1).
+
+    Examples
+    --------
+    90 deg over 640 px: f = 320 px / tan(45 deg) = 320 px; 62.5 mm x 320 / 1000 mm = 20 px.
+
+    >>> round(ied_pixels_at_centre(90.0, 640, 1000.0), 6)
+    20.0
     """
     focal_px = (pixels / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
     return ied_mm * focal_px / distance_mm

@@ -79,6 +79,14 @@ def stack_stats(stack: np.ndarray) -> StackStats:
     """Mean, sample std (ddof = 1) and valid count per pixel of an (N, H, W) stack, NaN = invalid.
 
     Pixels failing the half-valid rule get NaN mean and std.
+
+    Examples
+    --------
+    A pixel seen as 1, 2, 3 (mean 2, sample std 1) and one valid in a single frame of three (invalid).
+
+    >>> stats = stack_stats(np.array([[[1.0, np.nan]], [[2.0, np.nan]], [[3.0, 5.0]]]))
+    >>> stats.mean.tolist(), stats.std.tolist(), stats.count.tolist()
+    ([[2.0, nan]], [[1.0, nan]], [[3, 1]])
     """
     if stack.ndim != 3:
         raise ValueError(f"stack must be (N, H, W), got shape {stack.shape}")
@@ -95,7 +103,13 @@ def stack_stats(stack: np.ndarray) -> StackStats:
 
 
 def central_roi(height: int, width: int, fraction: float = 0.1) -> tuple[slice, slice]:
-    """Centred region covering ``fraction`` of each image dimension (at least 1 px)."""
+    """Centred region covering ``fraction`` of each image dimension (at least 1 px).
+
+    Examples
+    --------
+    >>> central_roi(480, 640)  # 48 x 64 px in the middle
+    (slice(216, 264, None), slice(288, 352, None))
+    """
     rh, rw = max(1, round(height * fraction)), max(1, round(width * fraction))
     top, left = (height - rh) // 2, (width - rw) // 2
     return slice(top, top + rh), slice(left, left + rw)
@@ -115,6 +129,18 @@ class RoiMean:
         self._count: np.ndarray | None = None
 
     def add(self, frame: np.ndarray) -> None:
+        """Take in the ROI of one frame (NaN = invalid).
+
+        Examples
+        --------
+        Only the ROI's pixels count, here the first of two.
+
+        >>> roi = RoiMean((slice(0, 1), slice(0, 1)), n_frames=2)
+        >>> roi.add(np.array([[1.0, 100.0]]))
+        >>> roi.add(np.array([[3.0, 100.0]]))
+        >>> roi.value()
+        2.0
+        """
         part = np.asarray(frame[self.roi], dtype=np.float64)
         ok = ~np.isnan(part)
         if self._sum is None:
@@ -123,7 +149,18 @@ class RoiMean:
         self._count += ok
 
     def value(self) -> float:
-        """Mean over pixels valid in at least half of the frames; NaN if none."""
+        """Mean over pixels valid in at least half of the frames; NaN if none.
+
+        Examples
+        --------
+        Pixel means 2 (of 1 and 3) and 5 (valid in one frame of two: half of them): 3.5.
+
+        >>> roi = RoiMean((slice(0, 1), slice(0, 2)), n_frames=2)
+        >>> roi.add(np.array([[1.0, np.nan]]))
+        >>> roi.add(np.array([[3.0, 5.0]]))
+        >>> roi.value()
+        3.5
+        """
         if self._sum is None or self._count is None:
             return float("nan")
         good = 2 * self._count >= self.n_frames

@@ -91,7 +91,17 @@ def _sphere_least_squares(points: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def fit_sphere(points: np.ndarray) -> SphereFit:
-    """Robust least-squares sphere through (n, 3) points (VDI/VDE 2634-2 outlier rule, module docstring)."""
+    """Robust least-squares sphere through (n, 3) points (VDI/VDE 2634-2 outlier rule, module docstring).
+
+    Examples
+    --------
+    Seven points of a sphere of radius 25 mm about (1, 2, 500) mm.
+
+    >>> directions = np.vstack([np.eye(3), -np.eye(3), np.ones((1, 3)) / np.sqrt(3.0)])
+    >>> fit = fit_sphere(np.array([1.0, 2.0, 500.0]) + 25.0 * directions)
+    >>> np.round(fit.centre, 6).tolist(), round(fit.radius, 6), fit.n_excluded
+    ([1.0, 2.0, 500.0], 25.0, 0)
+    """
     points = np.asarray(points, float)
     points = points[np.all(np.isfinite(points), axis=1)]
     if len(points) < 4:
@@ -111,6 +121,15 @@ def cap_mask(points: np.ndarray, centre: np.ndarray, radius: float, max_incidenc
 
     A ray at angle gamma from the direction of the centre (distance D) passes the centre at b = D sin gamma
     and meets the sphere at the incidence asin(b / r); the silhouette lies at gamma_s = asin(r / D).
+
+    Examples
+    --------
+    A sphere of radius 25 mm, 500 mm away: the point facing the camera (incidence 0) and one 30 deg
+    round the sphere (incidence 31.5 deg) are kept, the point on the silhouette (grazing) is not.
+
+    >>> points = np.array([[0.0, 0.0, 475.0], [12.5, 0.0, 500.0 - 25.0 * np.cos(np.radians(30.0))], [25.0, 0.0, 500.0]])
+    >>> cap_mask(points, np.array([0.0, 0.0, 500.0]), 25.0, max_incidence_deg=60.0, margin_rad=0.0).tolist()
+    [True, True, False]
     """
     points = np.asarray(points, float)
     distance = float(np.linalg.norm(centre))
@@ -128,7 +147,20 @@ def fit_sphere_cap(points: np.ndarray, calibrated_radius: float, max_incidence_d
     """Robust sphere through the points an area sensor saw (camera at the origin), with the rim rule of the
     module docstring: fit, keep the points ``cap_mask`` selects about the fitted centre (the cap drawn with the
     artefact's ``calibrated_radius``, so a noisy radius cannot shrink it), refit, until the kept points stay
-    the same."""
+    the same.
+
+    Examples
+    --------
+    The half of a sphere (radius 25 mm, 500 mm away) that faces the camera, in rings 10, 30, 50 and
+    70 deg round from the line of sight: the first three meet their lines of sight at incidences up to
+    52 deg, the ring at 70 deg at 73 deg and is left out (12 of 48 points).
+
+    >>> t, p = np.radians(np.mgrid[10:90:20, 0:360:30])
+    >>> rays = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), -np.cos(t)], axis=-1).reshape(-1, 3)
+    >>> fit = fit_sphere_cap(np.array([0.0, 0.0, 500.0]) + 25.0 * rays, calibrated_radius=25.0)
+    >>> round(fit.radius, 6), fit.n_points, fit.n_rim
+    (25.0, 48, 12)
+    """
     points = np.asarray(points, float)
     points = points[np.all(np.isfinite(points), axis=1)]
     fit = fit_sphere(points)
@@ -143,17 +175,41 @@ def fit_sphere_cap(points: np.ndarray, calibrated_radius: float, max_incidence_d
 
 
 def probing_error_form(fit: SphereFit) -> float:
-    """P_F: range of the radial deviations from the fitted sphere (mm)."""
+    """P_F: range of the radial deviations from the fitted sphere (mm).
+
+    Examples
+    --------
+    >>> fit = SphereFit(np.zeros(3), 12.5, np.array([-0.02, 0.01, 0.03]), n_points=3, n_excluded=0)
+    >>> round(probing_error_form(fit), 6)
+    0.05
+    """
     return float(fit.deviations.max() - fit.deviations.min())
 
 
 def probing_error_size(fit: SphereFit, calibrated_diameter_mm: float) -> float:
-    """P_S: fitted minus calibrated diameter (mm)."""
+    """P_S: fitted minus calibrated diameter (mm).
+
+    Examples
+    --------
+    >>> fit = SphereFit(np.zeros(3), 12.51, np.zeros(3), n_points=3, n_excluded=0)
+    >>> round(probing_error_size(fit, 25.0), 6)
+    0.02
+    """
     return fit.diameter - calibrated_diameter_mm
 
 
 def sphere_spacing_error(first: SphereFit, second: SphereFit, calibrated_distance_mm: float) -> float:
-    """SD: measured minus calibrated distance between the two sphere centres (mm)."""
+    """SD: measured minus calibrated distance between the two sphere centres (mm).
+
+    Examples
+    --------
+    Centres 500 mm apart (a 3-4-5 triangle), calibrated 499.9 mm.
+
+    >>> first = SphereFit(np.array([0.0, 0.0, 1000.0]), 25.0, np.zeros(3), n_points=3, n_excluded=0)
+    >>> second = SphereFit(np.array([300.0, 400.0, 1000.0]), 25.0, np.zeros(3), n_points=3, n_excluded=0)
+    >>> round(sphere_spacing_error(first, second, 499.9), 6)
+    0.1
+    """
     return float(np.linalg.norm(first.centre - second.centre)) - calibrated_distance_mm
 
 
@@ -174,7 +230,18 @@ def _plane_deviations(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def fit_flat(points: np.ndarray) -> FlatnessFit:
-    """Orthogonal least-squares plane through (n, 3) points, with the 0.3 % outlier rule."""
+    """Orthogonal least-squares plane through (n, 3) points, with the 0.3 % outlier rule.
+
+    Examples
+    --------
+    A +-0.05 mm checker on the plane z = 1000 mm: the plane is z = 1000 mm, the deviations +-0.05 mm.
+
+    >>> y, x = np.mgrid[0:4, 0:4].astype(float)
+    >>> z = 1000.0 + 0.05 * (-1.0) ** (x + y)
+    >>> fit = fit_flat(np.column_stack([x.ravel(), y.ravel(), z.ravel()]))
+    >>> round(float(fit.normal[2]), 6), round(float(fit.centroid[2]), 6), fit.n_points
+    (1.0, 1000.0, 16)
+    """
     points = np.asarray(points, float)
     points = points[np.all(np.isfinite(points), axis=1)]
     if len(points) < 3:
@@ -187,5 +254,13 @@ def fit_flat(points: np.ndarray) -> FlatnessFit:
 
 
 def flatness_error(fit: FlatnessFit) -> float:
-    """F: range of the signed deviations from the least-squares plane (mm)."""
+    """F: range of the signed deviations from the least-squares plane (mm).
+
+    Examples
+    --------
+    >>> y, x = np.mgrid[0:4, 0:4].astype(float)
+    >>> z = 1000.0 + 0.05 * (-1.0) ** (x + y)
+    >>> round(flatness_error(fit_flat(np.column_stack([x.ravel(), y.ravel(), z.ravel()]))), 6)
+    0.1
+    """
     return float(fit.deviations.max() - fit.deviations.min())

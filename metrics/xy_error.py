@@ -82,7 +82,21 @@ def _summary(errors: np.ndarray) -> tuple[float, float]:
 
 
 def spacing_errors(cloud: np.ndarray, corners: Corners, tile_mm: float) -> SpacingErrors:
-    """e_x, e_y of every pair of neighbouring corners valid in an organized (H, W, 3) cloud (mm, NaN invalid)."""
+    """e_x, e_y of every pair of neighbouring corners valid in an organized (H, W, 3) cloud (mm, NaN invalid).
+
+    Examples
+    --------
+    A cloud of 2 mm per pixel and corners 4 px apart: neighbours lie 8 mm apart, 0.5 mm more than a
+    7.5 mm tile.
+
+    >>> v, u = np.mgrid[0:12, 0:12].astype(float)
+    >>> cloud = np.dstack([2.0 * u, 2.0 * v, np.full(u.shape, 1000.0)])
+    >>> ij = np.array([(i, j) for j in range(3) for i in range(3)])
+    >>> corners = Corners(2.0 + 4.0 * ij, ij - 1, (12, 12), "given", (4.0, 4.0))
+    >>> e = spacing_errors(cloud, corners, tile_mm=7.5)
+    >>> round(e.x_median_mm, 6), round(e.y_median_mm, 6), len(e.x_errors), len(e.y_errors)
+    (0.5, 0.5, 6, 6)
+    """
     cloud = np.asarray(cloud, dtype=float)
     if cloud.ndim != 3 or cloud.shape[2] != 3 or cloud.shape[:2] != corners.image_shape:
         raise ValueError(f"cloud must be H x W x 3 = {corners.image_shape[0]} x {corners.image_shape[1]} x 3, "
@@ -100,19 +114,50 @@ def spacing_errors(cloud: np.ndarray, corners: Corners, tile_mm: float) -> Spaci
 
 def xy_errors(mean_cloud: np.ndarray, frame_cloud: np.ndarray, corners: Corners, tile_mm: float) -> XYErrors:
     """Trueness from the stack-mean cloud, accuracy from one frame's cloud, at the same corners
-    (found in the stack-mean intensity image)."""
+    (found in the stack-mean intensity image).
+
+    Examples
+    --------
+    The stack mean at the right scale (8 mm between corners 4 px apart), one frame 1 % too large.
+
+    >>> v, u = np.mgrid[0:12, 0:12].astype(float)
+    >>> mean = np.dstack([2.0 * u, 2.0 * v, np.full(u.shape, 1000.0)])
+    >>> frame = mean * np.array([1.01, 1.01, 1.0])
+    >>> ij = np.array([(i, j) for j in range(3) for i in range(3)])
+    >>> corners = Corners(2.0 + 4.0 * ij, ij - 1, (12, 12), "given", (4.0, 4.0))
+    >>> errors = xy_errors(mean, frame, corners, tile_mm=8.0)
+    >>> round(errors.trueness.x_median_mm, 6), round(errors.accuracy.x_median_mm, 6)
+    (0.0, 0.08)
+    """
     return XYErrors(spacing_errors(mean_cloud, corners, tile_mm), spacing_errors(frame_cloud, corners, tile_mm))
 
 
 def off_axis_pixels(shape: tuple[int, int]) -> tuple[tuple[int, int], tuple[int, int]]:
-    """(row, column) of the x and the y off-axis repeatability pixels (see the module docstring)."""
+    """(row, column) of the x and the y off-axis repeatability pixels (see the module docstring).
+
+    Examples
+    --------
+    >>> off_axis_pixels((480, 640))  # halfway to the right edge, halfway to the bottom edge
+    ((240, 480), (360, 320))
+    """
     row, col = center_pixel(shape)
     return (row, col + shape[1] // 4), (row + shape[0] // 4, col)
 
 
 def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray) -> XYPrecision:
     """Repeatability (centre and off-axis pixels) and precision (median, Q90) of x and y over an (N, H, W)
-    wall stack."""
+    wall stack.
+
+    Examples
+    --------
+    x seen as x - 1, x, x + 1 and y as y - 2, y, y + 2 at every pixel: std 1 mm and 2 mm.
+
+    >>> y, x = np.mgrid[-2:2, -2:2].astype(float)
+    >>> k = np.array([-1.0, 0.0, 1.0])[:, None, None]
+    >>> p = xy_precision(x + k, y + 2.0 * k)
+    >>> p.precision_median_x_mm, p.precision_median_y_mm, p.repeatability_center_x_mm, p.invalid_fraction
+    (1.0, 2.0, 1.0, 0.0)
+    """
     sx, sy = stack_stats(np.asarray(x_stack)), stack_stats(np.asarray(y_stack))
     centre = center_pixel(sx.std.shape)
     at_x, at_y = off_axis_pixels(sx.std.shape)
