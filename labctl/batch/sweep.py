@@ -39,9 +39,12 @@ from labctl.batch.tasks import Summary, guarded, process_run
 from labctl.errors import InputError
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME
 from labctl.reconcile.workflow import BACKEND_PROFILES
-from labctl.run.config import model_camera_mismatch, parse_campaign
+from labctl.run.campaign import run_campaign
+from labctl.run.config import load_campaign, model_camera_mismatch, parse_campaign
 from labctl.run.filekind import describe, is_hdf5
-from sim.model import ModelError, parse_model
+from labctl.run.lab import simulated_lab
+from labctl.run.progress import Reporter
+from sim.model import ModelError, load_model, parse_model
 from sim.profiles import default_effects, get_profile
 
 #: figures tabled and plotted when the sweep file names none
@@ -220,18 +223,17 @@ def load_sweep(path: Path) -> Sweep:
 
 
 def simulate_run(campaign_toml: str, model_toml: str, seed: int | None, directory: Path) -> Path:
-    """``labctl run CAMPAIGN --sim --model MODEL [--seed N] -o RUN`` in ``directory``; the run file."""
-    from labctl.cli import cli
-
+    """The run ``labctl run CAMPAIGN --sim --model MODEL [--seed N] -o RUN --quiet`` makes, in ``directory``
+    (beside the point's campaign and model files); the run file."""
     directory.mkdir(parents=True, exist_ok=True)
     (directory / "campaign.toml").write_text(campaign_toml)
     (directory / "model.toml").write_text(model_toml)
     run = directory / "run.h5"
     run.unlink(missing_ok=True)  # a point run again starts over
-    args = ["run", str(directory / "campaign.toml"), "--sim", "--model", str(directory / "model.toml"),
-            "-o", str(run), "--quiet"] + (["--seed", str(seed)] if seed is not None else [])
-    cli.main(args=args, prog_name="labctl", standalone_mode=False)
-    return run
+    campaign, text = load_campaign(directory / "campaign.toml")
+    model_text = load_model(directory / "model.toml")[1]
+    lab = simulated_lab(campaign, model_text, seed=seed, source=str(directory / "model.toml"))
+    return run_campaign(campaign, text, lab, run, reporter=Reporter(quiet=True)).run_file
 
 
 def run_point(point: Point, directory: Path, evaluate: bool, reconcile: bool, keep_run: bool) -> Summary:

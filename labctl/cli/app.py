@@ -15,7 +15,6 @@ from pathlib import Path
 
 import click
 
-from drivers.protocols import CameraInfo
 from labctl.cli import analyze as cli_analyze
 from labctl.cli import batch as cli_batch
 from labctl.cli import devices as cli_devices
@@ -26,22 +25,17 @@ from labctl.cli import simulate as cli_sim
 from labctl.cli.inputs import distinct, warn, warn_run_suffix
 from labctl.cli.outputs import OutputDirectory, OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
+from labctl.run.campaign import resume_run, run_campaign
 from labctl.run.compression import COMPRESSIONS
-from labctl.run.config import Campaign, load_campaign, model_camera_mismatch, parse_campaign
-from labctl.run.diskspace import ensure_free, format_bytes
-from labctl.run.filekind import describe, is_binary_data, not_a_run_file
-from labctl.run.lab import Lab, build_real_lab, build_sim_lab
-from labctl.run.operator import Operator
-from labctl.run.overrides import ATTRIBUTE as OVERRIDES_ATTRIBUTE
-from labctl.run.overrides import apply_overrides, encode_history, history_entries, parse_overrides, recorded_overrides
+from labctl.run.config import Campaign, load_campaign, model_camera_mismatch
+from labctl.run.diskspace import format_bytes
+from labctl.run.lab import build_real_lab, simulated_lab
+from labctl.run.overrides import parse_overrides
 from labctl.run.planning import expected_run_bytes, format_duration, schedule
 from labctl.run.progress import EvaluationProgress, Reporter
-from labctl.run.runner import Runner, bring_to_safe_state, close_all, connect_lab
-from labctl.run.salvage import carry_over, inspect
-from labctl.run.store import DamagedRunFile, RunWriter, existing_output_advice, labctl_version, now_iso
+from labctl.run.store import existing_output_advice, labctl_version
 from metrics.jsonsafe import dumps_strict
-from procedures.steps import Step
-from sim.model import ModelError, default_model_text, load_model, parse_model
+from sim.model import ModelError, load_model
 
 
 def _echo_err(message: str) -> None:
@@ -119,11 +113,6 @@ def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
 
 
 # ---------------------------------------------------------------------- run
-def _sim_lab_from(campaign: Campaign, model_text: str, model_source: str, seed: int) -> Lab:
-    model = parse_model(model_text, model_source)
-    return build_sim_lab(campaign, model, seed)
-
-
 def _same_camera(campaign: Campaign, model_camera: str, campaign_path: Path, model_path: Path) -> None:
     """Refuse a model of another camera than the campaign's: the run file would record one camera's campaign
     holding another camera's data, and reconcile and the reports would compare the wrong camera."""
@@ -133,25 +122,6 @@ def _same_camera(campaign: Campaign, model_camera: str, campaign_path: Path, mod
         raise InputError(f"--model {model_path} does not fit campaign {campaign_path}: {why}. Give a model with "
                          f"camera = \"{profile}\", or set backend = \"{model_camera}\" under [devices.camera] of the "
                          "campaign to simulate that camera")
-
-
-def _ensure_room(run_file: Path, campaign: Campaign, compression: str, steps: list[Step], camera: CameraInfo) -> None:
-    """Refuse to start (exit 1) when the disk cannot hold the expected size of the steps to run."""
-    raw, expected = expected_run_bytes(campaign, compression, steps, camera)
-    ensure_free(run_file, expected, f"the run's {len(steps)} remaining step(s) (about {format_bytes(expected)} "
-                                    f"with compression {compression}; {format_bytes(raw)} uncompressed)")
-
-
-def _operator(lab: Lab, reporter: Reporter, interactive: bool) -> Operator:
-    """The command's one operator: it answers the connect-time questions and the campaign's prompts."""
-    return Operator(automatic=lab.simulated and not interactive, report=reporter.message)
-
-
-def _execute(
-    campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter, operator: Operator, *, resumed: bool = False
-) -> None:
-    Runner(campaign, lab, writer, reporter, operator, resumed=resumed).execute()
-    reporter.message(f"run complete: {writer.path}")
 
 
 INTERACTIVE_HELP = ("with --sim: ask at every operator prompt as on real hardware "
@@ -179,43 +149,16 @@ def run(
     warn_run_suffix(output)
     if (model is not None or seed is not None) and not sim:
         raise InputError("--model and --seed only apply to simulated runs (--sim)")
-    compression = compression or config.runner.compression
-    reporter = Reporter(quiet=quiet)
-    if sim:
-        if model is not None:
-            sim_model, model_text = load_model(model)
-            source = str(model)
-            _same_camera(config, sim_model.camera, campaign, model)
-        else:
-            model_text, source = default_model_text(config.devices.camera.sim_profile), "built-in profile"
-        run_seed = config.sim.seed if seed is None else seed
-        lab = _sim_lab_from(config, model_text, source, run_seed)
-        sim_record: tuple[str, int] | None = (model_text, run_seed)
+    if sim and model is not None:
+        sim_model, model_text = load_model(model)
+        _same_camera(config, sim_model.camera, campaign, model)
+        lab = simulated_lab(config, model_text, seed=seed, source=str(model))
+    elif sim:
+        lab = simulated_lab(config, seed=seed)
     else:
         lab = build_real_lab(config)
-        sim_record = None
-    operator = _operator(lab, reporter, interactive)
-    connect_lab(lab, reporter.message, operator)
-    try:
-        _ensure_room(output, config, compression, config.steps(), lab.camera.info())
-        writer = RunWriter.create(
-            output,
-            campaign_toml=text,
-            simulated=sim,
-            devices={role: (dev.identity(), dev.settings()) for role, dev in lab.devices().items()},
-            camera=lab.camera.info(),
-            steps=len(config.steps()),
-            sim=sim_record,
-            compression=compression,
-        )
-    except BaseException:
-        bring_to_safe_state(lab, reporter.message)
-        close_all(lab, reporter.message)
-        raise
-    try:
-        _execute(config, lab, writer, reporter, operator)
-    finally:
-        writer.close()
+    run_campaign(config, text, lab, output, interactive=interactive, reporter=Reporter(quiet=quiet),
+                 compression=compression)
 
 
 @cli.command()
@@ -241,76 +184,9 @@ def resume(
     """
     new = [(role, "port", value) for role, value in parse_overrides("port", ports).items()]
     new += [(role, "host", value) for role, value in parse_overrides("host", hosts).items()]
-    if not run_file.is_file():
-        raise InputError(f"run file {run_file} does not exist")
-    if (wrong := not_a_run_file(run_file)) is not None:  # before opening it for writing, which would change it
-        if is_binary_data(run_file):  # a run file whose header was overwritten, or another binary file
-            raise _damaged(run_file, f"it is {describe(run_file)}: the HDF5 header is overwritten, or it was never a run file")
-        raise InputError(wrong)
-    reporter = Reporter(quiet=quiet)
     if into is not None:
         output_file(into, "--into")
-        salvage = carry_over(run_file, into, reporter.message)
-        reporter.message(f"{salvage.summary()}; the run continues in {into}")
-        run_file = into
-    try:
-        writer = RunWriter(run_file)
-        dropped = writer.discard_incomplete()
-    except DamagedRunFile as exc:
-        raise _damaged(run_file, str(exc)) from None
-    try:
-        if writer.attrs.get("status") == "complete":
-            reporter.message(f"{run_file} is already complete; nothing to resume")
-            return
-        simulated = bool(writer.attrs.get("simulated", False))
-        if new and simulated:
-            raise InputError(f"{run_file} is a simulated run: --port and --host apply to runs on real hardware")
-        config = parse_campaign(_stored_text(writer, "/", "campaign_toml"), f"{run_file} (stored campaign)")
-        done = writer.completed()
-        _ensure_room(run_file, config, writer.compression, [s for s in config.steps() if s.step_id not in done],
-                     writer.camera_info())
-        history = recorded_overrides(writer.attrs, str(run_file))
-        config = apply_overrides(config, [(e["role"], e["field"], e["value"]) for e in history], str(run_file))
-        stored, config = config, apply_overrides(config, new, str(run_file))
-        history += history_entries(stored, new, now_iso())
-        if simulated:
-            model_text, seed = _stored_text(writer, "sim", "model_toml"), int(_stored_text(writer, "sim", "seed"))
-            lab = _sim_lab_from(config, model_text, f"{run_file} (stored model)", seed)
-        else:
-            lab = build_real_lab(config)
-        operator = _operator(lab, reporter, interactive)
-        connect_lab(lab, reporter.message, operator)
-        if new:
-            writer.attrs[OVERRIDES_ATTRIBUTE] = encode_history(history)
-        for role, field, value in new:
-            reporter.message(f"{role} {field}: {value} (recorded in {run_file})")
-        if dropped:
-            reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
-        writer.set_status("running")
-        _execute(config, lab, writer, reporter, operator, resumed=True)
-    finally:
-        writer.close()
-
-
-def _damaged(run_file: Path, cause: str) -> InputError:
-    """What a damaged run file still holds, and how to continue the run."""
-    salvage = inspect(run_file)
-    text = f"{run_file} is damaged ({cause}); {salvage.summary()}."
-    if salvage.header is None:
-        text += f" Continue the run in a new file with: labctl resume {run_file} --into NEW.h5"
-    else:
-        text += " Start the run again with labctl run."
-    return InputError(text)
-
-
-def _stored_text(writer: RunWriter, group: str, name: str) -> str:
-    """A text attribute every resumable run file has; InputError naming it when missing."""
-    where = writer.file[group] if group in writer.file else None
-    if where is None or name not in where.attrs:
-        what = f"group /{group.strip('/')}" if where is None else f"attribute {name} of {where.name}"
-        raise InputError(f"{writer.path} has no {what}, which resume needs; the file is damaged or was not "
-                         "written by labctl run")
-    return str(where.attrs[name])
+    resume_run(run_file, overrides=new, into=into, interactive=interactive, reporter=Reporter(quiet=quiet))
 
 
 # ---------------------------------------------------------------------- evaluate

@@ -11,7 +11,7 @@ from labctl.run.config import Campaign
 from procedures.steps import Step
 from sim.devices import SimCamera, SimLaser, SimRobot, SimStage
 from sim.faults import FaultInjector
-from sim.model import SimModel
+from sim.model import SimModel, default_model_text, parse_model
 from sim.world import SimWorld
 
 
@@ -26,6 +26,8 @@ class Lab:
     clock: Clock = field(default_factory=RealClock)
     simulated: bool = False
     step_hook: Callable[[Step, float], None] | None = None
+    sim_record: tuple[str, int] | None = None
+    """A simulated lab's model text and seed, recorded in the run file's /sim group (what resume rebuilds it from)."""
 
     def devices(self) -> dict[str, Any]:
         """Present devices by role, in the order they are connected."""
@@ -62,6 +64,19 @@ def build_sim_lab(campaign: Campaign, model: SimModel, seed: int) -> Lab:
         simulated=True,
         step_hook=world.begin_step,
     )
+
+
+def simulated_lab(campaign: Campaign, model_text: str | None = None, *, seed: int | None = None,
+                  source: str = "model") -> Lab:
+    """The campaign on simulated devices, from a model's TOML text (default: the built-in model of the campaign's
+    camera) and ``seed`` (default: the campaign's ``[sim] seed``); both are kept for the run file (``sim_record``).
+    ``source`` names the text in a ModelError."""
+    if model_text is None:
+        model_text, source = default_model_text(campaign.devices.camera.sim_profile), "built-in profile"
+    seed = campaign.sim.seed if seed is None else seed
+    lab = build_sim_lab(campaign, parse_model(model_text, source), seed)
+    lab.sim_record = (model_text, seed)
+    return lab
 
 
 def build_real_lab(campaign: Campaign) -> Lab:
