@@ -1,11 +1,19 @@
 """Candidate effects and their signatures: what each would change in the simulated output.
 
+The candidates are built from the effects' own declarations (``EFFECT.observed``
+in each sim/effects module): the signature form (``FORMS``), the parameters
+the fit sets, the steps that show the effect and how many it needs. The
+solver's bounds are the parameters' valid ranges (``bounds``), or the bounds
+the effect states for its solver. An effect whose declaration names no
+signature is not a candidate; its ``why_not`` is noted (``NOT_IDENTIFIABLE``).
+
 A signature is the change of the binned prediction per unit of the effect's
 linear parameter, per step, in depth (mm) and in log intensity. Effects that
 act after the render have closed-form signatures from the base prediction
 (the formulas of their sim/effects modules, linearized where needed); effects
 that move the geometry are differentiated by re-simulating with the effect
-switched on (finite difference). Nonlinear parameters (a wiggling period, a
+switched on (finite difference, the ``resimulated`` form, which suits any
+effect linear in one parameter). Nonlinear parameters (a wiggling period, a
 drift time constant, a multipath extra path, a ``floor_multipath`` plane and
 its distance) are searched on a grid, the linear ones solved for at each grid
 point. A candidate with ``bind`` is built from the run itself (its signature
@@ -24,17 +32,10 @@ other columns of its bin), a per-pixel random map (it averages out within a
 bin), bins never compared (the image border, edges: their offset is left 0),
 and structure that is neither a column nor a row pattern.
 
-Not candidates, because the comparison cannot see them:
-
-* ``range_offset``: a constant range error is what the offset calibration and
-  the per-group nuisance offsets absorb;
-* ``quantization``: it does not move the mean of a noisy stack;
-* ``defocus`` and ``flying_pixels``: they act at edges, and bins at edges are
-  left out (the slanted-edge evaluation measures sharpness);
-* ``fov_error`` and ``radial_distortion`` corrected in the cloud
-  (``cloud = false``): the camera's calibration keeps depth and the point
-  cloud right, only feature positions in the intensity image move; the
-  checkerboard corners show them (labctl/reconcile/corners.py).
+``radial_distortion`` corrected in the cloud (``cloud = false``) and
+``fov_error`` leave depth and the point cloud right (the camera's calibration
+knows its optics); only feature positions in the intensity image move, which
+the checkerboard corners show (labctl/reconcile/corners.py).
 """
 
 from __future__ import annotations
