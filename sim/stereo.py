@@ -29,15 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from sim.effects import (
-    EffectParams,
-    apply_empirical,
-    disparity_bias,
-    range_offset,
-    range_scale,
-    temperature_drift,
-    vignetting,
-)
+from sim.effects import EffectParams, RangeStage, acting, frame_offset_mm, output_step_mm
 from sim.geometry import Pose
 from sim.kernels import stereo_frame
 from sim.noise import NoiseBank, make_bank
@@ -124,21 +116,17 @@ class StereoSensor:
             dots = np.repeat(np.repeat(self.dots, k, axis=0), k, axis=1)
             light = light + PROJECTOR_LEVEL * left.irradiance_fine / IRRADIANCE_REF * dots
         ir = geo.blur(light * (exposure_us / self.profile.exposure_us), centre_distance_mm(left), k)
-        if "vignetting" in self.effects:
-            ir = ir * vignetting.factor(geo.cos_alpha, self.effects["vignetting"])
+        for hook, params in acting(self.effects, "shading"):
+            ir = ir * hook(geo.cos_alpha, params)
         return np.maximum(ir, 0.0)
 
     def depth(self, left: Rendered) -> np.ndarray:
-        """Noise-free depth of the left camera's dominant surface after ``disparity_bias``, ``range_scale``,
-        ``range_offset`` and the empirical corrections."""
-        z, fx = left.z_dom, self.effects
-        if "disparity_bias" in fx:
-            z = disparity_bias.apply(z, self.matching_focal_baseline, fx["disparity_bias"])
-        if "range_scale" in fx:
-            z = range_scale.apply(z, fx["range_scale"])
-        if "range_offset" in fx:
-            z = range_offset.apply(z, fx["range_offset"])
-        return apply_empirical(z, fx)
+        """Noise-free depth of the left camera's dominant surface after the effects' range hooks
+        (``disparity_bias``, ``range_scale``, ``range_offset``, the empirical corrections)."""
+        z, stage = left.z_dom, RangeStage(self)
+        for hook, params in acting(self.effects, "on_range"):
+            z = hook(z, params, stage)
+        return z
 
     def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int,
                 projector: bool = True) -> StereoPrepared:
@@ -169,10 +157,9 @@ class StereoSensor:
 
     def frame(self, prep: StereoPrepared, k: int, t_s: float) -> tuple[np.ndarray, ...]:
         """Frame ``k`` at device time ``t_s``: (x, y, z, intensity, confidence)."""
-        p, fx = self.profile, self.effects
+        p = self.profile
         h, w = p.height, p.width
-        drift = temperature_drift.offset_mm(t_s, fx["temperature_drift"]) if "temperature_drift" in fx else 0.0
-        step = fx["quantization"].step_mm if "quantization" in fx else 0.0
+        drift, step = frame_offset_mm(self.effects, t_s), output_step_mm(self.effects)
         off_disp, off_ir = prep.bank.offsets(prep.seed, prep.step_index, k)
         x, y, z, intensity, confidence = (np.empty((h, w), np.float32) for _ in range(5))
         stereo_frame(prep.disparity, prep.sigma_disp, prep.valid, self.geometry.tx, self.geometry.ty, prep.ir,

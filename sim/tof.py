@@ -32,18 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.effects import (
-    EffectParams,
-    apply_empirical,
-    fixed_pattern,
-    floor_multipath,
-    range_offset,
-    range_scale,
-    temperature_drift,
-    vignetting,
-    wiggling,
-)
-from sim.effects import intensity_related_error as ire
+from sim.effects import EFFECTS, EffectParams, RangeStage, acting, frame_offset_mm, output_step_mm
 from sim.geometry import Pose
 from sim.kernels import tof_frame
 from sim.materials import get_material
@@ -80,9 +69,12 @@ def reference_amplitude(profile: CameraProfile) -> float:
 
 
 def surface_properties(scene: Scene, effects: dict[str, EffectParams]) -> SurfaceProperties:
-    """Per-surface sub-surface bias (with ``material_bias``) and Lambertian exponent."""
+    """Per-surface sub-surface bias (scaled by the effects' ``subsurface_scale``, 0 without) and Lambertian
+    exponent."""
     materials = [get_material(name) for name in scene.materials()] or [get_material("wall")]
-    scale = effects["material_bias"].scale if "material_bias" in effects else 0.0
+    scale = 0.0
+    for hook, params in acting(effects, "subsurface_scale"):
+        scale = scale + hook(params)
     return SurfaceProperties(
         bias_mm=np.array([scale * m.subsurface_bias_mm for m in materials]),
         lambert=np.array([m.lambertian_exponent for m in materials]),
@@ -112,28 +104,34 @@ class ToFSensor:
         self.geometry = SensorOptics(profile, effects)
         self.a_ref = reference_amplitude(profile)
         self.wavenumber = 4.0 * math.pi * profile.modulation_mhz * 1e6 / C_MM_PER_S
-        self.pattern_mm = (fixed_pattern.offset_map_mm(profile.width, profile.height, effects["fixed_pattern"])
-                           if "fixed_pattern" in effects else None)
+        present = [EFFECTS[name] for name in effects]
+        self.mixes_returns = any(e.mixes_returns for e in present)
+        self.mixed_pixels = any(e.mixed_pixels for e in present)
 
     def render_scene(self, scene: Scene, pose: Pose) -> Rendered:
         """The ray-cast light of a scene through this camera's optics (the expensive, geometric part)."""
-        fx = self.effects
-        mixing = "flying_pixels" in fx or "multipath" in fx
-        return render(scene, pose, self.geometry.optics, surface_properties(scene, fx),
-                      modulation_mhz=self.profile.modulation_mhz if mixing else None)
+        return render(scene, pose, self.geometry.optics, surface_properties(scene, self.effects),
+                      modulation_mhz=self.profile.modulation_mhz if self.mixes_returns else None)
+
+    def shading(self) -> np.ndarray | float:
+        """The factor the effects' ``shading`` puts on the light after the blur (1 without)."""
+        shading: np.ndarray | float = 1.0
+        for hook, params in acting(self.effects, "shading"):
+            shading = shading * hook(self.geometry.cos_alpha, params)
+        return shading
 
     def expected(self, r: Rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float]:
         """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render."""
-        p, fx = self.profile, self.effects
+        p = self.profile
         focus_distance_mm = centre_distance_mm(r)
         gain = exposure_us / p.exposure_us
         scale = self.a_ref * gain / IRRADIANCE_REF
         light = self.geometry.blur(r.irradiance_fine, focus_distance_mm, r.oversample) * scale
-        shading = vignetting.factor(self.geometry.cos_alpha, fx["vignetting"]) if "vignetting" in fx else 1.0
+        shading = self.shading()
         amplitude = np.maximum(light * shading, 0.0)
         phasor = None
         if r.phasor is not None:
-            if "flying_pixels" in fx:  # every return reaching the pixel, through the optical PSF
+            if self.mixed_pixels:  # every return reaching the pixel, through the optical PSF
                 phasor = self.geometry.blur(r.phasor_fine, focus_distance_mm, r.oversample) * scale * shading
             else:  # the dominant surface alone
                 phasor = amplitude * np.exp(1j * self.wavenumber * np.nan_to_num(r.range_dom))
@@ -154,41 +152,28 @@ class ToFSensor:
         )
 
     def _measured_range(self, range_dom: np.ndarray, phasor: np.ndarray | None, light: np.ndarray) -> np.ndarray:
-        """Range per pixel before temporal noise: dominant or mixed return, then the range effects.
+        """Range per pixel before temporal noise: dominant or mixed return, then the effects' range hooks.
 
-        ``phasor`` (with ``flying_pixels`` or ``multipath``) is the pixel's correlation
-        phasor; ``light`` the returned light before vignetting (for the intensity-related error).
+        ``phasor`` (when an effect ``mixes_returns``) is the pixel's correlation phasor, which the effects'
+        ``phasor`` hooks act on first; ``light`` the returned light before vignetting.
         """
-        fx = self.effects
         range_mm = range_dom
         if phasor is not None:
-            if "multipath" in fx:
-                m = fx["multipath"]
-                phasor = phasor + m.strength * phasor.mean() * np.exp(1j * self.wavenumber * m.extra_path_mm)
+            for hook, params in acting(self.effects, "phasor"):
+                phasor = hook(phasor, params, self)
             ref = np.nan_to_num(range_dom)
             residual = np.angle(phasor * np.exp(-1j * self.wavenumber * ref))
             range_mm = np.where(np.isfinite(range_dom), ref + residual / self.wavenumber, np.nan)
-        if "floor_multipath" in fx:
-            x, y, z = self.geometry.optics.directions(*self.geometry.optics.pixel_grid()) * range_mm
-            range_mm = range_mm + floor_multipath.error_mm(x, y, z, self.wavenumber, fx["floor_multipath"])
-        if "wiggling" in fx:
-            range_mm = wiggling.apply(range_mm, fx["wiggling"])
-        if "range_scale" in fx:
-            range_mm = range_scale.apply(range_mm, fx["range_scale"])
-        if "range_offset" in fx:
-            range_mm = range_offset.apply(range_mm, fx["range_offset"])
-        if "intensity_related_error" in fx:
-            range_mm = range_mm + ire.error_mm(light, self.a_ref, fx["intensity_related_error"])
-        if self.pattern_mm is not None:
-            range_mm = range_mm + self.pattern_mm
-        return apply_empirical(range_mm, fx)
+        stage = RangeStage(self, light)
+        for hook, params in acting(self.effects, "on_range"):
+            range_mm = hook(range_mm, params, stage)
+        return range_mm
 
     def frame(self, prep: ToFPrepared, k: int, t_s: float) -> tuple[np.ndarray, ...]:
         """Frame ``k`` of the stack, taken at device time ``t_s``: (x, y, z, intensity, confidence)."""
-        p, fx = self.profile, self.effects
+        p = self.profile
         h, w = p.height, p.width
-        drift = temperature_drift.offset_mm(t_s, fx["temperature_drift"]) if "temperature_drift" in fx else 0.0
-        step = fx["quantization"].step_mm if "quantization" in fx else 0.0
+        drift, step = frame_offset_mm(self.effects, t_s), output_step_mm(self.effects)
         off_amp, off_range = prep.bank.offsets(prep.seed, prep.step_index, k)
         x, y, z, intensity = (np.empty((h, w), np.float32) for _ in range(4))
         confidence = np.empty((h, w), np.dtype(p.confidence_dtype))

@@ -47,3 +47,32 @@ def test_every_labctl_subpackage_says_what_it_is_for() -> None:
             continue
         doc = ast.get_docstring(ast.parse(init.read_text(encoding="utf-8")))
         assert doc and len(doc.splitlines()) == 1, f"{init.relative_to(ROOT)}: a one-line docstring"
+
+
+#: modules that act on or fit effects through their declarations (sim/effects/<name>.py), never by name
+EFFECT_NEUTRAL = ("labctl/reconcile/candidates.py", "sim/tof.py", "sim/stereo.py")
+
+
+def effect_literals() -> set[str]:
+    """Every effect's name and the names of the parameters reconcile fits or sets (``Observed``)."""
+    from sim.effects import EFFECTS
+
+    names = set(EFFECTS)
+    for effect in EFFECTS.values():
+        if effect.observed is not None:
+            names.update(effect.observed.fitted, effect.observed.fixed)
+    return names
+
+
+def string_literals(source: str) -> set[str]:
+    """The string constants of a module (docstrings included: only a whole string equal to a name counts)."""
+    return {node.value for node in ast.walk(ast.parse(source)) if isinstance(node, ast.Constant)
+            and isinstance(node.value, str)}
+
+
+@pytest.mark.parametrize("module", EFFECT_NEUTRAL)
+def test_effect_facts_stay_in_their_modules(module: str) -> None:
+    """An effect's name, parameters and bounds are stated once, in its own module: the sensors call its hooks
+    and reconcile builds its candidate from its declaration, so neither names an effect or a fitted parameter."""
+    found = string_literals((ROOT / module).read_text(encoding="utf-8")) & effect_literals()
+    assert found == set(), f"{module} names {sorted(found)}"

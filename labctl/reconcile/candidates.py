@@ -1,11 +1,19 @@
 """Candidate effects and their signatures: what each would change in the simulated output.
 
+The candidates are built from the effects' own declarations (``EFFECT.observed``
+in each sim/effects module): the signature form (``FORMS``), the parameters
+the fit sets, the steps that show the effect and how many it needs. The
+solver's bounds are the parameters' valid ranges (``bounds``), or the bounds
+the effect states for its solver. An effect whose declaration names no
+signature is not a candidate; its ``why_not`` is noted (``NOT_IDENTIFIABLE``).
+
 A signature is the change of the binned prediction per unit of the effect's
 linear parameter, per step, in depth (mm) and in log intensity. Effects that
 act after the render have closed-form signatures from the base prediction
 (the formulas of their sim/effects modules, linearized where needed); effects
 that move the geometry are differentiated by re-simulating with the effect
-switched on (finite difference). Nonlinear parameters (a wiggling period, a
+switched on (finite difference, the ``resimulated`` form, which suits any
+effect linear in one parameter). Nonlinear parameters (a wiggling period, a
 drift time constant, a multipath extra path, a ``floor_multipath`` plane and
 its distance) are searched on a grid, the linear ones solved for at each grid
 point. A candidate with ``bind`` is built from the run itself (its signature
@@ -24,22 +32,16 @@ other columns of its bin), a per-pixel random map (it averages out within a
 bin), bins never compared (the image border, edges: their offset is left 0),
 and structure that is neither a column nor a row pattern.
 
-Not candidates, because the comparison cannot see them:
-
-* ``range_offset``: a constant range error is what the offset calibration and
-  the per-group nuisance offsets absorb;
-* ``quantization``: it does not move the mean of a noisy stack;
-* ``defocus`` and ``flying_pixels``: they act at edges, and bins at edges are
-  left out (the slanted-edge evaluation measures sharpness);
-* ``fov_error`` and ``radial_distortion`` corrected in the cloud
-  (``cloud = false``): the camera's calibration keeps depth and the point
-  cloud right, only feature positions in the intensity image move; the
-  checkerboard corners show them (labctl/reconcile/corners.py).
+``radial_distortion`` corrected in the cloud (``cloud = false``) and
+``fov_error`` leave depth and the point cloud right (the camera's calibration
+knows its optics); only feature positions in the intensity image move, which
+the checkerboard corners show (labctl/reconcile/corners.py).
 """
 
 from __future__ import annotations
 
 import math
+import typing
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -49,7 +51,7 @@ import numpy as np
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout, raw_residuals
-from sim.effects import floor_multipath
+from sim.effects import EFFECTS, Effect
 from sim.materials import get_material
 from sim.model import SimModel
 from sim.render import C_MM_PER_S
@@ -142,64 +144,130 @@ def _depth(ctx: Context, rows: np.ndarray) -> Column:
     return np.nan_to_num(rows), ctx.no_intensity()
 
 
-# range_scale: r' = r (1 + scale)  ->  dz = z per unit scale
-def _scale_columns(ctx: Context, _: float | None) -> list[Column]:
-    return [_depth(ctx, ctx.z_rows("z"))]
+def bounds(effect: Effect, key: str) -> tuple[float, float]:
+    """The solver's bounds of parameter ``key``: the effect's ``solver_bounds``, else its valid range."""
+    if key in effect.observed.solver_bounds:
+        return effect.observed.solver_bounds[key]
+    lo, hi = -math.inf, math.inf
+    for limit in effect.params.model_fields[key].metadata:
+        lo = getattr(limit, "ge", getattr(limit, "gt", lo))
+        hi = getattr(limit, "le", getattr(limit, "lt", hi))
+    return float(lo), float(hi)
 
 
-RANGE_SCALE = Candidate(
-    "range_scale", ("tof", "stereo"), 1, _none, _scale_columns,
-    lambda ctx, c, _: {"scale": float(c[0])} if abs(c[0]) <= 0.1 else None,
-    lambda p: (np.array([p["scale"]]), (np.array([-0.1]), np.array([0.1]))),
-    lambda x: {"scale": float(x[0])},
-)
+def _wrap(angle: float) -> float:
+    """An angle in [-pi, pi)."""
+    return float((angle + math.pi) % (2 * math.pi) - math.pi)
 
 
-# wiggling: dr = a sin(2 pi r / P) + b cos(2 pi r / P); the period searched between 3 sweep steps and the range span
+# one linear parameter: the fitted coefficient is the parameter (within its bounds), ``fixed`` set beside it
+def _linear(effect: Effect, columns: Callable[[Context, Any], list[Column]],
+            applies: Callable[[Context], bool] = lambda ctx: True) -> Candidate:
+    key, fixed = effect.observed.fitted[0], dict(effect.observed.fixed)
+    lo, hi = bounds(effect, key)
+    return Candidate(
+        effect.name, effect.technologies, 1, _none, columns,
+        lambda ctx, c, _: {key: float(c[0]), **fixed} if lo <= c[0] <= hi else None,
+        lambda p: (np.array([p[key]]), (np.array([lo]), np.array([hi]))),
+        lambda x: {key: float(x[0]), **fixed},
+        applies=applies,
+    )
+
+
+# proportional_range: r' = r (1 + scale)  ->  dz = z per unit scale
+def _proportional_range(effect: Effect) -> Candidate:
+    return _linear(effect, lambda ctx, _: [_depth(ctx, ctx.z_rows("z"))])
+
+
+# inverse_light: dr = e A_ref / A (light before vignetting)
+def _inverse_light_columns(ctx: Context, _: float | None) -> list[Column]:
+    a_ref = reference_amplitude(ctx.model.profile())
+    light = ctx.z_rows("light")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return [_depth(ctx, np.where(light > 0, a_ref / light, 0.0) * ctx.z_rows("z_per_range"))]
+
+
+def _inverse_light(effect: Effect) -> Candidate:
+    return _linear(effect, _inverse_light_columns)
+
+
+# log_cos_alpha: ln A' = ln A + exponent ln cos(alpha)
+def _log_cos_alpha_columns(ctx: Context, _: float | None) -> list[Column]:
+    log_cos = ctx.lay.stack_i([np.broadcast_to(np.log(p.cos_alpha), p.z.shape) for p in ctx.predictions])
+    return [(np.zeros(len(ctx.lay.z_step)), log_cos)]
+
+
+def _log_cos_alpha(effect: Effect) -> Candidate:
+    return _linear(effect, _log_cos_alpha_columns)
+
+
+# resimulated: the change of the prediction with the effect switched on at ``probe``, on the steps that show it
+def _translucent(o: Observation) -> bool:
+    material = o.scene.target if o.scene.target in PLATE_MATERIALS else None
+    names = [material] if material else {"boehler_star": ["ptfe"], "face_mask": ["silicone"]}.get(o.scene.target, [])
+    return any(get_material(n).subsurface_bias_mm != 0 for n in names)
+
+
+def _on_robot(o: Observation) -> bool:
+    return o.scene.target in PLATE_MATERIALS
+
+
+#: which steps show an effect (``Observed.steps``)
+STEPS: dict[str, Callable[[Observation], bool]] = {
+    "all": lambda o: True, "translucent": _translucent, "robot_plates": _on_robot}
+
+
+def _resimulated(effect: Effect) -> Candidate:
+    seen = effect.observed
+    shows, probe = STEPS[seen.steps], {seen.fitted[0]: seen.probe, **seen.fixed}
+    return _linear(
+        effect, lambda ctx, _: [ctx.finite_difference(effect.name, probe, shows, seen.probe)],
+        applies=lambda ctx: sum(shows(o) for o in ctx.observations) >= seen.min_steps,
+    )
+
+
+# periodic_range: dr = a sin(2 pi r / P) + b cos(2 pi r / P); the period searched between 3 sweep steps and the
+# range span
 def _range_span(ctx: Context) -> tuple[float, float]:
     ranges = np.concatenate([p.range_mm[np.isfinite(p.range_mm)] for p in ctx.predictions])
     return float(ranges.min()), float(ranges.max())
 
 
-def _wiggling_grid(ctx: Context) -> list[float | None]:
+def _periodic_range_grid(ctx: Context) -> list[float | None]:
     lo, hi = _range_span(ctx)
     return list(np.geomspace(150.0, max(hi - lo, 300.0), 90))
 
 
-def _wiggling_columns(ctx: Context, period: float | None) -> list[Column]:
+def _periodic_range_columns(ctx: Context, period: float | None) -> list[Column]:
     phase = 2 * math.pi / float(period) * ctx.z_rows("range_mm")
     ratio = ctx.z_rows("z_per_range")
     return [_depth(ctx, np.sin(phase) * ratio), _depth(ctx, np.cos(phase) * ratio)]
 
 
-def _wiggling_params(ctx: Context, c: np.ndarray, period: float | None) -> dict[str, Any] | None:
-    amplitude = float(np.hypot(c[0], c[1]))
-    return {"amplitude_mm": amplitude, "period_mm": float(period), "phase_rad": float(math.atan2(c[1], c[0]))} \
-        if amplitude <= 100.0 else None
+def _periodic_range(effect: Effect) -> Candidate:
+    keys = effect.observed.fitted  # amplitude, period, phase
+    (a_lo, a_hi), (p_lo, p_hi), (f_lo, f_hi) = (bounds(effect, k) for k in keys)
+
+    def to_params(ctx: Context, c: np.ndarray, period: float | None) -> dict[str, Any] | None:
+        amplitude = float(np.hypot(c[0], c[1]))
+        return {keys[0]: amplitude, keys[1]: float(period), keys[2]: float(math.atan2(c[1], c[0]))} \
+            if amplitude <= a_hi else None
+
+    return Candidate(
+        effect.name, effect.technologies, 3, _periodic_range_grid, _periodic_range_columns, to_params,
+        lambda p: (np.array([p[k] for k in keys]), (np.array([a_lo, p_lo, f_lo]), np.array([a_hi, p_hi, f_hi]))),
+        lambda x: {keys[0]: float(x[0]), keys[1]: float(x[1]), keys[2]: _wrap(x[2])},
+    )
 
 
-WIGGLING = Candidate(
-    "wiggling", ("tof",), 3, _wiggling_grid, _wiggling_columns, _wiggling_params,
-    lambda p: (np.array([p["amplitude_mm"], p["period_mm"], p["phase_rad"]]),
-               (np.array([0.0, 10.0, -4 * math.pi]), np.array([100.0, 20000.0, 4 * math.pi]))),
-    lambda x: {"amplitude_mm": float(x[0]), "period_mm": float(x[1]),
-               "phase_rad": float((x[2] + math.pi) % (2 * math.pi) - math.pi)},
-)
-
-
-# temperature_drift: dr = delta exp(-t / tau) (+ delta_2 exp(-t / tau_2)), t since the run's first frame.
+# warm_up: dr = delta exp(-t / tau) (+ delta_2 exp(-t / tau_2)), t since the run's first frame.
 # A second time constant is scored only where the run asks for it: the candidate is bound to the run by
 # comparing the best one- and two-term fits with Schwarz's criterion over steps (as score.py counts it);
 # if two terms win by TWO_TERM_EVIDENCE (strong evidence on the Kass & Raftery 1995 scale is > 6), the
 # candidate is the two-term form with its 4 parameters, otherwise the one-term form with 2.
 TWO_TERM_EVIDENCE = 10.0
 TWO_TERM_MIN_RATIO = 2.0  # the two time constants must differ by this factor
-DRIFT_LIMIT_MM = 100.0
-TAU_RANGE_S = (1.0, 86400.0)
-
-
-def _drift_grid(_: Context) -> list[Any]:
-    return list(np.geomspace(10.0, 86400.0, 48))
+SHORTEST_TAU_SEARCHED_S = 10.0
 
 
 def _drift_rows(ctx: Context, tau: float) -> np.ndarray:
@@ -213,116 +281,91 @@ def _drift_columns(ctx: Context, taus: Any) -> list[Column]:
     return [_depth(ctx, _drift_rows(ctx, tau)) for tau in (taus if isinstance(taus, tuple) else (taus,))]
 
 
-def _drift_params(_: Context, c: np.ndarray, taus: Any) -> dict[str, Any] | None:
-    taus = taus if isinstance(taus, tuple) else (taus,)
-    if np.any(np.abs(c) > DRIFT_LIMIT_MM):
-        return None
-    params: dict[str, Any] = {"delta_mm": float(c[0]), "tau_s": float(taus[0])}
-    if len(taus) > 1:
-        params["terms"] = [{"delta_mm": float(c[1]), "tau_s": float(taus[1])}]
-    return params
+def _warm_up(effect: Effect) -> Candidate:
+    delta_key, tau_key, terms_key = effect.observed.fitted
+    d_lo, d_hi = bounds(effect, delta_key)
+    t_lo, t_hi = bounds(effect, tau_key)
 
+    def grid(_: Context) -> list[Any]:
+        return list(np.geomspace(SHORTEST_TAU_SEARCHED_S, t_hi, 48))
 
-def _drift_vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    terms = [(p["delta_mm"], p["tau_s"])] + [(t["delta_mm"], t["tau_s"]) for t in p.get("terms", [])]
-    x = np.array([v for delta, tau in terms for v in (delta, math.log(tau))])
-    lo = np.tile([-DRIFT_LIMIT_MM, math.log(TAU_RANGE_S[0])], len(terms))
-    hi = np.tile([DRIFT_LIMIT_MM, math.log(TAU_RANGE_S[1])], len(terms))
-    return x, (lo, hi)
+    def outside(c: np.ndarray) -> bool:
+        return bool(np.any((c < d_lo) | (c > d_hi)))
 
-
-def _drift_from_vector(x: np.ndarray) -> dict[str, Any]:
-    params: dict[str, Any] = {"delta_mm": float(x[0]), "tau_s": float(math.exp(x[1]))}
-    if len(x) > 2:
-        params["terms"] = [{"delta_mm": float(x[i]), "tau_s": float(math.exp(x[i + 1]))} for i in range(2, len(x), 2)]
-    return params
-
-
-def _bind_drift(ctx: Context) -> Candidate:
-    """The one- or two-term drift candidate, whichever the run's depth residual supports."""
-    lay = ctx.lay
-    dz, di = raw_residuals(ctx.observations, ctx.predictions)
-    r = np.nan_to_num(lay.profiled(dz, di))[:len(lay.z_step)]  # the depth rows (drift leaves intensity alone)
-    taus = _drift_grid(ctx)
-    cols = np.column_stack([lay.profile_z(_drift_rows(ctx, tau)) * np.sqrt(lay.z_weight) for tau in taus])
-    per_step = [lay.z_step == s for s in range(lay.n_steps)]
-    gram = np.stack([cols[k].T @ cols[k] for k in per_step])
-    cross = np.stack([cols[k].T @ r[k] for k in per_step])
-    rss0 = np.array([r[k] @ r[k] for k in per_step])
-    used = rss0 > 0
-
-    def log_rss(idx: list[int]) -> float | None:
-        """Sum over steps of ln RSS with the drift terms ``idx`` fitted (None: no valid fit)."""
-        g = gram[:, idx][:, :, idx]
-        try:
-            theta = np.linalg.solve(g.sum(0), cross[:, idx].sum(0))
-        except np.linalg.LinAlgError:
+    def to_params(_: Context, c: np.ndarray, taus: Any) -> dict[str, Any] | None:
+        taus = taus if isinstance(taus, tuple) else (taus,)
+        if outside(c):
             return None
-        if np.any(np.abs(theta) > DRIFT_LIMIT_MM):
-            return None
-        rss = rss0 - 2 * cross[:, idx] @ theta + np.einsum("i,sij,j->s", theta, g, theta)
-        return float(np.sum(np.log(np.maximum(rss[used], 1e-300))))
+        params: dict[str, Any] = {delta_key: float(c[0]), tau_key: float(taus[0])}
+        if len(taus) > 1:
+            params[terms_key] = [{delta_key: float(c[1]), tau_key: float(taus[1])}]
+        return params
 
-    singles = [v for v in (log_rss([i]) for i in range(len(taus))) if v is not None]
-    pairs = [((taus[i], taus[j]), log_rss([i, j])) for i in range(len(taus)) for j in range(i + 1, len(taus))
-             if taus[j] / taus[i] >= TWO_TERM_MIN_RATIO]
-    pairs = [(p, v) for p, v in pairs if v is not None]
-    if singles and pairs:
-        best_pair, best_two = min(pairs, key=lambda pv: pv[1])
-        if min(singles) - best_two - 2 * math.log(max(lay.n_steps, 2)) > TWO_TERM_EVIDENCE:
-            return Candidate("temperature_drift", ("tof", "stereo"), 4, lambda _: [best_pair], _drift_columns,
-                             _drift_params, _drift_vector, _drift_from_vector)
-    return Candidate("temperature_drift", ("tof", "stereo"), 2, _drift_grid, _drift_columns, _drift_params,
-                     _drift_vector, _drift_from_vector)
+    def vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        terms = [(p[delta_key], p[tau_key])] + [(t[delta_key], t[tau_key]) for t in p.get(terms_key, [])]
+        x = np.array([v for delta, tau in terms for v in (delta, math.log(tau))])
+        lo = np.tile([d_lo, math.log(t_lo)], len(terms))
+        hi = np.tile([d_hi, math.log(t_hi)], len(terms))
+        return x, (lo, hi)
+
+    def from_vector(x: np.ndarray) -> dict[str, Any]:
+        params: dict[str, Any] = {delta_key: float(x[0]), tau_key: float(math.exp(x[1]))}
+        if len(x) > 2:
+            params[terms_key] = [{delta_key: float(x[i]), tau_key: float(math.exp(x[i + 1]))}
+                                 for i in range(2, len(x), 2)]
+        return params
+
+    def bind(ctx: Context) -> Candidate:
+        """The one- or two-term candidate, whichever the run's depth residual supports."""
+        lay = ctx.lay
+        dz, di = raw_residuals(ctx.observations, ctx.predictions)
+        r = np.nan_to_num(lay.profiled(dz, di))[:len(lay.z_step)]  # the depth rows (drift leaves intensity alone)
+        taus = grid(ctx)
+        cols = np.column_stack([lay.profile_z(_drift_rows(ctx, tau)) * np.sqrt(lay.z_weight) for tau in taus])
+        per_step = [lay.z_step == s for s in range(lay.n_steps)]
+        gram = np.stack([cols[k].T @ cols[k] for k in per_step])
+        cross = np.stack([cols[k].T @ r[k] for k in per_step])
+        rss0 = np.array([r[k] @ r[k] for k in per_step])
+        used = rss0 > 0
+
+        def log_rss(idx: list[int]) -> float | None:
+            """Sum over steps of ln RSS with the drift terms ``idx`` fitted (None: no valid fit)."""
+            g = gram[:, idx][:, :, idx]
+            try:
+                theta = np.linalg.solve(g.sum(0), cross[:, idx].sum(0))
+            except np.linalg.LinAlgError:
+                return None
+            if outside(theta):
+                return None
+            rss = rss0 - 2 * cross[:, idx] @ theta + np.einsum("i,sij,j->s", theta, g, theta)
+            return float(np.sum(np.log(np.maximum(rss[used], 1e-300))))
+
+        singles = [v for v in (log_rss([i]) for i in range(len(taus))) if v is not None]
+        pairs = [((taus[i], taus[j]), log_rss([i, j])) for i in range(len(taus)) for j in range(i + 1, len(taus))
+                 if taus[j] / taus[i] >= TWO_TERM_MIN_RATIO]
+        pairs = [(p, v) for p, v in pairs if v is not None]
+        if singles and pairs:
+            best_pair, best_two = min(pairs, key=lambda pv: pv[1])
+            if min(singles) - best_two - 2 * math.log(max(lay.n_steps, 2)) > TWO_TERM_EVIDENCE:
+                return Candidate(effect.name, effect.technologies, 4, lambda _: [best_pair], _drift_columns,
+                                 to_params, vector, from_vector)
+        return Candidate(effect.name, effect.technologies, 2, grid, _drift_columns, to_params, vector, from_vector)
+
+    return Candidate(effect.name, effect.technologies, 2, grid, _drift_columns, to_params, vector, from_vector,
+                     bind=bind)
 
 
-TEMPERATURE_DRIFT = Candidate(
-    "temperature_drift", ("tof", "stereo"), 2, _drift_grid, _drift_columns, _drift_params, _drift_vector,
-    _drift_from_vector, bind=_bind_drift,
-)
-
-
-# intensity_related_error: dr = e A_ref / A (light before vignetting)
-def _ire_columns(ctx: Context, _: float | None) -> list[Column]:
-    a_ref = reference_amplitude(ctx.model.profile())
-    light = ctx.z_rows("light")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return [_depth(ctx, np.where(light > 0, a_ref / light, 0.0) * ctx.z_rows("z_per_range"))]
-
-
-INTENSITY_RELATED_ERROR = Candidate(
-    "intensity_related_error", ("tof",), 1, _none, _ire_columns,
-    lambda ctx, c, _: {"error_at_reference_mm": float(c[0])} if abs(c[0]) <= 50.0 else None,
-    lambda p: (np.array([p["error_at_reference_mm"]]), (np.array([-50.0]), np.array([50.0]))),
-    lambda x: {"error_at_reference_mm": float(x[0])},
-)
-
-
-# vignetting: ln A' = ln A + exponent ln cos(alpha)
-def _vignetting_columns(ctx: Context, _: float | None) -> list[Column]:
-    log_cos = ctx.lay.stack_i([np.broadcast_to(np.log(p.cos_alpha), p.z.shape) for p in ctx.predictions])
-    return [(np.zeros(len(ctx.lay.z_step)), log_cos)]
-
-
-VIGNETTING = Candidate(
-    "vignetting", ("tof", "stereo"), 1, _none, _vignetting_columns,
-    lambda ctx, c, _: {"exponent": float(c[0])} if 0.0 <= c[0] <= 20.0 else None,
-    lambda p: (np.array([p["exponent"]]), (np.array([0.0]), np.array([20.0]))),
-    lambda x: {"exponent": float(x[0])},
-)
-
-
-# multipath: dr ~ s Im(M e^{jkL} / (A e^{jkr})) / k for a small strength s (M: mean phasor of the image)
+# mean_phasor: dr ~ s Im(M e^{jkL} / (A e^{jkr})) / k for a small strength s (M: mean phasor of the image)
 def _wavenumber(ctx: Context) -> float:
     return 4 * math.pi * ctx.model.profile().modulation_mhz * 1e6 / C_MM_PER_S
 
 
-def _multipath_grid(ctx: Context) -> list[float | None]:
+def _mean_phasor_grid(ctx: Context) -> list[float | None]:
     period = 2 * math.pi / _wavenumber(ctx)
     return list(np.linspace(period / 36, period, 36))
 
 
-def _multipath_columns(ctx: Context, extra_path: float | None) -> list[Column]:
+def _mean_phasor_columns(ctx: Context, extra_path: float | None) -> list[Column]:
     k = _wavenumber(ctx)
     mean = ctx.per_step(np.array([p.phasor_mean for p in ctx.predictions]))
     amplitude = ctx.z_rows("intensity")
@@ -331,22 +374,25 @@ def _multipath_columns(ctx: Context, extra_path: float | None) -> list[Column]:
     return [_depth(ctx, np.where(amplitude > 0, ratio.imag / k, 0.0) * ctx.z_rows("z_per_range"))]
 
 
-def _multipath_params(ctx: Context, c: np.ndarray, extra_path: float | None) -> dict[str, Any] | None:
-    strength, path = float(c[0]), float(extra_path)
-    if strength < 0:  # -s e^{jkL} = s e^{jk(L + period / 2)}
-        period = 2 * math.pi / _wavenumber(ctx)
-        strength, path = -strength, (path + period / 2) % period or period
-    return {"strength": strength, "extra_path_mm": path} if strength <= 1.0 else None
+def _mean_phasor(effect: Effect) -> Candidate:
+    keys = effect.observed.fitted  # strength, extra path
+    (s_lo, s_hi), (p_lo, p_hi) = (bounds(effect, k) for k in keys)
+
+    def to_params(ctx: Context, c: np.ndarray, extra_path: float | None) -> dict[str, Any] | None:
+        strength, path = float(c[0]), float(extra_path)
+        if strength < 0:  # -s e^{jkL} = s e^{jk(L + period / 2)}
+            period = 2 * math.pi / _wavenumber(ctx)
+            strength, path = -strength, (path + period / 2) % period or period
+        return {keys[0]: strength, keys[1]: path} if strength <= s_hi else None
+
+    return Candidate(
+        effect.name, effect.technologies, 2, _mean_phasor_grid, _mean_phasor_columns, to_params,
+        lambda p: (np.array([p[k] for k in keys]), (np.array([s_lo, p_lo]), np.array([s_hi, p_hi]))),
+        lambda x: {keys[0]: float(x[0]), keys[1]: float(x[1])},
+    )
 
 
-MULTIPATH = Candidate(
-    "multipath", ("tof",), 2, _multipath_grid, _multipath_columns, _multipath_params,
-    lambda p: (np.array([p["strength"], p["extra_path_mm"]]), (np.array([0.0, 1.0]), np.array([1.0, 10000.0]))),
-    lambda x: {"strength": float(x[0]), "extra_path_mm": float(x[1])},
-)
-
-
-# fixed_pattern: dr = C(u) + R(v), a column and a row profile at the bin resolution. The profiles are the
+# column_row_profile: dr = C(u) + R(v), a column and a row profile at the bin resolution. The profiles are the
 # additive fit of the residual over all steps (what stays the same at every distance); a step's signature is
 # the profiles fitted to the other steps only, so the score is out of sample and its two linear parameters
 # (the column and the row profile's gain) cannot fit a step's own noise.
@@ -381,85 +427,86 @@ def _pattern_residual(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
     return res, weight
 
 
-def _bind_pattern(ctx: Context) -> Candidate:
-    """The fixed_pattern candidate with the profiles of this run's residual."""
-    res, weight = _pattern_residual(ctx)
-    col, row = _additive_profiles(res, weight)
-    held_out_col, held_out_row = [], []
-    for s in range(len(res)):
-        keep = np.arange(len(res)) != s
-        c, r = _additive_profiles(res[keep], weight[keep])
-        held_out_col.append(np.broadcast_to(c[None, :], res.shape[1:]))
-        held_out_row.append(np.broadcast_to(r[:, None], res.shape[1:]))
-    norms = (float(col @ col), float(row @ row))
+def _column_row_profile(effect: Effect) -> Candidate:
+    col_key, row_key = effect.observed.fitted
 
-    def columns(c: Context, _: Any) -> list[Column]:
-        ratio = c.z_rows("z_per_range")
-        return [_depth(c, c.lay.stack_z(held_out_col) * ratio), _depth(c, c.lay.stack_z(held_out_row) * ratio)]
+    def bind(ctx: Context) -> Candidate:
+        """The candidate with the profiles of this run's residual."""
+        res, weight = _pattern_residual(ctx)
+        col, row = _additive_profiles(res, weight)
+        held_out_col, held_out_row = [], []
+        for s in range(len(res)):
+            keep = np.arange(len(res)) != s
+            c, r = _additive_profiles(res[keep], weight[keep])
+            held_out_col.append(np.broadcast_to(c[None, :], res.shape[1:]))
+            held_out_row.append(np.broadcast_to(r[:, None], res.shape[1:]))
+        norms = (float(col @ col), float(row @ row))
 
-    def from_vector(x: np.ndarray) -> dict[str, Any]:
-        return {"column_offsets_mm": [float(v) for v in x[0] * col], "row_offsets_mm": [float(v) for v in x[1] * row]}
+        def columns(c: Context, _: Any) -> list[Column]:
+            ratio = c.z_rows("z_per_range")
+            return [_depth(c, c.lay.stack_z(held_out_col) * ratio), _depth(c, c.lay.stack_z(held_out_row) * ratio)]
 
-    def to_params(_: Context, c: np.ndarray, __: Any) -> dict[str, Any] | None:
-        return from_vector(c) if np.all(np.abs(c) <= PATTERN_GAIN_LIMIT) and min(norms) > 0 else None
+        def from_vector(x: np.ndarray) -> dict[str, Any]:
+            return {col_key: [float(v) for v in x[0] * col], row_key: [float(v) for v in x[1] * row]}
+
+        def to_params(_: Context, c: np.ndarray, __: Any) -> dict[str, Any] | None:
+            return from_vector(c) if np.all(np.abs(c) <= PATTERN_GAIN_LIMIT) and min(norms) > 0 else None
+
+        def vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+            x = np.array([np.dot(p[col_key], col) / norms[0], np.dot(p[row_key], row) / norms[1]])
+            return x, (np.full(2, -PATTERN_GAIN_LIMIT), np.full(2, PATTERN_GAIN_LIMIT))
+
+        return Candidate(effect.name, effect.technologies, 2, _none, columns, to_params, vector, from_vector)
+
+    return Candidate(  # bound to a run's residual by candidates_for
+        effect.name, effect.technologies, 2, _none, lambda ctx, _: [], lambda ctx, c, _: None,
+        lambda p: (np.zeros(0), (np.zeros(0), np.zeros(0))), lambda x: {}, bind=bind,
+    )
+
+
+# plane_bounce: dr ~ q sin(k (R' - r) / 2) / k per unit reflectance (first order), the plane and its distance
+# from the optical axis searched on a grid. The plane is coded into the distance parameter of the refit
+# (PLANE_CODE_MM per plane), whose bounds keep the solver on the plane the grid found.
+PLANE_CODE_MM = 20000.0
+
+
+def _plane_bounce(effect: Effect) -> Candidate:
+    plane_key, distance_key, reflectance_key = effect.observed.fitted
+    planes = typing.get_args(effect.params.model_fields[plane_key].annotation)
+    bounce = effect.observed.formula
+    d_lo, d_hi = bounds(effect, distance_key)
+    r_lo, r_hi = bounds(effect, reflectance_key)
+
+    def grid(_: Context) -> list[Any]:
+        return [(plane, float(d)) for plane in planes for d in np.geomspace(100.0, 3000.0, 24)]
+
+    def columns(ctx: Context, where: Any) -> list[Column]:
+        plane, distance = where
+        k = _wavenumber(ctx)
+        x, y, z = ctx.points()
+        ratio, half_extra = bounce(x, y, z, plane, distance)
+        return [_depth(ctx, ratio * np.sin(k * half_extra) / k * ctx.z_rows("z_per_range"))]
+
+    def to_params(ctx: Context, c: np.ndarray, where: Any) -> dict[str, Any] | None:
+        plane, distance = where
+        return {plane_key: plane, distance_key: distance, reflectance_key: float(c[0])} \
+            if r_lo < c[0] <= r_hi else None
 
     def vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        x = np.array([np.dot(p["column_offsets_mm"], col) / norms[0], np.dot(p["row_offsets_mm"], row) / norms[1]])
-        return x, (np.full(2, -PATTERN_GAIN_LIMIT), np.full(2, PATTERN_GAIN_LIMIT))
+        code = planes.index(p[plane_key]) * PLANE_CODE_MM
+        return (np.array([p[reflectance_key], code + p[distance_key]]),
+                (np.array([r_lo, code + d_lo]), np.array([r_hi, code + d_hi])))
 
-    return Candidate("fixed_pattern", ("tof",), 2, _none, columns, to_params, vector, from_vector)
+    def from_vector(x: np.ndarray) -> dict[str, Any]:
+        index = int(x[1] // PLANE_CODE_MM)
+        return {plane_key: planes[index], distance_key: float(x[1] - index * PLANE_CODE_MM),
+                reflectance_key: float(x[0])}
 
-
-FIXED_PATTERN = Candidate(  # bound to a run's residual by candidates_for
-    "fixed_pattern", ("tof",), 2, _none, lambda ctx, _: [], lambda ctx, c, _: None,
-    lambda p: (np.zeros(0), (np.zeros(0), np.zeros(0))), lambda x: {}, bind=_bind_pattern,
-)
-
-
-# floor_multipath: dr ~ q sin(k (R' - r) / 2) / k per unit reflectance (first order), the plane and its
-# distance from the optical axis searched on a grid. The plane is coded into the distance parameter of the
-# refit (PLANE_CODE_MM per plane), whose bounds keep the solver on the plane the grid found.
-PLANE_CODE_MM = 20000.0
-PLANE_NAMES = tuple(floor_multipath.PLANES)
+    return Candidate(effect.name, effect.technologies, 3, grid, columns, to_params, vector, from_vector)
 
 
-def _bounce_grid(_: Context) -> list[Any]:
-    return [(plane, float(d)) for plane in PLANE_NAMES for d in np.geomspace(100.0, 3000.0, 24)]
-
-
-def _bounce_columns(ctx: Context, where: Any) -> list[Column]:
-    plane, distance = where
-    k = _wavenumber(ctx)
-    x, y, z = ctx.points()
-    ratio, half_extra = floor_multipath.bounce(x, y, z, plane, distance)
-    return [_depth(ctx, ratio * np.sin(k * half_extra) / k * ctx.z_rows("z_per_range"))]
-
-
-def _bounce_params(ctx: Context, c: np.ndarray, where: Any) -> dict[str, Any] | None:
-    plane, distance = where
-    return {"plane": plane, "distance_mm": distance, "reflectance": float(c[0])} if 0.0 < c[0] <= 1.0 else None
-
-
-def _bounce_vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    code = PLANE_NAMES.index(p["plane"]) * PLANE_CODE_MM
-    return (np.array([p["reflectance"], code + p["distance_mm"]]),
-            (np.array([0.0, code + 1.0]), np.array([1.0, code + 10000.0])))
-
-
-def _bounce_from_vector(x: np.ndarray) -> dict[str, Any]:
-    index = int(x[1] // PLANE_CODE_MM)
-    return {"plane": PLANE_NAMES[index], "distance_mm": float(x[1] - index * PLANE_CODE_MM),
-            "reflectance": float(x[0])}
-
-
-FLOOR_MULTIPATH = Candidate(
-    "floor_multipath", ("tof",), 3, _bounce_grid, _bounce_columns, _bounce_params, _bounce_vector,
-    _bounce_from_vector,
-)
-
-
-# disparity_bias: dz = -z^2 / (f b) * (a sin(2 pi d) + b cos(2 pi d)), d = f b / z in the matcher's pixels
-def _bias_columns(ctx: Context, _: Any) -> list[Column]:
+# periodic_disparity: dz = -z^2 / (f b) * (a sin(2 pi d) + b cos(2 pi d)), d = f b / z in the matcher's pixels
+def _periodic_disparity_columns(ctx: Context, _: Any) -> list[Column]:
     focal_baseline = ctx.make_predictor(ctx.model).sensor.matching_focal_baseline
     z = np.nan_to_num(ctx.z_rows("z"), nan=1.0)
     d = focal_baseline / z
@@ -467,78 +514,51 @@ def _bias_columns(ctx: Context, _: Any) -> list[Column]:
     return [_depth(ctx, slope * np.sin(2 * math.pi * d)), _depth(ctx, slope * np.cos(2 * math.pi * d))]
 
 
-def _bias_params(ctx: Context, c: np.ndarray, _: Any) -> dict[str, Any] | None:
-    amplitude = float(np.hypot(c[0], c[1]))
-    return {"amplitude_px": amplitude, "phase_rad": float(math.atan2(c[1], c[0]))} if amplitude <= 0.5 else None
+def _periodic_disparity(effect: Effect) -> Candidate:
+    keys = effect.observed.fitted  # amplitude, phase
+    (a_lo, a_hi), (f_lo, f_hi) = (bounds(effect, k) for k in keys)
 
+    def to_params(ctx: Context, c: np.ndarray, _: Any) -> dict[str, Any] | None:
+        amplitude = float(np.hypot(c[0], c[1]))
+        return {keys[0]: amplitude, keys[1]: float(math.atan2(c[1], c[0]))} if amplitude <= a_hi else None
 
-DISPARITY_BIAS = Candidate(
-    "disparity_bias", ("stereo",), 2, _none, _bias_columns, _bias_params,
-    lambda p: (np.array([p["amplitude_px"], p["phase_rad"]]),
-               (np.array([0.0, -4 * math.pi]), np.array([0.5, 4 * math.pi]))),
-    lambda x: {"amplitude_px": float(x[0]), "phase_rad": float((x[1] + math.pi) % (2 * math.pi) - math.pi)},
-)
-
-
-# material_bias: translucent materials read scale x their sub-surface bias long (re-simulated)
-def _translucent(o: Observation) -> bool:
-    material = o.scene.target if o.scene.target in PLATE_MATERIALS else None
-    names = [material] if material else {"boehler_star": ["ptfe"], "face_mask": ["silicone"]}.get(o.scene.target, [])
-    return any(get_material(n).subsurface_bias_mm != 0 for n in names)
-
-
-MATERIAL_BIAS = Candidate(
-    "material_bias", ("tof",), 1, _none,
-    lambda ctx, _: [ctx.finite_difference("material_bias", {"scale": 1.0}, _translucent, 1.0)],
-    lambda ctx, c, _: {"scale": float(c[0])} if 0.0 <= c[0] <= 10.0 else None,
-    lambda p: (np.array([p["scale"]]), (np.array([0.0]), np.array([10.0]))),
-    lambda x: {"scale": float(x[0])},
-    applies=lambda ctx: any(_translucent(o) for o in ctx.observations),
-)
-
-
-def _on_robot(o: Observation) -> bool:
-    return o.scene.target in PLATE_MATERIALS
-
-
-def _offset_candidate(name: str) -> Candidate:
-    step = 10.0
     return Candidate(
-        name, ("tof", "stereo"), 1, _none,
-        lambda ctx, _: [ctx.finite_difference(name, {"offset_mm": step}, _on_robot, step)],
-        lambda ctx, c, _: {"offset_mm": float(c[0])} if abs(c[0]) <= 200.0 else None,
-        lambda p: (np.array([p["offset_mm"]]), (np.array([-200.0]), np.array([200.0]))),
-        lambda x: {"offset_mm": float(x[0])},
-        applies=lambda ctx: sum(_on_robot(o) for o in ctx.observations) >= 3,
+        effect.name, effect.technologies, 2, _none, _periodic_disparity_columns, to_params,
+        lambda p: (np.array([p[k] for k in keys]), (np.array([a_lo, f_lo]), np.array([a_hi, f_hi]))),
+        lambda x: {keys[0]: float(x[0]), keys[1]: _wrap(x[1])},
     )
 
 
-TARGET_MISALIGNMENT = _offset_candidate("target_misalignment")
-CAMERA_AXIS_OFFSET = _offset_candidate("camera_axis_offset")
-
-# radial_distortion left in the point cloud: the rays the camera reports are not the ones it sees
-RADIAL_DISTORTION = Candidate(
-    "radial_distortion", ("tof", "stereo"), 1, _none,
-    lambda ctx, _: [ctx.finite_difference("radial_distortion", {"k1": 0.02, "cloud": True}, lambda o: True, 0.02)],
-    lambda ctx, c, _: {"k1": float(c[0]), "cloud": True} if abs(c[0]) <= 0.5 else None,
-    lambda p: (np.array([p["k1"]]), (np.array([-0.5]), np.array([0.5]))),
-    lambda x: {"k1": float(x[0]), "cloud": True},
-)
-
-CANDIDATES = (RANGE_SCALE, WIGGLING, TEMPERATURE_DRIFT, INTENSITY_RELATED_ERROR, VIGNETTING, MULTIPATH,
-              FIXED_PATTERN, FLOOR_MULTIPATH, DISPARITY_BIAS, MATERIAL_BIAS, TARGET_MISALIGNMENT,
-              CAMERA_AXIS_OFFSET, RADIAL_DISTORTION)
-NOT_IDENTIFIABLE = {
-    "range_offset": "absorbed by the offset calibration and the per-group offsets",
-    "quantization": "does not move the mean of a noisy stack",
-    "defocus": "acts at edges, which the comparison leaves out (see the slanted-edge evaluation)",
-    "flying_pixels": "acts at depth edges, which the comparison leaves out",
-    "fov_error": "the camera's calibration keeps depth and the cloud right; a checkerboard's corners would show it",
+#: the signature forms an effect can declare (``Observed.signature``)
+FORMS: dict[str, Callable[[Effect], Candidate]] = {
+    "proportional_range": _proportional_range,
+    "periodic_range": _periodic_range,
+    "warm_up": _warm_up,
+    "inverse_light": _inverse_light,
+    "log_cos_alpha": _log_cos_alpha,
+    "mean_phasor": _mean_phasor,
+    "column_row_profile": _column_row_profile,
+    "plane_bounce": _plane_bounce,
+    "periodic_disparity": _periodic_disparity,
+    "resimulated": _resimulated,
 }
+
+#: the library's effects the comparison cannot see, and why
+NOT_IDENTIFIABLE = {e.name: e.observed.why_not for e in EFFECTS.values()
+                    if e.observed is not None and e.observed.signature is None}
+
+
+def candidate(effect: Effect) -> Candidate:
+    """The candidate of an effect whose ``observed`` names a signature form."""
+    return FORMS[effect.observed.signature](effect)
 
 
 def candidates_for(ctx: Context) -> Iterator[Candidate]:
     """The candidates that apply to this run and are not yet in the model."""
-    for c in CANDIDATES:
-        if ctx.technology in c.technologies and c.name not in ctx.model.effects and c.applies(ctx):
-            yield c.bind(ctx) if c.bind is not None else c
+    for effect in list(EFFECTS.values()):
+        if effect.observed is None or effect.observed.signature is None:
+            continue
+        if ctx.technology in effect.technologies and effect.name not in ctx.model.effects:
+            c = candidate(effect)
+            if c.applies(ctx):
+                yield c.bind(ctx) if c.bind is not None else c

@@ -33,7 +33,7 @@ import numpy as np
 from scipy import ndimage
 
 from labctl.reconcile.observe import StepScene, bin_mean
-from sim.effects import EffectParams, temperature_drift
+from sim.effects import EffectParams, frame_offset_mm
 from sim.geometry import Pose
 from sim.model import SimModel
 from sim.profiles import CameraProfile
@@ -156,11 +156,10 @@ class Predictor:
         return 1 + int(math.ceil(reach_px / self.bin_px))
 
     def drift_mm(self, times_s: np.ndarray) -> float:
-        """Mean ``temperature_drift`` over the frames taken at ``times_s`` (0 without the effect)."""
-        fx = self.effects.get("temperature_drift")
-        if fx is None or not len(times_s):
+        """Mean range offset of the frames taken at ``times_s`` (``temperature_drift``; 0 without such effects)."""
+        if not len(times_s):
             return 0.0
-        return float(np.mean([temperature_drift.offset_mm(float(t), fx) for t in times_s]))
+        return float(np.mean([frame_offset_mm(self.effects, float(t)) for t in times_s]))
 
     def predict(self, step: StepScene, times_s: np.ndarray) -> Prediction:
         """The step's binned noise-free prediction (``_predict``) with each bin's curvature term added to z."""
@@ -177,10 +176,7 @@ class Predictor:
         if isinstance(self.sensor, ToFSensor):
             range_mm, amplitude, _ = self.sensor.expected(rendered, exposure)
             range_mm = range_mm + drift
-            fx = self.effects
-            shading = (np.power(self.sensor.geometry.cos_alpha, fx["vignetting"].exponent)
-                       if "vignetting" in fx else 1.0)
-            light = amplitude / shading
+            light = amplitude / self.sensor.shading()
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = range_mm * self.z_per_range
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,

@@ -1,58 +1,69 @@
-"""The effect library (docs/simulation.md): one module per effect, names fixed."""
+"""The effect library (docs/simulation.md): one module per effect, names fixed.
+
+Every module of this package that declares ``EFFECT`` (an :class:`Effect`) is
+part of the vocabulary: adding an effect is adding its module. ``registered``
+adds an effect defined elsewhere for the duration of a ``with`` block.
+"""
 
 from __future__ import annotations
 
-from types import ModuleType
+import importlib
+import pkgutil
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
-import numpy as np
 from pydantic import ValidationError
 
-from sim.effects import (
-    camera_axis_offset,
-    defocus,
-    disparity_bias,
-    empirical_pixel_map,
-    empirical_range,
-    fixed_pattern,
-    floor_multipath,
-    flying_pixels,
-    fov_error,
-    intensity_related_error,
-    material_bias,
-    multipath,
-    quantization,
-    radial_distortion,
-    range_offset,
-    range_scale,
-    target_misalignment,
-    temperature_drift,
-    vignetting,
-    wiggling,
-)
-from sim.effects.base import EffectParams
+from sim.effects.base import Effect, EffectParams, Observed, RangeStage
 
-__all__ = ["EFFECTS", "EffectParams", "apply_empirical", "parse_effects"]
-
-EFFECTS: dict[str, ModuleType] = {
-    m.NAME: m
-    for m in (
-        range_offset, range_scale, wiggling, temperature_drift, intensity_related_error, vignetting,
-        radial_distortion, fov_error, defocus, quantization, flying_pixels, multipath, material_bias,
-        target_misalignment, camera_axis_offset, fixed_pattern, floor_multipath, disparity_bias, empirical_range,
-        empirical_pixel_map,
-    )
-}
+__all__ = ["EFFECTS", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "frame_offset_mm", "output_step_mm",
+           "parse_effects", "registered"]
 
 
-def apply_empirical(values: np.ndarray, effects: dict[str, EffectParams]) -> np.ndarray:
-    """``values`` (ToF range or stereo z, an (H, W) map) with the model's empirical corrections added
-    (``empirical_range``, then ``empirical_pixel_map``); unchanged without them."""
-    if "empirical_range" in effects:
-        values = empirical_range.apply(values, effects["empirical_range"])
-    if "empirical_pixel_map" in effects:
-        values = empirical_pixel_map.apply(values, effects["empirical_pixel_map"])
-    return values
+def _discover() -> dict[str, Effect]:
+    """The ``EFFECT`` of every module of this package, by name (module order)."""
+    found: dict[str, Effect] = {}
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        effect = getattr(importlib.import_module(f"{__name__}.{info.name}"), "EFFECT", None)
+        if isinstance(effect, Effect):
+            found[effect.name] = effect
+    return found
+
+
+EFFECTS: dict[str, Effect] = _discover()
+
+
+@contextmanager
+def registered(effect: Effect) -> Iterator[Effect]:
+    """``effect`` is part of the vocabulary inside the ``with`` block (a name already taken is refused)."""
+    if effect.name in EFFECTS:
+        raise ValueError(f"effect {effect.name!r} exists already")
+    EFFECTS[effect.name] = effect
+    try:
+        yield effect
+    finally:
+        del EFFECTS[effect.name]
+
+
+def acting(effects: dict[str, EffectParams], hook: str) -> list[tuple[Callable[..., Any], EffectParams]]:
+    """(hook, parameters) of the effects present in ``effects`` that act through ``hook``, by ``order``."""
+    present = sorted((EFFECTS[name] for name in effects), key=lambda e: e.order)
+    return [(getattr(e, hook), effects[e.name]) for e in present if getattr(e, hook) is not None]
+
+
+def frame_offset_mm(effects: dict[str, EffectParams], t_s: float) -> float:
+    """The effects' range offset (``frame_offset_mm``) of a frame taken at device time ``t_s`` (0 without)."""
+    offset = 0.0
+    for hook, params in acting(effects, "frame_offset_mm"):
+        offset = offset + hook(t_s, params)
+    return offset
+
+
+def output_step_mm(effects: dict[str, EffectParams]) -> float:
+    """The step the camera stores its coordinates in (the coarsest of the effects' ``step_mm``; 0: not stored in
+    steps)."""
+    return max((hook(params) for hook, params in acting(effects, "step_mm")), default=0.0)
 
 
 def _got(error: Any) -> str:
@@ -65,13 +76,13 @@ def parse_effects(raw: dict[str, dict[str, Any]], technology: str) -> dict[str, 
     """Validate an ``[effects]`` table; ValueError names the effect and the bad parameter."""
     parsed: dict[str, EffectParams] = {}
     for name, params in raw.items():
-        module = EFFECTS.get(name)
-        if module is None:
+        effect = EFFECTS.get(name)
+        if effect is None:
             raise ValueError(f"unknown effect {name!r}; the vocabulary is: {', '.join(EFFECTS)}")
-        if technology not in module.TECHNOLOGIES:
-            raise ValueError(f"effect {name!r} applies to {'/'.join(module.TECHNOLOGIES)} cameras, not {technology}")
+        if technology not in effect.technologies:
+            raise ValueError(f"effect {name!r} applies to {'/'.join(effect.technologies)} cameras, not {technology}")
         try:
-            parsed[name] = module.Params.model_validate(params or {})
+            parsed[name] = effect.params.model_validate(params or {})
         except ValidationError as exc:
             problems = "; ".join(
                 f"unknown parameter {'.'.join(str(p) for p in e['loc'])!r}" if e["type"] == "extra_forbidden"

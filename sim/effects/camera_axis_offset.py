@@ -8,12 +8,17 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "camera_axis_offset"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Thesis 2024, 5.4.2, Fig. 5-15 (b)"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
     offset_mm: float = Field(20.0, ge=-200.0, le=200.0, description="optical axis beside the robot axis, mm")
+
+
+EFFECT = Effect(
+    "camera_axis_offset",
+    ("tof", "stereo"),
+    Params,
+    "Thesis 2024, 5.4.2, Fig. 5-15 (b)",
+    observed=Observed("resimulated", fitted=("offset_mm",), steps="robot_plates", min_steps=3, probe=10.0),
+)

@@ -21,11 +21,7 @@ import math
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "disparity_bias"
-TECHNOLOGIES = ("stereo",)
-SOURCE = "Shimizu & Okutomi 2001; Szeliski & Scharstein 2004"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
@@ -44,3 +40,15 @@ def apply(z_mm: np.ndarray, focal_baseline: float, p: Params) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         d = focal_baseline / z_mm
         return focal_baseline / (d + bias_px(d, p))
+
+
+EFFECT = Effect(
+    "disparity_bias",
+    ("stereo",),
+    Params,
+    "Shimizu & Okutomi 2001; Szeliski & Scharstein 2004",
+    observed=Observed("periodic_disparity", fitted=("amplitude_px", "phase_rad"),
+                      solver_bounds={"phase_rad": (-4 * math.pi, 4 * math.pi)}),
+    order=15,
+    on_range=lambda values, p, at: apply(values, at.sensor.matching_focal_baseline, p),
+)

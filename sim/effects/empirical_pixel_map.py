@@ -15,11 +15,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from scipy import ndimage
 
-from sim.effects.base import EffectParams
-
-NAME = "empirical_pixel_map"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "fitted by labctl reconcile (empirical, no physical source)"
+from sim.effects.base import Effect, EffectParams
 
 
 class Params(EffectParams):
@@ -52,3 +48,13 @@ def correction(shape: tuple[int, int], p: Params) -> np.ndarray:
 
 def apply(range_mm: np.ndarray, p: Params) -> np.ndarray:
     return range_mm + correction(range_mm.shape, p)
+
+
+EFFECT = Effect(
+    "empirical_pixel_map",
+    ("tof", "stereo"),
+    Params,
+    "fitted by labctl reconcile (empirical, no physical source)",
+    order=91,
+    on_range=lambda values, p, _: apply(values, p),
+)

@@ -12,11 +12,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, model_validator
 
-from sim.effects.base import EffectParams
-
-NAME = "empirical_range"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "fitted by labctl reconcile (empirical, no physical source)"
+from sim.effects.base import Effect, EffectParams
 
 
 class Params(EffectParams):
@@ -36,3 +32,13 @@ class Params(EffectParams):
 
 def apply(range_mm: np.ndarray, p: Params) -> np.ndarray:
     return range_mm + np.interp(range_mm, p.range_mm, p.correction_mm)
+
+
+EFFECT = Effect(
+    "empirical_range",
+    ("tof", "stereo"),
+    Params,
+    "fitted by labctl reconcile (empirical, no physical source)",
+    order=90,
+    on_range=lambda values, p, _: apply(values, p),
+)

@@ -29,19 +29,15 @@ sensor's pattern: the random stripes and the pixel map are drawn on
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Annotated
 
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
+from sim.effects.base import Effect, EffectParams, Observed
 from sim.profiles import MAX_SENSOR_PX
 from sim.seeding import stream
-
-NAME = "fixed_pattern"
-TECHNOLOGIES = ("tof",)
-SOURCE = ("pmd/Royale FPPN; Lindner, Schiller, Kolb & Koch 2010; Kahlmann, Remondino & Ingensand 2006; "
-          "Fuchs & Hirzinger 2008")
 
 #: one cell of a column or row profile, within the +-1000 mm the empirical corrections allow too
 Offset = Annotated[float, Field(ge=-1000.0, le=1000.0)]
@@ -86,3 +82,26 @@ def offset_map_mm(width: int, height: int, p: Params) -> np.ndarray:
         pixels = stream(p.seed, 0, "fixed_pattern.pixels").normal(0.0, p.pixel_sigma_mm, (grid_h, grid_w))
         out += cell_average(grid_h, height) @ pixels @ cell_average(grid_w, width).T
     return out
+
+
+@lru_cache(maxsize=8)
+def _cached_map(width: int, height: int, params_json: str) -> np.ndarray:
+    offsets = offset_map_mm(width, height, Params.model_validate_json(params_json))
+    offsets.setflags(write=False)
+    return offsets
+
+
+def sensor_offset_map_mm(width: int, height: int, p: Params) -> np.ndarray:
+    """``offset_map_mm``, computed once per camera size and parameters (read-only)."""
+    return _cached_map(width, height, p.model_dump_json())
+
+
+EFFECT = Effect(
+    "fixed_pattern",
+    ("tof",),
+    Params,
+    "pmd/Royale FPPN; Lindner, Schiller, Kolb & Koch 2010; Kahlmann, Remondino & Ingensand 2006; Fuchs & Hirzinger 2008",
+    observed=Observed("column_row_profile", fitted=("column_offsets_mm", "row_offsets_mm")),
+    order=60,
+    on_range=lambda values, p, at: values + sensor_offset_map_mm(at.sensor.profile.width, at.sensor.profile.height, p),
+)

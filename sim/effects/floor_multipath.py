@@ -33,11 +33,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "floor_multipath"
-TECHNOLOGIES = ("tof",)
-SOURCE = "Fuchs 2010; Jimenez et al. 2014; Freedman et al. 2014 (mirror-image single bounce)"
+from sim.effects.base import Effect, EffectParams, Observed, RangeStage
 
 #: camera-frame axis (0 = x to the right, 1 = y down) and side of each plane
 PLANES = {"floor": (1, 1.0), "ceiling": (1, -1.0), "left": (0, -1.0), "right": (0, 1.0)}
@@ -72,3 +68,21 @@ def error_mm(x: np.ndarray, y: np.ndarray, z: np.ndarray, wavenumber: float, p: 
     ratio, half_extra = bounce(x, y, z, p.plane, p.distance_mm)
     return np.angle(1.0 + p.reflectance * ratio * np.exp(1j * wavenumber * half_extra)) / wavenumber
 
+
+def acting_on_range(range_mm: np.ndarray, p: Params, at: RangeStage) -> np.ndarray:
+    """``range_mm`` plus the bounce's error at the points it puts along the sensor's true rays."""
+    optics, wavenumber = at.sensor.geometry.optics, at.sensor.wavenumber
+    x, y, z = optics.directions(*optics.pixel_grid()) * range_mm
+    return range_mm + error_mm(x, y, z, wavenumber, p)
+
+
+EFFECT = Effect(
+    "floor_multipath",
+    ("tof",),
+    Params,
+    "Fuchs 2010; Jimenez et al. 2014; Freedman et al. 2014 (mirror-image single bounce)",
+    observed=Observed("plane_bounce", fitted=("plane", "distance_mm", "reflectance"),
+                      solver_bounds={"distance_mm": (1.0, 10000.0)}, formula=bounce),
+    order=10,
+    on_range=acting_on_range,
+)

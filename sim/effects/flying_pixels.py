@@ -10,12 +10,19 @@ range. Source: Lindner & Kolb 2006; Giancola et al. 2018 (mixed pixels).
 
 from __future__ import annotations
 
-from sim.effects.base import EffectParams
-
-NAME = "flying_pixels"
-TECHNOLOGIES = ("tof",)
-SOURCE = "Giancola et al. 2018 (mixed pixels); Lindner & Kolb 2006"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
     pass
+
+
+EFFECT = Effect(
+    "flying_pixels",
+    ("tof",),
+    Params,
+    "Giancola et al. 2018 (mixed pixels); Lindner & Kolb 2006",
+    observed=Observed(why_not="acts at depth edges, which the comparison leaves out"),
+    mixes_returns=True,
+    mixed_pixels=True,
+)

@@ -11,11 +11,7 @@ from __future__ import annotations
 
 from pydantic import Field, field_validator
 
-from sim.effects.base import EffectParams
-
-NAME = "fov_error"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Thesis 2024, 6.4.1, Table 6-2"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
@@ -27,3 +23,13 @@ class Params(EffectParams):
         if not all(10.0 <= v <= 170.0 for v in value):
             raise ValueError(f"fov_deg must lie in [10, 170] deg, got {list(value)}")
         return value
+
+
+EFFECT = Effect(
+    "fov_error",
+    ("tof", "stereo"),
+    Params,
+    "Thesis 2024, 6.4.1, Table 6-2",
+    observed=Observed(why_not="the camera's calibration keeps depth and the cloud right; a checkerboard's corners "
+                            "would show it"),
+)

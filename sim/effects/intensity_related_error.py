@@ -11,11 +11,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "intensity_related_error"
-TECHNOLOGIES = ("tof",)
-SOURCE = "Lindner & Kolb 2007"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
@@ -25,3 +21,14 @@ class Params(EffectParams):
 def error_mm(amplitude: np.ndarray, reference_amplitude: float, p: Params) -> np.ndarray:
     with np.errstate(divide="ignore"):
         return np.where(amplitude > 0, p.error_at_reference_mm * reference_amplitude / amplitude, 0.0)
+
+
+EFFECT = Effect(
+    "intensity_related_error",
+    ("tof",),
+    Params,
+    "Lindner & Kolb 2007",
+    observed=Observed("inverse_light", fitted=("error_at_reference_mm",)),
+    order=50,
+    on_range=lambda values, p, at: values + error_mm(at.light, at.sensor.a_ref, p),
+)

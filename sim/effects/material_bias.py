@@ -10,12 +10,18 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "material_bias"
-TECHNOLOGIES = ("tof",)
-SOURCE = "sim/materials.py references; Thesis 2024, 6.5"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
     scale: float = Field(1.0, ge=0.0, le=10.0, description="multiplies every material's sub-surface bias")
+
+
+EFFECT = Effect(
+    "material_bias",
+    ("tof",),
+    Params,
+    "sim/materials.py references; Thesis 2024, 6.5",
+    observed=Observed("resimulated", fitted=("scale",), steps="translucent"),
+    subsurface_scale=lambda p: p.scale,
+)

@@ -9,15 +9,31 @@ single bounce.
 
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "multipath"
-TECHNOLOGIES = ("tof",)
-SOURCE = "Fuchs 2010; Jimenez et al. 2014"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
     strength: float = Field(0.05, ge=0.0, le=1.0, description="indirect / mean direct light")
     extra_path_mm: float = Field(500.0, gt=0.0, le=10000.0, description="extra path of the indirect light, mm")
+
+
+def add_return(phasor: np.ndarray, p: Params, sensor: Any) -> np.ndarray:
+    """The pixel phasors plus the indirect return: ``strength`` x their mean, delayed by ``extra_path_mm``
+    (``sensor.wavenumber`` = 4 pi f_mod / c per mm)."""
+    return phasor + p.strength * phasor.mean() * np.exp(1j * sensor.wavenumber * p.extra_path_mm)
+
+
+EFFECT = Effect(
+    "multipath",
+    ("tof",),
+    Params,
+    "Fuchs 2010; Jimenez et al. 2014",
+    observed=Observed("mean_phasor", fitted=("strength", "extra_path_mm"), solver_bounds={"extra_path_mm": (1.0, 10000.0)}),
+    mixes_returns=True,
+    phasor=add_return,
+)

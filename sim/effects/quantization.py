@@ -8,12 +8,18 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "quantization"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Thesis 2024, Table 6-1 (AM-T100 integer mm); librealsense z16 depth units"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
     step_mm: float = Field(1.0, gt=0.0, le=50.0, description="quantization step, mm")
+
+
+EFFECT = Effect(
+    "quantization",
+    ("tof", "stereo"),
+    Params,
+    "Thesis 2024, Table 6-1 (AM-T100 integer mm); librealsense z16 depth units",
+    observed=Observed(why_not="does not move the mean of a noisy stack"),
+    step_mm=lambda p: p.step_mm,
+)

@@ -12,13 +12,18 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "radial_distortion"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Brown 1966; Jaehne 2012 p. 97 (Thesis 2024, eq. 5-5); ISO 17850:2015"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
     k1: float = Field(0.0, ge=-0.5, le=0.5, description="relative radial coefficient at the image corner")
     cloud: bool = Field(True, description="the point cloud carries the distortion too")
+
+
+EFFECT = Effect(
+    "radial_distortion",
+    ("tof", "stereo"),
+    Params,
+    "Brown 1966; Jaehne 2012 p. 97 (Thesis 2024, eq. 5-5); ISO 17850:2015",
+    observed=Observed("resimulated", fitted=("k1",), fixed={"cloud": True}, probe=0.02),
+)

@@ -9,11 +9,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "range_offset"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Lindner & Kolb 2006, ToF distance calibration; Thesis 2024, 4.1.2"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
@@ -22,3 +18,14 @@ class Params(EffectParams):
 
 def apply(range_mm: np.ndarray, p: Params) -> np.ndarray:
     return range_mm + p.offset_mm
+
+
+EFFECT = Effect(
+    "range_offset",
+    ("tof", "stereo"),
+    Params,
+    "Lindner & Kolb 2006, ToF distance calibration; Thesis 2024, 4.1.2",
+    observed=Observed(why_not="absorbed by the offset calibration and the per-group offsets"),
+    order=40,
+    on_range=lambda values, p, _: apply(values, p),
+)

@@ -9,11 +9,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "range_scale"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Lindner & Kolb 2006"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
@@ -22,3 +18,14 @@ class Params(EffectParams):
 
 def apply(range_mm: np.ndarray, p: Params) -> np.ndarray:
     return range_mm * (1.0 + p.scale)
+
+
+EFFECT = Effect(
+    "range_scale",
+    ("tof", "stereo"),
+    Params,
+    "Lindner & Kolb 2006",
+    observed=Observed("proportional_range", fitted=("scale",)),
+    order=30,
+    on_range=lambda values, p, _: apply(values, p),
+)

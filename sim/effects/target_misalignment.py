@@ -8,12 +8,17 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "target_misalignment"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Thesis 2024, 5.4.2, Fig. 5-15 (a)"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
     offset_mm: float = Field(20.0, ge=-200.0, le=200.0, description="target plane behind the circle centre, mm")
+
+
+EFFECT = Effect(
+    "target_misalignment",
+    ("tof", "stereo"),
+    Params,
+    "Thesis 2024, 5.4.2, Fig. 5-15 (a)",
+    observed=Observed("resimulated", fitted=("offset_mm",), steps="robot_plates", min_steps=3, probe=10.0),
+)

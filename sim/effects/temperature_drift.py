@@ -16,11 +16,7 @@ import math
 
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "temperature_drift"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Chiabrando et al. 2009; Thesis 2024, Table 3-2 (self-heating); further terms: one per thermal time constant"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Term(EffectParams):
@@ -38,3 +34,13 @@ def offset_mm(t_s: float, p: Params) -> float:
     """Range error of a frame taken ``t_s`` seconds after start."""
     t = max(t_s, 0.0)
     return p.delta_mm * math.exp(-t / p.tau_s) + sum(term.delta_mm * math.exp(-t / term.tau_s) for term in p.terms)
+
+
+EFFECT = Effect(
+    "temperature_drift",
+    ("tof", "stereo"),
+    Params,
+    "Chiabrando et al. 2009; Thesis 2024, Table 3-2 (self-heating); further terms: one per thermal time constant",
+    observed=Observed("warm_up", fitted=("delta_mm", "tau_s", "terms"), solver_bounds={"tau_s": (1.0, 86400.0)}),
+    frame_offset_mm=offset_mm,
+)

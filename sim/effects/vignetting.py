@@ -11,11 +11,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "vignetting"
-TECHNOLOGIES = ("tof", "stereo")
-SOURCE = "Hecht 2017 (cos^4 law); Thesis 2024, 5.1.2"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Params(EffectParams):
@@ -24,3 +20,13 @@ class Params(EffectParams):
 
 def factor(cos_alpha: np.ndarray, p: Params) -> np.ndarray:
     return np.power(cos_alpha, p.exponent)
+
+
+EFFECT = Effect(
+    "vignetting",
+    ("tof", "stereo"),
+    Params,
+    "Hecht 2017 (cos^4 law); Thesis 2024, 5.1.2",
+    observed=Observed("log_cos_alpha", fitted=("exponent",)),
+    shading=factor,
+)

@@ -14,11 +14,7 @@ import math
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import EffectParams
-
-NAME = "wiggling"
-TECHNOLOGIES = ("tof",)
-SOURCE = "Lindner & Kolb 2006; Giancola et al. 2018; Thesis 2024, 4.2.2"
+from sim.effects.base import Effect, EffectParams, Observed
 
 
 class Harmonic(EffectParams):
@@ -43,3 +39,15 @@ def error_mm(range_mm: np.ndarray, p: Params) -> np.ndarray:
 
 def apply(range_mm: np.ndarray, p: Params) -> np.ndarray:
     return range_mm + error_mm(range_mm, p)
+
+
+EFFECT = Effect(
+    "wiggling",
+    ("tof",),
+    Params,
+    "Lindner & Kolb 2006; Giancola et al. 2018; Thesis 2024, 4.2.2",
+    observed=Observed("periodic_range", fitted=("amplitude_mm", "period_mm", "phase_rad"),
+                      solver_bounds={"phase_rad": (-4 * math.pi, 4 * math.pi)}),
+    order=20,
+    on_range=lambda values, p, _: apply(values, p),
+)
