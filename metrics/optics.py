@@ -26,6 +26,21 @@ class Pinhole:
     >>> cam = Pinhole(640, 480, 90.0, 90.0)
     >>> round(cam.fx, 9), round(cam.fy, 9), cam.cx, cam.cy
     (320.0, 240.0, 319.5, 239.5)
+
+    Ray slopes: two pixels over 90 deg give f = 1 / tan(45 deg) = 1 and c = 0.5, so slopes of -0.5 and +0.5.
+
+    >>> tx, ty = Pinhole(2, 2, 90.0, 90.0).slopes
+    >>> tx.round(9).tolist(), ty.round(9).tolist()
+    ([[-0.5, 0.5]], [[-0.5], [0.5]])
+
+    Unit rays: the centre pixel of three over 90 deg looks along the axis; the corner pixel, at slopes
+    (-2/3, -2/3), along (-2/3, -2/3, 1) / sqrt(17/9) = (-2, -2, 3) / sqrt(17).
+
+    >>> rays = Pinhole(3, 3, 90.0, 90.0).unit_rays
+    >>> rays.shape, rays[:, 1, 1].round(9).tolist()
+    ((3, 3, 3), [0.0, 0.0, 1.0])
+    >>> bool(np.allclose(rays[:, 0, 0], np.array([-2.0, -2.0, 3.0]) / math.sqrt(17)))
+    True
     """
 
     width: int
@@ -55,31 +70,16 @@ class Pinhole:
 
     @cached_property
     def slopes(self) -> tuple[np.ndarray, np.ndarray]:
-        """(x/z per column as (1, W), y/z per row as (H, 1)), float64: (u - c_x)/f_x and (v - c_y)/f_y (eq. 2-2/2-3).
-
-        Two pixels over 90 deg: f = 1 / tan(45 deg) = 1, c = 0.5, so the slopes are -0.5 and +0.5.
-
-        >>> tx, ty = Pinhole(2, 2, 90.0, 90.0).slopes
-        >>> tx.round(9).tolist(), ty.round(9).tolist()
-        ([[-0.5, 0.5]], [[-0.5], [0.5]])
-        """
+        """(x/z per column as (1, W), y/z per row as (H, 1)), float64: (u - c_x)/f_x and (v - c_y)/f_y (eq. 2-2/2-3;
+        example in the class docstring)."""
         tx = (np.arange(self.width) - self.cx) / self.fx
         ty = (np.arange(self.height) - self.cy) / self.fy
         return tx[None, :], ty[:, None]
 
     @cached_property
     def unit_rays(self) -> np.ndarray:
-        """(3, H, W) float64 unit direction of every pixel's ray (camera frame, z forward): (tx, ty, 1) / |(tx, ty, 1)|.
-
-        The centre pixel of three over 90 deg looks along the axis; the corner pixel, at slopes (-2/3, -2/3),
-        along (-2/3, -2/3, 1) / sqrt(17/9) = (-2, -2, 3) / sqrt(17).
-
-        >>> rays = Pinhole(3, 3, 90.0, 90.0).unit_rays
-        >>> rays.shape, rays[:, 1, 1].round(9).tolist()
-        ((3, 3, 3), [0.0, 0.0, 1.0])
-        >>> bool(np.allclose(rays[:, 0, 0], np.array([-2.0, -2.0, 3.0]) / math.sqrt(17)))
-        True
-        """
+        """(3, H, W) float64 unit direction of every pixel's ray (camera frame, z forward): (tx, ty, 1) / |(tx, ty, 1)|
+        (example in the class docstring)."""
         tx, ty = self.slopes
         tx, ty = np.broadcast_arrays(tx, ty)
         norm = np.sqrt(1.0 + tx**2 + ty**2)
