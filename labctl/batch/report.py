@@ -74,9 +74,9 @@ def _figures_section(summaries: Sequence[Summary], outdir: Path) -> str:
         if len(plotted) < MAX_PLOTTED:
             plotted.append((name, values))
     cols = 3
-    rows = math.ceil(len(plotted) / cols)
-    fig = Figure(figsize=(12, 2.6 * rows))
-    axes = fig.subplots(rows, cols, squeeze=False)
+    plot_rows = math.ceil(len(plotted) / cols)
+    fig = Figure(figsize=(12, 2.6 * plot_rows))
+    axes = fig.subplots(plot_rows, cols, squeeze=False)
     for ax, (name, values) in zip(axes.flat, plotted):
         ax.plot(range(len(values)), [v for _, v in values], "o", ms=4)
         ax.set_title(name, fontsize=9)
