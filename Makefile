@@ -1,6 +1,6 @@
 # labctl: the two commands of the README's Quick start.
 #   make demo  - simulated characterization of the four cameras, their reports and their comparison
-#   make test  - the whole test suite
+#   make test  - the linter (ruff), then the whole test suite
 # Both create (or refresh, when pyproject.toml changed) the virtual environment .venv, then check that
 # every native SDK imports (labctl/setup_check.py): as root a missing system library is installed with
 # apt-get (and so is the optional test tool strace), otherwise the set-up stops with the command to run. No root is needed on Debian/Ubuntu: the
@@ -27,6 +27,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 test: $(STAMP)
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadgroup
 
 demo: $(STAMP)

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.optics import sensor_angular_resolution_deg
+from metrics.optics import sensor_angular_resolution_deg
 
 DEFAULT_INLIER_MM = 20.0
 DEFAULT_RING_MM = 1.0

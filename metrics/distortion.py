@@ -60,7 +60,7 @@ import cv2
 import numpy as np
 from scipy import optimize
 
-from sim.optics import Pinhole, pixel_aspect_distortion_pct, sensor_angular_resolution_deg
+from metrics.optics import Pinhole, pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 
 __all__ = [
     "CloudDistortion", "Corners", "DistortionResult", "cloud_distortion", "detect_corners", "distortion",

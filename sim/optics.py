@@ -1,58 +1,17 @@
-"""Camera optics shared by every simulated sensor: pinhole, radial distortion, blur, depth of field.
+"""Camera optics of the simulated sensors: true optics with radial distortion, blur, depth of field.
 
-Pixel centres sit at integer (u, v); the principal point is the image centre
-((W-1)/2, (H-1)/2); the focal lengths follow from the FOV as
-f_x = (W/2) / tan(FOV_h/2) and f_y = (H/2) / tan(FOV_v/2) (Thesis 2024, 5.2), so a
-FOV ratio that differs from W/H gives non-square pixels (pixel aspect ratio).
-Back-projection follows Thesis 2024, eq. 2-2/2-3: x = z (u - c_x)/f_x, y = z (v - c_y)/f_y.
+The pinhole these optics start from, with its pixel and principal-point conventions, is the camera model that
+the metrics share (metrics/optics.py).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
-
-@dataclass(frozen=True)
-class Pinhole:
-    width: int
-    height: int
-    fov_h_deg: float
-    fov_v_deg: float
-
-    @property
-    def fx(self) -> float:
-        return (self.width / 2) / math.tan(math.radians(self.fov_h_deg) / 2)
-
-    @property
-    def fy(self) -> float:
-        return (self.height / 2) / math.tan(math.radians(self.fov_v_deg) / 2)
-
-    @property
-    def cx(self) -> float:
-        return (self.width - 1) / 2
-
-    @property
-    def cy(self) -> float:
-        return (self.height - 1) / 2
-
-    @cached_property
-    def slopes(self) -> tuple[np.ndarray, np.ndarray]:
-        """(x/z per column as (1, W), y/z per row as (H, 1)), float64."""
-        tx = (np.arange(self.width) - self.cx) / self.fx
-        ty = (np.arange(self.height) - self.cy) / self.fy
-        return tx[None, :], ty[:, None]
-
-    @cached_property
-    def unit_rays(self) -> np.ndarray:
-        """(3, H, W) float64 unit direction of every pixel's ray (camera frame, z forward)."""
-        tx, ty = self.slopes
-        tx, ty = np.broadcast_arrays(tx, ty)
-        norm = np.sqrt(1.0 + tx**2 + ty**2)
-        return np.stack([tx / norm, ty / norm, 1.0 / norm])
+from metrics.optics import Pinhole
 
 
 @dataclass(frozen=True)
@@ -107,21 +66,6 @@ class CameraOptics:
         """(u, v) of every pixel centre, (H, W) each."""
         p = self.pinhole
         return np.meshgrid(np.arange(p.width, dtype=float), np.arange(p.height, dtype=float))
-
-
-def sensor_angular_resolution_deg(fov_deg: float, pixels: int) -> float:
-    """Angle covered by one pixel (Thesis 2024, eq. 5-1): FOV / number of pixels."""
-    return fov_deg / pixels
-
-
-def pixel_aspect_distortion_pct(fov_h_deg: float, fov_v_deg: float, width: int, height: int) -> float:
-    """Distortion due to the pixel aspect ratio (Thesis 2024, Table 6-5 row 1), normalized to the width.
-
-    (angular pixel height / angular pixel width - 1) in percent.
-    """
-    return 100.0 * (
-        sensor_angular_resolution_deg(fov_v_deg, height) / sensor_angular_resolution_deg(fov_h_deg, width) - 1.0
-    )
 
 
 def lateral_resolution_mm(angular_deg: float, distance_mm: float) -> float:

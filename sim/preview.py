@@ -8,15 +8,13 @@ from typing import Any
 
 import matplotlib
 import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from sim.geometry import Pose  # noqa: E402
-from sim.model import SimModel  # noqa: E402
-from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene  # noqa: E402
-from sim.stereo import StereoSensor  # noqa: E402
-from sim.tof import ToFSensor  # noqa: E402
+from sim.geometry import Pose
+from sim.model import SimModel
+from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
+from sim.stereo import StereoSensor
+from sim.tof import ToFSensor
 
 #: where each target is shown by default: camera-wall distance (stage) or robot angle
 GALLERY: dict[str, dict[str, Any]] = {
@@ -68,7 +66,8 @@ def _show(ax: Any, image: np.ndarray, title: str, cmap: str) -> None:
 def preview_figure(model: SimModel, targets: list[tuple[str, dict[str, Any]]], path: Path) -> Path:
     """A grid: per target one column, intensity above depth (invalid pixels white)."""
     profile = model.profile()
-    fig, axes = plt.subplots(2, len(targets), figsize=(3.6 * len(targets), 5.6), squeeze=False)
+    fig = Figure(figsize=(3.6 * len(targets), 5.6))
+    axes = fig.subplots(2, len(targets), squeeze=False)
     for col, (target, where) in enumerate(targets):
         frame = simulate_frame(model, target, where.get("params"), where.get("distance_mm", 1000.0),
                                where.get("angle_deg", 0.0), projector=where.get("projector", True))
@@ -78,5 +77,4 @@ def preview_figure(model: SimModel, targets: list[tuple[str, dict[str, Any]]], p
     fig.suptitle(f"{profile.vendor} {profile.model} (simulated, {profile.width} x {profile.height})")
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path

@@ -24,9 +24,10 @@ import numpy as np
 from scipy import fft as sfft
 from scipy import optimize, special
 
+from metrics.optics import Pinhole
 from sim.effects import EffectParams
 from sim.effects import defocus as defocus_effect
-from sim.optics import CameraOptics, Pinhole
+from sim.optics import CameraOptics
 from sim.profiles import CameraProfile
 
 #: SFR area lost at the hyperfocal distance by the default circle of confusion (Thesis 2024, 5.1.2's 90 % plateau rule)

@@ -1,4 +1,5 @@
-"""The packages depend one way: labctl (orchestration) on procedures, metrics, sim and drivers, never back.
+"""The packages depend one way: labctl (orchestration) on procedures, metrics, sim and drivers, never back;
+procedures and metrics never on the simulation; and no module imports itself back through others (no cycle).
 
 Read from the import statements of every module (static, so a lazy import inside a function counts too).
 """
@@ -10,6 +11,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LOWER = ("drivers", "procedures", "metrics", "sim")
+PACKAGES = ("labctl", *LOWER)
 
 
 def imported_packages(path: Path) -> set[str]:
@@ -25,20 +27,19 @@ def imported_packages(path: Path) -> set[str]:
     return names
 
 
+def offenders(root: Path, package: str, forbidden: set[str]) -> list[str]:
+    """Files of ``package`` under ``root`` that import any of the ``forbidden`` packages."""
+    return sorted(str(p.relative_to(root)) for p in (root / package).rglob("*.py") if imported_packages(p) & forbidden)
+
+
 @pytest.mark.parametrize("package", LOWER)
 def test_lower_packages_do_not_import_the_orchestration(package: str) -> None:
-    offenders = sorted(str(p.relative_to(ROOT)) for p in (ROOT / package).rglob("*.py") if "labctl" in imported_packages(p))
-    assert offenders == []
+    assert offenders(ROOT, package, {"labctl"}) == []
 
 
 def test_drivers_stand_alone() -> None:
     """Device adapters need none of the project's other packages (they run against real hardware alone)."""
-    offenders = sorted(
-        str(p.relative_to(ROOT))
-        for p in (ROOT / "drivers").rglob("*.py")
-        if imported_packages(p) & {"labctl", "procedures", "metrics", "sim"}
-    )
-    assert offenders == []
+    assert offenders(ROOT, "drivers", {"labctl", "procedures", "metrics", "sim"}) == []
 
 
 def test_every_labctl_subpackage_says_what_it_is_for() -> None:
@@ -47,6 +48,133 @@ def test_every_labctl_subpackage_says_what_it_is_for() -> None:
             continue
         doc = ast.get_docstring(ast.parse(init.read_text(encoding="utf-8")))
         assert doc and len(doc.splitlines()) == 1, f"{init.relative_to(ROOT)}: a one-line docstring"
+
+
+@pytest.mark.parametrize("package", ["procedures", "metrics"])
+def test_measurements_do_not_import_the_simulation(package: str) -> None:
+    """Procedures and metrics work on real captures: the camera model they share with the simulator is
+    metrics/optics.py. Procedures use metrics; metrics, pure functions, use no other package of the project."""
+    forbidden = {"procedures": {"sim", "labctl"}, "metrics": set(PACKAGES) - {"metrics"}}[package]
+    assert offenders(ROOT, package, forbidden) == []
+
+
+def module_name(root: Path, path: Path) -> str:
+    """Dotted name of the module in ``path`` (a package's ``__init__.py`` is the package)."""
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(root: Path, packages: tuple[str, ...] = PACKAGES) -> dict[str, set[str]]:
+    """Module -> the project modules it imports, anywhere in its body.
+
+    ``import a.b`` and ``from a.b import c`` point to module ``a.b``, or to ``a.b.c`` when ``c`` is a submodule;
+    a name that is no module of the project points to the nearest enclosing one (``a`` for ``a.b`` if ``a.b`` is
+    a class); imports from outside the project are left out.
+    """
+    paths = {module_name(root, p): p for package in packages for p in (root / package).rglob("*.py")}
+
+    def resolve(name: str) -> str | None:
+        while name and name not in paths:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph: dict[str, set[str]] = {}
+    for module, path in paths.items():
+        targets: set[str | None] = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+            if isinstance(node, ast.Import):
+                targets.update(resolve(alias.name) for alias in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                assert node.level == 0, f"{path}: relative import"
+                base = node.module or ""
+                targets.update(resolve(f"{base}.{alias.name}") for alias in node.names)
+        graph[module] = {t for t in targets if t is not None and t != module}
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle [m, ..., m] through each group of modules that import one another (Tarjan's strongly connected
+    components; the shortest cycle from the group's first module)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    groups: list[list[str]] = []
+
+    def visit(module: str) -> None:
+        index[module] = low[module] = len(index)
+        stack.append(module)
+        for target in sorted(graph[module]):
+            if target not in index:
+                visit(target)
+                low[module] = min(low[module], low[target])
+            elif target in stack:
+                low[module] = min(low[module], index[target])
+        if low[module] == index[module]:
+            group = stack[stack.index(module):]
+            del stack[stack.index(module):]
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for module in sorted(graph):
+        if module not in index:
+            visit(module)
+    cycles = []
+    for group in sorted(groups):
+        start, members = group[0], set(group)
+        paths = {start: [start]}
+        queue = [start]
+        while queue:  # breadth first: the first way back to start is the shortest
+            module = queue.pop(0)
+            if start in graph[module]:
+                cycles.append([*paths[module], start])
+                break
+            for target in sorted(graph[module] & members):
+                if target not in paths:
+                    paths[target] = [*paths[module], target]
+                    queue.append(target)
+    return cycles
+
+
+def test_no_import_cycle() -> None:
+    cycles = import_cycles(import_graph(ROOT))
+    assert cycles == [], "import cycles:\n" + "\n".join(" -> ".join(cycle) for cycle in cycles)
+
+
+def write_tree(root: Path, files: dict[str, str]) -> Path:
+    for name, text in files.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(text, encoding="utf-8")
+    return root
+
+
+def test_checks_find_a_lazy_import_of_the_simulation(tmp_path: Path) -> None:
+    root = write_tree(tmp_path, {
+        "metrics/__init__.py": "",
+        "metrics/fine.py": "import math\nfrom metrics import fine\n",
+        "metrics/bad.py": "def f():\n    from sim.optics import Pinhole\n    return Pinhole\n",
+        "sim/__init__.py": "",
+        "sim/optics.py": "class Pinhole: ...\n",
+    })
+    assert offenders(root, "metrics", {"sim", "labctl"}) == [str(Path("metrics/bad.py"))]
+
+
+def test_cycle_check_follows_lazy_and_from_imports_to_submodules(tmp_path: Path) -> None:
+    root = write_tree(tmp_path, {
+        "labctl/__init__.py": "def helper(): ...\n",
+        "labctl/cli/__init__.py": "from labctl.cli.app import main\n",
+        "labctl/cli/app.py": "from labctl import helper\n\ndef main():\n    from labctl.batch import sweep\n",
+        "labctl/batch/__init__.py": "",
+        "labctl/batch/sweep.py": "import labctl.cli.app\n",
+        "sim/__init__.py": "",
+        "sim/a.py": "from sim.b import thing\n",
+        "sim/b.py": "import numpy\nthing = 1\n",
+    })
+    graph = import_graph(root)
+    assert graph["labctl.cli.app"] == {"labctl", "labctl.batch.sweep"}  # a function of labctl, a submodule of batch
+    assert graph["sim.a"] == {"sim.b"} and graph["sim.b"] == set()  # a name in sim.b; numpy is not the project's
+    assert import_cycles(graph) == [["labctl.batch.sweep", "labctl.cli.app", "labctl.batch.sweep"]]
+    (root / "labctl/batch/sweep.py").write_text("import labctl\n", encoding="utf-8")
+    assert import_cycles(import_graph(root)) == []
 
 
 #: modules that act on or fit effects through their declarations (sim/effects/<name>.py), never by name

@@ -10,17 +10,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from labctl.batch.index import counts, figure_names  # noqa: E402
-from labctl.batch.tasks import Summary  # noqa: E402
-from labctl.evaluation.keyfigures import FIGURE_BY_NAME  # noqa: E402
-from labctl.report.html import CSS  # noqa: E402
-from labctl.report.plots.png import save_png  # noqa: E402
-from labctl.run.store import labctl_version, now_iso  # noqa: E402
+from labctl.batch.index import counts, figure_names
+from labctl.batch.tasks import Summary
+from labctl.evaluation.keyfigures import FIGURE_BY_NAME
+from labctl.report.html import CSS
+from labctl.report.plots.png import save_png
+from labctl.run.store import labctl_version, now_iso
 
 MAX_PLOTTED = 12  # figures plotted across runs (all are tabled)
 
@@ -77,8 +74,9 @@ def _figures_section(summaries: Sequence[Summary], outdir: Path) -> str:
         if len(plotted) < MAX_PLOTTED:
             plotted.append((name, values))
     cols = 3
-    fig, axes = plt.subplots(math.ceil(len(plotted) / cols), cols, figsize=(12, 2.6 * math.ceil(len(plotted) / cols)),
-                             squeeze=False)
+    plot_rows = math.ceil(len(plotted) / cols)
+    fig = Figure(figsize=(12, 2.6 * plot_rows))
+    axes = fig.subplots(plot_rows, cols, squeeze=False)
     for ax, (name, values) in zip(axes.flat, plotted):
         ax.plot(range(len(values)), [v for _, v in values], "o", ms=4)
         ax.set_title(name, fontsize=9)
@@ -138,8 +136,8 @@ def _grid_section(summaries: Sequence[Summary], axes: Sequence[str], figures: Se
     shown = [f for f in figures if any(_value(s, f) is not None for s in summaries)]
     if not plot_axes or not shown:
         return section
-    fig, grid = plt.subplots(len(shown), len(plot_axes), figsize=(4.2 * len(plot_axes), 2.8 * len(shown)),
-                             squeeze=False)
+    fig = Figure(figsize=(4.2 * len(plot_axes), 2.8 * len(shown)))
+    grid = fig.subplots(len(shown), len(plot_axes), squeeze=False)
     for row, figure in zip(grid, shown):
         for ax, axis in zip(row, plot_axes):
             values = [(s["parameters"].get(axis), v) for s in summaries if (v := _value(s, figure)) is not None]

@@ -31,10 +31,10 @@ from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
 from labctl.run.store import RunReader, StepRecord
 from metrics.depth import DepthErrors, depth_errors
+from metrics.optics import pixel_aspect_distortion_pct
 from metrics.plausibility import quantization_step
 from metrics.stack import stack_stats
 from metrics.surface import SurfaceTexture, surface_texture
-from sim.optics import pixel_aspect_distortion_pct
 
 #: distance at which the single-position key figures are taken (docs/keyfigures.md)
 KEY_DISTANCE_MM = 2000.0

@@ -21,6 +21,7 @@ import numpy as np
 
 from drivers.protocols import CameraInfo
 from labctl.run.store import StepRecord
+from metrics.optics import sensor_angular_resolution_deg
 from metrics.plausibility import above_nyquist
 from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white
 from metrics.sharpness import (
@@ -33,7 +34,6 @@ from metrics.sharpness import (
     sharpness_peak_at_sweep_end,
 )
 from metrics.stack import stack_stats
-from sim.optics import sensor_angular_resolution_deg
 
 
 @dataclass(frozen=True)

@@ -7,17 +7,14 @@ import math
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from labctl.reconcile.workflow import ReconcileResult, json_document  # noqa: E402
-from labctl.report.html import CSS as REPORT_CSS  # noqa: E402
-from labctl.report.plots.png import save_png  # noqa: E402
-from labctl.run.store import labctl_version, now_iso  # noqa: E402
-from metrics.jsonsafe import dumps_strict  # noqa: E402
+from labctl.reconcile.workflow import ReconcileResult, json_document
+from labctl.report.html import CSS as REPORT_CSS
+from labctl.report.plots.png import save_png
+from labctl.run.store import labctl_version, now_iso
+from metrics.jsonsafe import dumps_strict
 
 CSS = REPORT_CSS + ".verdict{font-size:1.3em;font-weight:600}\n"
 
@@ -44,7 +41,8 @@ def plot_residuals(result: ReconcileResult, path: Path) -> Path:
     times = times - np.nanmin(times) if np.isfinite(times).any() else times
     mb, ma = _step_means(before), _step_means(after)
     stage = np.array([s.wall_distance_mm is not None for s in scenes])
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
+    fig = Figure(figsize=(11, 7.5))
+    axes = fig.subplots(2, 2)
     for ax, x, mask, label in ((axes[0, 0], [s.wall_distance_mm or math.nan for s in scenes], stage,
                                 "camera-target distance (mm)"),
                                (axes[0, 1], [s.robot_angle_deg if s.robot_angle_deg is not None else math.nan
@@ -87,7 +85,8 @@ def _bin_mean(maps: list[np.ndarray]) -> np.ndarray:
 
 def plot_residual_map(result: ReconcileResult, path: Path) -> Path:
     """Where on the sensor the disagreement sits: mean depth residual per bin over all steps, before/after."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    fig = Figure(figsize=(11, 3.8))
+    axes = fig.subplots(1, 2)
     before, after = _bin_mean(result.iterations[0].residual_z), _bin_mean(result.residual_after)
     lim = float(np.nanpercentile(np.abs(before), 98)) if np.isfinite(before).any() else 1.0
     for ax, data, title in ((axes[0], before, "before"), (axes[1], after, "after")):
@@ -105,7 +104,8 @@ def plot_candidates(result: ReconcileResult, path: Path) -> Path:
     from labctl.reconcile.workflow import DBIC_THRESHOLD
 
     rounds = [it for it in result.iterations if it.fits]
-    fig, axes = plt.subplots(1, max(len(rounds), 1), figsize=(4.2 * max(len(rounds), 1), 3.6), squeeze=False)
+    fig = Figure(figsize=(4.2 * max(len(rounds), 1), 3.6))
+    axes = fig.subplots(1, max(len(rounds), 1), squeeze=False)
     for ax, (i, it) in zip(axes[0], enumerate(rounds), strict=False):
         names = [f.name for f in it.fits][::-1]
         scores = [max(f.score, -20.0) for f in it.fits][::-1]
@@ -127,7 +127,8 @@ def _rms_text(values: np.ndarray) -> str:
 def plot_unexplained(result: ReconcileResult, path: Path) -> Path:
     """The unexplained residual: its curve over the carrying axis and its mean map over the sensor."""
     u = result.unexplained or {}
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    fig = Figure(figsize=(11, 3.8))
+    axes = fig.subplots(1, 2)
     ax = axes[0]
     curve = u.get("curve", [])
     if curve:

@@ -18,20 +18,16 @@ import math
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from labctl.errors import InputError  # noqa: E402
-from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES, better_direction  # noqa: E402
-from labctl.evaluation.suitability import IED_MIN_PX  # noqa: E402
-from labctl.report.html import CSS, references_html, verdict_cell, wrap_table, wrappable  # noqa: E402
-from labctl.report.plots.png import save_png  # noqa: E402
-from labctl.run.store import labctl_version, now_iso  # noqa: E402
-from metrics.jsonsafe import dumps_strict  # noqa: E402
+from labctl.errors import InputError
+from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES, better_direction
+from labctl.evaluation.suitability import IED_MIN_PX
+from labctl.report.html import CSS, references_html, verdict_cell, wrap_table, wrappable
+from labctl.report.plots.png import save_png
+from labctl.run.store import labctl_version, now_iso
+from metrics.jsonsafe import dumps_strict
 
 #: figures left out of the chart (different scale or "higher is better")
 NOT_CHARTED = {"hyperfocal_distance_mm", "best_focus_distance_mm", "ied_pixels_at_hyperfocal",
@@ -118,7 +114,8 @@ def _unique(labels: list[str]) -> list[str]:
 
 def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: Path) -> Path:
     names = [f.name for f in FIGURES if f.name not in NOT_CHARTED]
-    fig, ax = plt.subplots(figsize=(14, 6))
+    fig = Figure(figsize=(14, 6))
+    ax = fig.subplots()
     width = 0.8 / max(len(labels), 1)
     x = np.arange(len(names))
     floor = _chart_floor(table, names, labels)
@@ -169,7 +166,8 @@ def _ied_chart(ied: dict[str, float | None], labels: list[str], path: Path) -> P
 
 def ied_figure(ied: dict[str, float | None], labels: list[str]) -> Figure:
     """The IED coverage bars of each camera against the 90 px requirement (ISO/IEC 39794-5:2019, Annex D)."""
-    fig, ax = plt.subplots(figsize=(7, 3.8))
+    fig = Figure(figsize=(7, 3.8))
+    ax = fig.subplots()
     values = [ied[label] if ied[label] is not None else np.nan for label in labels]
     bars = ax.bar(labels, values, color=["tab:green" if v >= IED_MIN_PX else "tab:red" for v in np.nan_to_num(values)])
     ax.bar_label(bars, labels=[f"{v:.0f} px" if math.isfinite(v) else "" for v in values], label_type="center",

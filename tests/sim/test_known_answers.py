@@ -5,9 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from metrics.optics import pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 from sim.geometry import Pose
 from sim.model import default_model_text, parse_model
-from sim.optics import depth_of_field_mm, pixel_aspect_distortion_pct, sensor_angular_resolution_deg
+from sim.optics import depth_of_field_mm
 from sim.profiles import PROFILES, SOURCES
 from sim.render import render
 from sim.scenes.targets import build_scene, plate_scene

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from metrics.optics import Pinhole
 from sim.geometry import Pose
-from sim.optics import Pinhole
 from sim.scenes.base import Hit, Scene
 from sim.scenes.targets import build_scene
 

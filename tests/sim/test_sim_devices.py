@@ -13,10 +13,10 @@ from labctl.run.planning import schedule
 from labctl.run.progress import Reporter
 from labctl.run.runner import Runner
 from labctl.run.store import RunWriter
+from metrics.optics import Pinhole
 from procedures.steps import Step
 from sim.geometry import Pose
 from sim.model import default_model_text, parse_model
-from sim.optics import Pinhole
 from sim.scenes.targets import wall_scene
 from tests.conftest import campaign_text
 

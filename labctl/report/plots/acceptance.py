@@ -4,19 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from labctl.evaluation.vdi2634 import QUANTITIES, AcceptanceResult  # noqa: E402
-from labctl.report.plots.png import save_png  # noqa: E402
+from labctl.evaluation.vdi2634 import QUANTITIES, AcceptanceResult
+from labctl.report.plots.png import save_png
 
 
 def plot_acceptance(result: AcceptanceResult, path: Path) -> Path:
     """Each measurement of each quantity over the positions (steps), the MPE as dashed lines."""
     names = [n for n in QUANTITIES if any(n in m.values for m in result.measurements)]
-    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.8), squeeze=False)
+    fig = Figure(figsize=(4.2 * len(names), 3.8))
+    axes = fig.subplots(1, len(names), squeeze=False)
     for ax, name in zip(axes[0], names):
         rows = [m for m in result.measurements if name in m.values]
         steps = list(dict.fromkeys(m.step_id for m in rows))

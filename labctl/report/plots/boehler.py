@@ -5,14 +5,11 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from labctl.report.plots.png import save_png  # noqa: E402
-from metrics.boehler import (  # noqa: E402
+from labctl.report.plots.png import save_png
+from metrics.boehler import (
     MIN_SAMPLES_PER_SEGMENT,
     SECTOR_IS_V,
     BoehlerResult,
@@ -57,7 +54,9 @@ def plot_boehler(result: BoehlerResult, cloud: np.ndarray, path: Path) -> Path:
     status = _ring_status(result, r, t)
     colours = np.array([_OUTSIDE, _UNRESOLVED, _RESOLVED])[status + 1]
 
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [1, 1.25]})
+    fig = Figure(figsize=(13, 6))
+
+    ax, bx = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.25]})
     ax.scatter(r * np.cos(t), r * np.sin(t), c=colours, s=0.4, linewidths=0, rasterized=True)
     edge = result.star_radius_mm
     for bound in sector_bounds(result.segments, math.radians(result.filled_phase_deg)):

@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from labctl.evaluation.capture import CaptureResult  # noqa: E402
-from labctl.report.plots.png import save_png  # noqa: E402
+from labctl.evaluation.capture import CaptureResult
+from labctl.report.plots.png import save_png
 
 
 def _limits(data: np.ndarray, symmetric: bool = False) -> tuple[float, float]:
@@ -39,7 +36,8 @@ def plot_capture(result: CaptureResult, path: Path) -> Path:
         panels.append(("residual from the fitted plane", s.plane.residual, "mm", "RdBu_r", True))
     cols = 3
     rows = -(-len(panels) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(13, 3.9 * rows), squeeze=False)
+    fig = Figure(figsize=(13, 3.9 * rows))
+    axes = fig.subplots(rows, cols, squeeze=False)
     for ax, (title, data, unit, cmap, symmetric) in zip(axes.flat, panels):
         lo, hi = (0.0, 1.0) if title.startswith("validity") else _limits(data, symmetric)
         im = ax.imshow(data, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")

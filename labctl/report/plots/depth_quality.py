@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from labctl.evaluation.depth_quality import VendorPosition  # noqa: E402
-from labctl.report.plots.png import save_png  # noqa: E402
+from labctl.evaluation.depth_quality import VendorPosition
+from labctl.report.plots.png import save_png
 
 
 def plot_vendor_figures(positions: list[VendorPosition], path: Path) -> Path:
@@ -22,7 +19,9 @@ def plot_vendor_figures(positions: list[VendorPosition], path: Path) -> Path:
     def series(attr: str) -> np.ndarray:
         return np.array([getattr(p.figures, attr) for p in rows])
 
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    fig = Figure(figsize=(11, 7))
+
+    axes = fig.subplots(2, 2, sharex=True)
     panels = [
         (axes[0, 0], "Fill rate (Depth Quality Tool ROI)", "%", [("fill_rate_pct", "fill rate")]),
         (axes[0, 1], "Z accuracy (median signed error)", "% of distance", [("z_accuracy_pct", "Z accuracy")]),

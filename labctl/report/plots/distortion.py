@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from labctl.report.plots.png import save_png  # noqa: E402
-from metrics.distortion import CloudDistortion, DistortionResult  # noqa: E402
+from labctl.report.plots.png import save_png
+from metrics.distortion import CloudDistortion, DistortionResult
 
 _NICE = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
 
@@ -44,7 +41,8 @@ def plot_distortion(image: np.ndarray, result: DistortionResult, path: Path,
                     cloud: CloudDistortion | None = None, title: str = "") -> Path:
     """Intensity image with its corners (and, if given, the cloud's corners in mm) like Thesis 2024, Fig. 6-8."""
     panels = 2 if cloud is not None else 1
-    fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 5.6), squeeze=False)
+    fig = Figure(figsize=(7.5 * panels, 5.6))
+    axes = fig.subplots(1, panels, squeeze=False)
     ax = axes[0, 0]
     finite = image[np.isfinite(image)]
     lo, hi = np.quantile(finite, [0.01, 0.99]) if finite.size else (0.0, 1.0)

@@ -5,17 +5,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from labctl.evaluation.evaluate import DepthPosition, SurfaceResult  # noqa: E402
-from labctl.evaluation.sharpness import SharpnessResult  # noqa: E402
-from labctl.report.plots.png import save_png  # noqa: E402
-from metrics.xy_error import XYPrecision  # noqa: E402
+from labctl.evaluation.evaluate import DepthPosition, SurfaceResult
+from labctl.evaluation.sharpness import SharpnessResult
+from labctl.report.plots.png import save_png
+from metrics.xy_error import XYPrecision
 
 
 def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
@@ -27,7 +23,9 @@ def plot_depth_curves(depth: list[DepthPosition], path: Path) -> Path:
     def series(attr: str) -> np.ndarray:
         return np.array([getattr(depth[i].errors, attr) for i in order])
 
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), sharex=True)
+    fig = Figure(figsize=(11, 7.5))
+
+    axes = fig.subplots(2, 2, sharex=True)
     panels = [
         (axes[0, 0], "Trueness |mean - reference|", ["trueness_median_mm", "trueness_q90_mm"]),
         (axes[0, 1], "Accuracy |single frame - reference|", ["accuracy_median_mm", "accuracy_q90_mm"]),
@@ -67,7 +65,8 @@ def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -
     distance (Thesis 2024, 5.3; the off-axis pixel: docs/metrics.md, x/y noise)."""
     rows = sorted(precision, key=lambda item: item[1])
     d = np.array([distance for _, distance, _ in rows])
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
+    fig = Figure(figsize=(11, 3.8))
+    axes = fig.subplots(1, 2, sharex=True)
     for ax, axis in zip(axes, "xy"):
         ax.plot(d, [getattr(p, f"precision_q90_{axis}_mm") for *_, p in rows], marker="o", ms=3, label="Q90 over pixels")
         ax.plot(d, [getattr(p, f"repeatability_off_axis_{axis}_mm") for *_, p in rows], marker="o", ms=3,
@@ -86,7 +85,8 @@ def plot_xy_noise(precision: list[tuple[str, float, XYPrecision]], path: Path) -
 def plot_surface_maps(surface: SurfaceResult, path: Path) -> Path:
     """Primary, waviness and roughness surfaces with their Sq, symmetric colour scales."""
     t = surface.texture
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig = Figure(figsize=(15, 4.2))
+    axes = fig.subplots(1, 3)
     for ax, (name, data, sq) in zip(
         axes,
         [("primary", t.primary, t.sq_primary_mm), ("waviness", t.waviness, t.sq_waviness_mm),
@@ -129,7 +129,8 @@ def plot_sharpness(result: SharpnessResult, path: Path) -> Path:
 def sharpness_figure(result: SharpnessResult) -> Figure:
     """The figure of :func:`plot_sharpness`: one legend under the three plots, never on their data, naming the
     orientations, the Nyquist frequency, the hyperfocal and best-focus lines and how invalid positions are drawn."""
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), sharex=True)
+    fig = Figure(figsize=(15, 4.6))
+    axes = fig.subplots(1, 3, sharex=True)
     lines = ((result.hyperfocal_mm, "hyperfocal", ":"), (result.best_focus_mm, "best focus", "-."))
     for ax, attr, title in zip(axes, ("sfr10", "sfr50", "sfr_area"), ("SFR10", "SFR50", "SFR area")):
         for orientation, color in (("horizontal", "tab:blue"), ("vertical", "tab:orange")):
@@ -155,7 +156,8 @@ def sharpness_figure(result: SharpnessResult) -> Figure:
 
 def plot_resolution(result: SharpnessResult, path: Path) -> Path:
     """Angular imagery resolution of the intensity image over distance vs the sensor resolution (Fig. 6-4)."""
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig = Figure(figsize=(8, 4.5))
+    ax = fig.subplots()
     for orientation, sensor, color in (("horizontal", result.sensor_resolution_deg[0], "tab:blue"),
                                        ("vertical", result.sensor_resolution_deg[1], "tab:orange")):
         d, sfr10, ok = result.series(orientation, "sfr10")
@@ -209,7 +211,8 @@ def plot_face_mask(cloud: np.ndarray, intensity: np.ndarray, wall_distance_mm: f
     mask = face_mask_region(z)
     rows, cols = np.where(mask)
     crop = (slice(max(rows.min() - 10, 0), rows.max() + 11), slice(max(cols.min() - 10, 0), cols.max() + 11))
-    fig, axes = plt.subplots(1, 3, figsize=(13, 5))
+    fig = Figure(figsize=(13, 5))
+    axes = fig.subplots(1, 3)
     axes[0].imshow(np.where(mask, shaded_relief(cloud), np.nan)[crop], cmap="gray", vmin=0, vmax=1)
     axes[0].set_title("shaded point cloud")
     im = axes[1].imshow(np.where(mask, z, np.nan)[crop], cmap="viridis_r")

@@ -3,18 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.figure import Figure
 
 
-def save_png(fig: Any, path: Path, dpi: int) -> Path:
-    """Write ``fig`` to ``path`` (its folder created if missing) at ``dpi`` and close it, so a report of many
-    figures does not keep them all in memory; returns ``path``."""
+def save_png(fig: Figure, path: Path, dpi: int) -> Path:
+    """Write ``fig`` to ``path`` (its folder created if missing) at ``dpi``; returns ``path``.
+
+    The report's figures are built as ``matplotlib.figure.Figure`` directly, not through pyplot: no backend is
+    chosen and no global figure list keeps them, so they render the same in the CLI, on Dask workers and in
+    tests, and are freed once the caller drops them (PNG is written by matplotlib's Agg renderer)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
-    plt.close(fig)
     return path

@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from labctl.evaluation.remission import RemissionResult  # noqa: E402
-from labctl.report.plots.png import save_png  # noqa: E402
+from labctl.evaluation.remission import RemissionResult
+from labctl.report.plots.png import save_png
 
 COLORS = {"ptfe": "tab:blue", "molleton": "black", "silicone": "tab:orange", "gelatine": "tab:green",
           "collagen": "tab:red"}
@@ -22,7 +19,8 @@ def plot_remission(result: RemissionResult, path: Path) -> Path:
 
     Steps whose ROI is not on the target are left out (Thesis 2024, 6.5.1).
     """
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), sharex=True)
+    fig = Figure(figsize=(16, 4.8))
+    axes = fig.subplots(1, 3, sharex=True)
     panels = [
         (axes[0], "Repeatability (pooled std over the ROI)", lambda r: r.roi.repeatability_mm),
         (axes[1], "Trueness vs the material's 0 deg distance", lambda r: r.trueness_zero_mm),
@@ -71,7 +69,8 @@ def plot_misalignment_fit(result: RemissionResult, path: Path) -> Path:
     se = np.array([r.roi.distance_se_mm for r in rows])
     grid = np.linspace(angles.min(), angles.max(), 200)
     t = np.radians(grid)
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 7), sharex=True, gridspec_kw={"height_ratios": [2.2, 1]})
+    fig = Figure(figsize=(8, 7))
+    top, bottom = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1]})
     top.errorbar(angles, measured, yerr=se, fmt="o", ms=4, color="tab:blue", label=f"{result.fit_material} measured")
     top.plot(grid, fit.bias_mm + fit.delta_mm / np.cos(t) - fit.e_mm * np.tan(t), color="tab:red",
              label=misalignment_label(fit.bias_mm, fit.delta_mm, fit.e_mm))

@@ -15,15 +15,12 @@ from __future__ import annotations
 
 import re
 import threading
-from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Sequence
+from typing import Protocol
 
 import numpy as np
 
 from sim.emulators.ur import kinematics
-
-if TYPE_CHECKING:
-    from sim.emulators.ur.controller import URController
 
 _MOVEL = re.compile(r"movel\(p\[([^\]]*)\],\s*a=([-+0-9.eE]+),\s*v=([-+0-9.eE]+),\s*r=([-+0-9.eE]+)\)")
 _OFFSET = re.compile(r"global reg_offset_int\s*=\s*(\d+)")
@@ -40,11 +37,34 @@ def is_control_script(script: str) -> bool:
     return script.startswith("def rtde_control():") and "def rtde_cmd():" in script
 
 
+class Robot(Protocol):
+    """What the control script uses of the controller it runs on (the controller emulator's ``URController``);
+    the caller holds ``lock`` around every other access."""
+
+    lock: threading.RLock
+    inputs: dict[str, float | int]
+    outputs: dict[str, float | int]
+    script_start_s: float
+    q: np.ndarray
+    tcp: tuple[float, ...]
+    refused_scripts: list[str]
+    commands_done: list[int]
+
+    @property
+    def program_playing(self) -> bool: ...
+    def program_started(self) -> None: ...
+    def stop_program(self) -> bool: ...
+    def protective_stop(self) -> None: ...
+    def within_planes(self, pose: Sequence[float]) -> bool: ...
+    def move(self, path: Sequence[tuple[np.ndarray, float]], progress: Callable[[int], None]) -> threading.Event: ...
+    def halt(self, *, paused: bool = False) -> None: ...
+
+
 class ControlScript:
     """One run of ur-rtde's control script on ``robot``; it starts after ``robot.script_start_s``
     (the controller compiles the program first) and ends with :meth:`stop`."""
 
-    def __init__(self, robot: URController, script: str) -> None:
+    def __init__(self, robot: Robot, script: str) -> None:
         self.robot = robot
         offset = _OFFSET.search(script)
         self.offset = int(offset.group(1)) if offset else 0

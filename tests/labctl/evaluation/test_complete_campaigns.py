@@ -34,11 +34,11 @@ from labctl.report.html import write_outputs
 from labctl.report.pointcloud_io import read_pcd
 from labctl.run.store import RunReader
 from metrics.depth_quality import centre_window, dqt_roi
+from metrics.optics import pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 from metrics.sharpness import ied_pixels
 from procedures.remission_angle import SKIN_LIKE
 from sim.materials import angle_factor, remission
 from sim.model import parse_model
-from sim.optics import pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 from sim.profiles import default_effects, get_profile
 from sim.stereo import StereoSensor
 from sim.tof import IRRADIANCE_REF, range_noise_mm, reference_amplitude

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from labctl.cli import main
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
@@ -332,8 +333,9 @@ def test_ied_chart_title_legend_and_labels_lie_inside_the_figure():
     a value (n/a) pushed the last camera's name off the axis."""
     labels = ["Basler blaze-101*", "Schmersal AM-T100*", "pmd flexx2 VGA*", "Intel RealSense D455*"]
     fig = ied_figure(dict(zip(labels, [75.5, 50.4, 65.8, None])), labels)
-    fig.canvas.draw()
-    renderer = fig.canvas.get_renderer()
+    canvas = FigureCanvasAgg(fig)  # the figures are plain Figures; Agg is what writes their PNG
+    canvas.draw()
+    renderer = canvas.get_renderer()
     ax = fig.axes[0]
     texts = [ax.title, ax.yaxis.label, *ax.get_xticklabels(), ax.get_legend()]
     for artist in texts:
@@ -350,8 +352,9 @@ def test_sharpness_legend_lies_under_the_plots_and_names_the_focus_lines():
     result = sharpness(0.62, 0.79)
     result.hyperfocal_mm = 300.0
     fig = sharpness_figure(result)
-    fig.canvas.draw()
-    renderer = fig.canvas.get_renderer()
+    canvas = FigureCanvasAgg(fig)  # the figures are plain Figures; Agg is what writes their PNG
+    canvas.draw()
+    renderer = canvas.get_renderer()
     [legend] = fig.legends
     box = legend.get_window_extent(renderer)
     assert box.x0 >= 0 and box.y0 >= 0 and box.x1 <= fig.bbox.width
