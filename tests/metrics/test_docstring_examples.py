@@ -13,7 +13,7 @@ METRICS = Path(__file__).resolve().parents[2] / "metrics"
 
 def public_functions(path: Path) -> list[tuple[str, ast.FunctionDef]]:
     """(qualified name, node) of the module's public functions and of its public classes' public methods
-    (properties are attributes, not functions)."""
+    (properties and cached properties are attributes, not functions: their examples are in the class's docstring)."""
     found = []
     for node in ast.parse(path.read_text(encoding="utf-8")).body:
         if isinstance(node, ast.FunctionDef) and not node.name.startswith("_"):
@@ -21,8 +21,13 @@ def public_functions(path: Path) -> list[tuple[str, ast.FunctionDef]]:
         elif isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
             found += [(f"{node.name}.{item.name}", item) for item in node.body
                       if isinstance(item, ast.FunctionDef) and not item.name.startswith("_")
-                      and not any(isinstance(d, ast.Name) and d.id == "property" for d in item.decorator_list)]
+                      and not any(_is_property(d) for d in item.decorator_list)]
     return found
+
+
+def _is_property(decorator: ast.expr) -> bool:
+    name = decorator.attr if isinstance(decorator, ast.Attribute) else getattr(decorator, "id", "")
+    return name in ("property", "cached_property")
 
 
 MODULES = sorted(METRICS.glob("*.py"))
