@@ -70,13 +70,13 @@ def reconcile_run(run: Path, outdir: Path, model_text: str | None = None, model_
     report, model_file, doc = write_reconcile(result, run, outdir)
     before = result.goodness_before
     worst = before.worst_step if before is not None else None
-    best = max((c["score"] for c in result.candidates), default=None)
-    return {"output": str(outdir), "report": str(report), "model": str(model_file), "verdict": doc["verdict"],
-            "named": [e["name"] for e in result.named],
-            "empirical": [e["name"] for e in result.empirical],
-            "gap_before": doc["gap_before"], "gap_after": doc["gap_after"], "gap_floor": doc["gap_floor"],
-            "consistent_with_noise": doc["consistent_with_noise"],
-            "best_candidate": result.candidates[0]["name"] if result.candidates else None,
+    best = max((c.score for c in result.candidates), default=None)
+    return {"output": str(outdir), "report": str(report), "model": str(model_file), "verdict": doc.verdict,
+            "named": [e.name for e in result.named],
+            "empirical": [e.name for e in result.empirical],
+            "gap_before": doc.gap_before, "gap_after": doc.gap_after, "gap_floor": doc.gap_floor,
+            "consistent_with_noise": doc.consistent_with_noise,
+            "best_candidate": result.candidates[0].name if result.candidates else None,
             "best_candidate_dbic": best if best is None or math.isfinite(best) else None,
             "worst_step_ratio": round(worst.ratio, 4) if worst is not None and math.isfinite(worst.ratio) else None}
 
