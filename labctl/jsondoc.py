@@ -1,9 +1,9 @@
 """Result documents as JSON: the one conversion from the project's result dataclasses to JSON text.
 
-Every JSON file labctl writes (``keyfigures.json``, ``reconcile.json``, a
-batch's ``index.json``) is built from typed dataclasses and turned into JSON
-here, so that a document's keys are the fields of its dataclass, in their
-declared order:
+The result files labctl writes (``keyfigures.json``, ``reconcile.json``,
+``compare.json``, a batch's ``index.json``) are built from typed dataclasses
+and turned into JSON here, so that a document's keys are the fields of its
+dataclass, in their declared order:
 
 * a dataclass becomes an object with one key per field, in field order;
 * a field declared with :func:`optional` is left out while it is ``None``
