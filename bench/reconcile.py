@@ -65,7 +65,7 @@ def run() -> Result:
         seconds = best_of(1, reconcile_once)
         floor = best_of(1, lambda: _read(measured))
         result = outcome["result"]
-        named = ", ".join(f"{e['name']} {e['parameters']}" for e in result.named) or "nothing"
+        named = ", ".join(f"{e.name} {e.parameters}" for e in result.named) or "nothing"
         steps = len(result.observations)
     return Result("reconcile", f"{seconds:.1f} s for {steps} steps (verdict {result.verdict}, named {named}; gap "
                   f"{result.gap_before:.2f} -> {result.gap_after:.2f} mm, floor "

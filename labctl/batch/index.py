@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import csv
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from labctl.batch.tasks import Summary
+from labctl.jsondoc import optional, write_json
 from labctl.run.store import labctl_version, now_iso
-from metrics.jsonsafe import dumps_strict
 
 RECONCILE_COLUMNS = ["verdict", "named", "empirical", "gap_before", "gap_after", "gap_floor", "consistent_with_noise",
                      "best_candidate", "best_candidate_dbic", "worst_step_ratio"]
@@ -25,9 +26,52 @@ def figure_names(summaries: Sequence[Summary]) -> list[str]:
     return list(names)
 
 
-def counts(summaries: Sequence[Summary]) -> dict[str, int]:
+@dataclass(kw_only=True)
+class Counts:
+    """How many runs the batch has, how many completed every stage and how many failed."""
+
+    runs: int
+    ok: int
+    failed: int
+
+
+def counts(summaries: Sequence[Summary]) -> Counts:
+    """The batch's run counts."""
     ok = sum(s.get("status") == "ok" for s in summaries)
-    return {"runs": len(summaries), "ok": ok, "failed": len(summaries) - ok}
+    return Counts(runs=len(summaries), ok=ok, failed=len(summaries) - ok)
+
+
+@dataclass(kw_only=True)
+class SweepSettings:
+    """A sweep's settings as ``index.json`` records them: its name, axes, stages and the figures it tables."""
+
+    name: str
+    axes: list[str]
+    evaluate: bool
+    reconcile: bool
+    keep_runs: bool
+    figures: list[str]
+
+
+@dataclass(kw_only=True)
+class BatchIndex:
+    """``index.json``: the labctl version and time of writing and the run counts (set when it is made), the kind
+    of batch (``runs``: with its stages and the reconcile model's source; ``sweep``: with its settings and, for
+    reconciled null runs, the thresholds' error rates) and every run's summary."""
+
+    labctl_version: str = field(init=False)
+    created: str = field(init=False)
+    counts: Counts = field(init=False)
+    kind: str
+    evaluate: bool | None = optional()
+    reconcile: bool | None = optional()
+    model: str | None = optional()
+    sweep: SweepSettings | None = optional()
+    null_calibration: dict[str, Any] | None = optional()
+    runs: list[Summary]
+
+    def __post_init__(self) -> None:
+        self.labctl_version, self.created, self.counts = labctl_version(), now_iso(), counts(self.runs)
 
 
 def _cell(value: Any) -> Any:
@@ -57,14 +101,10 @@ def csv_rows(summaries: Sequence[Summary], axes: Sequence[str] = ()) -> tuple[li
     return header, rows
 
 
-def write_index(summaries: Sequence[Summary], outdir: Path, extra: dict[str, Any] | None = None,
-                axes: Sequence[str] = ()) -> tuple[Path, Path]:
-    """OUTDIR/index.json (the summaries, counts and ``extra``) and OUTDIR/index.csv."""
-    doc = {"labctl_version": labctl_version(), "created": now_iso(), "counts": counts(summaries), **(extra or {}),
-           "runs": list(summaries)}
-    json_path = outdir / "index.json"
-    json_path.write_text(dumps_strict(doc, indent=2) + "\n")
-    header, rows = csv_rows(summaries, axes)
+def write_index(index: BatchIndex, outdir: Path, axes: Sequence[str] = ()) -> tuple[Path, Path]:
+    """OUTDIR/index.json (``index``) and OUTDIR/index.csv (a row per run, columns for the sweep's ``axes``)."""
+    json_path = write_json(outdir / "index.json", index, final_newline=True)
+    header, rows = csv_rows(index.runs, axes)
     csv_path = outdir / "index.csv"
     with csv_path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=header)

@@ -10,7 +10,7 @@ from typing import Any
 from labctl.batch.calibration import null_calibration
 from labctl.batch.cluster import Cluster, open_client
 from labctl.batch.execute import BatchProgress, Job, run_jobs
-from labctl.batch.index import counts, write_index
+from labctl.batch.index import BatchIndex, SweepSettings, counts, write_index
 from labctl.batch.inputs import run_names
 from labctl.batch.interrupt import deferred_ctrl_c
 from labctl.batch.report import write_report
@@ -28,7 +28,7 @@ class Outcome:
 
     @property
     def failed(self) -> int:
-        return counts(self.summaries)["failed"]
+        return counts(self.summaries).failed
 
 
 def _run(jobs: Sequence[Job], cluster: Cluster, quiet: bool) -> list[Summary]:
@@ -47,8 +47,8 @@ def batch_runs(paths: Sequence[Path], outdir: Path, evaluate: bool, reconcile: b
                 (path, outdir / "runs" / name, evaluate, reconcile, model_text, model_source))
             for name, path in zip(run_names(paths), paths)]
     summaries = _run(jobs, cluster, quiet)
-    json_path, csv_path = write_index(summaries, outdir, {"kind": "runs", "evaluate": evaluate,
-                                                           "reconcile": reconcile, "model": model_source})
+    index = BatchIndex(kind="runs", evaluate=evaluate, reconcile=reconcile, model=model_source, runs=summaries)
+    json_path, csv_path = write_index(index, outdir)
     report = write_report(summaries, outdir, f"Batch of {len(paths)} runs")
     return Outcome(summaries, json_path, csv_path, report)
 
@@ -63,10 +63,9 @@ def batch_sweep(sweep: Sweep, outdir: Path, cluster: Cluster, quiet: bool = Fals
     figures = list(sweep.figures) + (["reconcile.gap_after"] if sweep.reconcile and "reconcile.gap_after" not in
                                      sweep.figures else [])
     calibration = null_calibration(summaries) if sweep.reconcile else None
-    extra = {"kind": "sweep", "sweep": {"name": sweep.name, "axes": sweep.axes, "evaluate": sweep.evaluate,
-                                        "reconcile": sweep.reconcile, "keep_runs": sweep.keep_runs,
-                                        "figures": figures},
-             **({"null_calibration": calibration} if calibration is not None else {})}
-    json_path, csv_path = write_index(summaries, outdir, extra, sweep.axes)
+    settings = SweepSettings(name=sweep.name, axes=sweep.axes, evaluate=sweep.evaluate, reconcile=sweep.reconcile,
+                             keep_runs=sweep.keep_runs, figures=figures)
+    index = BatchIndex(kind="sweep", sweep=settings, null_calibration=calibration, runs=summaries)
+    json_path, csv_path = write_index(index, outdir, sweep.axes)
     report = write_report(summaries, outdir, f"Sweep {sweep.name}", sweep.axes, figures, calibration)
     return Outcome(summaries, json_path, csv_path, report, calibration)

@@ -186,7 +186,7 @@ def write_report(summaries: Sequence[Summary], outdir: Path, title: str, axes: S
     page = f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>{html.escape(title)}</title><style>{CSS}</style></head><body>
 <h1>{html.escape(title)}</h1>
-<p>{n['runs']} runs, {n['ok']} complete, {n['failed']} failed. Every run's outputs are in its directory under
+<p>{n.runs} runs, {n.ok} complete, {n.failed} failed. Every run's outputs are in its directory under
 <code>runs/</code> (or <code>points/</code>); <code>index.json</code> and <code>index.csv</code> list them.
 labctl {html.escape(labctl_version())}, {html.escape(now_iso())}.</p>
 {''.join(sections)}

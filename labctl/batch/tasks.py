@@ -12,7 +12,6 @@ the other runs go on.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import socket
@@ -20,11 +19,64 @@ import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, TypeVar
 
 from labctl.errors import LabctlError
 
-Summary = dict[str, Any]
+
+class EvaluateSummary(TypedDict, total=False):
+    """What ``labctl evaluate`` gave for one run (``evaluate`` of a run in index.json); only ``error`` when it
+    failed."""
+
+    output: str
+    report: str
+    camera: dict[str, Any]
+    figures: dict[str, float | None]  # every key figure's value, in keyfigures.json's order
+    error: str
+
+
+class ReconcileSummary(TypedDict, total=False):
+    """What ``labctl reconcile`` gave for one run (``reconcile`` of a run in index.json); only ``error`` when it
+    failed."""
+
+    output: str
+    report: str
+    model: str
+    verdict: str
+    named: list[str]
+    empirical: list[str]
+    gap_before: float | None
+    gap_after: float | None
+    gap_floor: float | None
+    consistent_with_noise: bool | None
+    best_candidate: str | None
+    best_candidate_dbic: float | None
+    worst_step_ratio: float | None
+    error: str
+
+
+class Summary(TypedDict, total=False):
+    """One run of a batch in index.json: where it was processed, each stage's summary, its status (``ok`` or
+    ``failed``, ``error`` saying why) and time; a sweep point adds its grid parameters and whether it is a null
+    run, the batch the run's name. A mapping: it travels from the workers as is and is written in the order
+    its keys were set."""
+
+    run: str
+    output: str
+    worker: str
+    evaluate: EvaluateSummary
+    reconcile: ReconcileSummary
+    status: str
+    error: str | None
+    seconds: float
+    run_deleted: bool
+    parameters: dict[str, Any]
+    null: bool
+    name: str
+
+
+#: what a stage of one run returns: its summary, or only ``error`` when it failed (``guarded``)
+StageSummary = TypeVar("StageSummary", EvaluateSummary, ReconcileSummary, dict[str, str])
 
 
 def error_message(exc: BaseException) -> str:
@@ -36,7 +88,7 @@ def error_message(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def guarded(stage: Callable[[], Summary], error_file: Path) -> Summary:
+def guarded(stage: Callable[[], StageSummary], error_file: Path) -> StageSummary:
     """``stage()``, or ``{"error": message}`` when it fails (the traceback written to ``error_file``)."""
     try:
         return stage()
@@ -46,18 +98,20 @@ def guarded(stage: Callable[[], Summary], error_file: Path) -> Summary:
         return {"error": error_message(exc)}
 
 
-def evaluate_run(run: Path, outdir: Path) -> Summary:
+def evaluate_run(run: Path, outdir: Path) -> EvaluateSummary:
     """``labctl evaluate RUN -o OUTDIR``: keyfigures.json, report.html and plots; the figures' values."""
     from labctl.evaluation.evaluate import evaluate_runs
+    from labctl.evaluation.keyfigures import read_keyfigures
     from labctl.report.html import write_outputs
 
     json_path, report = write_outputs(evaluate_runs([run]), outdir)
-    doc = json.loads(json_path.read_text())
-    return {"output": str(outdir), "report": str(report), "camera": doc["camera"],
-            "figures": {name: figure["value"] for name, figure in doc["figures"].items()}}
+    doc = read_keyfigures(json_path)
+    return {"output": str(outdir), "report": str(report), "camera": doc.camera,
+            "figures": {name: figure.value for name, figure in doc.figures.items()}}
 
 
-def reconcile_run(run: Path, outdir: Path, model_text: str | None = None, model_source: str = "model") -> Summary:
+def reconcile_run(run: Path, outdir: Path, model_text: str | None = None,
+                  model_source: str = "model") -> ReconcileSummary:
     """``labctl reconcile RUN [--model MODEL] -o OUTDIR``: reconcile.json, reconcile.html, model.toml; the
     verdict, named effects, gaps, the best candidate's dBIC and the largest step gap in units of its floor
     before any effect was added (the two numbers the thresholds are calibrated on)."""
@@ -70,13 +124,13 @@ def reconcile_run(run: Path, outdir: Path, model_text: str | None = None, model_
     report, model_file, doc = write_reconcile(result, run, outdir)
     before = result.goodness_before
     worst = before.worst_step if before is not None else None
-    best = max((c["score"] for c in result.candidates), default=None)
-    return {"output": str(outdir), "report": str(report), "model": str(model_file), "verdict": doc["verdict"],
-            "named": [e["name"] for e in result.named],
-            "empirical": [e["name"] for e in result.empirical],
-            "gap_before": doc["gap_before"], "gap_after": doc["gap_after"], "gap_floor": doc["gap_floor"],
-            "consistent_with_noise": doc["consistent_with_noise"],
-            "best_candidate": result.candidates[0]["name"] if result.candidates else None,
+    best = max((c.score for c in result.candidates), default=None)
+    return {"output": str(outdir), "report": str(report), "model": str(model_file), "verdict": doc.verdict,
+            "named": [e.name for e in result.named],
+            "empirical": [e.name for e in result.empirical],
+            "gap_before": doc.gap_before, "gap_after": doc.gap_after, "gap_floor": doc.gap_floor,
+            "consistent_with_noise": doc.consistent_with_noise,
+            "best_candidate": result.candidates[0].name if result.candidates else None,
             "best_candidate_dbic": best if best is None or math.isfinite(best) else None,
             "worst_step_ratio": round(worst.ratio, 4) if worst is not None and math.isfinite(worst.ratio) else None}
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import click
 
 from labctl.cli.outputs import OutputDirectory, output_directory_for
+from labctl.jsondoc import dumps
 from labctl.run.progress import Reporter
-from metrics.jsonsafe import dumps_strict
 
 
 @click.command()
@@ -40,15 +40,15 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
         result = run_reconcile(measured, model, progress=progress, warn=warn)
         report, model_file, doc = write_reconcile(result, measured, output)
     if as_json:
-        click.echo(dumps_strict(doc, indent=2))
+        click.echo(dumps(doc))
         return
-    named = ", ".join(e["name"] for e in result.named) or "nothing significant"
+    named = ", ".join(e.name for e in result.named) or "nothing significant"
     if result.not_comparable is not None:
-        reporter.message(f"verdict: not_comparable ({result.not_comparable['reason']}); would need: "
-                         + ", ".join(result.not_comparable["procedures_needed"]))
+        reporter.message(f"verdict: not_comparable ({result.not_comparable.reason}); would need: "
+                         + ", ".join(result.not_comparable.procedures_needed))
     else:
         reporter.message(f"verdict: {result.verdict} ({named}); gap {result.gap_before:.3f} -> {result.gap_after:.3f} mm"
-                         f" (noise floor {doc['gap_floor']:.3f} mm)")
+                         f" (noise floor {doc.gap_floor:.3f} mm)")
     if result.unexplained is not None:
         reporter.message(result.unexplained["message"])
     reporter.message(f"corrected model: {model_file}")

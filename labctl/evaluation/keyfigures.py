@@ -6,9 +6,15 @@ method, so ``keyfigures.json`` and the report can never drift apart.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
+
+from labctl.errors import InputError
+from labctl.jsondoc import optional
 
 
 @dataclass(frozen=True)
@@ -136,10 +142,52 @@ def clean(value: float | None) -> float | None:
     return float(value)
 
 
+#: a table of keyfigures.json: one row per step (or per material and angle), column name to value
+Rows = list[dict[str, Any]]
+
+
+@dataclass(kw_only=True)
+class FigureEntry:
+    """One figure of ``keyfigures.json``: its value (null where not measured), unit, the steps it comes from
+    (comma separated), its meaning and its plausibility flags (``{"check", "message"}`` each)."""
+
+    value: float | None
+    unit: str
+    source: str
+    meaning: str
+    flags: list[dict[str, str]]
+
+
+@dataclass(kw_only=True)
+class KeyFiguresDocument:
+    """``keyfigures.json`` (docs/keyfigures.md): the camera, every defined figure and the suitability verdicts,
+    then the evaluated runs, notes and the tables of the procedures the runs hold; a procedure's table is absent
+    when the runs lack it."""
+
+    camera: dict[str, Any]
+    figures: dict[str, FigureEntry]
+    suitability: dict[str, Any]
+    runs: list[str] | None = optional()
+    notes: list[str] | None = optional()
+    depth_sweep: Rows | None = optional()
+    slanted_edge: Rows | None = optional()
+    capture: Rows | None = optional()
+    alignment: dict[str, Any] | None = optional()
+    depth_quality: Rows | None = optional()
+    acceptance_test: dict[str, dict[str, Any]] | None = optional()
+    acceptance_positions: Rows | None = optional()
+    checkerboard: Rows | None = optional()
+    boehler_star: Rows | None = optional()
+    xy_noise: Rows | None = optional()
+    remission_angle: Rows | None = optional()
+    misalignment: dict[str, Any] | None = optional()
+    face_mask: dict[str, Any] | None = optional()
+
+
 def keyfigures_document(
     camera: dict[str, Any], values: dict[str, FigureValue], suitability: dict[str, Any],
     flags: dict[str, list[dict[str, str]]] | None = None,
-) -> dict[str, Any]:
+) -> KeyFiguresDocument:
     """The ``keyfigures.json`` document: every defined figure, null where not measured, with its
     plausibility flags (an empty list where it passes every check)."""
     unknown = set(values) - set(FIGURE_BY_NAME)
@@ -148,11 +196,26 @@ def keyfigures_document(
     figures = {}
     for fig in FIGURES:
         v = values.get(fig.name, FigureValue(None, []))
-        figures[fig.name] = {
-            "value": clean(v.value),
-            "unit": fig.unit,
-            "source": ",".join(v.source),
-            "meaning": fig.meaning,
-            "flags": list((flags or {}).get(fig.name, [])),
-        }
-    return {"camera": camera, "figures": figures, "suitability": suitability}
+        figures[fig.name] = FigureEntry(value=clean(v.value), unit=fig.unit, source=",".join(v.source),
+                                        meaning=fig.meaning, flags=list((flags or {}).get(fig.name, [])))
+    return KeyFiguresDocument(camera=camera, figures=figures, suitability=suitability)
+
+
+def read_keyfigures(path: Path) -> KeyFiguresDocument:
+    """A ``keyfigures.json`` written by ``labctl evaluate``, read back (a figure's missing fields read as empty);
+    InputError naming the file when it is missing, not JSON, or has no ``camera`` / ``figures``."""
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path.parent} has no keyfigures.json: give output directories of 'labctl evaluate'") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict) or "figures" not in data or "camera" not in data:
+        raise InputError(f"{path} is not a labctl keyfigures.json (no 'camera'/'figures')")
+    figures = {name: FigureEntry(value=f.get("value"), unit=f.get("unit", ""), source=f.get("source", ""),
+                                 meaning=f.get("meaning", ""), flags=f.get("flags", []))
+               for name, f in data["figures"].items()}
+    sections = {f.name: data.get(f.name) for f in dataclasses.fields(KeyFiguresDocument)
+                if f.name not in ("camera", "figures", "suitability")}
+    return KeyFiguresDocument(camera=data["camera"], figures=figures, suitability=data.get("suitability", {}),
+                              **sections)

@@ -5,16 +5,16 @@ from __future__ import annotations
 import html
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
 
+from labctl.jsondoc import write_json
+from labctl.reconcile.results import Determination, NotComparable, Parameters, ReconcileDocument
 from labctl.reconcile.workflow import ReconcileResult, json_document
 from labctl.report.html import CSS as REPORT_CSS
 from labctl.report.plots.png import save_png
 from labctl.run.store import labctl_version, now_iso
-from metrics.jsonsafe import dumps_strict
 
 CSS = REPORT_CSS + ".verdict{font-size:1.3em;font-weight:600}\n"
 
@@ -163,8 +163,8 @@ def _unexplained(result: ReconcileResult, plot: Path | None) -> str:
     rows = "".join(f"<tr><td class=l>{html.escape(a['axis'])}</td><td>{a['eta2']:.3f}</td><td>{a['effect_mm']:.3f}</td>"
                    f"<td>{'' if a.get('same_at_every_distance') is None else a['same_at_every_distance']}</td></tr>"
                    for a in u["axes"])
-    empirical = "".join(f"<li><b>{html.escape(e['name'])}</b> (empirical): gap {e['gap_before_mm']:.3f} &rarr; "
-                        f"{e['gap_after_mm']:.3f} mm</li>" for e in result.empirical)
+    empirical = "".join(f"<li><b>{html.escape(e.name)}</b> (empirical): gap {e.gap_before_mm:.3f} &rarr; "
+                        f"{e.gap_after_mm:.3f} mm</li>" for e in result.empirical)
     return (f"<h2>Unexplained residual</h2><p class=note>{html.escape(u['message'])}</p>"
             "<table><tr><th class=l>axis</th><th>share of the residual (eta&sup2;)</th><th>peak to peak (mm)</th>"
             f"<th>same at every distance</th></tr>{rows}</table>"
@@ -194,11 +194,11 @@ def _corners(result: ReconcileResult) -> str:
         f"<td>{a[family]['gap_floor']}</td><td class=l>{'yes' if a[family]['consistent_with_noise'] else 'NO'}</td></tr>"
         for b, a in [(c.before.summary(), c.after.summary())] for family in ("corner_image", "corner_cloud"))
     named = "".join(
-        f"<li><b>{html.escape(e['name'])}</b>: {_params(e['parameters'], e['evidence']['stderr'])}"
-        f"{_determination(e['evidence'].get('determination'))} (dBIC {e['evidence']['delta_bic']:.1f}; corner gap "
-        f"{e['evidence']['gap_before_mm']:.3f} &rarr; {e['evidence']['gap_after_mm']:.3f} mm, "
-        f"{e['evidence']['gap_before_px']:.3f} &rarr; {e['evidence']['gap_after_px']:.3f} px)</li>" for e in c.named)
-    decisions = "; ".join(html.escape(r["decision"]) for r in c.rounds)
+        f"<li><b>{html.escape(e.name)}</b>: {_params(e.parameters, e.evidence.stderr)}"
+        f"{_determination(e.evidence.determination)} (dBIC {e.evidence.delta_bic:.1f}; corner gap "
+        f"{e.evidence.gap_before_mm:.3f} &rarr; {e.evidence.gap_after_mm:.3f} mm, "
+        f"{e.evidence.gap_before_px:.3f} &rarr; {e.evidence.gap_after_px:.3f} px)</li>" for e in c.named)
+    decisions = "; ".join(html.escape(r.decision) for r in c.rounds)
     return (f"<h2>Checkerboard corners</h2><p>Steps {html.escape(', '.join(c.steps))}: measured corner positions "
             "against the simulated ones, in mm in the board plane (image: px converted by the board distance over "
             f"the focal length; cloud: the lateral position the point cloud gives the corner). Image gap "
@@ -209,12 +209,11 @@ def _corners(result: ReconcileResult) -> str:
             + f"<p>Rounds: {decisions}.</p>")
 
 
-def _not_comparable_page(result: ReconcileResult) -> str:
-    nc = result.not_comparable or {}
-    needed = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in nc.get("procedures_needed", {}).items())
-    return (f"<p class=note>Nothing to compare: {html.escape(nc.get('reason', ''))}.</p>"
+def _not_comparable_page(nc: NotComparable) -> str:
+    needed = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in nc.procedures_needed.items())
+    return (f"<p class=note>Nothing to compare: {html.escape(nc.reason)}.</p>"
             f"<p>Procedures that would give the comparison something to work with:</p><ul>{needed}</ul>"
-            f"<p>{html.escape(nc.get('not_compared', ''))}</p>")
+            f"<p>{html.escape(nc.not_compared)}</p>")
 
 
 def _where(result: ReconcileResult) -> str:
@@ -239,7 +238,7 @@ def _where(result: ReconcileResult) -> str:
             "<th class=l>target</th><th>RMS before (mm)</th><th>RMS after (mm)</th></tr>" + "".join(steps) + "</table>")
 
 
-def _params(params: dict[str, Any], stderr: dict[str, float]) -> str:
+def _params(params: Parameters, stderr: dict[str, float]) -> str:
     parts = []
     for k, v in params.items():
         if isinstance(v, float):
@@ -250,26 +249,27 @@ def _params(params: dict[str, Any], stderr: dict[str, float]) -> str:
     return ", ".join(parts)
 
 
-def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tuple[Path, Path, dict[str, Any]]:
-    """Write model.toml, reconcile.json and reconcile.html (with PNGs) into ``output``."""
+def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tuple[Path, Path, ReconcileDocument]:
+    """Write model.toml, reconcile.json and reconcile.html (with PNGs) into ``output``; returns the report's and
+    the model's paths and the document reconcile.json holds."""
     output.mkdir(parents=True, exist_ok=True)
     model_path = output / "model.toml"
     model_path.write_text(result.model_toml(), encoding="utf-8")
     doc = json_document(result, model_path)
-    (output / "reconcile.json").write_text(dumps_strict(doc, indent=2), encoding="utf-8")
+    write_json(output / "reconcile.json", doc)
     if result.not_comparable is not None or not result.iterations:
-        page = _not_comparable_page(result) if result.not_comparable is not None else _corners(result)
+        page = _not_comparable_page(result.not_comparable) if result.not_comparable is not None else _corners(result)
         return _write_page(output, measured, result, model_path, page), model_path, doc
     plots = [plot_residuals(result, output / "reconcile_residuals.png"),
              plot_residual_map(result, output / "reconcile_map.png"),
              plot_candidates(result, output / "reconcile_candidates.png")]
     unexplained_plot = plot_unexplained(result, output / "reconcile_unexplained.png") if result.unexplained else None
     named = "".join(
-        f"<tr><td class=l>{html.escape(e['name'])}</td><td class=l>{_params(e['parameters'], e['evidence']['stderr'])}"
-        f"{_determination(e['evidence'].get('determination'))}</td>"
-        f"<td>{e['evidence']['delta_bic']:.1f}</td><td>{_loso(e['evidence'].get('loso_gain'))}</td>"
-        f"<td class=l>{html.escape(str(e['evidence']['runner_up']))}</td>"
-        f"<td>{e['evidence']['gap_before_mm']:.3f} &rarr; {e['evidence']['gap_after_mm']:.3f}</td></tr>"
+        f"<tr><td class=l>{html.escape(e.name)}</td><td class=l>{_params(e.parameters, e.evidence.stderr)}"
+        f"{_determination(e.evidence.determination)}</td>"
+        f"<td>{e.evidence.delta_bic:.1f}</td><td>{_loso(e.evidence.loso_gain)}</td>"
+        f"<td class=l>{html.escape(str(e.evidence.runner_up))}</td>"
+        f"<td>{e.evidence.gap_before_mm:.3f} &rarr; {e.evidence.gap_after_mm:.3f}</td></tr>"
         for e in result.named)
     rounds = "".join(
         f"<h3>Round {i + 1}: {html.escape(it.decision)} (model effects: {html.escape(', '.join(it.model_effects) or 'none')};"
@@ -281,9 +281,9 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
     ambiguity = ""
     if result.ambiguity:
         a = result.ambiguity
-        ambiguity = (f"<p class=note>Ambiguous between {html.escape(a['between'][0])} and {html.escape(a['between'][1])}"
-                     f" (dBIC {a['scores'][0]:.1f} vs {a['scores'][1]:.1f}). Their predictions differ most at "
-                     f"{html.escape(a['separating_capture'])}: more captures like it would separate them.</p>")
+        ambiguity = (f"<p class=note>Ambiguous between {html.escape(a.between[0])} and {html.escape(a.between[1])}"
+                     f" (dBIC {a.scores[0]:.1f} vs {a.scores[1]:.1f}). Their predictions differ most at "
+                     f"{html.escape(a.separating_capture)}: more captures like it would separate them.</p>")
     body = f"""{ambiguity}{_goodness(result)}
 <p>Gap (RMS of the systematic mean-depth residual over every compared bin, lab nuisance removed, stack noise
 subtracted): <b>{result.gap_before:.3f} mm &rarr; {result.gap_after:.3f} mm</b>; intensity gap
@@ -305,11 +305,11 @@ def _loso(gain: float | None) -> str:
     return f"{gain:.3f}" if gain is not None else "(corners)"
 
 
-def _determination(det: dict[str, Any] | None) -> str:
-    if not det or det.get("well_determined", True):
+def _determination(det: Determination) -> str:
+    if det.well_determined:
         return ""
-    return (f"<br><span class=note>poorly determined: {html.escape('; '.join(det.get('problems', [])))}. "
-            f"Capture that would fix it: {html.escape(str(det.get('capture')))}</span>")
+    return (f"<br><span class=note>poorly determined: {html.escape('; '.join(det.problems))}. "
+            f"Capture that would fix it: {html.escape(str(det.capture))}</span>")
 
 
 def _write_page(output: Path, measured: Path, result: ReconcileResult, model_path: Path, body: str) -> Path:

@@ -44,6 +44,7 @@ import tomli_w
 from scipy import optimize
 
 from labctl.errors import InputError
+from labctl.jsondoc import to_json
 from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
 from labctl.reconcile.characterize import characterize
 from labctl.reconcile.corners import (
@@ -59,6 +60,20 @@ from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodnes
 from labctl.reconcile.observe import Observation, observe_run
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout, layout, raw_residuals
+from labctl.reconcile.results import (
+    Ambiguity,
+    CandidateScore,
+    CornerCandidate,
+    CornerRound,
+    Correlation,
+    Determination,
+    EmpiricalCorrection,
+    Evidence,
+    NamedEffect,
+    NotComparable,
+    Parameters,
+    ReconcileDocument,
+)
 from labctl.reconcile.score import Fit, score
 from sim.model import SimModel, parse_model
 from sim.profiles import PROFILES, default_effects, get_profile
@@ -104,23 +119,26 @@ class CornerStage:
 
     before: CornerGoodness
     after: CornerGoodness
-    named: list[dict[str, Any]]
-    rounds: list[dict[str, Any]]
-    ambiguity: dict[str, Any] | None
+    named: list[NamedEffect]
+    rounds: list[CornerRound]
+    ambiguity: Ambiguity | None
     steps: list[str]
 
     def summary(self) -> dict[str, Any]:
-        """The JSON form (``corners`` of reconcile.json)."""
-        return {"steps": self.steps, "before": self.before.summary(), "after": self.after.summary(),
-                "named_effects": [e["name"] for e in self.named], "rounds": self.rounds,
-                "consistent_with_noise": self.after.consistent, "ambiguity": self.ambiguity}
+        """The ``corners`` section of reconcile.json (JSON values)."""
+        return to_json({"steps": self.steps, "before": self.before.summary(), "after": self.after.summary(),
+                        "named_effects": [e.name for e in self.named], "rounds": self.rounds,
+                        "consistent_with_noise": self.after.consistent, "ambiguity": self.ambiguity})
 
 
 @dataclass
 class ReconcileResult:
+    """Everything reconcile found: the verdict, the named effects, the gaps, the corrected model, and what the
+    report plots (observations, rounds, residual maps)."""
+
     verdict: str
-    named: list[dict[str, Any]]
-    candidates: list[dict[str, Any]]
+    named: list[NamedEffect]
+    candidates: list[CandidateScore]
     gap_before: float
     gap_after: float
     intensity_gap_before: float
@@ -130,16 +148,17 @@ class ReconcileResult:
     iterations: list[Iteration]
     residual_after: list[np.ndarray]
     notes: list[str] = field(default_factory=list)
-    ambiguity: dict[str, Any] | None = None
+    ambiguity: Ambiguity | None = None
     goodness_before: Goodness | None = None
     goodness_after: Goodness | None = None  # the final model (with any empirical correction)
     goodness_physical: Goodness | None = None  # the named physical effects only
     unexplained: dict[str, Any] | None = None
-    empirical: list[dict[str, Any]] = field(default_factory=list)
-    not_comparable: dict[str, Any] | None = None
+    empirical: list[EmpiricalCorrection] = field(default_factory=list)
+    not_comparable: NotComparable | None = None
     corners: CornerStage | None = None
 
     def model_toml(self) -> str:
+        """The corrected model as a model file."""
         return tomli_w.dumps(self.model.model_dump(mode="json", exclude_defaults=False))
 
 
@@ -180,7 +199,7 @@ def base_model(info: dict[str, Any]) -> SimModel:
                                       "effects": default_effects(profile)}), "built-in model")
 
 
-def with_effect(model: SimModel, name: str, params: dict[str, Any]) -> SimModel:
+def with_effect(model: SimModel, name: str, params: Parameters) -> SimModel:
     """A copy of ``model`` with effect ``name`` on (validated like a model file)."""
     data = model.model_dump(mode="json")
     data["effects"] = {**data["effects"], name: params}
@@ -223,7 +242,7 @@ def _residual_maps(lay: Layout, dz: list[np.ndarray]) -> list[np.ndarray]:
     return maps
 
 
-def _fit_effects(found: list[tuple[Candidate, dict[str, Any]]], model: SimModel, sim: Simulation, lay: Layout,
+def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout,
                  max_nfev: int) -> tuple[optimize.OptimizeResult, Callable[[np.ndarray], SimModel]]:
     """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations;
     returns the solver's result and the map from its parameter vector to the model."""
@@ -257,8 +276,8 @@ def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_step
     return bread @ (scores.T @ scores) @ bread * used / (used - k)
 
 
-def determination(candidate: Candidate, params: dict[str, Any], x: np.ndarray, cov: np.ndarray,
-                  capture: str) -> tuple[dict[str, float], dict[str, Any]]:
+def determination(candidate: Candidate, params: Parameters, x: np.ndarray, cov: np.ndarray,
+                  capture: str) -> tuple[dict[str, float], Determination]:
     """Standard errors of the named parameters, 95 % intervals, correlations, and whether the run determines
     them (relative error at most ``POOR_RELATIVE_ERROR``, angles within ``POOR_ANGLE_ERROR_RAD``, no pair
     correlated beyond ``POOR_CORRELATION``); when not, the capture that would."""
@@ -281,19 +300,19 @@ def determination(candidate: Candidate, params: dict[str, Any], x: np.ndarray, c
             problems.append(f"{key} is uncertain by {err:.3g} (standard error)")
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sigma, sigma)
-    correlations = []
+    correlations: list[Correlation] = []
     for i in range(len(x)):
         for j in range(i + 1, len(x)):
             if i < len(keys) and j < len(keys) and np.isfinite(corr[i, j]):
-                correlations.append({"between": [keys[i], keys[j]], "correlation": round(float(corr[i, j]), 3)})
+                correlations.append(Correlation(between=[keys[i], keys[j]], correlation=round(float(corr[i, j]), 3)))
                 if abs(corr[i, j]) > POOR_CORRELATION:
                     problems.append(f"{keys[i]} and {keys[j]} trade off (correlation {corr[i, j]:.2f})")
-    info = {"well_determined": not problems, "interval_95": interval, "correlations": correlations,
-            "problems": problems, "capture": capture if problems else None}
+    info = Determination(well_determined=not problems, interval_95=interval, correlations=correlations,
+                         problems=problems, capture=capture if problems else None)
     return stderr, info
 
 
-def capture_hint(name: str, params: dict[str, Any], obs: list[Observation]) -> str:
+def capture_hint(name: str, params: Parameters, obs: list[Observation]) -> str:
     """The capture that would determine an effect's parameters better."""
     stage = [o.scene for o in obs if o.scene.wall_distance_mm is not None]
     first = f"{stage[0].wall_distance_mm:.0f} mm" if stage else "first"
@@ -311,7 +330,8 @@ def capture_hint(name: str, params: dict[str, Any], obs: list[Observation]) -> s
     return "more steps of the procedure where the effect shows most"
 
 
-def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay: Layout) -> tuple[dict, dict, dict, float]:
+def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
+           lay: Layout) -> tuple[Parameters, dict[str, float], Determination, float]:
     """The candidate's parameters refined on full re-simulations, starting from its linear fit.
 
     Returns the parameters, their standard errors (steps as replications), how well the run determines them
@@ -325,11 +345,11 @@ def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay
         cov = _step_covariance(result.jac, result.fun, lay.row_steps(), lay.n_steps)
         stderr, info = determination(candidate, params, result.x, cov, hint)
     except (np.linalg.LinAlgError, ValueError):
-        stderr, info = {}, {"well_determined": False, "problems": ["no covariance"], "capture": hint}
+        stderr, info = {}, Determination(well_determined=False, problems=["no covariance"], capture=hint)
     return params, stderr, info, rss
 
 
-def refine_jointly(found: list[tuple[Candidate, dict[str, Any]]], model: SimModel, sim: Simulation,
+def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation,
                    lay: Layout) -> SimModel:
     """All effects named in this reconcile refitted together (an effect fitted while another was still
     missing carries some of the other's residual)."""
@@ -354,9 +374,9 @@ def _not_comparable(observations: list[Observation], model: SimModel, notes: lis
     """The result for a run with nothing (or too little) the simulator can re-create, with what would help."""
     procedures = sorted({o.scene.procedure for o in observations})
     needed = {k: v for k, v in NEEDED_PROCEDURES.items() if k not in procedures}
-    detail = {"reason": why, "comparable_steps": [o.scene.step_id for o in observations],
-              "procedures_needed": needed or NEEDED_PROCEDURES,
-              "not_compared": "edge sharpness is evaluated by labctl evaluate, not compared here"}
+    detail = NotComparable(reason=why, comparable_steps=[o.scene.step_id for o in observations],
+                           procedures_needed=needed or NEEDED_PROCEDURES,
+                           not_compared="edge sharpness is evaluated by labctl evaluate, not compared here")
     nan = math.nan
     return ReconcileResult("not_comparable", [], [], nan, nan, nan, nan, model, observations, [], [],
                            notes + [f"not comparable: {why}"], not_comparable=detail)
@@ -382,7 +402,7 @@ class _State:
         return np.nan_to_num(self.lay.profiled(self.dz, self.di))
 
 
-def _add_empirical(state: _State, carrying: str | None, say: Callable[[str], None]) -> list[dict[str, Any]]:
+def _add_empirical(state: _State, carrying: str | None, say: Callable[[str], None]) -> list[EmpiricalCorrection]:
     """Empirical corrections added to ``state`` while each is material (the carrying axis's form first)."""
     order = sorted(FORMS, key=lambda name: name != FIRST_FORM.get(carrying or "", ""))
     added = []
@@ -398,8 +418,8 @@ def _add_empirical(state: _State, carrying: str | None, say: Callable[[str], Non
         if not material(before, state.good):
             state.set(keep)
             continue
-        added.append({"name": name, "parameters": params, "empirical": True,
-                      "gap_before_mm": before.gap_mm, "gap_after_mm": state.good.gap_mm})
+        added.append(EmpiricalCorrection(name=name, parameters=params, gap_before_mm=before.gap_mm,
+                                         gap_after_mm=state.good.gap_mm))
     return added
 
 
@@ -408,7 +428,7 @@ CORNER_CAPTURE = ("the checkerboard at two or more distances (a FOV error scales
                   "distortion grows with the radius squared)")
 
 
-def _corner_determination(fit: CornerFit, start: np.ndarray) -> dict[str, Any]:
+def _corner_determination(fit: CornerFit, start: np.ndarray) -> Determination:
     """Whether the corners determine the fitted parameters: every standard error at most
     ``POOR_RELATIVE_ERROR`` of the parameters' largest departure from the model they started from."""
     x = fit.x
@@ -417,8 +437,8 @@ def _corner_determination(fit: CornerFit, start: np.ndarray) -> dict[str, Any]:
                 if not e <= POOR_RELATIVE_ERROR * scale]
     interval = {k: [float(v - 1.96 * fit.stderr[k]), float(v + 1.96 * fit.stderr[k])]
                 for k, v in zip(fit.stderr, x) if k in fit.stderr}
-    return {"well_determined": not problems, "interval_95": interval, "problems": problems,
-            "capture": CORNER_CAPTURE if problems else None}
+    return Determination(well_determined=not problems, interval_95=interval, problems=problems,
+                         capture=CORNER_CAPTURE if problems else None)
 
 
 def _corner_stage(comparison: CornerComparison, model: SimModel,
@@ -428,15 +448,15 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
     runner-up within ``MARGIN``, material on the corner families (``material``); until the corners are
     consistent with their noise."""
     good = before = comparison.goodness(model)
-    named: list[dict[str, Any]] = []
-    rounds: list[dict[str, Any]] = []
+    named: list[NamedEffect] = []
+    rounds: list[CornerRound] = []
     ambiguity = None
     for _ in CORNER_CANDIDATES:
-        entry: dict[str, Any] = {"model_effects": sorted(model.effects), "gap": _rounded(good.gap_mm),
-                                 "gap_floor": _rounded(good.gap_floor_mm), "decision": "none significant"}
+        entry = CornerRound(model_effects=sorted(model.effects), gap=_rounded(good.gap_mm),
+                            gap_floor=_rounded(good.gap_floor_mm), decision="none significant")
         rounds.append(entry)
         if good.consistent:
-            entry["decision"] = "consistent with noise"
+            entry.decision = "consistent with noise"
             break
         fits: list[CornerFit] = []
         for candidate in CORNER_CANDIDATES:
@@ -446,31 +466,31 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
                 if fit is not None:
                     fits.append(fit)
         fits.sort(key=lambda f: -f.score)
-        entry["candidates"] = [{"name": f.name, "score": round(f.score, 2), "parameters": f.params} for f in fits]
+        entry.candidates = [CornerCandidate(name=f.name, score=round(f.score, 2), parameters=f.params) for f in fits]
         if not fits or fits[0].score < DBIC_THRESHOLD:
             break
         best, runner = fits[0], (fits[1] if len(fits) > 1 else None)
         if runner is not None and runner.score > best.score - MARGIN and competing(best, runner):
-            entry["decision"] = "ambiguous"
-            ambiguity = {"between": [best.name, runner.name], "scores": [best.score, runner.score],
-                         "separating_capture": CORNER_CAPTURE}
+            entry.decision = "ambiguous"
+            ambiguity = Ambiguity(between=[best.name, runner.name], scores=[best.score, runner.score],
+                                  separating_capture=CORNER_CAPTURE)
             break
         trial = with_effect(model, best.name, best.params)
         after = comparison.goodness(trial)
         if not material(good, after):
-            entry["decision"] = (f"{best.name} not material (corner gap {good.gap_mm:.3f} -> {after.gap_mm:.3f} mm, "
+            entry.decision = (f"{best.name} not material (corner gap {good.gap_mm:.3f} -> {after.gap_mm:.3f} mm, "
                                  f"floor {good.gap_floor_mm:.3f} mm)")
             break
         candidate = next(c for c in CORNER_CANDIDATES if c.name == best.name)
-        named.append({"name": best.name, "parameters": best.params, "evidence": {
-            "family": "corners", "delta_bic": round(best.score, 2), "loso_gain": None,
-            "runner_up": runner.name if runner else None,
-            "runner_up_delta_bic": round(runner.score, 2) if runner else None,
-            "stderr": best.stderr, "determination": _corner_determination(best, candidate.start(model)),
-            "rss_before": best.rss0, "rss_after": best.rss1,
-            "gap_before_mm": good.gap_mm, "gap_after_mm": after.gap_mm,
-            "gap_before_px": good.gap_px, "gap_after_px": after.gap_px, "steps": len(comparison.obs)}})
-        entry["decision"] = f"added {best.name}"
+        named.append(NamedEffect(name=best.name, parameters=best.params, evidence=Evidence(
+            family="corners", delta_bic=round(best.score, 2), loso_gain=None,
+            runner_up=runner.name if runner else None,
+            runner_up_delta_bic=round(runner.score, 2) if runner else None,
+            stderr=best.stderr, determination=_corner_determination(best, candidate.start(model)),
+            rss_before=best.rss0, rss_after=best.rss1,
+            gap_before_mm=good.gap_mm, gap_after_mm=after.gap_mm,
+            gap_before_px=good.gap_px, gap_after_px=after.gap_px, steps=len(comparison.obs))))
+        entry.decision = f"added {best.name}"
         model, good = trial, after
     stage = CornerStage(before, good, named, rounds, ambiguity, [o.step_id for o in comparison.obs])
     return stage, model
@@ -514,11 +534,11 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     good_before = state.good
     gap_before, igap_before = good_before.gap_mm, good_before.intensity_gap_pct
     iterations: list[Iteration] = []
-    named: list[dict[str, Any]] = []
+    named: list[NamedEffect] = []
     ambiguity = None
-    first_candidates: list[dict[str, Any]] = []
+    first_candidates: list[CandidateScore] = []
     start_model = model
-    found: list[tuple[Candidate, dict[str, Any]]] = []
+    found: list[tuple[Candidate, Parameters]] = []
     for _ in range(MAX_EFFECTS):
         r = state.whitened()
         ctx = state.context()
@@ -533,7 +553,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
                               _residual_maps(lay, state.dz), state.good)
         iterations.append(iteration)
         if not first_candidates:
-            first_candidates = [{"name": f.name, "score": round(f.score, 2)} for f, _ in fits]
+            first_candidates = [CandidateScore(name=f.name, score=round(f.score, 2)) for f, _ in fits]
         if state.good.consistent:
             iteration.decision = "consistent with noise"
             break
@@ -543,8 +563,8 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         runner = fits[1][0] if len(fits) > 1 else None
         if runner is not None and runner.score > best.score - MARGIN and competing(best, runner):
             iteration.decision = "ambiguous"
-            ambiguity = {"between": [best.name, runner.name], "scores": [best.score, runner.score],
-                         "separating_capture": _separating_step(best, runner, lay, observations)}
+            ambiguity = Ambiguity(between=[best.name, runner.name], scores=[best.score, runner.score],
+                                  separating_capture=_separating_step(best, runner, lay, observations))
             break
         say(f"fitting {best.name}")
         params, stderr, info_det, rss = refine(candidate, best, state.model, sim, lay)
@@ -556,20 +576,20 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             state.set(previous)
             break
         found.append((candidate, params))
-        named.append({"name": best.name, "parameters": params, "evidence": {
-            "delta_bic": round(best.score, 2), "loso_gain": round(best.loso_gain, 4),
-            "runner_up": runner.name if runner else None,
-            "runner_up_delta_bic": round(runner.score, 2) if runner else None,
-            "stderr": stderr, "determination": info_det, "rss_before": best.rss0, "rss_after": rss,
-            "gap_before_mm": before.gap_mm, "gap_after_mm": state.good.gap_mm,
-            "intensity_gap_before_pct": before.intensity_gap_pct,
-            "intensity_gap_after_pct": state.good.intensity_gap_pct, "steps": lay.n_steps}})
+        named.append(NamedEffect(name=best.name, parameters=params, evidence=Evidence(
+            delta_bic=round(best.score, 2), loso_gain=round(best.loso_gain, 4),
+            runner_up=runner.name if runner else None,
+            runner_up_delta_bic=round(runner.score, 2) if runner else None,
+            stderr=stderr, determination=info_det, rss_before=best.rss0, rss_after=rss,
+            gap_before_mm=before.gap_mm, gap_after_mm=state.good.gap_mm,
+            intensity_gap_before_pct=before.intensity_gap_pct,
+            intensity_gap_after_pct=state.good.intensity_gap_pct, steps=lay.n_steps)))
         iteration.decision = f"added {best.name}"
     if len(found) > 1:
         say("refitting the named effects together")
         state.set(refine_jointly(found, start_model, sim, lay))
-        for entry in named:
-            entry["parameters"] = dict(state.model.effects[entry["name"]])
+        for effect in named:
+            effect.parameters = dict(state.model.effects[effect.name])
     good_physical = state.good
     residual_physical = _residual_maps(lay, state.dz)
     unexplained, empirical = None, []
@@ -602,7 +622,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
 def _corner_unexplained(corners: CornerStage) -> str:
     """What the user reads when the corners stay above their noise."""
     g = corners.after
-    after = " after " + ", ".join(e["name"] for e in corners.named) if corners.named else ""
+    after = " after " + ", ".join(e.name for e in corners.named) if corners.named else ""
     return (f"checkerboard corners: a residual of {g.gap_mm:.3f} mm in the board plane ({g.gap_px:.3f} px in the "
             f"image) remains{after} (floor {g.gap_floor_mm:.3f} mm, {g.gap_floor_px:.3f} px) that neither "
             "radial_distortion nor fov_error explains")
@@ -628,16 +648,16 @@ def _corner_result(observations: list[Observation], model: SimModel, notes: list
                            observations, [], [], notes, corners.ambiguity, corners=corners)
 
 
-def _unexplained_message(named: list[dict[str, Any]], good: Goodness, found: dict[str, Any],
-                         empirical: list[dict[str, Any]]) -> str:
+def _unexplained_message(named: list[NamedEffect], good: Goodness, found: dict[str, Any],
+                         empirical: list[EmpiricalCorrection]) -> str:
     """What the user reads: what remains, what it follows, and what the empirical correction is."""
     worst = good.worst_step
     text = (f"a residual of {good.gap_mm:.3f} mm remains (noise floor {good.gap_floor_mm:.3f} mm"
             + (f"; step {worst.step_id} {worst.ratio:.1f} x its floor in {worst.family}" if worst else "") + ")"
-            + (" after " + ", ".join(e["name"] for e in named) if named else "")
+            + (" after " + ", ".join(e.name for e in named) if named else "")
             + f" that no library effect explains: {found['description']}.")
     if empirical:
-        text += (" Added to the model as an EMPIRICAL correction (" + ", ".join(e["name"] for e in empirical)
+        text += (" Added to the model as an EMPIRICAL correction (" + ", ".join(e.name for e in empirical)
                  + "), which closes the gap without naming a cause.")
     else:
         text += " No empirical correction closed it materially."
@@ -648,7 +668,7 @@ def _rounded(value: float) -> float | None:
     return round(value, 4) if math.isfinite(value) else None
 
 
-def json_document(result: ReconcileResult, model_path: Path) -> dict[str, Any]:
+def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocument:
     """reconcile.json (docs/reconcile.md): verdict, named effects and gaps, with the gap floor and consistency,
     per-round goodness of fit, the unexplained residual's characterization, empirical corrections, and what a
     not-comparable run would need."""
@@ -656,39 +676,32 @@ def json_document(result: ReconcileResult, model_path: Path) -> dict[str, Any]:
     corners = result.corners
     corner_floor = _rounded(corners.after.gap_floor_mm) if corners else None
     corners_ok = corners.after.consistent if corners else True
-    doc: dict[str, Any] = {
-        "verdict": result.verdict,
-        "named_effects": result.named,
-        "candidates": result.candidates,
-        "gap_before": _rounded(result.gap_before),
-        "gap_after": _rounded(result.gap_after),
-        "gap_unit": "mm",
-        "model_toml": str(model_path),
-        "gap_floor": _rounded(after.gap_floor_mm) if after else corner_floor,
-        "consistent_with_noise": (after.consistent if after else True) and corners_ok if after or corners else None,
-        "gap_after_physical": _rounded(result.goodness_physical.gap_mm) if result.goodness_physical else None,
-        "intensity_gap_before": _rounded(result.intensity_gap_before),
-        "intensity_gap_after": _rounded(result.intensity_gap_after),
-        "intensity_gap_floor": _rounded(after.intensity_gap_floor_pct) if after else None,
-        "intensity_gap_unit": "%",
-        "goodness_of_fit": {
+    return ReconcileDocument(
+        verdict=result.verdict,
+        named_effects=result.named,
+        candidates=result.candidates,
+        gap_before=_rounded(result.gap_before),
+        gap_after=_rounded(result.gap_after),
+        model_toml=str(model_path),
+        gap_floor=_rounded(after.gap_floor_mm) if after else corner_floor,
+        consistent_with_noise=(after.consistent if after else True) and corners_ok if after or corners else None,
+        gap_after_physical=_rounded(result.goodness_physical.gap_mm) if result.goodness_physical else None,
+        intensity_gap_before=_rounded(result.intensity_gap_before),
+        intensity_gap_after=_rounded(result.intensity_gap_after),
+        intensity_gap_floor=_rounded(after.intensity_gap_floor_pct) if after else None,
+        goodness_of_fit={
             "before": result.goodness_before.summary() if result.goodness_before else None,
             "rounds": [{"model_effects": it.model_effects, "decision": it.decision,
                         **(it.goodness.summary() if it.goodness else {})} for it in result.iterations],
             "after_physical": result.goodness_physical.summary() if result.goodness_physical else None,
             "after": after.summary() if after else None,
         },
-        "significance_rule": {"material_fraction": MATERIAL_FRACTION, "floor_fraction": FLOOR_FRACTION,
-                              "dbic_threshold": DBIC_THRESHOLD},
-        "empirical_corrections": result.empirical,
-        "notes": result.notes,
-    }
-    if corners is not None:
-        doc["corners"] = corners.summary()
-    if result.unexplained is not None:
-        doc["unexplained"] = result.unexplained
-    if result.not_comparable is not None:
-        doc["not_comparable"] = result.not_comparable
-    if result.ambiguity:
-        doc["ambiguity"] = result.ambiguity
-    return doc
+        significance_rule={"material_fraction": MATERIAL_FRACTION, "floor_fraction": FLOOR_FRACTION,
+                           "dbic_threshold": DBIC_THRESHOLD},
+        empirical_corrections=result.empirical,
+        notes=result.notes,
+        corners=corners.summary() if corners is not None else None,
+        unexplained=result.unexplained,
+        not_comparable=result.not_comparable,
+        ambiguity=result.ambiguity,
+    )

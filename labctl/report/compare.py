@@ -13,7 +13,6 @@ suitability matrix.
 from __future__ import annotations
 
 import html
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -22,12 +21,19 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from labctl.errors import InputError
-from labctl.evaluation.keyfigures import FIGURES, VENDOR_FIGURES, better_direction
+from labctl.evaluation.keyfigures import (
+    FIGURES,
+    VENDOR_FIGURES,
+    FigureEntry,
+    KeyFiguresDocument,
+    better_direction,
+    read_keyfigures,
+)
 from labctl.evaluation.suitability import IED_MIN_PX
+from labctl.jsondoc import write_json
 from labctl.report.html import CSS, references_html, verdict_cell, wrap_table, wrappable
 from labctl.report.plots.png import save_png
 from labctl.run.store import labctl_version, now_iso
-from metrics.jsonsafe import dumps_strict
 
 #: figures left out of the chart (different scale or "higher is better")
 NOT_CHARTED = {"hyperfocal_distance_mm", "best_focus_distance_mm", "ied_pixels_at_hyperfocal",
@@ -39,21 +45,14 @@ TIMES_TEN = {"intensity_resolution_h_deg", "intensity_resolution_v_deg", "cloud_
              "cloud_resolution_v_deg"}
 
 
-def load_evaluation(directory: Path) -> dict[str, Any]:
-    path = Path(directory) / "keyfigures.json"
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{directory} has no keyfigures.json: give output directories of 'labctl evaluate'") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path} is not valid JSON: {exc}") from None
-    if not isinstance(doc, dict) or "figures" not in doc or "camera" not in doc:
-        raise InputError(f"{path} is not a labctl keyfigures.json (no 'camera'/'figures')")
-    return doc
+def load_evaluation(directory: Path) -> KeyFiguresDocument:
+    """The ``keyfigures.json`` of an output directory of ``labctl evaluate`` (InputError when it has none)."""
+    return read_keyfigures(Path(directory) / "keyfigures.json")
 
 
-def camera_label(doc: dict[str, Any]) -> str:
-    cam = doc["camera"]
+def camera_label(doc: KeyFiguresDocument) -> str:
+    """The camera's model as the comparison labels it (``*`` for simulated)."""
+    cam = doc.camera
     label = str(cam.get("model", "camera"))
     return label.replace(" (simulated)", "*")
 
@@ -67,18 +66,17 @@ def compare(directories: list[Path], outdir: Path) -> Path:
     outdir.mkdir(parents=True, exist_ok=True)
     plots = outdir / "plots"
     plots.mkdir(exist_ok=True)
-    table = {fig.name: {label: doc["figures"].get(fig.name, {}).get("value") for label, doc in zip(labels, docs)}
-             for fig in FIGURES}
-    verdicts = {label: {k: v["verdict"] for k, v in doc.get("suitability", {}).get("stories", {}).items()}
+    table = {fig.name: {label: _figure(doc, fig.name).value for label, doc in zip(labels, docs)} for fig in FIGURES}
+    verdicts = {label: {k: v["verdict"] for k, v in doc.suitability.get("stories", {}).items()}
                 for label, doc in zip(labels, docs)}
-    reasons = {label: {k: v.get("summary", "") for k, v in doc.get("suitability", {}).get("stories", {}).items()}
+    reasons = {label: {k: v.get("summary", "") for k, v in doc.suitability.get("stories", {}).items()}
                for label, doc in zip(labels, docs)}
-    flags = {fig.name: {label: [f["check"] for f in doc["figures"][fig.name].get("flags", [])]
-                        for label, doc in zip(labels, docs) if doc["figures"].get(fig.name, {}).get("flags")}
+    flags = {fig.name: {label: [f["check"] for f in _figure(doc, fig.name).flags]
+                        for label, doc in zip(labels, docs) if _figure(doc, fig.name).flags}
              for fig in FIGURES}
     result = {"cameras": labels, "sources": [str(d) for d in directories], "figures": table, "suitability": verdicts,
               "reasons": reasons, "stories": _story_names(docs), "flags": {k: v for k, v in flags.items() if v}}
-    (outdir / "compare.json").write_text(dumps_strict(result, indent=2) + "\n")
+    write_json(outdir / "compare.json", result, final_newline=True)
     chart = _chart(table, labels, plots / "comparison.png")
     ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")
     page = outdir / "compare.html"
@@ -94,11 +92,16 @@ def story_name(key: str) -> str:
     return text.replace(" 1 to n", " 1:N").replace(" 1 to 1", " 1:1")
 
 
-def _story_names(docs: list[dict[str, Any]]) -> dict[str, str]:
+def _figure(doc: KeyFiguresDocument, name: str) -> FigureEntry:
+    """A figure of an evaluation; one its version of labctl did not define reads as not measured."""
+    return doc.figures.get(name) or FigureEntry(value=None, unit="", source="", meaning="", flags=[])
+
+
+def _story_names(docs: list[KeyFiguresDocument]) -> dict[str, str]:
     """User-story id -> its description as the evaluations give it (a readable form of the id otherwise)."""
     names: dict[str, str] = {}
     for doc in docs:
-        for key, story in doc.get("suitability", {}).get("stories", {}).items():
+        for key, story in doc.suitability.get("stories", {}).items():
             names.setdefault(key, story.get("description") or story_name(key))
     return names
 

@@ -10,12 +10,20 @@ from typing import Any
 from labctl.evaluation.capture import capture_table
 from labctl.evaluation.depth_quality import vendor_table
 from labctl.evaluation.evaluate import Evaluation, depth_table
-from labctl.evaluation.keyfigures import FIGURE_BY_NAME, VENDOR_FIGURES, better_direction, clean, keyfigures_document
+from labctl.evaluation.keyfigures import (
+    FIGURE_BY_NAME,
+    VENDOR_FIGURES,
+    KeyFiguresDocument,
+    better_direction,
+    clean,
+    keyfigures_document,
+)
 from labctl.evaluation.remission import misalignment_summary, remission_table
 from labctl.evaluation.scenes import AlignmentRecord
 from labctl.evaluation.sharpness import resolution_table
 from labctl.evaluation.suitability import face_depth_values, suitability
 from labctl.evaluation.vdi2634 import acceptance_table, verdicts
+from labctl.jsondoc import write_json
 from labctl.report.plots.acceptance import plot_acceptance
 from labctl.report.plots.boehler import plot_boehler
 from labctl.report.plots.capture import plot_capture
@@ -32,7 +40,6 @@ from labctl.report.plots.figures import (
 from labctl.report.plots.remission import plot_misalignment_fit, plot_remission
 from labctl.report.pointcloud_io import write_pcd
 from labctl.run.store import labctl_version, now_iso
-from metrics.jsonsafe import dumps_strict
 
 #: page style shared by the report and the comparison: tables sit in a container that scrolls sideways
 #: on screen, headers wrap at underscores, and in print everything wraps to the page width
@@ -96,22 +103,22 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     values = {name: clean(f.value) for name, f in evaluation.figures.items()}
     face = face_depth_values(values, _clean_rows(depth_table(evaluation)))
     doc = keyfigures_document(evaluation.camera, evaluation.figures, suitability({**values, **face}), evaluation.flags)
-    doc["runs"] = evaluation.runs
-    doc["notes"] = evaluation.notes
-    doc["depth_sweep"] = _clean_rows(depth_table(evaluation))
+    doc.runs = evaluation.runs
+    doc.notes = evaluation.notes
+    doc.depth_sweep = _clean_rows(depth_table(evaluation))
     if evaluation.sharpness is not None:
-        doc["slanted_edge"] = _clean_rows(resolution_table(evaluation.sharpness))
+        doc.slanted_edge = _clean_rows(resolution_table(evaluation.sharpness))
 
     sections: list[str] = _alignment_section(evaluation)
     sections.extend(_capture_sections(evaluation, outdir, plots, doc))
     if evaluation.alignment is not None:
-        doc["alignment"] = alignment_document(evaluation.alignment)
+        doc.alignment = alignment_document(evaluation.alignment)
     if evaluation.depth:
         img = plot_depth_curves(evaluation.depth, plots / "depth_error.png")
         sections.append(_section("Depth error over distance (Thesis 2024, 4.2.1)", img, outdir,
                                  depth_quantization_html(evaluation.quantization_mm) + _depth_rows(evaluation)))
     if evaluation.vendor:
-        doc["depth_quality"] = _clean_rows(vendor_table(evaluation.vendor))
+        doc.depth_quality = _clean_rows(vendor_table(evaluation.vendor))
         img = plot_vendor_figures(evaluation.vendor, plots / "depth_quality.png")
         sections.append(_section("Datasheet-comparable figures", img, outdir, _vendor_html(evaluation, doc)))
     if evaluation.acceptance is not None and evaluation.acceptance.measurements:
@@ -135,9 +142,8 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         link = f'<p>Organized point cloud for CloudCompare / Open3D: <a href="{pcd.name}">{pcd.name}</a> ' \
                f"({face.invalid_fraction:.1%} invalid points).</p>"
         sections.append(_section("Face mask (Thesis 2024, 6.7)", img, outdir, link))
-        doc["face_mask"] = {"step": face.step_id, "pcd": pcd.name, "invalid_fraction": face.invalid_fraction}
-    json_path = outdir / "keyfigures.json"
-    json_path.write_text(dumps_strict(doc, indent=2) + "\n")
+        doc.face_mask = {"step": face.step_id, "pcd": pcd.name, "invalid_fraction": face.invalid_fraction}
+    json_path = write_json(outdir / "keyfigures.json", doc, final_newline=True)
     report = outdir / "report.html"
     report.write_text(_page(evaluation, doc, sections))
     return json_path, report
@@ -158,7 +164,7 @@ def _alignment_section(evaluation: Evaluation) -> list[str]:
             f"residual tilt {a.tilt_x_deg:+.3f} deg about x (up), {a.tilt_y_deg:+.3f} deg about y (right).</p>"]
 
 
-def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: KeyFiguresDocument) -> list[str]:
     """Checkerboard distortion, Boehler star and x/y noise sections (Thesis 2024, 5.1.3-5.3)."""
     geo = evaluation.geometry
     sections: list[str] = []
@@ -184,7 +190,7 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                          "median_w_pct": c.median_w_pct, "median_h_pct": c.median_h_pct,
                          "fov_estimate_h_deg": math.nan, "fov_estimate_v_deg": math.nan, "k1": math.nan,
                          "corners": c.n_corners})
-        doc["checkerboard"] = _clean_rows(rows)
+        doc.checkerboard = _clean_rows(rows)
         sections.append(_section("Distortion (Thesis 2024, 5.2, EBU Tech 3249 / ISO 17850)", img, outdir,
                                  _rows_table(rows, "image")))
     if geo.chosen_star is not None:
@@ -194,7 +200,7 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                  "resolution_h_mm": s.result.resolution_h_mm, "resolution_v_mm": s.result.resolution_v_mm,
                  "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg,
                  "distance_mm": s.result.distance_mm} for s in geo.stars]
-        doc["boehler_star"] = _clean_rows(rows)
+        doc.boehler_star = _clean_rows(rows)
         sections.append(_section("Resolution of the point cloud: Boehler star (Thesis 2024, 5.1.3)", img, outdir,
                                  _rows_table(rows, "star")))
     if geo.precision:
@@ -203,19 +209,19 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: d
                  "repeatability_off_axis_x_mm": p.repeatability_off_axis_x_mm,
                  "repeatability_off_axis_y_mm": p.repeatability_off_axis_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
                  "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
-        doc["xy_noise"] = _clean_rows(rows)
+        doc.xy_noise = _clean_rows(rows)
         img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
         sections.append(_section("x/y noise on the wall (Thesis 2024, 5.3)", img, outdir, _rows_table(rows, "step")))
     return sections
 
 
-def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: KeyFiguresDocument) -> list[str]:
     """Repeatability and trueness over angle per material, and the misalignment fit (Thesis 2024, 5.4)."""
     result = evaluation.remission
     if result is None:
         return []
     rows = remission_table(result)
-    doc["remission_angle"] = _clean_rows(rows)
+    doc.remission_angle = _clean_rows(rows)
     angles = sorted({r["angle_deg"] for r in rows})
     pivots = []
     for key, title in (("repeatability_mm", "repeatability (mm)"), ("trueness_geometric_mm", "trueness vs geometry (mm)")):
@@ -227,7 +233,7 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
     sections = [_section("Remission and angle of incidence (Thesis 2024, 5.4, Fig. 6-11)", img, outdir, "".join(pivots))]
     summary = misalignment_summary(result)
     if summary is not None:
-        doc["misalignment"] = {k: clean(v) if isinstance(v, float) else v for k, v in summary.items()}
+        doc.misalignment = {k: clean(v) if isinstance(v, float) else v for k, v in summary.items()}
         img = plot_misalignment_fit(result, plots / "misalignment_fit.png")
         text = (f"<p>Fitted to {html.escape(str(summary['material']))} over {summary['angles']} angles: target "
                 f"offset delta = {_fmt(summary['target_offset_mm'])} &plusmn; {_fmt(summary['target_offset_se_mm'], 2)} mm, "
@@ -239,12 +245,12 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
     return sections
 
 
-def _capture_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> list[str]:
+def _capture_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: KeyFiguresDocument) -> list[str]:
     """Maps, temporal noise and plane fit of each single capture (``labctl device camera``)."""
     if not evaluation.captures:
         return []
     rows = capture_table(evaluation.captures)
-    doc["capture"] = _clean_rows(rows)
+    doc.capture = _clean_rows(rows)
     sections = []
     for result, row in zip(evaluation.captures, rows):
         img = plot_capture(result, plots / f"capture_{result.step_id}.png")
@@ -292,10 +298,10 @@ def _section(title: str, image: Path, outdir: Path, table: str) -> str:
     return f'<h2>{html.escape(title)}</h2>\n<img src="{rel}" alt="{html.escape(title)}">\n{table}'
 
 
-def _vendor_html(evaluation: Evaluation, doc: dict[str, Any]) -> str:
+def _vendor_html(evaluation: Evaluation, doc: KeyFiguresDocument) -> str:
     """The vendor key figures next to where they are defined, then the figures at every distance."""
     rows = "".join(
-        f'<tr><td class="l">{wrappable(f.name)}</td><td>{_fmt(doc["figures"][f.name]["value"])}</td>'
+        f'<tr><td class="l">{wrappable(f.name)}</td><td>{_fmt(doc.figures[f.name].value)}</td>'
         f'<td class="l">{f.unit}</td><td class="l">{html.escape(f.meaning)}</td>'
         f'<td class="l src">{html.escape(f.section)}</td></tr>'
         for f in VENDOR_FIGURES
@@ -308,17 +314,17 @@ def _vendor_html(evaluation: Evaluation, doc: dict[str, Any]) -> str:
             + f"<h3>At every wall distance</h3>{_rows_table(vendor_table(evaluation.vendor), 'step')}")
 
 
-def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: dict[str, Any]) -> str:
+def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: KeyFiguresDocument) -> str:
     """VDI/VDE 2634-2 quantities with their maximum permissible errors and verdicts, and per position."""
     result = evaluation.acceptance
     assert result is not None
     judged = verdicts(result)
-    doc["acceptance_test"] = {name: {k: clean(v) if isinstance(v, float) else v for k, v in row.items()}
+    doc.acceptance_test = {name: {k: clean(v) if isinstance(v, float) else v for k, v in row.items()}
                               for name, row in judged.items()}
     rows = [{"quantity": name, "value_mm": row["value"], "mpe_mm": row["mpe_mm"] if row["mpe_mm"] is not None
              else math.nan, "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
     table = _rows_table(rows, "quantity")
-    doc["acceptance_positions"] = per_step = _clean_rows(acceptance_table(result))
+    doc.acceptance_positions = per_step = _clean_rows(acceptance_table(result))
     img = plot_acceptance(result, plots / "acceptance.png")
     text = ("<p>Each frame is one measurement; a quantity's figure is the measurement of largest magnitude, "
             "compared with the campaign's maximum permissible error (MPE). Each sphere is fitted to its points whose "
@@ -398,20 +404,20 @@ def references_html() -> str:
             "docs/references.md in the labctl repository.</p>")
 
 
-def _summary_html(cam: dict[str, Any], doc: dict[str, Any]) -> str:
+def _summary_html(cam: dict[str, Any], doc: KeyFiguresDocument) -> str:
     """Camera, the verdict per user story and the six figures that matter most, ahead of everything else."""
-    stories = doc["suitability"]["stories"]
+    stories = doc.suitability["stories"]
     judged = {k: s for k, s in stories.items() if s["verdict"] != "no_numeric_requirement"}
     passed = sum(s["verdict"] == "pass" for s in judged.values())
     badges = "".join(f'<li><span class="verdict-{html.escape(s["verdict"])}"><b>'
                      f'{html.escape(s["verdict"].replace("_", " "))}</b></span> {html.escape(s["description"])}</li>'
                      for s in judged.values())
     rows = "".join(
-        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc["figures"][name]["value"])}</td>'
-        f'<td class="l">{doc["figures"][name]["unit"]}</td><td class="l">{better_direction(name)}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc.figures[name].value)}</td>'
+        f'<td class="l">{doc.figures[name].unit}</td><td class="l">{better_direction(name)}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}'
         + "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))} (see Key figures)</span>'
-                  for f in doc["figures"][name]["flags"]) + "</td></tr>"
+                  for f in doc.figures[name].flags) + "</td></tr>"
         for name in SUMMARY_FIGURES
     )
     return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam["model"])}</b>: suitable for {passed} of '
@@ -436,9 +442,9 @@ def _capture_summary_html(cam: dict[str, Any], rows: list[dict[str, Any]]) -> st
             f"<ul>{''.join(line(r) for r in rows)}</ul></div>")
 
 
-def _capture_only(doc: dict[str, Any]) -> bool:
+def _capture_only(doc: KeyFiguresDocument) -> bool:
     """The runs hold only capture steps: no figure came from a step (the pixel aspect comes from the datasheet)."""
-    return "capture" in doc and not any(f["source"] for f in doc["figures"].values())
+    return doc.capture is not None and not any(f.source for f in doc.figures.values())
 
 
 def _flags_html(flags: list[dict[str, str]]) -> str:
@@ -447,19 +453,19 @@ def _flags_html(flags: list[dict[str, str]]) -> str:
                    f'{html.escape(f["message"])}</span>' for f in flags)
 
 
-def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> str:
+def _page(evaluation: Evaluation, doc: KeyFiguresDocument, sections: list[str]) -> str:
     cam = evaluation.camera
     fig_rows = "".join(
-        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(f["value"])}</td><td class="l">{f["unit"]}</td>'
-        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}{_flags_html(f["flags"])}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(f.value)}</td><td class="l">{f.unit}</td>'
+        f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}{_flags_html(f.flags)}</td>'
         f'<td class="l">{better_direction(name)}</td>'
-        f'<td class="l src">{_sources(f["source"])}</td></tr>'
-        for name, f in doc["figures"].items()
+        f'<td class="l src">{_sources(f.source)}</td></tr>'
+        for name, f in doc.figures.items()
     )
     notes = "".join(f'<li class="note">{html.escape(n)}</li>' for n in evaluation.notes)
     runs = "".join(f"<li>{html.escape(r)}</li>" for r in evaluation.runs)
     simulated = " (simulated)" if cam.get("simulated") and "simulated" not in cam["model"] else ""
-    suit_html = _suitability_html(doc["suitability"])
+    suit_html = _suitability_html(doc.suitability)
     capture_only = _capture_only(doc)  # its maps come first: the key figures and verdicts are all n/a
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>labctl report: {html.escape(cam['model'])}</title>
@@ -467,7 +473,7 @@ def _page(evaluation: Evaluation, doc: dict[str, Any], sections: list[str]) -> s
 <h1>Characterization of {html.escape(cam['model'])}{simulated}</h1>
 <p>Serial {html.escape(str(cam['serial']))}, {cam['width']}&times;{cam['height']} px,
 FOV {cam['fov_deg'][0]:g}&times;{cam['fov_deg'][1]:g}&deg;. Report by labctl {labctl_version()} on {now_iso()}.</p>
-{_capture_summary_html(cam, doc["capture"]) if capture_only else _summary_html(cam, doc)}
+{_capture_summary_html(cam, doc.capture or []) if capture_only else _summary_html(cam, doc)}
 <ul>{runs}</ul>
 {f'<ul>{notes}</ul>' if notes else ''}
 {''.join(sections) if capture_only else ''}

@@ -51,11 +51,11 @@ def test_a_hidden_radial_distortion_is_named_from_the_corners(plain, tmp_path, c
     measured = warp_run(plain, tmp_path / "measured.h5", brown_source(k1), cloud_corrected=corrected)
     result = reconcile(measured)
     assert result.verdict == "effect_found", (result.notes, result.corners.summary())
-    assert [e["name"] for e in result.named] == ["radial_distortion"]
+    assert [e.name for e in result.named] == ["radial_distortion"]
     got = result.named[0]
-    assert got["parameters"]["k1"] == pytest.approx(k1, abs=0.1 * k1)
-    assert got["parameters"]["cloud"] is (not corrected)
-    assert got["evidence"]["stderr"]["k1"] > 0
+    assert got.parameters["k1"] == pytest.approx(k1, abs=0.1 * k1)
+    assert got.parameters["cloud"] is (not corrected)
+    assert got.evidence.stderr["k1"] > 0
     assert result.gap_after <= 0.5 * result.gap_before, (result.gap_before, result.gap_after)
     assert result.corners.after.consistent
 
@@ -97,13 +97,13 @@ def test_a_board_at_one_distance_still_shows_distortion_and_fov(tmp_path):
     plain = _board_run(tmp_path / "one", second=False)
     measured = warp_run(plain, tmp_path / "k1.h5", brown_source(0.08), cloud_corrected=True)
     result = reconcile(measured)
-    assert [e["name"] for e in result.named] == ["radial_distortion"], result.corners.summary()
-    assert result.named[0]["parameters"]["k1"] == pytest.approx(0.08, abs=0.008)
+    assert [e.name for e in result.named] == ["radial_distortion"], result.corners.summary()
+    assert result.named[0].parameters["k1"] == pytest.approx(0.08, abs=0.008)
     measured = warp_run(plain, tmp_path / "fov.h5", focal_source(FOV, (64.0, 49.0)), cloud_corrected=True)
     result = reconcile(measured)
-    assert [e["name"] for e in result.named] == ["fov_error"], result.corners.summary()
-    assert result.named[0]["parameters"]["fov_deg"] == pytest.approx([64.0, 49.0], abs=0.3)
-    assert result.named[0]["evidence"]["determination"]["well_determined"]
+    assert [e.name for e in result.named] == ["fov_error"], result.corners.summary()
+    assert result.named[0].parameters["fov_deg"] == pytest.approx([64.0, 49.0], abs=0.3)
+    assert result.named[0].evidence.determination.well_determined
 
 
 def test_a_run_with_nothing_comparable_is_still_not_comparable(tmp_path):

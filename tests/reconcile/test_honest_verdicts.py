@@ -67,7 +67,7 @@ def test_a_range_error_outside_the_library_is_unexplained_and_characterized(tmp_
 def test_no_spurious_small_effect_after_a_two_effect_fit(tmp_path):
     hidden = {"range_scale": {"scale": 0.01}, "wiggling": {"amplitude_mm": 3.0, "period_mm": 900.0, "phase_rad": 0.5}}
     result = reconcile(simulated_run(tmp_path, "blaze101", hidden))
-    assert sorted(e["name"] for e in result.named) == ["range_scale", "wiggling"], result.named
+    assert sorted(e.name for e in result.named) == ["range_scale", "wiggling"], result.named
     assert result.verdict == "effect_found"
     assert result.goodness_after.consistent
     assert result.gap_after <= result.goodness_after.gap_floor_mm
@@ -79,18 +79,18 @@ def test_a_drift_is_fitted_within_10_percent_or_said_to_be_poorly_determined(tmp
     true = {"delta_mm": 6.0, "tau_s": 1500.0}  # a time constant longer than the sweep: hard to pin down
     run = simulated_run(tmp_path, "amt100", {"temperature_drift": true}, robot=False)
     result = reconcile(run)
-    drift = [e for e in result.named if e["name"] == "temperature_drift"]
+    drift = [e for e in result.named if e.name == "temperature_drift"]
     assert drift, (result.verdict, result.candidates)
-    got, det = drift[0]["parameters"], drift[0]["evidence"]["determination"]
+    got, det = drift[0].parameters, drift[0].evidence.determination
     with h5py.File(run, "r") as f:
         t0 = min(float(g["timestamp"][0]) for g in f["steps"].values())
     delta_at_t0 = true["delta_mm"] * math.exp(-t0 / true["tau_s"])
     within = (abs(got["delta_mm"] - delta_at_t0) <= 0.1 * abs(delta_at_t0)
               and abs(got["tau_s"] - true["tau_s"]) <= 0.1 * true["tau_s"])
     if not within:
-        assert det["well_determined"] is False, (got, det)
-        assert "later in the run" in det["capture"]
-    assert "tau_s" in drift[0]["evidence"]["stderr"] and "tau_s" in det["interval_95"]
+        assert det.well_determined is False, (got, det)
+        assert "later in the run" in det.capture
+    assert "tau_s" in drift[0].evidence.stderr and "tau_s" in det.interval_95
 
 
 def test_a_checkerboard_only_run_is_not_comparable(tmp_path):

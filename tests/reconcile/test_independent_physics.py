@@ -50,7 +50,7 @@ def plain(tmp_path_factory):
 
 def _reconciled(run, tmp_path, error):
     result = reconcile(rewrite_run(run, tmp_path / "measured.h5", error))
-    names = [n["name"] for n in result.named]
+    names = [n.name for n in result.named]
     return result, names
 
 
@@ -75,7 +75,7 @@ def test_four_tap_harmonic_correlation_is_wiggling(plain, tmp_path):
     result, names = _reconciled(plain("blaze101"), tmp_path, error)
     assert names[0] == "wiggling", names
     period = C_MM_PER_S / (8 * f_mod)  # the harmonics alias to the 4th harmonic of the phase
-    assert abs(result.named[0]["parameters"]["period_mm"] - period) <= 0.02 * period
+    assert abs(result.named[0].parameters["period_mm"] - period) <= 0.02 * period
     _halved(result)
 
 
@@ -87,7 +87,7 @@ def test_two_time_constant_warm_up_is_temperature_drift(plain, tmp_path):
     result, names = _reconciled(slow, tmp_path, lambda px: warm_up(px.time_s))
     assert names[0] == "temperature_drift", names
     _halved(result)
-    fitted = result.named[0]["parameters"]
+    fitted = result.named[0].parameters
     assert len(fitted.get("terms", [])) == 1  # both time constants are seen
     # the fitted warm-up follows the true one over the sweep (up to the constant the offsets take)
     times = np.concatenate([o.times_s for o in result.observations if o.scene.procedure == "depth_sweep"])
@@ -116,7 +116,7 @@ def test_specular_floor_bounce_is_floor_multipath(plain, tmp_path):
 
     result, names = _reconciled(plain("blaze101"), tmp_path, error)
     assert names[0] == "floor_multipath", names
-    assert result.named[0]["parameters"]["plane"] == "floor"
+    assert result.named[0].parameters["plane"] == "floor"
     _halved(result)
 
 
@@ -135,7 +135,7 @@ def test_column_and_row_stripes_are_fixed_pattern(plain, tmp_path):
     assert names[0] == "fixed_pattern", names
     _halved(result)
     # the fitted column profile follows the bands (bin means of 4 columns; the mean goes to the offsets)
-    fitted = np.array(result.named[0]["parameters"]["column_offsets_mm"])
+    fitted = np.array(result.named[0].parameters["column_offsets_mm"])
     truth = np.array([np.mean(stripes(np.arange(4 * i, 4 * i + 4), 0, 160, 120)) for i in range(40)])
     seen = fitted != 0
     assert np.corrcoef(fitted[seen], truth[seen])[0, 1] > 0.95
@@ -165,5 +165,5 @@ def test_pixel_locking_is_disparity_bias(plain, tmp_path):
 
     result, names = _reconciled(plain("d455"), tmp_path, error)
     assert names[0] == "disparity_bias", names
-    assert abs(result.named[0]["parameters"]["amplitude_px"] - amplitude_px) <= 0.2 * amplitude_px
+    assert abs(result.named[0].parameters["amplitude_px"] - amplitude_px) <= 0.2 * amplitude_px
     _halved(result)

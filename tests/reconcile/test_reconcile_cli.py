@@ -101,8 +101,8 @@ def test_hidden_effect_is_named_fitted_and_closes_the_gap(case, tmp_path):
     run = measured_run(tmp_path / case, camera, {effect: true})
     result = reconcile(run)
     assert result.verdict == "effect_found", (true, result.candidates)
-    assert [e["name"] for e in result.named] == [effect], (true, result.named)
-    _recovered(effect, result.named[0]["parameters"], true, _first_frame_time(run))
+    assert [e.name for e in result.named] == [effect], (true, result.named)
+    _recovered(effect, result.named[0].parameters, true, _first_frame_time(run))
     if effect == "vignetting":  # leaves depth alone: the intensity gap closes
         assert result.intensity_gap_after <= 0.5 * result.intensity_gap_before
     else:
@@ -115,8 +115,8 @@ def test_two_hidden_effects_are_both_named(tmp_path):
     run = measured_run(tmp_path, "blaze101", hidden)
     result = reconcile(run)
     assert result.verdict == "effect_found"
-    assert sorted(e["name"] for e in result.named) == ["target_misalignment", "wiggling"]
-    got = {e["name"]: e["parameters"] for e in result.named}
+    assert sorted(e.name for e in result.named) == ["target_misalignment", "wiggling"]
+    got = {e.name: e.parameters for e in result.named}
     _recovered("wiggling", got["wiggling"], hidden["wiggling"], 0.0)
     _recovered("target_misalignment", got["target_misalignment"], hidden["target_misalignment"], 0.0)
     assert result.gap_after <= 0.5 * result.gap_before

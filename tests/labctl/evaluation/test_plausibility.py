@@ -7,6 +7,7 @@ import numpy as np
 from labctl.evaluation.keyfigures import FigureValue, keyfigures_document
 from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flags
 from labctl.evaluation.sharpness import EdgeMeasurement, SharpnessPosition, SharpnessResult
+from labctl.jsondoc import to_json
 from metrics.plausibility import quantization_step
 from metrics.xy_error import XYPrecision
 
@@ -75,8 +76,8 @@ def test_repeatability_on_the_principal_axis_is_flagged():
 
 
 def test_keyfigures_json_carries_the_flags():
-    doc = keyfigures_document({}, {"z_precision_q90_mm": FigureValue(0.0, ["s"])}, {},
-                              {"z_precision_q90_mm": [{"check": "quantization_limited", "message": "m"}]})
+    doc = to_json(keyfigures_document({}, {"z_precision_q90_mm": FigureValue(0.0, ["s"])}, {},
+                                      {"z_precision_q90_mm": [{"check": "quantization_limited", "message": "m"}]}))
     assert doc["figures"]["z_precision_q90_mm"]["flags"] == [{"check": "quantization_limited", "message": "m"}]
     assert doc["figures"]["z_trueness_q90_mm"]["flags"] == []
 
