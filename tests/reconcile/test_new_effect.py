@@ -82,6 +82,6 @@ def test_reconcile_finds_the_declared_effect(column_bow, tmp_path):
     true = 40.0
     run = simulated_run(tmp_path, "d455", {"column_bow": {"edge_mm": true}}, sweep_step_mm=400, robot=False)
     result = reconcile(run)
-    assert [e["name"] for e in result.named] == ["column_bow"], (result.verdict, result.candidates)
-    assert abs(result.named[0]["parameters"]["edge_mm"] - true) <= 0.05 * true
+    assert [e.name for e in result.named] == ["column_bow"], (result.verdict, result.candidates)
+    assert abs(result.named[0].parameters["edge_mm"] - true) <= 0.05 * true
     assert result.verdict == "effect_found"
