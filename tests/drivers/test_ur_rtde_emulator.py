@@ -14,6 +14,7 @@ from the emulator's code.
 
 from __future__ import annotations
 
+import dataclasses
 import socket
 import threading
 import time
@@ -67,6 +68,23 @@ def adapter(host: str, **options: Any) -> UR5eRobot:
     settings: dict[str, Any] = {"speed_deg_s": 90.0, "acceleration_deg_s2": 180.0, "settle_s": 0.05, "poll_interval_s": 0.005}
     settings.update(options)
     return UR5eRobot(host, circle(), connect_timeout_s=2.0, move_timeout_s=10.0, **settings)
+
+
+class _SaysWhenMoveLReturns:
+    """ur-rtde's control client, unchanged, that sets ``returned`` when a ``moveL`` call has returned."""
+
+    def __init__(self, control: Any, returned: threading.Event) -> None:
+        self._control = control
+        self._returned = returned
+
+    def moveL(self, *args: Any) -> Any:  # ur-rtde's name
+        try:
+            return self._control.moveL(*args)
+        finally:
+            self._returned.set()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._control, name)
 
 
 def inject(emulator: URControllerProcess, fault: str) -> None:
@@ -304,13 +322,19 @@ def test_adapter_emergency_stop_is_fatal(emulator: URControllerProcess) -> None:
 def test_adapter_a_dropped_connection_during_a_move_is_a_vanished_robot(emulator: URControllerProcess) -> None:
     """The controller's servers close (a pulled network cable, a controller restart) while the arm moves:
     ur-rtde's clients report the connection down, and the adapter raises at once instead of sending over
-    it (ur-rtde then waits for an answer forever); safe_state and close return."""
+    it (ur-rtde then waits for an answer forever); safe_state and close return. The cable is pulled once
+    ur-rtde has accepted the path (``moveL`` returned): a connection lost while ur-rtde itself still waits for
+    the controller's answer is not caught (docs/ursim.md, section 9)."""
+    accepted = threading.Event()
+
     def pull_the_cable() -> None:
+        assert accepted.wait(10.0), "moveL did not return within 10 s"
         wait_for(lambda: emulator.call("moving"), 10.0)
         emulator.close()
 
     robot = adapter(emulator.host, speed_deg_s=10.0)  # 4 s to 40°
     robot.connect()
+    robot._rtde = dataclasses.replace(robot._rtde, control=_SaysWhenMoveLReturns(robot._rtde.control, accepted))
     cable = threading.Thread(target=pull_the_cable)
     cable.start()
     try:
