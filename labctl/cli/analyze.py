@@ -9,7 +9,7 @@ import click
 from labctl.cli.inputs import POSITIVE
 from labctl.cli.outputs import OutputFile, png_file
 from labctl.errors import InputError
-from metrics.jsonsafe import dumps_strict
+from labctl.jsondoc import dumps
 
 
 @click.group("analyze")
@@ -68,7 +68,7 @@ def sfr(image: Path, roi: str | None, sfrmat5: bool, as_json: bool) -> None:
         "sfr": [round(float(v), 6) for v in result.sfr],
     }
     if as_json:
-        click.echo(dumps_strict(doc))
+        click.echo(dumps(doc, indent=None))
         return
     click.echo(f"{image}: {result.orientation} edge at {result.angle_deg:.2f} deg")
     click.echo(f"SFR50 {result.sfr50:.4f} cy/px, SFR10 {result.sfr10:.4f} cy/px, SFR area {result.sfr_area:.4f}")
@@ -154,7 +154,7 @@ def checkerboard(image: Path, tile_mm: float, distance_mm: float, fov_text: str,
 
         plot_distortion(pixels, result, plot_path, in_cloud, title=str(image))
     if as_json:
-        click.echo(dumps_strict(doc))
+        click.echo(dumps(doc, indent=None))
         return
     click.echo(f"{image}: {result.n_corners} corners ({corners.detector} detector)")
     click.echo(f"distortion (max, width / height): raw {result.raw_distortion_w_pct:+.2f} / "
@@ -258,7 +258,7 @@ def boehler(cloud: Path, segments: int, inlier_mm: float, binning_text: str, fov
         },
     }
     if as_json:
-        click.echo(dumps_strict(doc))
+        click.echo(dumps(doc, indent=None))
         return
     x, y, z = result.centre_mm
     click.echo(f"{cloud}: {segments}-segment star at {result.distance_mm:.0f} mm, centre ({x:.1f}, {y:.1f}, {z:.1f}) mm"

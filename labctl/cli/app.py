@@ -25,6 +25,7 @@ from labctl.cli import simulate as cli_sim
 from labctl.cli.inputs import distinct, warn, warn_run_suffix
 from labctl.cli.outputs import OutputDirectory, OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
+from labctl.jsondoc import dumps
 from labctl.run.campaign import resume_run, run_campaign
 from labctl.run.compression import COMPRESSIONS
 from labctl.run.config import Campaign, load_campaign, model_camera_mismatch
@@ -34,7 +35,6 @@ from labctl.run.overrides import parse_overrides
 from labctl.run.planning import expected_run_bytes, format_duration, schedule
 from labctl.run.progress import EvaluationProgress, Reporter
 from labctl.run.store import existing_output_advice, labctl_version
-from metrics.jsonsafe import dumps_strict
 from sim.model import ModelError, load_model
 
 
@@ -93,7 +93,7 @@ def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
                 for p in planned
             ],
         }
-        click.echo(dumps_strict(doc, indent=2))
+        click.echo(dumps(doc))
         return
     size = f"run file about {format_bytes(file_bytes)}"
     if compression != "none":

@@ -22,6 +22,7 @@ from drivers.protocols import DepthCamera
 from labctl.cli.inputs import POSITIVE, Number, warn_run_suffix
 from labctl.cli.outputs import OutputFile, output_file
 from labctl.errors import InputError, RunAborted
+from labctl.jsondoc import dumps
 from labctl.run.operator import Operator, unlock_confirmation
 from labctl.run.store import RunWriter
 from procedures.steps import Step
@@ -65,7 +66,7 @@ def laser(port: str, baud: int, count: int, as_json: bool) -> None:
     with _device_errors(), _driver_options():
         distances = read_distances(port, baud, count)
     if as_json:
-        click.echo(json.dumps({"distances_mm": distances}))
+        click.echo(dumps({"distances_mm": distances}, indent=None))
     else:
         for value in distances:
             click.echo(f"{value:.1f} mm")
@@ -107,7 +108,7 @@ def stage(
         options["confirm_unlock"] = (lambda _: True) if unlock_alarm else unlock_confirmation(operator)
     with _device_errors(), _driver_options():
         position = move_stage(port, protocol, home=home, move_mm=move_mm, **options)
-    click.echo(json.dumps({"position_mm": position}) if as_json else f"{position:.4f} mm")
+    click.echo(dumps({"position_mm": position}, indent=None) if as_json else f"{position:.4f} mm")
 
 
 def _parse_settings(pairs: Sequence[str]) -> dict[str, Any]:
@@ -202,7 +203,7 @@ def camera(
         cam.safe_state()
         cam.close()
     if as_json:
-        click.echo(json.dumps(summary))
+        click.echo(dumps(summary, indent=None))
     else:
         click.echo(f"{frames} frame(s) of {summary['width']}x{summary['height']} in {output} "
                    f"(step {summary['step_id']}, {summary['valid_fraction']:.1%} valid points)")
@@ -216,7 +217,7 @@ def devices(as_json: bool) -> None:
 
     sections = discover()
     if as_json:
-        click.echo(json.dumps({"sections": [s.as_dict() for s in sections]}, indent=2))
+        click.echo(dumps({"sections": [s.as_dict() for s in sections]}))
         return
     for section in sections:
         if not section.available:

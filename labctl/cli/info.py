@@ -6,9 +6,9 @@ from pathlib import Path
 
 import click
 
+from labctl.jsondoc import dumps
 from labctl.run.diskspace import format_bytes
 from labctl.run.runinfo import run_info
-from metrics.jsonsafe import dumps_strict
 
 
 def _position(step: dict) -> str:
@@ -27,7 +27,7 @@ def info(run_file: Path, as_json: bool) -> None:
     """Show RUN_FILE's header (campaign, status, size, compression) and every step with its status."""
     doc = run_info(run_file)
     if as_json:
-        click.echo(dumps_strict(doc, indent=2))
+        click.echo(dumps(doc))
         return
     kind = "simulated" if doc["simulated"] else "measured"
     reason = f" ({doc['status_reason']})" if doc["status_reason"] else ""

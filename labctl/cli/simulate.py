@@ -11,6 +11,7 @@ from click.core import ParameterSource
 
 from labctl.cli.outputs import OutputFile, png_file
 from labctl.errors import InputError
+from labctl.jsondoc import dumps
 from sim.model import default_model_text, load_model, parse_model
 from sim.profiles import PROFILES, SOURCES
 from sim.scenes.targets import PLATE_MATERIALS, TARGETS, scene_parameters
@@ -138,7 +139,7 @@ def profiles(as_json: bool) -> None:
 
     doc = {name: {"parameters": asdict(p), "sources": SOURCES[name]} for name, p in PROFILES.items()}
     if as_json:
-        click.echo(json.dumps(doc, indent=2))
+        click.echo(dumps(doc))
         return
     for name, entry in doc.items():
         p = entry["parameters"]

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from labctl.jsondoc import dumps, optional, to_json, write_json
+from labctl.jsondoc import dumps, inline, optional, to_json, write_json
 
 
 @dataclass(kw_only=True)
@@ -39,6 +39,19 @@ def test_optional_fields_are_left_out_only_while_none():
     doc = to_json(Outer(zeta="z", maybe=False, later=""))
     assert doc["maybe"] is False and doc["later"] == ""
     assert list(doc) == ["zeta", "maybe", "alpha", "table", "later"]
+
+
+@dataclass(kw_only=True)
+class Flattened:
+    first: str
+    inner: Inner | None = inline()
+    last: int
+
+
+def test_inline_fields_are_written_in_place_and_nothing_while_none():
+    doc = to_json(Flattened(first="f", inner=Inner(b=0.5, a=1), last=2))
+    assert list(doc) == ["first", "b", "a", "last"] and doc["b"] == 0.5
+    assert to_json(Flattened(first="f", inner=None, last=2)) == {"first": "f", "last": 2}
 
 
 def test_numbers_are_strict_json():

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from labctl.cli import main
-from metrics.jsonsafe import dumps_strict, json_safe
+from labctl.jsondoc import dumps, to_json
 from sim.emulators import DimetixEmulator
 from tests.conftest import campaign_text
 
@@ -195,8 +195,8 @@ def test_reconcile_json_is_valid_when_only_one_step_is_usable(capsys, tmp_path: 
 def test_strict_json_maps_every_non_finite_number_to_null() -> None:
     doc = {"a": math.nan, "b": [1.0, -math.inf, {"c": np.float32("inf")}], "d": np.array([1.5, np.nan]),
            "e": (np.int64(3), "x")}
-    assert json_safe(doc) == {"a": None, "b": [1.0, None, {"c": None}], "d": [1.5, None], "e": [3, "x"]}
-    assert strict_json(dumps_strict(doc)) == json_safe(doc)
+    assert to_json(doc) == {"a": None, "b": [1.0, None, {"c": None}], "d": [1.5, None], "e": [3, "x"]}
+    assert strict_json(dumps(doc, indent=None)) == to_json(doc)
 
 
 # ---------------------------------------------------------------------- devices
