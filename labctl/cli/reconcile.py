@@ -50,6 +50,6 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
         reporter.message(f"verdict: {result.verdict} ({named}); gap {result.gap_before:.3f} -> {result.gap_after:.3f} mm"
                          f" (noise floor {doc.gap_floor:.3f} mm)")
     if result.unexplained is not None:
-        reporter.message(result.unexplained["message"])
+        reporter.message(result.unexplained.message)
     reporter.message(f"corrected model: {model_file}")
     click.echo(f"report: {report}")

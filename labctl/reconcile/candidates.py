@@ -51,6 +51,7 @@ import numpy as np
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout, raw_residuals
+from labctl.reconcile.results import Parameters
 from sim.effects import EFFECTS, Effect
 from sim.materials import get_material
 from sim.model import SimModel
@@ -104,7 +105,7 @@ class Context:
     def no_intensity(self) -> np.ndarray:
         return np.zeros(len(self.lay.i_step))
 
-    def finite_difference(self, name: str, params: dict[str, Any], step_filter: Callable[[Observation], bool],
+    def finite_difference(self, name: str, params: Parameters, step_filter: Callable[[Observation], bool],
                           scale: float) -> Column:
         """(prediction with the effect switched on - current prediction) / ``scale``, on the steps it touches."""
         effects = {**self.model.effects, name: params}
@@ -129,9 +130,9 @@ class Candidate:
     n_params: int  # free parameters (linear and nonlinear), for the BIC penalty
     grid: Callable[[Context], list[Any]]  # nonlinear parameter values (None: a purely linear candidate)
     columns: Callable[[Context, Any], list[Column]]
-    to_params: Callable[[Context, np.ndarray, Any], dict[str, Any] | None]
-    vector: Callable[[dict[str, Any]], tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]]
-    from_vector: Callable[[np.ndarray], dict[str, Any]]
+    to_params: Callable[[Context, np.ndarray, Any], Parameters | None]
+    vector: Callable[[Parameters], tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]]
+    from_vector: Callable[[np.ndarray], Parameters]
     applies: Callable[[Context], bool] = field(default=lambda ctx: True)
     bind: Callable[[Context], Candidate] | None = None  # builds the candidate from the run (its signatures)
 
@@ -248,7 +249,7 @@ def _periodic_range(effect: Effect) -> Candidate:
     keys = effect.observed.fitted  # amplitude, period, phase
     (a_lo, a_hi), (p_lo, p_hi), (f_lo, f_hi) = (bounds(effect, k) for k in keys)
 
-    def to_params(ctx: Context, c: np.ndarray, period: float | None) -> dict[str, Any] | None:
+    def to_params(ctx: Context, c: np.ndarray, period: float | None) -> Parameters | None:
         amplitude = float(np.hypot(c[0], c[1]))
         return {keys[0]: amplitude, keys[1]: float(period), keys[2]: float(math.atan2(c[1], c[0]))} \
             if amplitude <= a_hi else None
@@ -292,24 +293,24 @@ def _warm_up(effect: Effect) -> Candidate:
     def outside(c: np.ndarray) -> bool:
         return bool(np.any((c < d_lo) | (c > d_hi)))
 
-    def to_params(_: Context, c: np.ndarray, taus: Any) -> dict[str, Any] | None:
+    def to_params(_: Context, c: np.ndarray, taus: Any) -> Parameters | None:
         taus = taus if isinstance(taus, tuple) else (taus,)
         if outside(c):
             return None
-        params: dict[str, Any] = {delta_key: float(c[0]), tau_key: float(taus[0])}
+        params: Parameters = {delta_key: float(c[0]), tau_key: float(taus[0])}
         if len(taus) > 1:
             params[terms_key] = [{delta_key: float(c[1]), tau_key: float(taus[1])}]
         return params
 
-    def vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    def vector(p: Parameters) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         terms = [(p[delta_key], p[tau_key])] + [(t[delta_key], t[tau_key]) for t in p.get(terms_key, [])]
         x = np.array([v for delta, tau in terms for v in (delta, math.log(tau))])
         lo = np.tile([d_lo, math.log(t_lo)], len(terms))
         hi = np.tile([d_hi, math.log(t_hi)], len(terms))
         return x, (lo, hi)
 
-    def from_vector(x: np.ndarray) -> dict[str, Any]:
-        params: dict[str, Any] = {delta_key: float(x[0]), tau_key: float(math.exp(x[1]))}
+    def from_vector(x: np.ndarray) -> Parameters:
+        params: Parameters = {delta_key: float(x[0]), tau_key: float(math.exp(x[1]))}
         if len(x) > 2:
             params[terms_key] = [{delta_key: float(x[i]), tau_key: float(math.exp(x[i + 1]))}
                                  for i in range(2, len(x), 2)]
@@ -378,7 +379,7 @@ def _mean_phasor(effect: Effect) -> Candidate:
     keys = effect.observed.fitted  # strength, extra path
     (s_lo, s_hi), (p_lo, p_hi) = (bounds(effect, k) for k in keys)
 
-    def to_params(ctx: Context, c: np.ndarray, extra_path: float | None) -> dict[str, Any] | None:
+    def to_params(ctx: Context, c: np.ndarray, extra_path: float | None) -> Parameters | None:
         strength, path = float(c[0]), float(extra_path)
         if strength < 0:  # -s e^{jkL} = s e^{jk(L + period / 2)}
             period = 2 * math.pi / _wavenumber(ctx)
@@ -446,13 +447,13 @@ def _column_row_profile(effect: Effect) -> Candidate:
             ratio = c.z_rows("z_per_range")
             return [_depth(c, c.lay.stack_z(held_out_col) * ratio), _depth(c, c.lay.stack_z(held_out_row) * ratio)]
 
-        def from_vector(x: np.ndarray) -> dict[str, Any]:
+        def from_vector(x: np.ndarray) -> Parameters:
             return {col_key: [float(v) for v in x[0] * col], row_key: [float(v) for v in x[1] * row]}
 
-        def to_params(_: Context, c: np.ndarray, __: Any) -> dict[str, Any] | None:
+        def to_params(_: Context, c: np.ndarray, __: Any) -> Parameters | None:
             return from_vector(c) if np.all(np.abs(c) <= PATTERN_GAIN_LIMIT) and min(norms) > 0 else None
 
-        def vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        def vector(p: Parameters) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
             x = np.array([np.dot(p[col_key], col) / norms[0], np.dot(p[row_key], row) / norms[1]])
             return x, (np.full(2, -PATTERN_GAIN_LIMIT), np.full(2, PATTERN_GAIN_LIMIT))
 
@@ -487,17 +488,17 @@ def _plane_bounce(effect: Effect) -> Candidate:
         ratio, half_extra = bounce(x, y, z, plane, distance)
         return [_depth(ctx, ratio * np.sin(k * half_extra) / k * ctx.z_rows("z_per_range"))]
 
-    def to_params(ctx: Context, c: np.ndarray, where: Any) -> dict[str, Any] | None:
+    def to_params(ctx: Context, c: np.ndarray, where: Any) -> Parameters | None:
         plane, distance = where
         return {plane_key: plane, distance_key: distance, reflectance_key: float(c[0])} \
             if r_lo < c[0] <= r_hi else None
 
-    def vector(p: dict[str, Any]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    def vector(p: Parameters) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         code = planes.index(p[plane_key]) * PLANE_CODE_MM
         return (np.array([p[reflectance_key], code + p[distance_key]]),
                 (np.array([r_lo, code + d_lo]), np.array([r_hi, code + d_hi])))
 
-    def from_vector(x: np.ndarray) -> dict[str, Any]:
+    def from_vector(x: np.ndarray) -> Parameters:
         index = int(x[1] // PLANE_CODE_MM)
         return {plane_key: planes[index], distance_key: float(x[1] - index * PLANE_CODE_MM),
                 reflectance_key: float(x[0])}
@@ -518,7 +519,7 @@ def _periodic_disparity(effect: Effect) -> Candidate:
     keys = effect.observed.fitted  # amplitude, phase
     (a_lo, a_hi), (f_lo, f_hi) = (bounds(effect, k) for k in keys)
 
-    def to_params(ctx: Context, c: np.ndarray, _: Any) -> dict[str, Any] | None:
+    def to_params(ctx: Context, c: np.ndarray, _: Any) -> Parameters | None:
         amplitude = float(np.hypot(c[0], c[1]))
         return {keys[0]: amplitude, keys[1]: float(math.atan2(c[1], c[0]))} if amplitude <= a_hi else None
 

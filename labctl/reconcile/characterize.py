@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -42,6 +41,7 @@ from scipy import stats
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction
 from labctl.reconcile.residuals import Z_FLOOR_MM
+from labctl.reconcile.results import AxisSummary, Confounded, CurvePoint, Unexplained
 
 GROUPS = 24
 CONFOUNDED = 0.8
@@ -51,12 +51,20 @@ PIXEL_AXES = ("row", "column", "radius")
 
 @dataclass(frozen=True)
 class AxisFit:
+    """An axis the residual was tried against: its share of the residual (eta^2), the curve's peak to peak (mm),
+    the curve, and (pixel axes) the correlation of its near and far halves' curves."""
+
     name: str
     unit: str
     eta2: float
     effect_mm: float
-    curve: list[dict[str, Any]]  # {"x": group centre or category, "mean_mm": ..., "n": bins}
+    curve: list[CurvePoint]
     same_at_every_distance: float | None = None
+
+    def summary(self) -> AxisSummary:
+        """The axis as reconcile.json lists it (rounded)."""
+        return AxisSummary(axis=self.name, unit=self.unit, eta2=round(float(self.eta2), 4),
+                           effect_mm=round(self.effect_mm, 4), same_at_every_distance=self.same_at_every_distance)
 
 
 def _axes(observations: list[Observation], predictions: list[Prediction], maps: list[np.ndarray],
@@ -88,7 +96,7 @@ def _stack(values: list, maps: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
-def _groups(x: np.ndarray) -> tuple[np.ndarray, list[Any]]:
+def _groups(x: np.ndarray) -> tuple[np.ndarray, list[str] | list[float]]:
     """Group index per value (quantile groups for numbers, one per category) and each group's label."""
     if x.dtype == object and len(x) and isinstance(x[0], str):
         labels = sorted(set(x.tolist()))
@@ -100,7 +108,7 @@ def _groups(x: np.ndarray) -> tuple[np.ndarray, list[Any]]:
     return idx, centres
 
 
-def _curve(v: np.ndarray, x: np.ndarray, wt: np.ndarray) -> tuple[float, float, list[dict[str, Any]], np.ndarray]:
+def _curve(v: np.ndarray, x: np.ndarray, wt: np.ndarray) -> tuple[float, float, list[CurvePoint], np.ndarray]:
     idx, labels = _groups(x)
     n = np.bincount(idx, minlength=len(labels)).astype(float)
     wsum = np.bincount(idx, wt, len(labels))
@@ -109,16 +117,16 @@ def _curve(v: np.ndarray, x: np.ndarray, wt: np.ndarray) -> tuple[float, float, 
     total = float(np.sum(wt * (v - mean) ** 2))
     eta2 = float(np.sum(wsum * (means - mean) ** 2) / total) if total > 0 else 0.0
     used = n > 0
-    curve = [{"x": lab if isinstance(lab, str) else round(lab, 4), "mean_mm": round(float(m), 4), "n": int(k)}
+    curve = [CurvePoint(x=lab if isinstance(lab, str) else round(lab, 4), mean_mm=round(float(m), 4), n=int(k))
              for lab, m, k, u in zip(labels, means, n, used, strict=True) if u]
     return eta2, float(np.ptp(means[used])) if used.any() else 0.0, curve, means[idx]
 
 
 def characterize(observations: list[Observation], predictions: list[Prediction], maps: list[np.ndarray],
-                 t0_s: float) -> dict[str, Any]:
+                 t0_s: float) -> Unexplained:
     """The axes the residual maps follow (sorted by eta^2), the carrying axis, its curve, and the mean map."""
     if not maps or not any(np.isfinite(m).any() for m in maps):
-        return {"axes": [], "carrying_axis": None, "spatial_map_mm": [], "description": "no compared bins"}
+        return Unexplained(axes=[], carrying_axis=None, spatial_map_mm=[], description="no compared bins")
     v = np.concatenate([m[np.isfinite(m)] for m in maps])
     weight = 1.0 / _stack([o.z_var + Z_FLOOR_MM**2 for o in observations], maps).astype(float)
     distance = np.array([o.scene.wall_distance_mm if o.scene.wall_distance_mm is not None
@@ -144,14 +152,14 @@ def characterize(observations: list[Observation], predictions: list[Prediction],
                               _stack([observations[i].z_var + Z_FLOOR_MM**2 for i in sel], sub).astype(float)))
             if all(len(h) > GROUPS for h, _, _ in parts):
                 a = [_curve(h, xx, 1.0 / var)[2] for h, xx, var in parts]
-                ca, cb = ([c["mean_mm"] for c in k] for k in a)
+                ca, cb = ([c.mean_mm for c in k] for k in a)
                 if len(ca) == len(cb) and len(ca) > 2 and np.std(ca) > 0 and np.std(cb) > 0:
                     steady = round(float(np.corrcoef(ca, cb)[0, 1]), 3)
         fits.append(AxisFit(name, unit, eta2, size, curve, steady))
         values[name] = x
     fits.sort(key=lambda f: -f.eta2)
     carrying = fits[0] if fits and fits[0].eta2 >= MIN_ETA2 else None
-    confounded = []
+    confounded: list[Confounded] = []
     if carrying is not None and carrying.name != "target":
         xc = values[carrying.name].astype(float)
         for f in fits[1:]:
@@ -162,24 +170,22 @@ def characterize(observations: list[Observation], predictions: list[Prediction],
             if ok.sum() > 2 and np.std(x[ok]) > 0 and np.std(xc[ok]) > 0:
                 rho = stats.spearmanr(xc[ok], x[ok]).statistic
                 if abs(rho) >= CONFOUNDED:
-                    confounded.append({"axis": f.name, "spearman_rho": round(float(rho), 3)})
+                    confounded.append(Confounded(axis=f.name, spearman_rho=round(float(rho), 3)))
     stack = np.stack(maps)
     count = np.isfinite(stack).sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_map = np.where(count > 0, np.nansum(stack, axis=0) / count, np.nan)
-    return {
-        "axes": [{"axis": f.name, "unit": f.unit, "eta2": round(float(f.eta2), 4), "effect_mm": round(f.effect_mm, 4),
-                  **({"same_at_every_distance": f.same_at_every_distance}
-                     if f.same_at_every_distance is not None else {})} for f in fits],
-        "carrying_axis": carrying.name if carrying else None,
-        "confounded_with": confounded,
-        "curve": carrying.curve if carrying else [],
-        "spatial_map_mm": [[None if not math.isfinite(x) else round(float(x), 3) for x in r] for r in mean_map],
-        "description": describe(carrying, confounded),
-    }
+    return Unexplained(
+        axes=[f.summary() for f in fits],
+        carrying_axis=carrying.name if carrying else None,
+        confounded_with=confounded,
+        curve=carrying.curve if carrying else [],
+        spatial_map_mm=[[None if not math.isfinite(x) else round(float(x), 3) for x in r] for r in mean_map],
+        description=describe(carrying, confounded),
+    )
 
 
-def describe(carrying: AxisFit | None, confounded: list[dict[str, Any]]) -> str:
+def describe(carrying: AxisFit | None, confounded: list[Confounded]) -> str:
     """One sentence a user reads: what the residual follows and how large it is."""
     if carrying is None:
         return f"no single axis carries the residual (every axis's eta^2 < {MIN_ETA2})"
@@ -192,5 +198,5 @@ def describe(carrying: AxisFit | None, confounded: list[dict[str, Any]]) -> str:
         text += ("; the same at every distance" if carrying.same_at_every_distance >= 0.8
                  else "; it changes with distance")
     if confounded:
-        text += "; this run cannot tell it from " + ", ".join(c["axis"] for c in confounded)
+        text += "; this run cannot tell it from " + ", ".join(c.axis for c in confounded)
     return text

@@ -61,13 +61,13 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy import ndimage, optimize
 
-from labctl.reconcile.goodness import STEP_FACTOR, StepFit
+from labctl.reconcile.goodness import STEP_FACTOR, StepFit, rounded, steps_above_floor
 from labctl.reconcile.observe import MAX_FRAMES, StepScene, step_scene
+from labctl.reconcile.results import CornerFamilyGoodness, CornerGoodnessSummary, Parameters
 from labctl.run.store import RunReader, StepRecord
 from metrics.distortion import Corners, detect_corners, refine_corners, sample_cloud
 from metrics.stack import stack_stats
@@ -215,20 +215,18 @@ class CornerGoodness:
     def consistent(self) -> bool:
         return all(self.family_consistent(f) for f in FAMILIES)
 
-    def summary(self) -> dict[str, Any]:
-        """The JSON form: per family gap, floor, unit and consistency, and the steps above their floors."""
-        out: dict[str, Any] = {f: {"gap": _r(self.gaps[f]), "gap_floor": _r(self.floors[f]), "unit": FAMILY_UNIT,
-                                   "consistent_with_noise": self.family_consistent(f)} for f in FAMILIES}
-        out["corner_image"].update(gap_px=_r(self.gap_px), gap_floor_px=_r(self.gap_floor_px))
-        worst = sorted(self.steps, key=lambda s: -s.ratio)[:5]
-        out.update(gap=_r(self.gap_mm), gap_floor=_r(self.gap_floor_mm), consistent_with_noise=self.consistent,
-                   steps_above_floor=[{"step": s.step_id, "family": s.family, "gap": _r(s.gap), "floor": _r(s.floor),
-                                       "ratio": _r(s.ratio)} for s in worst if s.ratio > 1.0])
-        return out
+    def summary(self) -> CornerGoodnessSummary:
+        """The record reconcile.json gives: per family gap, floor, unit and consistency (the image family also in
+        px), both families together, and the steps above their floors."""
+        def family(name: str) -> CornerFamilyGoodness:
+            return CornerFamilyGoodness(gap=rounded(self.gaps[name]), gap_floor=rounded(self.floors[name]),
+                                        unit=FAMILY_UNIT, consistent_with_noise=self.family_consistent(name))
 
-
-def _r(value: float) -> float | None:
-    return round(float(value), 4) if math.isfinite(value) else None
+        image = family("corner_image")
+        image.gap_px, image.gap_floor_px = rounded(self.gap_px), rounded(self.gap_floor_px)
+        return CornerGoodnessSummary(corner_image=image, corner_cloud=family("corner_cloud"), gap=rounded(self.gap_mm),
+                                     gap_floor=rounded(self.gap_floor_mm), consistent_with_noise=self.consistent,
+                                     steps_above_floor=steps_above_floor(self.steps))
 
 
 class CornerComparison:
@@ -331,9 +329,9 @@ class CornerCandidate:
     name: str
     start: Callable[[SimModel], np.ndarray]
     bounds: tuple[np.ndarray, np.ndarray]
-    params: Callable[[np.ndarray], dict[str, Any]]
+    params: Callable[[np.ndarray], Parameters]
     keys: tuple[str, ...]  # the names of the vector's entries (for standard errors)
-    variants: tuple[dict[str, Any], ...] = field(default_factory=lambda: ({},))  # fixed settings tried in turn
+    variants: tuple[Parameters, ...] = field(default_factory=lambda: ({},))  # fixed settings tried in turn
 
 
 def _fov_start(model: SimModel) -> np.ndarray:
@@ -355,7 +353,7 @@ class CornerFit:
     """A candidate's best fit on the corner families."""
 
     name: str
-    params: dict[str, Any]
+    params: Parameters
     score: float  # Schwarz's criterion improvement over the corner axes
     rss0: float
     rss1: float
@@ -373,7 +371,7 @@ def corner_score(rss0: np.ndarray, rss1: np.ndarray, counts: np.ndarray, n_param
 
 
 def fit_corner_candidate(candidate: CornerCandidate, comparison: CornerComparison, model: SimModel,
-                         with_effect: Callable[[SimModel, str, dict[str, Any]], SimModel]) -> CornerFit | None:
+                         with_effect: Callable[[SimModel, str, Parameters], SimModel]) -> CornerFit | None:
     """The candidate fitted by nonlinear least squares (each of its variants; the best kept)."""
     cells = comparison.cells()
     r0 = comparison.whitened(model)
@@ -383,7 +381,7 @@ def fit_corner_candidate(candidate: CornerCandidate, comparison: CornerCompariso
     lo, hi = candidate.bounds
     best: CornerFit | None = None
     for variant in candidate.variants:
-        def residual(x: np.ndarray, variant: dict[str, Any] = variant) -> np.ndarray:
+        def residual(x: np.ndarray, variant: Parameters = variant) -> np.ndarray:
             return comparison.whitened(with_effect(model, candidate.name, {**candidate.params(x), **variant}))
 
         x0 = np.clip(candidate.start(model), lo + 1e-9, hi - 1e-9)

@@ -18,11 +18,10 @@ explains, e.g. a constant, is left at the minimum-norm solution).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from labctl.reconcile.candidates import Context
+from labctl.reconcile.results import Parameters
 from sim.effects.empirical_pixel_map import node_coordinates
 
 RANGE_KNOTS = 13
@@ -45,7 +44,7 @@ def _solve(ctx: Context, r: np.ndarray, depth_columns: np.ndarray) -> np.ndarray
     return np.linalg.solve(a, columns.T @ r)
 
 
-def fit_range(ctx: Context, r: np.ndarray) -> dict[str, Any]:
+def fit_range(ctx: Context, r: np.ndarray) -> Parameters:
     """``empirical_range`` parameters fitted to the profiled, whitened residual ``r``."""
     ranges = ctx.z_rows("range_mm")
     ok = np.isfinite(ranges)
@@ -55,7 +54,7 @@ def fit_range(ctx: Context, r: np.ndarray) -> dict[str, Any]:
     return {"range_mm": [round(float(k), 2) for k in knots], "correction_mm": [round(float(c), 4) for c in coef]}
 
 
-def fit_pixel_map(ctx: Context, r: np.ndarray) -> dict[str, Any]:
+def fit_pixel_map(ctx: Context, r: np.ndarray) -> Parameters:
     """``empirical_pixel_map`` parameters fitted to the profiled, whitened residual ``r``."""
     nx, ny = MAP_NODES
     h, w = ctx.predictions[0].z.shape

@@ -38,6 +38,7 @@ import numpy as np
 
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.residuals import LOG_I_FLOOR, LOG_I_FLOOR_PROJECTOR, Z_FLOOR_MM, Layout
+from labctl.reconcile.results import GoodnessSummary, StepAboveFloor
 
 REFERENCE_NOISE_MM = 0.15  # one distance reading per stage step (the laser meter's repeatability)
 STEP_FACTOR = 3.0
@@ -87,19 +88,25 @@ class Goodness:
     def consistent(self) -> bool:
         return self.depth_consistent and self.intensity_consistent
 
-    def summary(self) -> dict[str, Any]:
-        """The JSON form: gaps, floors, consistency, and the steps furthest above their floors."""
-        worst = sorted(self.steps, key=lambda s: -s.ratio)[:5]
-        return {"gap": _r(self.gap_mm), "gap_floor": _r(self.gap_floor_mm),
-                "intensity_gap": _r(self.intensity_gap_pct), "intensity_gap_floor": _r(self.intensity_gap_floor_pct),
-                "consistent_with_noise": self.consistent, "depth_consistent": self.depth_consistent,
-                "intensity_consistent": self.intensity_consistent, "step_factor": STEP_FACTOR,
-                "steps_above_floor": [{"step": s.step_id, "family": s.family, "gap": _r(s.gap), "floor": _r(s.floor),
-                                       "ratio": _r(s.ratio)} for s in worst if s.ratio > 1.0]}
+    def summary(self) -> GoodnessSummary:
+        """The record reconcile.json gives: gaps, floors, consistency, and the steps furthest above their floors."""
+        return GoodnessSummary(
+            gap=rounded(self.gap_mm), gap_floor=rounded(self.gap_floor_mm), intensity_gap=rounded(self.intensity_gap_pct),
+            intensity_gap_floor=rounded(self.intensity_gap_floor_pct), consistent_with_noise=self.consistent,
+            depth_consistent=self.depth_consistent, intensity_consistent=self.intensity_consistent,
+            step_factor=STEP_FACTOR, steps_above_floor=steps_above_floor(self.steps))
 
 
-def _r(value: float) -> float | None:
+def rounded(value: float) -> float | None:
+    """``value`` to 4 decimals, None where it is not finite (a gap or floor as reconcile.json gives it)."""
     return round(float(value), 4) if math.isfinite(value) else None
+
+
+def steps_above_floor(steps: list[StepFit]) -> list[StepAboveFloor]:
+    """Of the five steps furthest above their floors, those above (gap over floor > 1), furthest first."""
+    worst = sorted(steps, key=lambda s: -s.ratio)[:5]
+    return [StepAboveFloor(step=s.step_id, family=s.family, gap=rounded(s.gap), floor=rounded(s.floor),
+                           ratio=rounded(s.ratio)) for s in worst if s.ratio > 1.0]
 
 
 def _systematic(v: np.ndarray, var: np.ndarray) -> float:

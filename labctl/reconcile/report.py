@@ -126,25 +126,25 @@ def _rms_text(values: np.ndarray) -> str:
 
 def plot_unexplained(result: ReconcileResult, path: Path) -> Path:
     """The unexplained residual: its curve over the carrying axis and its mean map over the sensor."""
-    u = result.unexplained or {}
+    u = result.unexplained
     fig = Figure(figsize=(11, 3.8))
     axes = fig.subplots(1, 2)
     ax = axes[0]
-    curve = u.get("curve", [])
-    if curve:
-        xs = [c["x"] for c in curve]
+    curve = u.curve if u is not None and u.curve else []
+    if u is not None and curve:
+        xs = [c.x for c in curve]
         numeric = all(isinstance(x, (int, float)) for x in xs)
-        ax.plot(xs if numeric else range(len(xs)), [c["mean_mm"] for c in curve], "o-", color="tab:purple", ms=4)
+        ax.plot(xs if numeric else range(len(xs)), [c.mean_mm for c in curve], "o-", color="tab:purple", ms=4)
         if not numeric:
             ax.set_xticks(range(len(xs)), xs, rotation=30, fontsize=8)
         ax.axhline(0, color="0.6", lw=0.8)
-        axis = next(a for a in u["axes"] if a["axis"] == u["carrying_axis"])
-        ax.set_xlabel(f"{u['carrying_axis']} ({axis['unit']})" if axis["unit"] else u["carrying_axis"])
+        axis = next(a for a in u.axes if a.axis == u.carrying_axis)
+        ax.set_xlabel(f"{u.carrying_axis} ({axis.unit})" if axis.unit else u.carrying_axis)
     else:
         ax.text(0.5, 0.5, "no single axis carries the residual", transform=ax.transAxes, ha="center", color="0.5")
     ax.set_ylabel("mean depth residual (mm)")
     ax.set_title("curve over the carrying axis", fontsize=9)
-    data = np.array([[math.nan if v is None else v for v in row] for row in u.get("spatial_map_mm", [])], float)
+    data = np.array([[math.nan if v is None else v for v in row] for row in (u.spatial_map_mm if u else [])], float)
     if data.size and np.isfinite(data).any():
         lim = float(np.nanpercentile(np.abs(data), 98)) or 1.0
         im = axes[1].imshow(data, cmap="RdBu_r", vmin=-lim, vmax=lim)
@@ -160,12 +160,12 @@ def _unexplained(result: ReconcileResult, plot: Path | None) -> str:
     u = result.unexplained
     if u is None:
         return ""
-    rows = "".join(f"<tr><td class=l>{html.escape(a['axis'])}</td><td>{a['eta2']:.3f}</td><td>{a['effect_mm']:.3f}</td>"
-                   f"<td>{'' if a.get('same_at_every_distance') is None else a['same_at_every_distance']}</td></tr>"
-                   for a in u["axes"])
+    rows = "".join(f"<tr><td class=l>{html.escape(a.axis)}</td><td>{a.eta2:.3f}</td><td>{a.effect_mm:.3f}</td>"
+                   f"<td>{'' if a.same_at_every_distance is None else a.same_at_every_distance}</td></tr>"
+                   for a in u.axes)
     empirical = "".join(f"<li><b>{html.escape(e.name)}</b> (empirical): gap {e.gap_before_mm:.3f} &rarr; "
                         f"{e.gap_after_mm:.3f} mm</li>" for e in result.empirical)
-    return (f"<h2>Unexplained residual</h2><p class=note>{html.escape(u['message'])}</p>"
+    return (f"<h2>Unexplained residual</h2><p class=note>{html.escape(u.message or '')}</p>"
             "<table><tr><th class=l>axis</th><th>share of the residual (eta&sup2;)</th><th>peak to peak (mm)</th>"
             f"<th>same at every distance</th></tr>{rows}</table>"
             + (f"<p>Empirical corrections in the model:</p><ul>{empirical}</ul>" if empirical else "")
@@ -189,10 +189,11 @@ def _corners(result: ReconcileResult) -> str:
     c = result.corners
     if c is None:
         return ""
+    before, after = c.before.summary().families(), c.after.summary().families()
     rows = "".join(
-        f"<tr><td class=l>{family}</td><td>{b[family]['gap']}</td><td>{a[family]['gap']}</td>"
-        f"<td>{a[family]['gap_floor']}</td><td class=l>{'yes' if a[family]['consistent_with_noise'] else 'NO'}</td></tr>"
-        for b, a in [(c.before.summary(), c.after.summary())] for family in ("corner_image", "corner_cloud"))
+        f"<tr><td class=l>{family}</td><td>{before[family].gap}</td><td>{a.gap}</td>"
+        f"<td>{a.gap_floor}</td><td class=l>{'yes' if a.consistent_with_noise else 'NO'}</td></tr>"
+        for family, a in after.items())
     named = "".join(
         f"<li><b>{html.escape(e.name)}</b>: {_params(e.parameters, e.evidence.stderr)}"
         f"{_determination(e.evidence.determination)} (dBIC {e.evidence.delta_bic:.1f}; corner gap "

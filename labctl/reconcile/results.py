@@ -1,16 +1,18 @@
 """What reconcile decides, as typed records: the named effects with their evidence, the candidates' scores, the
-empirical corrections, an ambiguity, a not-comparable run's needs, and ``reconcile.json`` itself
-(docs/reconcile.md). ``labctl.jsondoc.to_json`` turns them into JSON, keys in field order."""
+goodness of fit, the corner comparison, the unexplained residual's characterization, the empirical corrections,
+an ambiguity, a not-comparable run's needs, and ``reconcile.json`` itself (docs/reconcile.md).
+``labctl.jsondoc.to_json`` turns them into JSON, keys in field order."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
-from labctl.jsondoc import optional
+from labctl.jsondoc import inline, optional
 
-#: an effect's parameters as a model file holds them (numbers, flags, lists, tables)
-Parameters = dict[str, Any]
+#: a parameter's value as a model file (TOML) holds it: a number, flag or name, or a list or table of them
+ParameterValue = float | int | bool | str | list["ParameterValue"] | dict[str, "ParameterValue"]
+#: an effect's parameters by name
+Parameters = dict[str, ParameterValue]
 
 
 @dataclass(kw_only=True)
@@ -128,6 +130,153 @@ class CornerRound:
 
 
 @dataclass(kw_only=True)
+class StepAboveFloor:
+    """A step whose gap exceeds its noise floor in one residual family (rounded; None where not finite)."""
+
+    step: str
+    family: str
+    gap: float | None
+    floor: float | None
+    ratio: float | None
+
+
+@dataclass(kw_only=True)
+class GoodnessSummary:
+    """The goodness of fit of one model (labctl/reconcile/goodness.py): the depth gap (mm) and intensity gap (%)
+    with their floors (rounded; None where not finite), the consistency with the noise per family and together,
+    the step rule's factor, and the steps furthest above their floors (at most five)."""
+
+    gap: float | None
+    gap_floor: float | None
+    intensity_gap: float | None
+    intensity_gap_floor: float | None
+    consistent_with_noise: bool
+    depth_consistent: bool
+    intensity_consistent: bool
+    step_factor: float
+    steps_above_floor: list[StepAboveFloor]
+
+
+@dataclass(kw_only=True)
+class RoundGoodness:
+    """One depth round in ``goodness_of_fit``: the model compared, what was decided and, when the round's
+    residual was compared with the noise, that goodness of fit (its keys in place)."""
+
+    model_effects: list[str]
+    decision: str
+    goodness: GoodnessSummary | None = inline()
+
+
+@dataclass(kw_only=True)
+class GoodnessOfFit:
+    """``goodness_of_fit`` of reconcile.json: before any named effect, per round, with the named physical effects
+    only and with the final model (None where the run has no depth comparison)."""
+
+    before: GoodnessSummary | None
+    rounds: list[RoundGoodness]
+    after_physical: GoodnessSummary | None
+    after: GoodnessSummary | None
+
+
+@dataclass(kw_only=True)
+class SignificanceRule:
+    """The thresholds an effect passed to be named (labctl/reconcile/goodness.py, labctl/reconcile/workflow.py)."""
+
+    material_fraction: float
+    floor_fraction: float
+    dbic_threshold: float
+
+
+@dataclass(kw_only=True)
+class CornerFamilyGoodness:
+    """One corner family's gap and floor (rounded, in ``unit``) and its consistency with the noise; the image
+    family also in px."""
+
+    gap: float | None
+    gap_floor: float | None
+    unit: str
+    consistent_with_noise: bool
+    gap_px: float | None = optional()
+    gap_floor_px: float | None = optional()
+
+
+@dataclass(kw_only=True)
+class CornerGoodnessSummary:
+    """The goodness of fit of the checkerboard corners (labctl/reconcile/corners.py): per family, then both
+    families together (mm in the board plane), and the steps furthest above their floors (at most five)."""
+
+    corner_image: CornerFamilyGoodness
+    corner_cloud: CornerFamilyGoodness
+    gap: float | None
+    gap_floor: float | None
+    consistent_with_noise: bool
+    steps_above_floor: list[StepAboveFloor]
+
+    def families(self) -> dict[str, CornerFamilyGoodness]:
+        """The families by name, in the document's order."""
+        return {"corner_image": self.corner_image, "corner_cloud": self.corner_cloud}
+
+
+@dataclass(kw_only=True)
+class CornersSection:
+    """``corners`` of reconcile.json: the checkerboard steps compared, the goodness before and after, the effects
+    named from the corners, the rounds, the consistency with the noise and an ambiguity (None without one)."""
+
+    steps: list[str]
+    before: CornerGoodnessSummary
+    after: CornerGoodnessSummary
+    named_effects: list[str]
+    rounds: list[CornerRound]
+    consistent_with_noise: bool
+    ambiguity: Ambiguity | None
+
+
+@dataclass(kw_only=True)
+class CurvePoint:
+    """One group of an axis's curve: its centre (or category), the residual's weighted mean there, its bins."""
+
+    x: float | str
+    mean_mm: float
+    n: int
+
+
+@dataclass(kw_only=True)
+class AxisSummary:
+    """An axis the unexplained residual was tried against: its unit, the share of the residual's variance it
+    carries (eta^2), the curve's peak to peak and, for the pixel axes, how alike the curve is near and far."""
+
+    axis: str
+    unit: str
+    eta2: float
+    effect_mm: float
+    same_at_every_distance: float | None = optional()
+
+
+@dataclass(kw_only=True)
+class Confounded:
+    """An axis the run cannot tell from the carrying one: their Spearman correlation over the compared bins."""
+
+    axis: str
+    spearman_rho: float
+
+
+@dataclass(kw_only=True)
+class Unexplained:
+    """``unexplained`` of reconcile.json (labctl/reconcile/characterize.py): the axes by eta^2, the carrying axis
+    (None when none carries the residual), the axes confounded with it and its curve (absent when no bin was
+    compared), the mean residual map (mm, None where no bin), one sentence on what the residual follows, and
+    what the user reads (set with the verdict)."""
+
+    axes: list[AxisSummary]
+    carrying_axis: str | None
+    confounded_with: list[Confounded] | None = optional()
+    curve: list[CurvePoint] | None = optional()
+    spatial_map_mm: list[list[float | None]]
+    description: str
+    message: str | None = optional()
+
+
+@dataclass(kw_only=True)
 class ReconcileDocument:
     """``reconcile.json`` (docs/reconcile.md): the verdict, named effects, candidates and gaps first; then the
     gap floor and consistency, per-round goodness of fit, significance rule, empirical corrections and notes; the
@@ -148,11 +297,11 @@ class ReconcileDocument:
     intensity_gap_after: float | None
     intensity_gap_floor: float | None
     intensity_gap_unit: str = "%"
-    goodness_of_fit: dict[str, Any]
-    significance_rule: dict[str, float]
+    goodness_of_fit: GoodnessOfFit
+    significance_rule: SignificanceRule
     empirical_corrections: list[EmpiricalCorrection]
     notes: list[str]
-    corners: dict[str, Any] | None = optional()
-    unexplained: dict[str, Any] | None = optional()
+    corners: CornersSection | None = optional()
+    unexplained: Unexplained | None = optional()
     not_comparable: NotComparable | None = optional()
     ambiguity: Ambiguity | None = optional()

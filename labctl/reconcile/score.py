@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from labctl.reconcile.candidates import Candidate, Context
 from labctl.reconcile.residuals import Layout
+from labctl.reconcile.results import Parameters
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,7 @@ class Fit:
     """The best linear fit of a candidate over its grid."""
 
     name: str
-    params: dict[str, Any]
+    params: Parameters
     score: float  # dBIC over steps
     rss0: float
     rss1: float
@@ -80,7 +80,7 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray) -> Fit
     steps = lay.row_steps()
     cells = lay.row_cells()  # (step, family): depth and intensity residuals of a step have their own scale
     rss0 = np.bincount(cells, r * r, 2 * n)
-    best: tuple[float, np.ndarray, np.ndarray, dict[str, Any]] | None = None
+    best: tuple[float, np.ndarray, np.ndarray, Parameters] | None = None
     for nonlinear in candidate.grid(ctx):
         columns = np.column_stack([lay.profiled_rows(dz, di) for dz, di in candidate.columns(ctx, nonlinear)])
         a, b = columns.T @ columns, columns.T @ r

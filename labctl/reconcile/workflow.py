@@ -44,7 +44,6 @@ import tomli_w
 from scipy import optimize
 
 from labctl.errors import InputError
-from labctl.jsondoc import to_json
 from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
 from labctl.reconcile.characterize import characterize
 from labctl.reconcile.corners import (
@@ -56,7 +55,7 @@ from labctl.reconcile.corners import (
     observe_corner_run,
 )
 from labctl.reconcile.empirical import FIRST_FORM, FORMS
-from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, goodness, material
+from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, goodness, material, rounded
 from labctl.reconcile.observe import Observation, observe_run
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout, layout, raw_residuals
@@ -65,14 +64,19 @@ from labctl.reconcile.results import (
     CandidateScore,
     CornerCandidate,
     CornerRound,
+    CornersSection,
     Correlation,
     Determination,
     EmpiricalCorrection,
     Evidence,
+    GoodnessOfFit,
     NamedEffect,
     NotComparable,
     Parameters,
     ReconcileDocument,
+    RoundGoodness,
+    SignificanceRule,
+    Unexplained,
 )
 from labctl.reconcile.score import Fit, score
 from sim.model import SimModel, parse_model
@@ -124,11 +128,11 @@ class CornerStage:
     ambiguity: Ambiguity | None
     steps: list[str]
 
-    def summary(self) -> dict[str, Any]:
-        """The ``corners`` section of reconcile.json (JSON values)."""
-        return to_json({"steps": self.steps, "before": self.before.summary(), "after": self.after.summary(),
-                        "named_effects": [e.name for e in self.named], "rounds": self.rounds,
-                        "consistent_with_noise": self.after.consistent, "ambiguity": self.ambiguity})
+    def summary(self) -> CornersSection:
+        """The ``corners`` section of reconcile.json."""
+        return CornersSection(steps=self.steps, before=self.before.summary(), after=self.after.summary(),
+                              named_effects=[e.name for e in self.named], rounds=self.rounds,
+                              consistent_with_noise=self.after.consistent, ambiguity=self.ambiguity)
 
 
 @dataclass
@@ -152,7 +156,7 @@ class ReconcileResult:
     goodness_before: Goodness | None = None
     goodness_after: Goodness | None = None  # the final model (with any empirical correction)
     goodness_physical: Goodness | None = None  # the named physical effects only
-    unexplained: dict[str, Any] | None = None
+    unexplained: Unexplained | None = None
     empirical: list[EmpiricalCorrection] = field(default_factory=list)
     not_comparable: NotComparable | None = None
     corners: CornerStage | None = None
@@ -452,8 +456,8 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
     rounds: list[CornerRound] = []
     ambiguity = None
     for _ in CORNER_CANDIDATES:
-        entry = CornerRound(model_effects=sorted(model.effects), gap=_rounded(good.gap_mm),
-                            gap_floor=_rounded(good.gap_floor_mm), decision="none significant")
+        entry = CornerRound(model_effects=sorted(model.effects), gap=rounded(good.gap_mm),
+                            gap_floor=rounded(good.gap_floor_mm), decision="none significant")
         rounds.append(entry)
         if good.consistent:
             entry.decision = "consistent with noise"
@@ -596,7 +600,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     if not good_physical.consistent:
         say("characterizing the unexplained residual")
         unexplained = characterize(observations, state.preds, residual_physical, sim.t0_s)
-        empirical = _add_empirical(state, unexplained["carrying_axis"], say)
+        empirical = _add_empirical(state, unexplained.carrying_axis, say)
     gap_after, igap_after = state.good.gap_mm, state.good.intensity_gap_pct
     if corners is not None:
         named = corners.named + named
@@ -611,7 +615,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     if not corners_consistent:
         notes.append(_corner_unexplained(corners))
     if unexplained is not None:
-        unexplained["message"] = _unexplained_message(named, good_physical, unexplained, empirical)
+        unexplained.message = _unexplained_message(named, good_physical, unexplained, empirical)
     notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items()
               if corners is None or name not in CORNER_NAMES]
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
@@ -648,14 +652,14 @@ def _corner_result(observations: list[Observation], model: SimModel, notes: list
                            observations, [], [], notes, corners.ambiguity, corners=corners)
 
 
-def _unexplained_message(named: list[NamedEffect], good: Goodness, found: dict[str, Any],
+def _unexplained_message(named: list[NamedEffect], good: Goodness, found: Unexplained,
                          empirical: list[EmpiricalCorrection]) -> str:
     """What the user reads: what remains, what it follows, and what the empirical correction is."""
     worst = good.worst_step
     text = (f"a residual of {good.gap_mm:.3f} mm remains (noise floor {good.gap_floor_mm:.3f} mm"
             + (f"; step {worst.step_id} {worst.ratio:.1f} x its floor in {worst.family}" if worst else "") + ")"
             + (" after " + ", ".join(e.name for e in named) if named else "")
-            + f" that no library effect explains: {found['description']}.")
+            + f" that no library effect explains: {found.description}.")
     if empirical:
         text += (" Added to the model as an EMPIRICAL correction (" + ", ".join(e.name for e in empirical)
                  + "), which closes the gap without naming a cause.")
@@ -664,40 +668,36 @@ def _unexplained_message(named: list[NamedEffect], good: Goodness, found: dict[s
     return text
 
 
-def _rounded(value: float) -> float | None:
-    return round(value, 4) if math.isfinite(value) else None
-
-
 def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocument:
     """reconcile.json (docs/reconcile.md): verdict, named effects and gaps, with the gap floor and consistency,
     per-round goodness of fit, the unexplained residual's characterization, empirical corrections, and what a
     not-comparable run would need."""
     after = result.goodness_after
     corners = result.corners
-    corner_floor = _rounded(corners.after.gap_floor_mm) if corners else None
+    corner_floor = rounded(corners.after.gap_floor_mm) if corners else None
     corners_ok = corners.after.consistent if corners else True
     return ReconcileDocument(
         verdict=result.verdict,
         named_effects=result.named,
         candidates=result.candidates,
-        gap_before=_rounded(result.gap_before),
-        gap_after=_rounded(result.gap_after),
+        gap_before=rounded(result.gap_before),
+        gap_after=rounded(result.gap_after),
         model_toml=str(model_path),
-        gap_floor=_rounded(after.gap_floor_mm) if after else corner_floor,
+        gap_floor=rounded(after.gap_floor_mm) if after else corner_floor,
         consistent_with_noise=(after.consistent if after else True) and corners_ok if after or corners else None,
-        gap_after_physical=_rounded(result.goodness_physical.gap_mm) if result.goodness_physical else None,
-        intensity_gap_before=_rounded(result.intensity_gap_before),
-        intensity_gap_after=_rounded(result.intensity_gap_after),
-        intensity_gap_floor=_rounded(after.intensity_gap_floor_pct) if after else None,
-        goodness_of_fit={
-            "before": result.goodness_before.summary() if result.goodness_before else None,
-            "rounds": [{"model_effects": it.model_effects, "decision": it.decision,
-                        **(it.goodness.summary() if it.goodness else {})} for it in result.iterations],
-            "after_physical": result.goodness_physical.summary() if result.goodness_physical else None,
-            "after": after.summary() if after else None,
-        },
-        significance_rule={"material_fraction": MATERIAL_FRACTION, "floor_fraction": FLOOR_FRACTION,
-                           "dbic_threshold": DBIC_THRESHOLD},
+        gap_after_physical=rounded(result.goodness_physical.gap_mm) if result.goodness_physical else None,
+        intensity_gap_before=rounded(result.intensity_gap_before),
+        intensity_gap_after=rounded(result.intensity_gap_after),
+        intensity_gap_floor=rounded(after.intensity_gap_floor_pct) if after else None,
+        goodness_of_fit=GoodnessOfFit(
+            before=result.goodness_before.summary() if result.goodness_before else None,
+            rounds=[RoundGoodness(model_effects=it.model_effects, decision=it.decision,
+                                  goodness=it.goodness.summary() if it.goodness else None) for it in result.iterations],
+            after_physical=result.goodness_physical.summary() if result.goodness_physical else None,
+            after=after.summary() if after else None,
+        ),
+        significance_rule=SignificanceRule(material_fraction=MATERIAL_FRACTION, floor_fraction=FLOOR_FRACTION,
+                                           dbic_threshold=DBIC_THRESHOLD),
         empirical_corrections=result.empirical,
         notes=result.notes,
         corners=corners.summary() if corners is not None else None,
