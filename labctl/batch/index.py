@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from labctl.batch.tasks import Summary
-from labctl.jsondoc import optional, write_json
+from labctl.jsondoc import inline, optional, write_json
 from labctl.run.store import labctl_version, now_iso
 
 RECONCILE_COLUMNS = ["verdict", "named", "empirical", "gap_before", "gap_after", "gap_floor", "consistent_with_noise",
@@ -54,6 +54,36 @@ class SweepSettings:
 
 
 @dataclass(kw_only=True)
+class ErrorRates:
+    """The reconcile verdicts over null runs: their counts, the false positives (runs with a named effect) and
+    false alarms (``unexplained``) with their rates and 95 % upper bounds, the effects named, and the largest
+    best-candidate dBIC and step gap over floor (None without any)."""
+
+    runs: int
+    verdicts: dict[str, int]
+    false_positive: int
+    false_positive_rate: float
+    false_positive_upper_95: float
+    false_unexplained: int
+    false_unexplained_rate: float
+    false_unexplained_upper_95: float
+    named: dict[str, int]
+    largest_candidate_dbic: float | None
+    largest_step_ratio: float | None
+
+
+@dataclass(kw_only=True)
+class NullCalibration:
+    """``null_calibration`` of a sweep's index.json: the thresholds, the error rates over all reconciled null runs
+    (their keys in place) and per camera."""
+
+    dbic_threshold: float
+    step_factor: float
+    overall: ErrorRates = inline()
+    by_camera: dict[str, ErrorRates]
+
+
+@dataclass(kw_only=True)
 class BatchIndex:
     """``index.json``: the labctl version and time of writing and the run counts (set when it is made), the kind
     of batch (``runs``: with its stages and the reconcile model's source; ``sweep``: with its settings and, for
@@ -67,7 +97,7 @@ class BatchIndex:
     reconcile: bool | None = optional()
     model: str | None = optional()
     sweep: SweepSettings | None = optional()
-    null_calibration: dict[str, Any] | None = optional()
+    null_calibration: NullCalibration | None = optional()
     runs: list[Summary]
 
     def __post_init__(self) -> None:

@@ -5,12 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from labctl.batch.calibration import null_calibration
 from labctl.batch.cluster import Cluster, open_client
 from labctl.batch.execute import BatchProgress, Job, run_jobs
-from labctl.batch.index import BatchIndex, SweepSettings, counts, write_index
+from labctl.batch.index import BatchIndex, NullCalibration, SweepSettings, counts, write_index
 from labctl.batch.inputs import run_names
 from labctl.batch.interrupt import deferred_ctrl_c
 from labctl.batch.report import write_report
@@ -24,7 +23,7 @@ class Outcome:
     index_json: Path
     index_csv: Path
     report: Path
-    calibration: dict[str, Any] | None = None  # a reconciled sweep's error rates on its null runs
+    calibration: NullCalibration | None = None  # a reconciled sweep's error rates on its null runs
 
     @property
     def failed(self) -> int:

@@ -12,7 +12,7 @@ from typing import Any
 
 from matplotlib.figure import Figure
 
-from labctl.batch.index import counts, figure_names
+from labctl.batch.index import ErrorRates, NullCalibration, counts, figure_names
 from labctl.batch.tasks import Summary
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME
 from labctl.report.html import CSS
@@ -157,24 +157,24 @@ def _grid_section(summaries: Sequence[Summary], axes: Sequence[str], figures: Se
     return section + f'<img src="{image.relative_to(outdir).as_posix()}" alt="figures over the grid">'
 
 
-def _calibration_section(calibration: dict[str, Any]) -> str:
-    def row(label: str, c: dict[str, Any]) -> list[Any]:
-        return [label, c["runs"], ", ".join(f"{k} {v}" for k, v in sorted(c["verdicts"].items())),
-                f"{c['false_positive']} ({c['false_positive_rate']:.1%}, <= {c['false_positive_upper_95']:.1%})",
-                f"{c['false_unexplained']} ({c['false_unexplained_rate']:.1%}, <= {c['false_unexplained_upper_95']:.1%})",
-                c["largest_candidate_dbic"], c["largest_step_ratio"]]
+def _calibration_section(calibration: NullCalibration) -> str:
+    def row(label: str, c: ErrorRates) -> list[Any]:
+        return [label, c.runs, ", ".join(f"{k} {v}" for k, v in sorted(c.verdicts.items())),
+                f"{c.false_positive} ({c.false_positive_rate:.1%}, <= {c.false_positive_upper_95:.1%})",
+                f"{c.false_unexplained} ({c.false_unexplained_rate:.1%}, <= {c.false_unexplained_upper_95:.1%})",
+                c.largest_candidate_dbic, c.largest_step_ratio]
 
-    rows = [row("all", calibration)] + [row(cam, c) for cam, c in calibration["by_camera"].items()]
+    rows = [row("all", calibration.overall)] + [row(cam, c) for cam, c in calibration.by_camera.items()]
     return (f"<h2>Reconcile on null runs</h2><p>Runs simulated with nothing the reconciled model lacks: a named "
             f"effect is a false positive, an <code>unexplained</code> verdict a false alarm (95 % upper bounds, "
-            f"Clopper-Pearson). Thresholds: dBIC {calibration['dbic_threshold']:g}, step gap "
-            f"{calibration['step_factor']:g} x its floor.</p>"
+            f"Clopper-Pearson). Thresholds: dBIC {calibration.dbic_threshold:g}, step gap "
+            f"{calibration.step_factor:g} x its floor.</p>"
             + _table(["camera", "runs", "verdicts", "false positives", "false unexplained", "largest dBIC",
                       "largest step gap / floor"], rows))
 
 
 def write_report(summaries: Sequence[Summary], outdir: Path, title: str, axes: Sequence[str] = (),
-                 figures: Sequence[str] = (), calibration: dict[str, Any] | None = None) -> Path:
+                 figures: Sequence[str] = (), calibration: NullCalibration | None = None) -> Path:
     """OUTDIR/batch.html with its plots in OUTDIR/plots."""
     n = counts(summaries)
     sections = [_runs_section(summaries, axes)]

@@ -201,10 +201,10 @@ def test_null_calibration_counts_named_effects_and_unexplained() -> None:
                                                  run("unexplained", [], "amt100"),
                                                  run("effect_found", ["wiggling"], "amt100", null=False)]
     rates = null_calibration(summaries)
-    assert rates is not None and rates["runs"] == 9
-    assert (rates["false_positive"], rates["false_unexplained"]) == (1, 1)
-    assert rates["false_positive_rate"] == pytest.approx(1 / 9)
-    assert rates["by_camera"]["amt100"]["runs"] == 1 and rates["named"] == {"wiggling": 1}
+    assert rates is not None and rates.overall.runs == 9
+    assert (rates.overall.false_positive, rates.overall.false_unexplained) == (1, 1)
+    assert rates.overall.false_positive_rate == pytest.approx(1 / 9)
+    assert rates.by_camera["amt100"].runs == 1 and rates.overall.named == {"wiggling": 1}
 
 
 def test_cluster_options_are_checked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
