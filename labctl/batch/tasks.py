@@ -102,11 +102,12 @@ def evaluate_run(run: Path, outdir: Path) -> EvaluateSummary:
     """``labctl evaluate RUN -o OUTDIR``: keyfigures.json, report.html and plots; the figures' values."""
     from labctl.evaluation.evaluate import evaluate_runs
     from labctl.evaluation.keyfigures import read_keyfigures
+    from labctl.jsondoc import to_json
     from labctl.report.html import write_outputs
 
     json_path, report = write_outputs(evaluate_runs([run]), outdir)
     doc = read_keyfigures(json_path)
-    return {"output": str(outdir), "report": str(report), "camera": doc.camera,
+    return {"output": str(outdir), "report": str(report), "camera": to_json(doc.camera),
             "figures": {name: figure.value for name, figure in doc.figures.items()}}
 
 

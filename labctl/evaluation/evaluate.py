@@ -11,7 +11,6 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -21,7 +20,7 @@ from labctl.evaluation.depth_quality import VendorPosition, vendor_position
 from labctl.evaluation.depth_quality import figure_values as vendor_figures
 from labctl.evaluation.geometry import GeometryResult, evaluate_geometry
 from labctl.evaluation.geometry import figure_values as geometry_figures
-from labctl.evaluation.keyfigures import FigureValue
+from labctl.evaluation.keyfigures import CameraDescription, FigureValue
 from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flags
 from labctl.evaluation.remission import RemissionResult, evaluate_remission
 from labctl.evaluation.remission import figure_values as remission_figures
@@ -58,7 +57,7 @@ class SurfaceResult:
 @dataclass
 class Evaluation:
     runs: list[str]
-    camera: dict[str, Any]
+    camera: CameraDescription
     depth: list[DepthPosition] = field(default_factory=list)
     vendor: list[VendorPosition] = field(default_factory=list)
     surface: SurfaceResult | None = None
@@ -77,27 +76,19 @@ class Evaluation:
     notes: list[str] = field(default_factory=list)
 
 
-def camera_description(reader: RunReader) -> dict[str, Any]:
+def camera_description(reader: RunReader) -> CameraDescription:
     """What keyfigures.json says about the camera."""
     dev = reader.devices.get("camera", {})
     cam = reader.camera
-    return {
-        "model": dev.get("model", "unknown"),
-        "serial": dev.get("serial", "unknown"),
-        "firmware": dev.get("firmware", "unknown"),
-        "backend": dev.get("backend", "unknown"),
-        "width": cam.width,
-        "height": cam.height,
-        "fov_deg": list(cam.fov_deg),
-        "frame_rate_hz": cam.frame_rate_hz,
-        "wavelength_nm": cam.wavelength_nm,
-        "simulated": bool(reader.attrs.get("simulated", False)),
-    }
+    return CameraDescription(
+        model=dev.get("model", "unknown"), serial=dev.get("serial", "unknown"),
+        firmware=dev.get("firmware", "unknown"), backend=dev.get("backend", "unknown"),
+        width=cam.width, height=cam.height, fov_deg=list(cam.fov_deg), frame_rate_hz=cam.frame_rate_hz,
+        wavelength_nm=cam.wavelength_nm, simulated=bool(reader.attrs.get("simulated", False)))
 
 
-def _same_camera(a: dict[str, Any], b: dict[str, Any]) -> bool:
-    keys = ("model", "serial", "width", "height")
-    return all(a[k] == b[k] for k in keys)
+def _same_camera(a: CameraDescription, b: CameraDescription) -> bool:
+    return (a.model, a.serial, a.width, a.height) == (b.model, b.serial, b.width, b.height)
 
 
 def _key_step(steps: Sequence[StepRecord]) -> StepRecord | None:
@@ -134,7 +125,7 @@ def evaluate_depth_sweep(
         stats = stack_stats(buffer)
         errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
         evaluation.depth.append(DepthPosition(rec.step_id, errors))
-        evaluation.vendor.append(vendor_position(rec, buffer, reader.camera, evaluation.camera["model"]))
+        evaluation.vendor.append(vendor_position(rec, buffer, reader.camera, evaluation.camera.model))
     del buffer
     for name, (value, source) in vendor_figures(evaluation.vendor).items():
         evaluation.figures[name] = FigureValue(value, source)
@@ -217,8 +208,8 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
             other = camera_description(reader)
             if not _same_camera(camera, other):
                 raise InputError(
-                    f"{reader.path} is from camera {other['model']} {other['serial']}, "
-                    f"{readers[0].path} from {camera['model']} {camera['serial']}: evaluate one camera at a time"
+                    f"{reader.path} is from camera {other.model} {other.serial}, "
+                    f"{readers[0].path} from {camera.model} {camera.serial}: evaluate one camera at a time"
                 )
         evaluation = Evaluation(runs=[str(r.path) for r in readers], camera=camera)
         cam = readers[0].camera

@@ -11,9 +11,10 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from labctl.errors import InputError
+from labctl.evaluation.suitability import CheckResult, StoryVerdict, Suitability
 from labctl.jsondoc import optional
 
 
@@ -159,14 +160,33 @@ class FigureEntry:
 
 
 @dataclass(kw_only=True)
+class CameraDescription:
+    """``camera`` of keyfigures.json: the camera as the run file records it (its device identity, ``unknown``
+    where the file has none; sensor size, FOV, frame rate, wavelength) and whether the run was simulated. Read
+    back from a keyfigures.json that lacks them, the identity reads as ``unknown``, the numbers as None and
+    ``simulated`` as False."""
+
+    model: str = "unknown"
+    serial: str = "unknown"
+    firmware: str = "unknown"
+    backend: str = "unknown"
+    width: int | None = None
+    height: int | None = None
+    fov_deg: list[float] | None = None
+    frame_rate_hz: float | None = None
+    wavelength_nm: float | None = None
+    simulated: bool = False
+
+
+@dataclass(kw_only=True)
 class KeyFiguresDocument:
     """``keyfigures.json`` (docs/keyfigures.md): the camera, every defined figure and the suitability verdicts,
     then the evaluated runs, notes and the tables of the procedures the runs hold; a procedure's table is absent
     when the runs lack it."""
 
-    camera: dict[str, Any]
+    camera: CameraDescription
     figures: dict[str, FigureEntry]
-    suitability: dict[str, Any]
+    suitability: Suitability
     runs: list[str] | None = optional()
     notes: list[str] | None = optional()
     depth_sweep: Rows | None = optional()
@@ -185,7 +205,7 @@ class KeyFiguresDocument:
 
 
 def keyfigures_document(
-    camera: dict[str, Any], values: dict[str, FigureValue], suitability: dict[str, Any],
+    camera: CameraDescription, values: dict[str, FigureValue], suitability: Suitability,
     flags: dict[str, list[dict[str, str]]] | None = None,
 ) -> KeyFiguresDocument:
     """The ``keyfigures.json`` document: every defined figure, null where not measured, with its
@@ -199,6 +219,9 @@ def keyfigures_document(
         figures[fig.name] = FigureEntry(value=clean(v.value), unit=fig.unit, source=",".join(v.source),
                                         meaning=fig.meaning, flags=list((flags or {}).get(fig.name, [])))
     return KeyFiguresDocument(camera=camera, figures=figures, suitability=suitability)
+
+
+Record = TypeVar("Record")
 
 
 def read_keyfigures(path: Path) -> KeyFiguresDocument:
@@ -217,5 +240,22 @@ def read_keyfigures(path: Path) -> KeyFiguresDocument:
                for name, f in data["figures"].items()}
     sections = {f.name: data.get(f.name) for f in dataclasses.fields(KeyFiguresDocument)
                 if f.name not in ("camera", "figures", "suitability")}
-    return KeyFiguresDocument(camera=data["camera"], figures=figures, suitability=data.get("suitability", {}),
-                              **sections)
+    try:
+        return KeyFiguresDocument(camera=_known_fields(CameraDescription, data["camera"]), figures=figures,
+                                  suitability=_suitability(data.get("suitability", {})), **sections)
+    except (TypeError, AttributeError) as exc:
+        raise InputError(f"{path} is not a labctl keyfigures.json ({exc})") from None
+
+
+def _known_fields(record: type[Record], data: dict[str, Any]) -> Record:
+    """``record`` from the keys of ``data`` that are its fields (those of other labctl versions left out)."""
+    names = {f.name for f in dataclasses.fields(record)}  # type: ignore[arg-type]  # a dataclass
+    return record(**{k: v for k, v in data.items() if k in names})
+
+
+def _suitability(data: dict[str, Any]) -> Suitability:
+    """The ``suitability`` section read back."""
+    stories = {key: _known_fields(StoryVerdict, {**story, "checks": [_known_fields(CheckResult, c)
+                                                                   for c in story.get("checks", [])]})
+               for key, story in data.get("stories", {}).items()}
+    return Suitability(standard=data.get("standard", ""), stories=stories)

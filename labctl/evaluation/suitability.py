@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 IED_MIN_PX = 90.0
@@ -106,6 +106,40 @@ STORIES: dict[str, tuple[str, list[Check], tuple[str, ...]]] = {
                    ("z_trueness_q90_mm", "z_repeatability_center_mm")),
 }
 
+@dataclass(kw_only=True)
+class CheckResult:
+    """One requirement of a user story checked: its text, ``pass`` / ``fail`` / ``not_evaluated``, the limit, the
+    figures' values (None where not measured), its source and whether the limit is a judgement."""
+
+    requirement: str
+    status: str
+    limit: float
+    values: dict[str, float | None]
+    source: str
+    judgement: bool
+
+
+@dataclass(kw_only=True)
+class StoryVerdict:
+    """A user story's verdict (``pass``, ``fail``, ``not_evaluated``, ``no_numeric_requirement``), its one-line
+    reason, its checks and the figures it relies on. Read back from a file, what the file lacks reads as empty."""
+
+    description: str = ""
+    verdict: str
+    summary: str = ""
+    checks: list[CheckResult] = field(default_factory=list)
+    figures: dict[str, float | None] = field(default_factory=dict)
+
+
+@dataclass(kw_only=True)
+class Suitability:
+    """``suitability`` of keyfigures.json: the standards and judgements the limits come from, and the verdict of
+    every user story."""
+
+    standard: str = ""
+    stories: dict[str, StoryVerdict] = field(default_factory=dict)
+
+
 def face_depth_values(values: Mapping[str, float | None], depth_rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """Depth precision and trueness on the face: from the first wall step at or beyond the face distance
     (the hyperfocal distance, where the IED is counted) that has valid pixels. Empty when there is none."""
@@ -121,7 +155,7 @@ def face_depth_values(values: Mapping[str, float | None], depth_rows: Sequence[M
             FACE_PRECISION: row["precision_q90_mm"], FACE_TRUENESS: row["trueness_q90_mm"]}
 
 
-def _evaluate(check: Check, values: Mapping[str, float | None]) -> dict[str, Any]:
+def _evaluate(check: Check, values: Mapping[str, float | None]) -> CheckResult:
     numbers = {name: values.get(name) for name in check.figures}
     present = [v for v in numbers.values() if v is not None and math.isfinite(v)]
     if len(present) < len(numbers):
@@ -135,15 +169,15 @@ def _evaluate(check: Check, values: Mapping[str, float | None]) -> dict[str, Any
         wall, face = values.get(FACE_WALL_STEP), values.get(FACE_DISTANCE)
         if wall is not None and face is not None:
             requirement += f" (wall at {wall:.0f} mm, face at {face:.0f} mm)"
-    return {"requirement": requirement, "status": status, "limit": check.limit, "values": numbers,
-            "source": check.source, "judgement": check.judgement}
+    return CheckResult(requirement=requirement, status=status, limit=check.limit, values=numbers, source=check.source,
+                       judgement=check.judgement)
 
 
 def _number(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.3g}"
 
 
-def _summary(verdict: str, results: list[dict[str, Any]], informative: dict[str, Any]) -> str:
+def _summary(verdict: str, results: list[CheckResult], informative: dict[str, float | None]) -> str:
     """One line: why the story got its verdict."""
     if verdict == "no_numeric_requirement":
         return "no numeric requirement; relies on " + ", ".join(informative)
@@ -152,21 +186,21 @@ def _summary(verdict: str, results: list[dict[str, Any]], informative: dict[str,
     wanted = "fail" if verdict == "fail" else "not_evaluated"
     parts = []
     for r in results:
-        if r["status"] != wanted:
+        if r.status != wanted:
             continue
-        shown = ", ".join(_number(v) for v in r["values"].values())
-        parts.append(f"{re.sub(r' [(][^)]*[)]', '', r['requirement'])}: {shown}" if wanted == "fail"
-                     else ", ".join(name for name, v in r["values"].items() if v is None))
+        shown = ", ".join(_number(v) for v in r.values.values())
+        parts.append(f"{re.sub(r' [(][^)]*[)]', '', r.requirement)}: {shown}" if wanted == "fail"
+                     else ", ".join(name for name, v in r.values.items() if v is None))
     return ("fails " if wanted == "fail" else "not measured: ") + "; ".join(parts)
 
 
-def suitability(values: Mapping[str, float | None]) -> dict[str, Any]:
+def suitability(values: Mapping[str, float | None]) -> Suitability:
     """Per user story: its checks with their numbers and sources, a verdict and its one-line reason
     (``suitability`` of keyfigures.json). ``values``: the key figures plus :func:`face_depth_values`."""
-    stories = {}
+    stories: dict[str, StoryVerdict] = {}
     for key, (description, checks, informative) in STORIES.items():
         results = [_evaluate(c, values) for c in checks]
-        statuses = {r["status"] for r in results}
+        statuses = {r.status for r in results}
         if not checks:
             verdict = "no_numeric_requirement"
         elif "fail" in statuses:
@@ -176,12 +210,7 @@ def suitability(values: Mapping[str, float | None]) -> dict[str, Any]:
         else:
             verdict = "not_evaluated"
         figures = {name: values.get(name) for name in informative}
-        stories[key] = {
-            "description": description,
-            "verdict": verdict,
-            "summary": _summary(verdict, results, figures),
-            "checks": results,
-            "figures": figures,
-        }
-    return {"standard": "Thesis 2024, Table 3-1 user stories; ISO/IEC 39794-5:2019 Annex D for distortion and IED; depth "
-                        "limits are judgements (docs/suitability.md)", "stories": stories}
+        stories[key] = StoryVerdict(description=description, verdict=verdict, summary=_summary(verdict, results, figures),
+                                    checks=results, figures=figures)
+    return Suitability(standard="Thesis 2024, Table 3-1 user stories; ISO/IEC 39794-5:2019 Annex D for distortion and "
+                                "IED; depth limits are judgements (docs/suitability.md)", stories=stories)

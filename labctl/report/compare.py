@@ -52,9 +52,7 @@ def load_evaluation(directory: Path) -> KeyFiguresDocument:
 
 def camera_label(doc: KeyFiguresDocument) -> str:
     """The camera's model as the comparison labels it (``*`` for simulated)."""
-    cam = doc.camera
-    label = str(cam.get("model", "camera"))
-    return label.replace(" (simulated)", "*")
+    return str(doc.camera.model).replace(" (simulated)", "*")
 
 
 def compare(directories: list[Path], outdir: Path) -> Path:
@@ -67,10 +65,8 @@ def compare(directories: list[Path], outdir: Path) -> Path:
     plots = outdir / "plots"
     plots.mkdir(exist_ok=True)
     table = {fig.name: {label: _figure(doc, fig.name).value for label, doc in zip(labels, docs)} for fig in FIGURES}
-    verdicts = {label: {k: v["verdict"] for k, v in doc.suitability.get("stories", {}).items()}
-                for label, doc in zip(labels, docs)}
-    reasons = {label: {k: v.get("summary", "") for k, v in doc.suitability.get("stories", {}).items()}
-               for label, doc in zip(labels, docs)}
+    verdicts = {label: {k: v.verdict for k, v in doc.suitability.stories.items()} for label, doc in zip(labels, docs)}
+    reasons = {label: {k: v.summary for k, v in doc.suitability.stories.items()} for label, doc in zip(labels, docs)}
     flags = {fig.name: {label: [f["check"] for f in _figure(doc, fig.name).flags]
                         for label, doc in zip(labels, docs) if _figure(doc, fig.name).flags}
              for fig in FIGURES}
@@ -101,8 +97,8 @@ def _story_names(docs: list[KeyFiguresDocument]) -> dict[str, str]:
     """User-story id -> its description as the evaluations give it (a readable form of the id otherwise)."""
     names: dict[str, str] = {}
     for doc in docs:
-        for key, story in doc.suitability.get("stories", {}).items():
-            names.setdefault(key, story.get("description") or story_name(key))
+        for key, story in doc.suitability.stories.items():
+            names.setdefault(key, story.description or story_name(key))
     return names
 
 

@@ -13,6 +13,7 @@ from labctl.evaluation.evaluate import Evaluation, depth_table
 from labctl.evaluation.keyfigures import (
     FIGURE_BY_NAME,
     VENDOR_FIGURES,
+    CameraDescription,
     KeyFiguresDocument,
     better_direction,
     clean,
@@ -21,7 +22,7 @@ from labctl.evaluation.keyfigures import (
 from labctl.evaluation.remission import misalignment_summary, remission_table
 from labctl.evaluation.scenes import AlignmentRecord
 from labctl.evaluation.sharpness import resolution_table
-from labctl.evaluation.suitability import face_depth_values, suitability
+from labctl.evaluation.suitability import Suitability, face_depth_values, suitability
 from labctl.evaluation.vdi2634 import acceptance_table, verdicts
 from labctl.jsondoc import write_json
 from labctl.report.plots.acceptance import plot_acceptance
@@ -359,19 +360,19 @@ def verdict_cell(verdict: str, note: str = "") -> str:
     return f'<td class="l verdict-{html.escape(verdict)}"><b>{html.escape(verdict.replace("_", " "))}</b>{line}</td>'
 
 
-def _suitability_html(suit: dict[str, Any]) -> str:
+def _suitability_html(suit: Suitability) -> str:
     rows = []
-    for story in suit["stories"].values():
+    for story in suit.stories.values():
         checks = "<br>".join(
-            f'{html.escape(c["requirement"])}: <b>{c["status"].replace("_", " ")}</b> ('
-            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c["values"].items())
-            + f')<br><small>{html.escape(c["source"])}</small>'
-            for c in story["checks"]
-        ) or "; ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in story["figures"].items())
-        rows.append(f'<tr><td class="l">{html.escape(story["description"])}</td>'
-                    f'{verdict_cell(story["verdict"], story["summary"])}'
+            f'{html.escape(c.requirement)}: <b>{c.status.replace("_", " ")}</b> ('
+            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c.values.items())
+            + f')<br><small>{html.escape(c.source)}</small>'
+            for c in story.checks
+        ) or "; ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in story.figures.items())
+        rows.append(f'<tr><td class="l">{html.escape(story.description)}</td>'
+                    f'{verdict_cell(story.verdict, story.summary)}'
                     f'<td class="l">{checks}</td></tr>')
-    return (f'<p>{html.escape(suit["standard"])}</p>'
+    return (f'<p>{html.escape(suit.standard)}</p>'
             + wrap_table('<table><tr><th class="l">user story</th><th class="l">verdict</th>'
                          f'<th class="l">checks (values)</th></tr>{"".join(rows)}</table>'))
 
@@ -404,13 +405,13 @@ def references_html() -> str:
             "docs/references.md in the labctl repository.</p>")
 
 
-def _summary_html(cam: dict[str, Any], doc: KeyFiguresDocument) -> str:
+def _summary_html(cam: CameraDescription, doc: KeyFiguresDocument) -> str:
     """Camera, the verdict per user story and the six figures that matter most, ahead of everything else."""
-    stories = doc.suitability["stories"]
-    judged = {k: s for k, s in stories.items() if s["verdict"] != "no_numeric_requirement"}
-    passed = sum(s["verdict"] == "pass" for s in judged.values())
-    badges = "".join(f'<li><span class="verdict-{html.escape(s["verdict"])}"><b>'
-                     f'{html.escape(s["verdict"].replace("_", " "))}</b></span> {html.escape(s["description"])}</li>'
+    stories = doc.suitability.stories
+    judged = {k: s for k, s in stories.items() if s.verdict != "no_numeric_requirement"}
+    passed = sum(s.verdict == "pass" for s in judged.values())
+    badges = "".join(f'<li><span class="verdict-{html.escape(s.verdict)}"><b>'
+                     f'{html.escape(s.verdict.replace("_", " "))}</b></span> {html.escape(s.description)}</li>'
                      for s in judged.values())
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc.figures[name].value)}</td>'
@@ -420,13 +421,13 @@ def _summary_html(cam: dict[str, Any], doc: KeyFiguresDocument) -> str:
                   for f in doc.figures[name].flags) + "</td></tr>"
         for name in SUMMARY_FIGURES
     )
-    return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam["model"])}</b>: suitable for {passed} of '
+    return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam.model)}</b>: suitable for {passed} of '
             f"{len(judged)} user stories with numeric requirements.</p><ul>{badges}</ul>"
             + wrap_table('<table><tr><th class="l">figure</th><th>value</th><th class="l">unit</th>'
                          f'<th class="l">better</th><th class="l">meaning</th></tr>{rows}</table>') + "</div>")
 
 
-def _capture_summary_html(cam: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+def _capture_summary_html(cam: CameraDescription, rows: list[dict[str, Any]]) -> str:
     """The summary of a run of single captures (``labctl device camera``): what each stack shows, since without a
     reference distance no key figure and no suitability verdict can be computed."""
     def line(r: dict[str, Any]) -> str:
@@ -436,7 +437,7 @@ def _capture_summary_html(cam: dict[str, Any], rows: list[dict[str, Any]]) -> st
                 f"pixels, depth median {_fmt(r['depth_median_mm'])} mm (5-95 %: {_fmt(r['depth_q05_mm'])}-"
                 f"{_fmt(r['depth_q95_mm'])} mm), temporal noise median {_fmt(r['temporal_noise_median_mm'])} mm, "
                 f"Q90 {_fmt(r['temporal_noise_q90_mm'])} mm; {plane}</li>")
-    return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam["model"])}</b>: single capture '
+    return (f'<div class="summary"><h2>Summary</h2><p><b>{html.escape(cam.model)}</b>: single capture '
             "(<code>labctl device camera</code>) without a reference distance, so no key figure and no suitability "
             "verdict: those need a campaign's procedures. What was captured (maps below):</p>"
             f"<ul>{''.join(line(r) for r in rows)}</ul></div>")
@@ -464,15 +465,15 @@ def _page(evaluation: Evaluation, doc: KeyFiguresDocument, sections: list[str]) 
     )
     notes = "".join(f'<li class="note">{html.escape(n)}</li>' for n in evaluation.notes)
     runs = "".join(f"<li>{html.escape(r)}</li>" for r in evaluation.runs)
-    simulated = " (simulated)" if cam.get("simulated") and "simulated" not in cam["model"] else ""
+    simulated = " (simulated)" if cam.simulated and "simulated" not in cam.model else ""
     suit_html = _suitability_html(doc.suitability)
     capture_only = _capture_only(doc)  # its maps come first: the key figures and verdicts are all n/a
     return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>labctl report: {html.escape(cam['model'])}</title>
+<html lang="en"><head><meta charset="utf-8"><title>labctl report: {html.escape(cam.model)}</title>
 <style>{CSS}</style></head><body>
-<h1>Characterization of {html.escape(cam['model'])}{simulated}</h1>
-<p>Serial {html.escape(str(cam['serial']))}, {cam['width']}&times;{cam['height']} px,
-FOV {cam['fov_deg'][0]:g}&times;{cam['fov_deg'][1]:g}&deg;. Report by labctl {labctl_version()} on {now_iso()}.</p>
+<h1>Characterization of {html.escape(cam.model)}{simulated}</h1>
+<p>Serial {html.escape(str(cam.serial))}, {cam.width}&times;{cam.height} px,
+FOV {cam.fov_deg[0]:g}&times;{cam.fov_deg[1]:g}&deg;. Report by labctl {labctl_version()} on {now_iso()}.</p>
 {_capture_summary_html(cam, doc.capture or []) if capture_only else _summary_html(cam, doc)}
 <ul>{runs}</ul>
 {f'<ul>{notes}</ul>' if notes else ''}

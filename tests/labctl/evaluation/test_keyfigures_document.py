@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import math
 
-from labctl.evaluation.keyfigures import FigureValue, keyfigures_document, read_keyfigures
+from labctl.evaluation.keyfigures import CameraDescription, FigureValue, keyfigures_document, read_keyfigures
+from labctl.evaluation.suitability import CheckResult, StoryVerdict, Suitability
 from labctl.jsondoc import to_json, write_json
 
 #: name -> unit, as the documentation's table lists them
@@ -27,7 +28,7 @@ DOCUMENTED = {
 def test_every_documented_figure_is_in_the_file_with_value_unit_and_source(tmp_path):
     values = {"z_precision_q90_mm": FigureValue(1.25, ["00002_depth_sweep", "00003_depth_sweep"]),
               "z_trueness_q90_mm": FigureValue(math.nan, ["00002_depth_sweep"])}
-    doc = to_json(keyfigures_document({"model": "cam"}, values, {"stories": {}}))
+    doc = to_json(keyfigures_document(CameraDescription(model="cam"), values, Suitability()))
     assert list(doc)[:3] == ["camera", "figures", "suitability"]
     for name, unit in DOCUMENTED.items():
         figure = doc["figures"][name]
@@ -39,8 +40,11 @@ def test_every_documented_figure_is_in_the_file_with_value_unit_and_source(tmp_p
 
 
 def test_the_file_reads_back_as_written(tmp_path):
-    written = keyfigures_document({"model": "cam", "serial": "1"}, {"z_precision_q90_mm": FigureValue(0.5, ["s"])},
-                                  {"stories": {"a": {"verdict": "pass"}}},
+    written = keyfigures_document(CameraDescription(model="cam", serial="1", width=8, fov_deg=[60.0, 45.0]),
+                                  {"z_precision_q90_mm": FigureValue(0.5, ["s"])},
+                                  Suitability(standard="std", stories={"a": StoryVerdict(verdict="pass", checks=[
+                                      CheckResult(requirement="r", status="pass", limit=1.0, values={"z": 0.5},
+                                                  source="s", judgement=True)])}),
                                   {"z_precision_q90_mm": [{"check": "quantization_limited", "message": "m"}]})
     written.notes = ["a note"]
     read = read_keyfigures(write_json(tmp_path / "keyfigures.json", written, final_newline=True))

@@ -4,9 +4,10 @@ import math
 
 import numpy as np
 
-from labctl.evaluation.keyfigures import FigureValue, keyfigures_document
+from labctl.evaluation.keyfigures import CameraDescription, FigureValue, keyfigures_document
 from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flags
 from labctl.evaluation.sharpness import EdgeMeasurement, SharpnessPosition, SharpnessResult
+from labctl.evaluation.suitability import Suitability
 from labctl.jsondoc import to_json
 from metrics.plausibility import quantization_step
 from metrics.xy_error import XYPrecision
@@ -76,7 +77,7 @@ def test_repeatability_on_the_principal_axis_is_flagged():
 
 
 def test_keyfigures_json_carries_the_flags():
-    doc = to_json(keyfigures_document({}, {"z_precision_q90_mm": FigureValue(0.0, ["s"])}, {},
+    doc = to_json(keyfigures_document(CameraDescription(), {"z_precision_q90_mm": FigureValue(0.0, ["s"])}, Suitability(),
                                       {"z_precision_q90_mm": [{"check": "quantization_limited", "message": "m"}]}))
     assert doc["figures"]["z_precision_q90_mm"]["flags"] == [{"check": "quantization_limited", "message": "m"}]
     assert doc["figures"]["z_trueness_q90_mm"]["flags"] == []
@@ -141,7 +142,7 @@ def test_the_report_shows_each_flag_under_its_figure(tmp_path):
     from labctl.evaluation.evaluate import Evaluation
     from labctl.report.html import write_outputs
 
-    camera = {"model": "m", "serial": "s", "width": 8, "height": 6, "fov_deg": [60.0, 45.0], "simulated": False}
+    camera = CameraDescription(model="m", serial="s", width=8, height=6, fov_deg=[60.0, 45.0])
     evaluation = Evaluation(runs=[], camera=camera, figures={"z_precision_q90_mm": FigureValue(0.0, ["00001_x"])},
                             flags={"z_precision_q90_mm": [{"check": "quantization_limited", "message": "rounding"}]})
     json_path, report = write_outputs(evaluation, tmp_path)

@@ -19,7 +19,7 @@ GOOD = {
 
 
 def verdicts(values):
-    return {k: v["verdict"] for k, v in suitability(values)["stories"].items()}
+    return {k: v.verdict for k, v in suitability(values).stories.items()}
 
 
 def test_all_requirements_met():
@@ -27,17 +27,17 @@ def test_all_requirements_met():
     assert v["3d_face_recognition_1_to_n"] == v["3d_face_recognition_1_to_1"] == v["pad_makeup_nir"] == "pass"
     assert v["pad_light"] == v["pad_makeup_rgb"] == "pass"
     assert v["3d_support"] == "no_numeric_requirement"
-    story = suitability(GOOD)["stories"]["3d_face_recognition_1_to_n"]
-    assert story["summary"] == "meets all 5 requirements"
+    story = suitability(GOOD).stories["3d_face_recognition_1_to_n"]
+    assert story.summary == "meets all 5 requirements"
 
 
 def test_blaze_like_camera_fails_on_ied_only():
     """A blaze-101 at 400 mm: 75.5 px at the image centre, below the 90 px of ISO/IEC 39794-5."""
-    result = suitability(dict(GOOD, ied_pixels_at_hyperfocal=75.5))["stories"]["3d_face_recognition_1_to_n"]
-    assert result["verdict"] == "fail"
-    failed = [c["requirement"] for c in result["checks"] if c["status"] == "fail"]
+    result = suitability(dict(GOOD, ied_pixels_at_hyperfocal=75.5)).stories["3d_face_recognition_1_to_n"]
+    assert result.verdict == "fail"
+    failed = [c.requirement for c in result.checks if c.status == "fail"]
     assert len(failed) == 1 and failed[0].startswith("inter-eye distance >= 90 px")
-    assert result["summary"].startswith("fails inter-eye distance >= 90 px") and "75.5" in result["summary"]
+    assert result.summary.startswith("fails inter-eye distance >= 90 px") and "75.5" in result.summary
 
 
 def test_depth_precision_decides_where_the_image_figures_pass():
@@ -47,18 +47,18 @@ def test_depth_precision_decides_where_the_image_figures_pass():
     assert v["3d_face_recognition_1_to_n"] == v["3d_face_recognition_1_to_1"] == "fail"
     assert v["pad_makeup_nir"] == v["pad_makeup_rgb"] == "fail"
     assert v["pad_light"] == "pass"
-    story = suitability(dict(GOOD, **{FACE_PRECISION: 2.8}))["stories"]["3d_face_recognition_1_to_1"]
-    assert story["summary"] == "fails depth precision <= 1 mm on the face: 2.8"
+    story = suitability(dict(GOOD, **{FACE_PRECISION: 2.8})).stories["3d_face_recognition_1_to_1"]
+    assert story.summary == "fails depth precision <= 1 mm on the face: 2.8"
     assert verdicts(dict(GOOD, **{FACE_TRUENESS: -2.5}))["3d_face_recognition_1_to_1"] == "fail"  # |trueness|
     assert verdicts(dict(GOOD, **{FACE_TRUENESS: 2.5}))["pad_makeup_nir"] == "pass"  # no trueness limit there
 
 
 def test_depth_limits_are_marked_as_judgements_with_sources():
-    for story in suitability(GOOD)["stories"].values():
-        for check in story["checks"]:
-            assert check["source"]
-            is_depth = "depth" in check["requirement"]
-            assert check["judgement"] == is_depth and check["source"].startswith("judgement") == is_depth
+    for story in suitability(GOOD).stories.values():
+        for check in story.checks:
+            assert check.source
+            is_depth = "depth" in check.requirement
+            assert check.judgement == is_depth and check.source.startswith("judgement") == is_depth
 
 
 def test_1_to_1_tolerates_more_distortion_than_1_to_n():
@@ -73,10 +73,10 @@ def test_d455_like_pixel_aspect_fails():
 
 
 def test_missing_figures_are_not_evaluated_not_passed():
-    result = suitability({"pixel_aspect_distortion_pct": 1.5})["stories"]
-    assert result["3d_face_recognition_1_to_n"]["verdict"] == "not_evaluated"
-    assert "ied_pixels_at_hyperfocal" in result["3d_face_recognition_1_to_n"]["summary"]
-    assert "fail" not in {s["verdict"] for s in result.values()}
+    result = suitability({"pixel_aspect_distortion_pct": 1.5}).stories
+    assert result["3d_face_recognition_1_to_n"].verdict == "not_evaluated"
+    assert "ied_pixels_at_hyperfocal" in result["3d_face_recognition_1_to_n"].summary
+    assert "fail" not in {s.verdict for s in result.values()}
 
 
 def test_a_failing_check_wins_over_missing_ones():
@@ -84,9 +84,9 @@ def test_a_failing_check_wins_over_missing_ones():
 
 
 def test_every_story_is_reported_with_a_one_line_summary():
-    stories = suitability(GOOD)["stories"]
+    stories = suitability(GOOD).stories
     assert set(stories) == set(STORIES)
-    assert all(s["summary"] and "\n" not in s["summary"] for s in stories.values())
+    assert all(s.summary and "\n" not in s.summary for s in stories.values())
 
 
 def test_face_depth_comes_from_the_first_wall_step_at_or_beyond_the_face():
@@ -99,5 +99,5 @@ def test_face_depth_comes_from_the_first_wall_step_at_or_beyond_the_face():
     blind = [{"reference_mm": 450.0, "precision_q90_mm": None, "trueness_q90_mm": None}, *rows]  # below min range
     assert face_depth_values({"hyperfocal_distance_mm": 400.0}, blind)["face_wall_step_mm"] == 500.0
     assert face_depth_values({"hyperfocal_distance_mm": None}, rows) == {}
-    requirement = next(c["requirement"] for c in suitability({**GOOD, **face})["stories"]["pad_light"]["checks"])
+    requirement = next(c.requirement for c in suitability({**GOOD, **face}).stories["pad_light"].checks)
     assert requirement.endswith("(wall at 500 mm, face at 400 mm)")
