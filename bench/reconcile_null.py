@@ -32,6 +32,7 @@ from pathlib import Path
 import tomli_w
 
 from labctl.batch.cluster import Cluster
+from labctl.batch.index import ErrorRates
 from labctl.batch.orchestrate import batch_sweep
 from labctl.batch.sweep import load_sweep
 from labctl.reconcile.workflow import reconcile
@@ -57,12 +58,12 @@ def write_sweep(directory: Path, seeds: int) -> Path:
     return path
 
 
-def _rates(label: str, c: dict) -> str:
-    verdicts = ", ".join(f"{k} {v}" for k, v in sorted(c["verdicts"].items()))
-    return (f"{label}: {c['runs']} runs ({verdicts}); false positive {c['false_positive']}/{c['runs']} "
-            f"(95 % upper bound {c['false_positive_upper_95']:.1%}), false unexplained "
-            f"{c['false_unexplained']}/{c['runs']} (upper bound {c['false_unexplained_upper_95']:.1%}); "
-            f"largest dBIC {c['largest_candidate_dbic']}, largest step gap {c['largest_step_ratio']} x its floor")
+def _rates(label: str, c: ErrorRates) -> str:
+    verdicts = ", ".join(f"{k} {v}" for k, v in sorted(c.verdicts.items()))
+    return (f"{label}: {c.runs} runs ({verdicts}); false positive {c.false_positive}/{c.runs} "
+            f"(95 % upper bound {c.false_positive_upper_95:.1%}), false unexplained "
+            f"{c.false_unexplained}/{c.runs} (upper bound {c.false_unexplained_upper_95:.1%}); "
+            f"largest dBIC {c.largest_candidate_dbic}, largest step gap {c.largest_step_ratio} x its floor")
 
 
 def main(seeds: int, cluster: Cluster, output: Path | None) -> int:
@@ -83,10 +84,10 @@ def main(seeds: int, cluster: Cluster, output: Path | None) -> int:
     if calibration is None:
         print("no run was reconciled")
         return 1
-    for camera, rates in calibration["by_camera"].items():
+    for camera, rates in calibration.by_camera.items():
         print(_rates(camera, rates))
-    print(_rates("all", calibration) + f" (thresholds: dBIC {calibration['dbic_threshold']:g}, step "
-          f"{calibration['step_factor']:g}); {outcome.failed} failed; {seconds:.0f} s on the cluster "
+    print(_rates("all", calibration.overall) + f" (thresholds: dBIC {calibration.dbic_threshold:g}, step "
+          f"{calibration.step_factor:g}); {outcome.failed} failed; {seconds:.0f} s on the cluster "
           f"({seconds / max(len(outcome.summaries), 1):.1f} s per run)")
     return 0
 
