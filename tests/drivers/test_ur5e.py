@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 from drivers.errors import DeviceError, DeviceVanished, LimitViolation, OperatorActionRequired, ProtectiveStop
 from drivers.protocols import Robot
 from drivers.robot import MeasurementCircle, UR5eRobot
-from drivers.robot.ur5e import DASHBOARD_GREETING, DASHBOARD_PORT, RTDE_PORT, RTDEInterfaces
+from drivers.robot.ur5e import DASHBOARD_GREETING, DASHBOARD_PORT, LINK_SILENCE_S, RTDE_PORT, RTDEInterfaces
 
 CENTER = (400.0, 0.0, 300.0)
 RADIUS = 500.0
@@ -165,6 +165,10 @@ class FakeController:
 
     def isConnected(self) -> bool:  # noqa: N802 - ur-rtde's names (receive and control)
         return self.connected
+
+    def getTimestamp(self) -> float:  # noqa: N802
+        """The controller's clock, which a live controller's packages carry forward."""
+        return time.monotonic()
 
     # control
     def moveL(self, path: list[list[float]], asynchronous: bool) -> bool:  # noqa: N802 - ur-rtde's names
@@ -390,6 +394,34 @@ def test_a_lost_connection_sends_nothing_more(controller: FakeController) -> Non
     assert caught.value.connection == "ursim"
     device.safe_state()
     device.close()
+    assert controller.names()[sent:] == ["disconnect"] * 3  # control, receive, dashboard; no stop, no stopScript
+
+
+def test_a_controller_that_falls_silent_while_ur_rtde_waits_is_a_vanished_robot(controller: FakeController) -> None:
+    """No package arrives while ur-rtde's ``moveL`` waits for the controller's answer, and ur-rtde still counts
+    the connection as up: the adapter gives up after LINK_SILENCE_S, not when ur-rtde does (300 s or never),
+    and sends nothing more."""
+    device = connected(controller)
+    answer = threading.Event()
+
+    def move_l(path: list[list[float]], asynchronous: bool) -> bool:  # an answer that never comes
+        answer.wait(60.0)
+        return False
+
+    controller.moveL = move_l  # type: ignore[method-assign]
+    controller.getTimestamp = lambda: 12.5  # type: ignore[method-assign]  # the last package: nothing newer arrives
+    started = time.monotonic()
+    try:
+        with pytest.raises(DeviceVanished, match="at ursim .* was lost while ur-rtde waited for the controller's "
+                           "answer to moveL: check the network cable"):
+            device.move_on_circle(10.0, RADIUS)
+        waited = time.monotonic() - started
+        sent = len(controller.calls)
+        device.safe_state()
+        device.close()
+    finally:
+        answer.set()
+    assert LINK_SILENCE_S <= waited < 10 * LINK_SILENCE_S
     assert controller.names()[sent:] == ["disconnect"] * 3  # control, receive, dashboard; no stop, no stopScript
 
 

@@ -199,9 +199,9 @@ def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_
     """The RTDE emulator's servers close under the real ur-rtde clients while the run waits at the second
     material's prompt; the next move finds the connection gone.
 
-    Not covered: a connection lost while a command is in flight. ur-rtde then waits for the answer forever
-    (seen under load, when the servers closed during a waypoint check), so the test drops the connection
-    while no command is under way and waits until ur-rtde has reported it lost."""
+    The connection drops while no command is under way, and the test waits until ur-rtde has reported it
+    lost: the next move finds it gone before sending anything. A connection lost while a command waits for
+    the controller's answer is tested in tests/drivers/test_ur_rtde_emulator.py."""
     path, run_file = tmp_path / "campaign.toml", tmp_path / "run.h5"
     with zaber() as stage:
         robot = URControllerProcess(home_q(), robot_mode="RUNNING")
