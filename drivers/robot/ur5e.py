@@ -239,6 +239,7 @@ class UR5eRobot(LinkedDevice):
         self._open_interfaces = interfaces
         self._rtde: RTDEInterfaces | None = None
         self._link_lost = False
+        self._pending: tuple[str, threading.Event] | None = None
 
     @property
     def host(self) -> str:
@@ -253,7 +254,7 @@ class UR5eRobot(LinkedDevice):
         if self._rtde is not None:
             return
         self._rtde = self._open_interfaces(self.host, self.connect_timeout_s)
-        self._link_lost = False
+        self._link_lost, self._pending = False, None
         try:
             dashboard = self._rtde.dashboard
             self._identity = DeviceIdentity(
@@ -434,7 +435,10 @@ class UR5eRobot(LinkedDevice):
         changes: it ends only at its time limit (300 s, or none at all while ``moveL`` with a path waits for
         its script to start). ur-rtde releases Python's interpreter lock while it waits, so the command runs
         in a thread of its own and this one watches. A command given up on is left to end in its thread when
-        ur-rtde gives up; nothing more is sent to the controller."""
+        ur-rtde gives up; nothing more is sent to the controller. Commands go one at a time: one whose wait
+        was interrupted (a second Ctrl-C) is answered before the next is sent."""
+        if self._pending is not None:
+            self._watch(rtde, *self._pending)
         outcome: list[tuple[bool, Any]] = []
         answered = threading.Event()
 
@@ -446,18 +450,24 @@ class UR5eRobot(LinkedDevice):
             finally:
                 answered.set()
 
+        self._pending = (name, answered)
         threading.Thread(target=run, name=f"ur-rtde {name} ({self.host})", daemon=True).start()
-        stamp, heard = rtde.receive.getTimestamp(), time.monotonic()
-        while not answered.wait(self.poll_interval_s):
-            if (latest := rtde.receive.getTimestamp()) != stamp:
-                stamp, heard = latest, time.monotonic()
-            if not _link_up(rtde) or time.monotonic() - heard > LINK_SILENCE_S:
-                self._link_lost = True
-                raise self._vanished(f" while ur-rtde waited for the controller's answer to {name}")
+        self._watch(rtde, name, answered)
         succeeded, value = outcome[0]
         if not succeeded:
             raise value
         return value
+
+    def _watch(self, rtde: RTDEInterfaces, name: str, answered: threading.Event) -> None:
+        """Until ``answered`` is set; :class:`DeviceVanished` once the link is lost meanwhile."""
+        stamp, heard = rtde.receive.getTimestamp(), time.monotonic()
+        while not answered.wait(self.poll_interval_s):
+            up = _link_up(rtde)
+            if up and (latest := rtde.receive.getTimestamp()) != stamp:
+                stamp, heard = latest, time.monotonic()
+            if not up or time.monotonic() - heard > LINK_SILENCE_S:
+                self._link_lost = True
+                raise self._vanished(f" while ur-rtde waited for the controller's answer to {name}")
 
     def _check_safety(self, context: str) -> None:
         """ProtectiveStop for a protective stop; a fatal DeviceError for any other safety stop."""

@@ -10,7 +10,9 @@ fault, a move that never ends). docs/ursim.md describes the first test against U
 
 from __future__ import annotations
 
+import os
 import random
+import signal
 import socket
 import threading
 import time
@@ -423,6 +425,48 @@ def test_a_controller_that_falls_silent_while_ur_rtde_waits_is_a_vanished_robot(
         answer.set()
     assert LINK_SILENCE_S <= waited < 10 * LINK_SILENCE_S
     assert controller.names()[sent:] == ["disconnect"] * 3  # control, receive, dashboard; no stop, no stopScript
+
+
+def test_a_command_interrupted_while_ur_rtde_waits_is_answered_before_the_next_is_sent(
+    controller: FakeController,
+) -> None:
+    """A signal (a second Ctrl-C) interrupts the adapter while ur-rtde's ``moveL`` waits for the controller's
+    answer; the ``stopL`` that ``safe_state`` sends next waits for that answer first, as ur-rtde's commands go
+    one at a time over the same registers."""
+    device = connected(controller)
+    answer = threading.Event()
+    order: list[str] = []
+
+    class Interrupted(Exception):
+        pass
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise Interrupted
+
+    def move_l(path: list[list[float]], asynchronous: bool) -> bool:  # waiting for the controller
+        os.kill(os.getpid(), signal.SIGUSR1)  # the signal reaches the adapter's thread during the wait
+        answer.wait(60.0)
+        order.append("moveL answered")
+        return True
+
+    def timestamp() -> float:  # the watch asks for the stream's time while it waits; the answer comes then
+        if order == ["safe_state"]:
+            answer.set()
+        return time.monotonic()
+
+    controller.moveL = move_l  # type: ignore[method-assign]
+    controller.stopL = lambda: order.append("stopL")  # type: ignore[method-assign]
+    previous = signal.signal(signal.SIGUSR1, interrupt)
+    try:
+        with pytest.raises(Interrupted):
+            device.move_on_circle(10.0, RADIUS)
+        controller.getTimestamp = timestamp  # type: ignore[method-assign]
+        order.append("safe_state")
+        device.safe_state()
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+        answer.set()
+    assert order == ["safe_state", "moveL answered", "stopL"]
 
 
 def test_safe_state_never_raises(controller: FakeController) -> None:
