@@ -12,7 +12,9 @@ imported only when a robot connects.
 Poses on the controller are in m and rad; this module speaks mm and degrees and
 converts at the boundary. Every motion is planned as waypoints on the circle, and
 every waypoint is checked against the configured TCP box and joint limits and the
-controller's ``isPoseWithinSafetyLimits`` before anything moves.
+controller's ``isPoseWithinSafetyLimits`` before anything moves. Every control command runs with a watch
+on the link (:meth:`UR5eRobot._command`): a connection lost while ur-rtde waits for the controller's answer
+raises :class:`DeviceVanished` within :data:`LINK_SILENCE_S`.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import contextlib
 import math
 import socket
 import struct
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -75,6 +78,13 @@ ARRIVAL_LAG_S = 2.0
 """How long the receive stream may lag the control stream after a path ends. The wait ends as soon as the
 pose has arrived, so only a move that really stopped short waits this long; 0.25 s was exceeded on a loaded
 2-core machine (the emulated controller's stream arrived late, the arm had reached its target)."""
+
+LINK_SILENCE_S = 3.0
+"""How long the controller's RTDE stream may stay silent while a ur-rtde call waits for the controller before
+the robot counts as vanished. A controller sends a package every 2 ms (500 Hz; 8 ms at 125 Hz), so 3 s without
+one is no late package but a lost link, even on a loaded lab computer; ur-rtde 1.6.5 itself drops a connection
+that stayed silent for about 2.5 s (then ``isConnected`` is false, which the watch sees at once), and a
+connection the controller closed is seen at once."""
 
 SAFE_MODES = frozenset({1, 2})
 ROBOT_RUNNING = 7
@@ -228,6 +238,8 @@ class UR5eRobot(LinkedDevice):
         self.poll_interval_s = poll_interval_s
         self._open_interfaces = interfaces
         self._rtde: RTDEInterfaces | None = None
+        self._link_lost = False
+        self._pending: tuple[str, threading.Event] | None = None
 
     @property
     def host(self) -> str:
@@ -242,6 +254,7 @@ class UR5eRobot(LinkedDevice):
         if self._rtde is not None:
             return
         self._rtde = self._open_interfaces(self.host, self.connect_timeout_s)
+        self._link_lost, self._pending = False, None
         try:
             dashboard = self._rtde.dashboard
             self._identity = DeviceIdentity(
@@ -268,8 +281,10 @@ class UR5eRobot(LinkedDevice):
         rtde, self._rtde = self._rtde, None
         if rtde is None:
             return
-        actions = [rtde.control.stopScript] if _link_up(rtde) else []
-        for action in (*actions, rtde.control.disconnect, rtde.receive.disconnect, rtde.dashboard.disconnect):
+        with contextlib.suppress(Exception):
+            if self._link_alive(rtde):
+                self._command(rtde, "stopScript")
+        for action in (rtde.control.disconnect, rtde.receive.disconnect, rtde.dashboard.disconnect):
             with contextlib.suppress(Exception):
                 action()
 
@@ -278,11 +293,11 @@ class UR5eRobot(LinkedDevice):
         connection nothing can be sent (ur-rtde would wait for the answer forever): a path under way is
         not stopped from here, so check the cell (the pendant's stop) before going near the arm."""
         rtde = self._rtde
-        if rtde is None or not _link_up(rtde):
+        if rtde is None or not self._link_alive(rtde):
             return
-        for stop in (rtde.control.stopL, rtde.control.stopJ):
+        for stop in ("stopL", "stopJ"):
             with contextlib.suppress(Exception):  # a lost connection must not stop the safe-state sweep
-                stop()
+                self._command(rtde, stop)
 
     def settings(self) -> Mapping[str, Any]:
         """Circle geometry, limits and motion parameters."""
@@ -388,7 +403,7 @@ class UR5eRobot(LinkedDevice):
                 if time.monotonic() > deadline:
                     raise DeviceError(self.name, f"could not unlock the protective stop: {exc}") from exc
                 time.sleep(0.5)
-        rtde.control.reuploadScript()
+        self._command(rtde, "reuploadScript")
         self._wait_for_control_script(rtde, "after recovery")
 
     # -- helpers ------------------------------------------------------------------
@@ -397,12 +412,62 @@ class UR5eRobot(LinkedDevice):
         """The clients, checked before every use: a command over a lost connection would wait forever."""
         if self._rtde is None:
             raise not_connected(self.name)
-        if not _link_up(self._rtde):
-            raise DeviceVanished(
-                self.name, f"the connection to the controller at {self.host} (RTDE port {RTDE_PORT}) was lost: check the "
-                "network cable and that the controller is on and in Remote Control", self.host,
-            )
+        if not self._link_alive(self._rtde):
+            raise self._vanished("")
         return self._rtde
+
+    def _link_alive(self, rtde: RTDEInterfaces) -> bool:
+        """Both RTDE connections up, and no watched call gave up on them."""
+        return not self._link_lost and _link_up(rtde)
+
+    def _vanished(self, when: str) -> DeviceVanished:
+        return DeviceVanished(
+            self.name, f"the connection to the controller at {self.host} (RTDE port {RTDE_PORT}) was lost{when}: check "
+            "the network cable and that the controller is on and in Remote Control", self.host,
+        )
+
+    def _command(self, rtde: RTDEInterfaces, name: str, *args: Any) -> Any:
+        """ur-rtde's control command ``name`` with ``args``, which waits for the controller's answer, with a
+        watch on the link: :class:`DeviceVanished` once it is lost (``isConnected`` false, or the receive stream
+        silent for :data:`LINK_SILENCE_S`).
+
+        ur-rtde's own wait polls the state its receive thread last stored, which a lost link no longer
+        changes: it ends only at its time limit (300 s, or none at all while ``moveL`` with a path waits for
+        its script to start). ur-rtde releases Python's interpreter lock while it waits, so the command runs
+        in a thread of its own and this one watches. A command given up on is left to end in its thread when
+        ur-rtde gives up; nothing more is sent to the controller. Commands go one at a time: one whose wait
+        was interrupted (a second Ctrl-C) is answered before the next is sent."""
+        if self._pending is not None:
+            self._watch(rtde, *self._pending)
+        outcome: list[tuple[bool, Any]] = []
+        answered = threading.Event()
+
+        def run() -> None:
+            try:
+                outcome.append((True, getattr(rtde.control, name)(*args)))
+            except BaseException as exc:  # handed to the caller
+                outcome.append((False, exc))
+            finally:
+                answered.set()
+
+        self._pending = (name, answered)
+        threading.Thread(target=run, name=f"ur-rtde {name} ({self.host})", daemon=True).start()
+        self._watch(rtde, name, answered)
+        succeeded, value = outcome[0]
+        if not succeeded:
+            raise value
+        return value
+
+    def _watch(self, rtde: RTDEInterfaces, name: str, answered: threading.Event) -> None:
+        """Until ``answered`` is set; :class:`DeviceVanished` once the link is lost meanwhile."""
+        stamp, heard = rtde.receive.getTimestamp(), time.monotonic()
+        while not answered.wait(self.poll_interval_s):
+            up = _link_up(rtde)
+            if up and (latest := rtde.receive.getTimestamp()) != stamp:
+                stamp, heard = latest, time.monotonic()
+            if not up or time.monotonic() - heard > LINK_SILENCE_S:
+                self._link_lost = True
+                raise self._vanished(f" while ur-rtde waited for the controller's answer to {name}")
 
     def _check_safety(self, context: str) -> None:
         """ProtectiveStop for a protective stop; a fatal DeviceError for any other safety stop."""
@@ -452,13 +517,13 @@ class UR5eRobot(LinkedDevice):
         for k, pose in enumerate(waypoints):
             rtde = self._connected()
             target = _to_controller(pose)
-            if not rtde.control.isPoseWithinSafetyLimits(target):
+            if not self._command(rtde, "isPoseWithinSafetyLimits", target):
                 self._refused(rtde, f"checking {where(k)}")
                 raise LimitViolation(self.name, f"{where(k)} violates the controller's safety limits; nothing moved")
-            if not rtde.control.getInverseKinematicsHasSolution(target, q_near):
+            if not self._command(rtde, "getInverseKinematicsHasSolution", target, q_near):
                 self._refused(rtde, f"checking {where(k)}")
                 raise LimitViolation(self.name, f"{where(k)} is out of reach (no inverse kinematics); nothing moved")
-            q_near = list(rtde.control.getInverseKinematics(target, q_near))
+            q_near = list(self._command(rtde, "getInverseKinematics", target, q_near))
             if self.joint_limits_deg is not None:
                 for joint, (value, (low, high)) in enumerate(zip(np.degrees(q_near), self.joint_limits_deg)):
                     if not low <= value <= high:
@@ -478,7 +543,7 @@ class UR5eRobot(LinkedDevice):
             last = k == len(waypoints) - 1
             chord_m = radius_m * math.radians(self.arc_step_deg)
             path.append([*_to_controller(pose), speed, acceleration, 0.0 if last else 0.25 * chord_m])
-        if not rtde.control.moveL(path, True):
+        if not self._command(rtde, "moveL", path, True):
             self._check_safety(what)
             raise DeviceError(self.name, f"{what}: the controller did not accept the path")
         deadline = time.monotonic() + self.move_timeout_s

@@ -34,7 +34,7 @@ from labctl.run.lab import build_real_lab, simulated_lab
 from labctl.run.overrides import parse_overrides
 from labctl.run.planning import expected_run_bytes, format_duration, schedule
 from labctl.run.progress import EvaluationProgress, Reporter
-from labctl.run.store import existing_output_advice, labctl_version
+from labctl.run.store import labctl_version, refuse_existing_output
 from sim.model import ModelError, load_model
 
 
@@ -143,8 +143,7 @@ def run(
 ) -> None:
     """Run CAMPAIGN into the run file OUTPUT."""
     config, text = load_campaign(campaign)
-    if output.exists():
-        raise InputError(existing_output_advice(output))
+    refuse_existing_output(output)
     output_file(output, "-o")
     warn_run_suffix(output)
     if (model is not None or seed is not None) and not sim:

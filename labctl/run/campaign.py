@@ -18,7 +18,6 @@ from drivers.protocols import CameraInfo
 from labctl.errors import InputError
 from labctl.run.config import Campaign, parse_campaign
 from labctl.run.diskspace import ensure_free, format_bytes
-from labctl.run.filekind import describe, is_binary_data, not_a_run_file
 from labctl.run.lab import Lab, build_real_lab, simulated_lab
 from labctl.run.operator import Operator
 from labctl.run.overrides import ATTRIBUTE as OVERRIDES_ATTRIBUTE
@@ -27,7 +26,7 @@ from labctl.run.planning import expected_run_bytes
 from labctl.run.progress import Reporter
 from labctl.run.runner import Runner, bring_to_safe_state, close_all, connect_lab
 from labctl.run.salvage import carry_over, inspect
-from labctl.run.store import DamagedRunFile, RunWriter, existing_output_advice, now_iso
+from labctl.run.store import DamagedRunFile, RunWriter, now_iso, refuse_existing_output, refuse_what_is_not_hdf5
 from procedures.steps import Step
 
 Override = tuple[str, str, str]
@@ -60,8 +59,7 @@ def run_campaign(
     :func:`labctl.run.lab.simulated_lab`, which keeps the model for the run file. InputError when ``run_file``
     exists; DiskSpaceLow (before anything is written) when its disk cannot hold the run."""
     run_file = Path(run_file)
-    if run_file.exists():
-        raise InputError(existing_output_advice(run_file))
+    refuse_existing_output(run_file)
     if lab.simulated and lab.sim_record is None:
         raise ValueError("a simulated lab without its model text: build it with labctl.run.lab.simulated_lab")
     reporter = reporter or Reporter()
@@ -105,17 +103,14 @@ def resume_run(
     run_file = Path(run_file)
     if not run_file.is_file():
         raise InputError(f"run file {run_file} does not exist")
-    if (wrong := not_a_run_file(run_file)) is not None:  # before opening it for writing, which would change it
-        if is_binary_data(run_file):  # a run file whose header was overwritten, or another binary file
-            raise _damaged(run_file, f"it is {describe(run_file)}: the HDF5 header is overwritten, or it was never a run file")
-        raise InputError(wrong)
     reporter = reporter or Reporter()
-    if into is not None:
-        into = Path(into)
-        salvage = carry_over(run_file, into, reporter.message)
-        reporter.message(f"{salvage.summary()}; the run continues in {into}")
-        run_file = into
     try:
+        if into is not None:
+            refuse_what_is_not_hdf5(run_file)  # named for what it is, before anything is carried over
+            into = Path(into)
+            salvage = carry_over(run_file, into, reporter.message)
+            reporter.message(f"{salvage.summary()}; the run continues in {into}")
+            run_file = into
         writer = RunWriter(run_file)
         dropped = writer.discard_incomplete()
     except DamagedRunFile as exc:

@@ -28,7 +28,7 @@ import h5py
 
 from labctl.errors import InputError
 from labctl.run import compression as codecs
-from labctl.run.store import CHANNELS, FORMAT, STEP_INDEX, create_step_index, existing_output_advice
+from labctl.run.store import CHANNELS, FORMAT, STEP_INDEX, create_step_index, refuse_existing_output
 
 READ_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError)
 """What h5py raises on damaged structures: OSError (HDF5 errors, "addr overflow", "truncated file"),
@@ -231,8 +231,7 @@ def carry_over(source: Path, target: Path, report: Callable[[str], None]) -> Sal
     """Write ``target``: ``source``'s header and its readable complete steps, status ``aborted``.
 
     InputError when ``target`` exists or nothing can be recovered. ``source`` is only read."""
-    if target.exists():
-        raise InputError(existing_output_advice(target))
+    refuse_existing_output(target)
     salvage = inspect(source)
     if salvage.header is not None:
         raise InputError(salvage.summary())

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from typing import Any
 
 from labctl.errors import Interrupted
@@ -86,30 +86,27 @@ class StopRequests:
             self._holding = True
             raise Interrupted(self.reason)
 
-    @contextmanager
-    def installed(self) -> Iterator[None]:
+    def installed(self) -> AbstractContextManager[None]:
         """The handlers, in the main thread; a run in another thread (a Dask worker's task, labctl batch)
         leaves the signals to the process that owns that thread (Python delivers them to the main thread)."""
-        if not main_thread():
-            yield
-            return
-        previous = {sig: signal.signal(sig, self._handle) for sig in STOP_SIGNALS}
-        try:
-            yield
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+        return _handling_stop_signals(self._handle)
+
+
+def signals_ignored() -> AbstractContextManager[None]:
+    """Ignore every stop signal (in the main thread) while devices are made safe; restore the handlers after."""
+    return _handling_stop_signals(signal.SIG_IGN)
 
 
 @contextmanager
-def signals_ignored() -> Iterator[None]:
-    """Ignore every stop signal (in the main thread) while devices are made safe; restore the handlers after."""
+def _handling_stop_signals(handler: Callable[[int, Any], None] | signal.Handlers) -> Iterator[None]:
+    """``handler`` for every stop signal while the block runs, the previous handlers restored after; in any
+    thread but the main one (which alone may set handlers) nothing changes."""
     if not main_thread():
         yield
         return
-    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in STOP_SIGNALS}
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        for sig, restored in previous.items():
+            signal.signal(sig, restored)

@@ -78,7 +78,7 @@ from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.errors import InputError
 from labctl.run import compression as codecs
 from labctl.run.diskspace import DiskSpaceLow, ensure_free, frame_bytes, mount_point, release, reserve
-from labctl.run.filekind import not_a_run_file
+from labctl.run.filekind import describe, is_binary_data, not_a_run_file
 from procedures.steps import Step
 
 FORMAT = "labctl-run"
@@ -217,6 +217,7 @@ class RunWriter:
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
+        refuse_what_is_not_hdf5(self.path)
         try:
             self.file = h5py.File(self.path, "r+")
         except OSError as exc:
@@ -294,8 +295,7 @@ class RunWriter:
         ``steps`` steps; frames are stored with ``compression`` (one of labctl.run.compression.COMPRESSIONS)."""
         path = Path(path)
         codecs.dataset_options(compression)  # an unknown name fails before anything is written
-        if path.exists():
-            raise InputError(existing_output_advice(path))
+        refuse_existing_output(path)
         tmp = path.with_name(f".{path.name}.creating")
         with h5py.File(tmp, "w") as f:
             f.attrs.update(
@@ -605,7 +605,24 @@ class RunReader:
         self.close()
 
 
-def existing_output_advice(path: Path) -> str:
+def refuse_existing_output(path: Path) -> None:
+    """InputError when ``path`` exists: a new run is never written over a file. The message says what the file
+    is and what to do instead (resume the run, evaluate it, or choose another -o)."""
+    if path.exists():
+        raise InputError(_existing_output_advice(path))
+
+
+def refuse_what_is_not_hdf5(path: Path) -> None:
+    """Refuse ``path`` as a run file before HDF5 opens it (opened for writing, it would be changed) when it is
+    not HDF5 at all: DamagedRunFile when it holds other binary data (a run file whose header was overwritten),
+    InputError naming what it is otherwise (empty, a text file)."""
+    if (wrong := not_a_run_file(path)) is not None:
+        if is_binary_data(path):
+            raise DamagedRunFile(f"it is {describe(path)}: the HDF5 header is overwritten, or it was never a run file")
+        raise InputError(wrong)
+
+
+def _existing_output_advice(path: Path) -> str:
     """Why a new run cannot be written to the existing ``path``, and what to do instead."""
     try:
         with RunReader(path) as reader:

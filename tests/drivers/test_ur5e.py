@@ -10,7 +10,9 @@ fault, a move that never ends). docs/ursim.md describes the first test against U
 
 from __future__ import annotations
 
+import os
 import random
+import signal
 import socket
 import threading
 import time
@@ -25,7 +27,7 @@ from scipy.spatial.transform import Rotation
 from drivers.errors import DeviceError, DeviceVanished, LimitViolation, OperatorActionRequired, ProtectiveStop
 from drivers.protocols import Robot
 from drivers.robot import MeasurementCircle, UR5eRobot
-from drivers.robot.ur5e import DASHBOARD_GREETING, DASHBOARD_PORT, RTDE_PORT, RTDEInterfaces
+from drivers.robot.ur5e import DASHBOARD_GREETING, DASHBOARD_PORT, LINK_SILENCE_S, RTDE_PORT, RTDEInterfaces
 
 CENTER = (400.0, 0.0, 300.0)
 RADIUS = 500.0
@@ -165,6 +167,10 @@ class FakeController:
 
     def isConnected(self) -> bool:  # noqa: N802 - ur-rtde's names (receive and control)
         return self.connected
+
+    def getTimestamp(self) -> float:  # noqa: N802
+        """The controller's clock, which a live controller's packages carry forward."""
+        return time.monotonic()
 
     # control
     def moveL(self, path: list[list[float]], asynchronous: bool) -> bool:  # noqa: N802 - ur-rtde's names
@@ -391,6 +397,76 @@ def test_a_lost_connection_sends_nothing_more(controller: FakeController) -> Non
     device.safe_state()
     device.close()
     assert controller.names()[sent:] == ["disconnect"] * 3  # control, receive, dashboard; no stop, no stopScript
+
+
+def test_a_controller_that_falls_silent_while_ur_rtde_waits_is_a_vanished_robot(controller: FakeController) -> None:
+    """No package arrives while ur-rtde's ``moveL`` waits for the controller's answer, and ur-rtde still counts
+    the connection as up: the adapter gives up after LINK_SILENCE_S, not when ur-rtde does (300 s or never),
+    and sends nothing more."""
+    device = connected(controller)
+    answer = threading.Event()
+
+    def move_l(path: list[list[float]], asynchronous: bool) -> bool:  # an answer that never comes
+        answer.wait(60.0)
+        return False
+
+    controller.moveL = move_l  # type: ignore[method-assign]
+    controller.getTimestamp = lambda: 12.5  # type: ignore[method-assign]  # the last package: nothing newer arrives
+    started = time.monotonic()
+    try:
+        with pytest.raises(DeviceVanished, match="at ursim .* was lost while ur-rtde waited for the controller's "
+                           "answer to moveL: check the network cable"):
+            device.move_on_circle(10.0, RADIUS)
+        waited = time.monotonic() - started
+        sent = len(controller.calls)
+        device.safe_state()
+        device.close()
+    finally:
+        answer.set()
+    assert LINK_SILENCE_S <= waited < 10 * LINK_SILENCE_S
+    assert controller.names()[sent:] == ["disconnect"] * 3  # control, receive, dashboard; no stop, no stopScript
+
+
+def test_a_command_interrupted_while_ur_rtde_waits_is_answered_before_the_next_is_sent(
+    controller: FakeController,
+) -> None:
+    """A signal (a second Ctrl-C) interrupts the adapter while ur-rtde's ``moveL`` waits for the controller's
+    answer; the ``stopL`` that ``safe_state`` sends next waits for that answer first, as ur-rtde's commands go
+    one at a time over the same registers."""
+    device = connected(controller)
+    answer = threading.Event()
+    order: list[str] = []
+
+    class Interrupted(Exception):
+        pass
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise Interrupted
+
+    def move_l(path: list[list[float]], asynchronous: bool) -> bool:  # waiting for the controller
+        os.kill(os.getpid(), signal.SIGUSR1)  # the signal reaches the adapter's thread during the wait
+        answer.wait(60.0)
+        order.append("moveL answered")
+        return True
+
+    def timestamp() -> float:  # the watch asks for the stream's time while it waits; the answer comes then
+        if order == ["safe_state"]:
+            answer.set()
+        return time.monotonic()
+
+    controller.moveL = move_l  # type: ignore[method-assign]
+    controller.stopL = lambda: order.append("stopL")  # type: ignore[method-assign]
+    previous = signal.signal(signal.SIGUSR1, interrupt)
+    try:
+        with pytest.raises(Interrupted):
+            device.move_on_circle(10.0, RADIUS)
+        controller.getTimestamp = timestamp  # type: ignore[method-assign]
+        order.append("safe_state")
+        device.safe_state()
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+        answer.set()
+    assert order == ["safe_state", "moveL answered", "stopL"]
 
 
 def test_safe_state_never_raises(controller: FakeController) -> None:

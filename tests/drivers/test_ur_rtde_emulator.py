@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from drivers.errors import DeviceError, DeviceVanished, LimitViolation, ProtectiveStop
 from drivers.robot import MeasurementCircle, UR5eRobot
+from drivers.robot.ur5e import LINK_SILENCE_S
 from sim.emulators.ur import SafetyPlane, URControllerProcess
 from sim.emulators.ur.kinematics import inverse
 
@@ -323,8 +324,8 @@ def test_adapter_a_dropped_connection_during_a_move_is_a_vanished_robot(emulator
     """The controller's servers close (a pulled network cable, a controller restart) while the arm moves:
     ur-rtde's clients report the connection down, and the adapter raises at once instead of sending over
     it (ur-rtde then waits for an answer forever); safe_state and close return. The cable is pulled once
-    ur-rtde has accepted the path (``moveL`` returned): a connection lost while ur-rtde itself still waits for
-    the controller's answer is not caught (docs/ursim.md, section 9)."""
+    ur-rtde has accepted the path (``moveL`` returned); the next test pulls it while ur-rtde itself still waits
+    for the controller's answer."""
     accepted = threading.Event()
 
     def pull_the_cable() -> None:
@@ -345,6 +346,50 @@ def test_adapter_a_dropped_connection_during_a_move_is_a_vanished_robot(emulator
     assert caught.value.connection == emulator.host
     with pytest.raises(DeviceVanished):
         robot.pose_mm()  # no stale pose from the last package received
+    started = time.monotonic()
+    robot.safe_state()
+    robot.close()
+    assert time.monotonic() - started < 30.0
+
+
+@pytest.mark.parametrize("link", ["closed", "silent"])
+def test_adapter_a_connection_lost_while_ur_rtde_waits_in_move_l_is_a_vanished_robot(
+    emulator: URControllerProcess, link: str
+) -> None:
+    """``moveL`` with a path restarts ur-rtde's control script with the path in it and waits for it to run; the
+    controller holds it, and the link is lost during that wait: the controller's servers close (a controller
+    restart), or its connections fall silent (a pulled cable: the process frozen, nothing more arrives, no FIN
+    either). ur-rtde would go on waiting (its wait polls the state it last received); the adapter's watch on
+    the link raises DeviceVanished, while ur-rtde's ``moveL`` has still not returned."""
+    returned = threading.Event()
+    pulled_at: list[float] = []
+
+    def pull_the_cable_during_the_wait() -> None:
+        wait_for(lambda: any("movel(p[" in script for script in emulator.call("scripts_received")))
+        pulled_at.append(time.monotonic())  # ur-rtde sent the path's script: its moveL waits for it to run
+        if link == "closed":
+            emulator.close()
+        else:
+            emulator.go_silent()
+
+    robot = adapter(emulator.host)
+    robot.connect()
+    robot._rtde = dataclasses.replace(robot._rtde, control=_SaysWhenMoveLReturns(robot._rtde.control, returned))
+    emulator.call("hold_programs")
+    cable = threading.Thread(target=pull_the_cable_during_the_wait)
+    cable.start()
+    try:
+        with pytest.raises(DeviceVanished, match=f"the connection to the controller at {emulator.host} .* was lost "
+                           "while ur-rtde waited for the controller's answer to moveL") as caught:
+            robot.move_on_circle(40.0, RADIUS_MM)
+        raised_at = time.monotonic()
+    finally:
+        cable.join()
+    assert not returned.is_set()  # the adapter gave up on ur-rtde's moveL, which still waits
+    assert caught.value.connection == emulator.host
+    assert raised_at - pulled_at[0] < 10 * LINK_SILENCE_S  # generous for a loaded machine; ur-rtde waits 300 s or more
+    with pytest.raises(DeviceVanished):
+        robot.pose_mm()
     started = time.monotonic()
     robot.safe_state()
     robot.close()

@@ -44,7 +44,7 @@ class Robot(Protocol):
     lock: threading.RLock
     inputs: dict[str, float | int]
     outputs: dict[str, float | int]
-    script_start_s: float
+    script_start_s: float | None
     q: np.ndarray
     tcp: tuple[float, ...]
     refused_scripts: list[str]

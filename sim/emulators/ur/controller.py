@@ -86,7 +86,7 @@ class URController:
     ``safety_planes`` limit the TCP (``is_within_safety_limits`` and motion: crossing one
     is a protective stop). ``unlock_delay_s`` is the controller's 5 s wait before a
     protective stop can be unlocked; ``script_start_s`` the time a received program takes to
-    start; ``time_scale`` runs motions that many times faster than commanded (tests).
+    start (None: it never starts); ``time_scale`` runs motions that many times faster than commanded (tests).
     """
 
     def __init__(
@@ -98,7 +98,7 @@ class URController:
         remote_control: bool = True,
         safety_planes: Sequence[SafetyPlane] = (),
         unlock_delay_s: float = 5.0,
-        script_start_s: float = 0.05,
+        script_start_s: float | None = 0.05,
         time_scale: float = 1.0,
         polyscope_version: tuple[int, int, int, int] = (5, 11, 6, 1107777),
         serial_number: str = "20205500001",
@@ -184,6 +184,12 @@ class URController:
             self.halt()
             self._end_program()
             self.robot_mode = ROBOT_MODES["POWER_OFF"]
+
+    def hold_programs(self) -> None:
+        """Programs received from now on never start (a controller that stops answering): ur-rtde's ``moveL``
+        with a path restarts its control script with the path in it, and then waits for that script to run."""
+        with self.lock:
+            self.script_start_s = None
 
     # -- dashboard actions ------------------------------------------------------------------
     def power_on(self) -> None:

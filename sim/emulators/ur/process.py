@@ -10,6 +10,8 @@ its :class:`~sim.emulators.ur.controller.URController` through :meth:`URControll
 from __future__ import annotations
 
 import multiprocessing
+import os
+import signal
 from multiprocessing.connection import Connection
 from types import TracebackType
 from typing import Any
@@ -61,9 +63,15 @@ class URControllerProcess:
             raise result
         return result
 
+    def go_silent(self) -> None:
+        """Freeze the emulator's process (SIGSTOP): its connections stay open but carry nothing more, as over a
+        pulled network cable, where no FIN or RST reaches the clients. :meth:`close` ends it."""
+        os.kill(self._process.pid, signal.SIGSTOP)
+
     def close(self) -> None:
         """Stop the emulator (its servers and threads) and the process."""
         if self._process.is_alive():
+            os.kill(self._process.pid, signal.SIGCONT)  # frozen by go_silent
             try:
                 self._pipe.send(None)
             except OSError:

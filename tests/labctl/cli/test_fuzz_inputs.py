@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import math
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +107,19 @@ def mutated(draw: st.DrawFn, bases: list[dict[str, Any]]) -> str:
     return tomli_w.dumps(doc)
 
 
+def accepted_or_refused_with_a_message(
+    parse: Callable[[str, str], Any], error: type[Exception], text: str
+) -> Any | None:
+    """``parse(text, "fuzz.toml")``, or None when it refused the text with ``error`` whose message names the
+    file and says more than its name."""
+    try:
+        return parse(text, "fuzz.toml")
+    except error as exc:
+        assert str(exc).startswith("fuzz.toml") and len(str(exc)) > len("fuzz.toml: ")
+        event("refused")
+        return None
+
+
 FUZZ = settings(derandomize=True, database=None, deadline=None, print_blob=False,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
@@ -114,11 +128,8 @@ FUZZ = settings(derandomize=True, database=None, deadline=None, print_blob=False
 @settings(FUZZ, max_examples=300)
 @given(text=mutated(MODELS))
 def test_a_mutated_model_is_accepted_and_renders_or_is_refused_with_a_message(text: str) -> None:
-    try:
-        model = parse_model(text, "fuzz.toml")
-    except ModelError as exc:
-        assert str(exc).startswith("fuzz.toml") and len(str(exc)) > len("fuzz.toml: ")
-        event("refused")
+    model = accepted_or_refused_with_a_message(parse_model, ModelError, text)
+    if model is None:
         return
     profile = model.profile()
     if profile.width * profile.height <= 64 * 48:  # a larger sensor is valid, only slower to render
@@ -130,11 +141,8 @@ def test_a_mutated_model_is_accepted_and_renders_or_is_refused_with_a_message(te
 @settings(FUZZ, max_examples=300)
 @given(text=mutated(CAMPAIGNS))
 def test_a_mutated_campaign_is_accepted_and_planned_or_is_refused_with_a_message(text: str) -> None:
-    try:
-        campaign = parse_campaign(text, "fuzz.toml")
-    except InputError as exc:
-        assert str(exc).startswith("fuzz.toml") and len(str(exc)) > len("fuzz.toml: ")
-        event("refused")
+    campaign = accepted_or_refused_with_a_message(parse_campaign, InputError, text)
+    if campaign is None:
         return
     event("accepted and planned")
     planned = schedule(campaign)

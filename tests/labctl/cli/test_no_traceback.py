@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import textwrap
 import warnings
 from pathlib import Path
@@ -351,17 +352,22 @@ def test_a_failed_compare_or_reconcile_leaves_no_output_folder(capsys, tmp_path:
 
 
 # ---------------------------------------------------------------------- a serial port where nothing answers
-def test_a_silent_laser_port_gets_a_hint_to_check_power_and_line_settings(capsys) -> None:
-    """A real pseudo-terminal that nobody reads or answers: a sensor switched off or at another baud rate."""
-    import os
-
+def device_on_a_silent_port(capsys: pytest.CaptureFixture[str], device: str, *args: object) -> tuple[int, str, str]:
+    """``labctl device DEVICE --port PORT ARGS`` on a real pseudo-terminal that nobody reads or answers (a device
+    switched off or at another baud rate): (exit code, PORT, stderr)."""
     master, slave = os.openpty()
     try:
         port = os.ttyname(slave)
-        code, _, err = labctl(capsys, "device", "laser", "--port", port, "--baud", "9600", "--count", "1")
+        code, _, err = labctl(capsys, "device", device, "--port", port, *args)
     finally:
         os.close(slave)
         os.close(master)
+    return code, port, err
+
+
+def test_a_silent_laser_port_gets_a_hint_to_check_power_and_line_settings(capsys) -> None:
+    """A real pseudo-terminal that nobody reads or answers: a sensor switched off or at another baud rate."""
+    code, port, err = device_on_a_silent_port(capsys, "laser", "--baud", "9600", "--count", "1")
     assert code == 1
     assert f"Dimetix laser on {port}: no complete reply" in err and "in reply to 's0c'" in err
     assert "is the sensor powered and wired to this port, set to 9600 baud 7E1 and device ID 0?" in err
@@ -471,7 +477,6 @@ def test_a_run_file_not_named_h5_is_written_with_a_warning(capsys, tmp_path: Pat
 @pytest.fixture
 def read_only_disk(tmp_path: Path):
     """A small tmpfs mounted read-only (root only), unmounted again whatever the test does."""
-    import os
     import subprocess
 
     if os.geteuid() != 0:
@@ -496,18 +501,10 @@ def test_outputs_on_a_read_only_disk_say_so(capsys, tmp_path: Path, read_only_di
 
 def test_a_stage_port_where_no_zaber_answers_gets_a_hint(capsys) -> None:
     """A real pseudo-terminal nobody answers, and a Grbl controller given as a Zaber stage."""
-    import os
-
     from sim.emulators import GrblEmulator
 
     hint = "is a Zaber controller (ASCII protocol, device 1) powered and wired to this port at 115200 baud?"
-    master, slave = os.openpty()
-    try:
-        port = os.ttyname(slave)
-        code, _, err = labctl(capsys, "device", "stage", "--port", port, "--protocol", "zaber", "--mm-per-microstep", "0.001")
-    finally:
-        os.close(slave)
-        os.close(master)
+    code, port, err = device_on_a_silent_port(capsys, "stage", "--protocol", "zaber", "--mm-per-microstep", "0.001")
     assert code == 1 and f"Zaber stage 1/1 on {port}: no complete reply" in err and hint in err
     with GrblEmulator(max_travel_mm=300.0) as grbl:
         port = grbl.port

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
 
 import h5py
@@ -48,10 +49,32 @@ def status(run_file: Path) -> tuple[str, str, int]:
         return str(f.attrs["status"]), str(f.attrs.get("status_reason", "")), complete
 
 
-def run_until_step_1(path: Path, run_file: Path) -> Terminal:
+def run_to_abort(path: Path, run_file: Path, lose_a_device: Callable[[Terminal], None]) -> str:
+    """``labctl run`` on a terminal, ``lose_a_device(terminal)`` while it runs: the run's output once it has
+    ended with exit 1."""
     terminal = Terminal("run", path, "-o", run_file)
-    terminal.expect("00001_depth_sweep complete", timeout=120)
-    return terminal
+    try:
+        lose_a_device(terminal)
+        assert terminal.wait(timeout=60) == 1, terminal.output
+    finally:
+        terminal.close()
+    return terminal.output
+
+
+def after_step_1(unplug: Callable[[], None]) -> Callable[[Terminal], None]:
+    """``unplug`` once the run reports step 00001 complete."""
+
+    def lose_a_device(terminal: Terminal) -> None:
+        terminal.expect("00001_depth_sweep complete", timeout=120)
+        unplug()
+
+    return lose_a_device
+
+
+def assert_stage_stopped(stage: ZaberEmulator) -> None:
+    """The Zaber stage in its safe state: stopped, its position read back, not moving."""
+    with stage.lock:
+        assert stage.commands[-2:] == ["stop", "get pos"] and not stage.moving
 
 
 def resume(run_file: Path, *options: str) -> str:
@@ -93,17 +116,12 @@ def test_an_unplugged_stage_aborts_cleanly_and_resume_continues_on_its_new_port(
             with DimetixEmulator(distance_mm=1234.5) as laser:
                 path.write_text(campaign(stage_section(protocol, stage.port), laser.port, speed_mm_s=SPEED_MM_S))
                 old_port = stage.port
-                terminal = run_until_step_1(path, run_file)
-                try:
-                    stage.disconnect()
-                    assert terminal.wait(timeout=60) == 1, terminal.output
-                finally:
-                    terminal.close()
+                output = run_to_abort(path, run_file, after_step_1(stage.disconnect))
                 with laser.lock:
                     assert laser.commands[-2:] == ["c", "p"] and not laser.laser_on  # the laser is off
         finally:
             stage.stop()
-        assert_clean_abort(terminal.output, run_file, device, old_port, "stage")
+        assert_clean_abort(output, run_file, device, old_port, "stage")
         assert new_stage.port != old_port
         output = resume(run_file, "--port", f"stage={new_stage.port}", "--port", f"laser={new_laser.port}")
         assert new_stage.position_mm == pytest.approx(400.0, abs=1e-3)  # the last sweep position, on the new port
@@ -126,17 +144,11 @@ def test_an_unplugged_laser_aborts_cleanly_with_the_stage_stopped_and_resume_con
         try:
             path.write_text(campaign(stage_section("zaber", stage.port), laser.port, speed_mm_s=SPEED_MM_S))
             old_port = laser.port
-            terminal = run_until_step_1(path, run_file)
-            try:
-                laser.disconnect()
-                assert terminal.wait(timeout=60) == 1, terminal.output
-            finally:
-                terminal.close()
+            output = run_to_abort(path, run_file, after_step_1(laser.disconnect))
         finally:
             laser.stop()
-        with stage.lock:
-            assert stage.commands[-2:] == ["stop", "get pos"] and not stage.moving
-        assert_clean_abort(terminal.output, run_file, "Dimetix laser", old_port, "laser")
+        assert_stage_stopped(stage)
+        assert_clean_abort(output, run_file, "Dimetix laser", old_port, "laser")
         assert new_laser.port != old_port
         resume(run_file, "--port", f"laser={new_laser.port}")  # the stage stays on its port
         assert new_laser.commands.count("g") >= 2 and new_laser.commands[-2:] == ["c", "p"]
@@ -187,17 +199,17 @@ def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_
     """The RTDE emulator's servers close under the real ur-rtde clients while the run waits at the second
     material's prompt; the next move finds the connection gone.
 
-    Not covered: a connection lost while a command is in flight. ur-rtde then waits for the answer forever
-    (seen under load, when the servers closed during a waypoint check), so the test drops the connection
-    while no command is under way and waits until ur-rtde has reported it lost."""
+    The connection drops while no command is under way, and the test waits until ur-rtde has reported it
+    lost: the next move finds it gone before sending anything. A connection lost while a command waits for
+    the controller's answer is tested in tests/drivers/test_ur_rtde_emulator.py."""
     path, run_file = tmp_path / "campaign.toml", tmp_path / "run.h5"
     with zaber() as stage:
         robot = URControllerProcess(home_q(), robot_mode="RUNNING")
         try:
             path.write_text(robot_campaign(stage.port, robot.host))
             old_host = robot.host
-            terminal = Terminal("run", path, "-o", run_file)
-            try:
+
+            def drop_the_connection(terminal: Terminal) -> None:
                 terminal.expect(r"OPERATOR: mount the ptfe plate.*\n.*Press Enter when done", timeout=120)
                 terminal.type("\r")
                 terminal.expect(r"OPERATOR: mount the molleton plate.*\n.*Press Enter when done", timeout=120)
@@ -205,14 +217,11 @@ def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_
                 terminal.expect("RTDEReceiveInterface boost system Exception", timeout=60)
                 terminal.expect("Timeout connecting to UR dashboard server", timeout=60)  # its reconnect failed
                 terminal.type("\r")
-                assert terminal.wait(timeout=60) == 1, terminal.output
-            finally:
-                terminal.close()
+
+            output = run_to_abort(path, run_file, drop_the_connection)
         finally:
             robot.close()
-        with stage.lock:
-            assert stage.commands[-2:] == ["stop", "get pos"] and not stage.moving
-        output = terminal.output
+        assert_stage_stopped(stage)
         assert "Traceback" not in output
         assert f"UR5e at {old_host}: the connection to the controller at {old_host} (RTDE port 30004) was lost" in output
         assert "The other devices are in their safe state" in output
