@@ -21,7 +21,8 @@ from bench.common import Result, best_of, scratch_dir
 from labctl.cli import main as labctl_main
 from labctl.reconcile.observe import MAX_FRAMES
 from labctl.reconcile.workflow import reconcile
-from sim.profiles import default_effects, get_profile
+from sim.effects import default_effects
+from sim.profiles import get_profile
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 BUDGET_S = 60.0

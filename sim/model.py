@@ -24,10 +24,10 @@ import tomli_w
 from pydantic import ConfigDict, Field, ValidationError, field_serializer, field_validator, model_validator
 
 from procedures.steps import StrictModel
-from sim.effects import EffectParams, parse_effects
+from sim.effects import EffectParams, default_effects, parse_effects
 from sim.lab import LabGeometry
 from sim.materials import WAVELENGTH_RANGE_NM
-from sim.profiles import MAX_SENSOR_PX, PROFILES, CameraProfile, default_effects, get_profile
+from sim.profiles import MAX_SENSOR_PX, PROFILES, CameraProfile, get_profile
 
 #: the least a ToF camera's noise and modulation frequency and a stereo camera's baseline can be: below them the
 #: simulator's optical power (eq. 2-9) or disparity leaves the floating-point range

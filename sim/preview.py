@@ -10,6 +10,7 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
+from sim.effects import plate_placement_mm
 from sim.geometry import Pose
 from sim.model import SimModel
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
@@ -34,10 +35,9 @@ def simulate_frame(model: SimModel, target: str, params: Mapping[str, Any] | Non
     profile, effects = model.profile(), model.effect_params()
     params = dict(params or {})
     if target in PLATE_MATERIALS:
-        axis = effects.get("camera_axis_offset")
-        delta = effects.get("target_misalignment")
-        pose = Pose.on_circle(angle_deg, radius_mm, axis.offset_mm if axis else 0.0)
-        scene = plate_scene(target, profile.wavelength_nm, offset_mm=delta.offset_mm if delta else 0.0, **params)
+        axis_mm, plate_mm = plate_placement_mm(effects)
+        pose = Pose.on_circle(angle_deg, radius_mm, axis_mm)
+        scene = plate_scene(target, profile.wavelength_nm, offset_mm=plate_mm, **params)
     else:
         pose = Pose.at_origin(model.lab.tilt_x_deg, model.lab.tilt_y_deg)
         scene = build_scene(target, params, profile.wavelength_nm, distance_mm)

@@ -27,7 +27,7 @@ class CameraProfile:
     it fixes the sub-pixel matching noise. ``lens_sigma_px`` is the in-focus
     optical blur (Gaussian PSF sigma); ``hyperfocal_mm`` and
     ``output_step_mm`` become the default ``defocus`` and ``quantization``
-    effects of the profile's built-in model (see ``default_effects``).
+    effects of the profile's built-in model (sim/effects ``default_effects``).
     """
 
     name: str
@@ -146,14 +146,6 @@ SOURCES: dict[str, dict[str, str]] = {
         "pixel_pitch_um/exposure_us": "assumption",
     },
 }
-
-
-def default_effects(profile: CameraProfile) -> dict[str, dict[str, float]]:
-    """The effects a built-in profile has by nature: its defocus and its output quantization."""
-    effects: dict[str, dict[str, float]] = {"defocus": {"hyperfocal_mm": profile.hyperfocal_mm}}
-    if profile.output_step_mm > 0:
-        effects["quantization"] = {"step_mm": profile.output_step_mm}
-    return effects
 
 
 def get_profile(name: str) -> CameraProfile:

@@ -1,15 +1,16 @@
 """What ToF and stereo sensors share: true optics, reported rays, optical blur.
 
-* True optics: pinhole of the true FOV (``fov_error``) with radial distortion
-  (``radial_distortion``) decide which ray each pixel sees.
+* True optics: pinhole of the true FOV (the effects' ``true_fov_deg``, else
+  the datasheet's) with Brown radial distortion (their ``lens_distortion``)
+  decide which ray each pixel sees.
 * Reported rays: the camera turns a range or depth into x, y, z with its own
   calibration, the true FOV; it corrects the distortion in the cloud unless
-  ``radial_distortion.cloud`` is true. Their slopes x/z, y/z are kept as a
+  the distortion is carried into the cloud. Their slopes x/z, y/z are kept as a
   (1, W) row and an (H, 1) column, or (H, W) maps when a corrected distortion
   makes them non-separable.
 * Optical blur: the in-focus lens PSF (a Gaussian of the profile's
-  ``lens_sigma_px``) and, with ``defocus``, a uniform disc of diameter
-  b(s) = coc_px H / s, applied in the Fourier domain with their exact OTFs
+  ``lens_sigma_px``) and, with an effect's ``blur_px`` (sim/effects/defocus.py),
+  a uniform disc of diameter b(s), applied in the Fourier domain with their exact OTFs
   exp(-2 pi^2 sigma^2 f^2) and 2 J1(pi b f) / (pi b f) (edges reflected), on
   2 x 2 sub-pixels before each pixel integrates its four: the image's SFR is
   then |sinc f| x lens OTF x defocus OTF also above Nyquist (``edge_sfr``).
@@ -25,8 +26,7 @@ from scipy import fft as sfft
 from scipy import optimize, special
 
 from metrics.optics import Pinhole
-from sim.effects import EffectParams
-from sim.effects import defocus as defocus_effect
+from sim.effects import EffectParams, acting
 from sim.optics import CameraOptics
 from sim.profiles import CameraProfile
 
@@ -63,6 +63,16 @@ def default_coc_px(lens_sigma_px: float) -> float:
     return float(optimize.brentq(loss, 1e-3, 20.0))
 
 
+def blur_diameter_px(effects: dict[str, EffectParams], distance_mm: float, lens_sigma_px: float) -> float:
+    """Diameter of the blur disc at ``distance_mm`` of a lens with in-focus PSF ``lens_sigma_px`` (the widest of the
+    effects' ``blur_px``; 0 without)."""
+    blurs = acting(effects, "blur_px")
+    if not blurs:
+        return 0.0
+    coc = default_coc_px(lens_sigma_px)
+    return max(hook(distance_mm, params, coc) for hook, params in blurs)
+
+
 def _filter(field: np.ndarray, sigma_px: float, disc_px: float) -> np.ndarray:
     """Gaussian and disc OTFs applied in the Fourier domain; edges reflected, padded to a fast FFT size."""
     pad = int(math.ceil(4 * sigma_px + disc_px)) + 2
@@ -86,11 +96,15 @@ class SensorOptics:
     def __init__(self, profile: CameraProfile, effects: dict[str, EffectParams]) -> None:
         self.profile = profile
         self.effects = effects
-        fov = effects["fov_error"].fov_deg if "fov_error" in effects else (profile.fov_h_deg, profile.fov_v_deg)
-        distortion = effects.get("radial_distortion")
-        self.optics = CameraOptics(Pinhole(profile.width, profile.height, *fov), distortion.k1 if distortion else 0.0)
+        fov: tuple[float, float] = (profile.fov_h_deg, profile.fov_v_deg)
+        for hook, params in acting(effects, "true_fov_deg"):
+            fov = hook(params)
+        k1, in_cloud = 0.0, True
+        for hook, params in acting(effects, "lens_distortion"):
+            k1, in_cloud = hook(params)
+        self.optics = CameraOptics(Pinhole(profile.width, profile.height, *fov), k1)
         pin = self.optics.pinhole
-        if distortion is not None and distortion.k1 != 0.0 and not distortion.cloud:
+        if k1 != 0.0 and not in_cloud:
             u, v = self.optics.undistort(*self.optics.pixel_grid())
             self.tx = ((u - pin.cx) / pin.fx).astype(np.float32)
             self.ty = ((v - pin.cy) / pin.fy).astype(np.float32)
@@ -98,13 +112,10 @@ class SensorOptics:
             tx, ty = pin.slopes
             self.tx, self.ty = tx.astype(np.float32), ty.astype(np.float32)
         self.cos_alpha = self.optics.directions(*self.optics.pixel_grid())[2]
-        d = effects.get("defocus")
-        self.coc_px = (d.coc_px or default_coc_px(profile.lens_sigma_px)) if d is not None else 0.0
 
     def blur_diameter_px(self, distance_mm: float) -> float:
-        """Defocus disc at ``distance_mm`` (0 without the defocus effect)."""
-        d = self.effects.get("defocus")
-        return defocus_effect.blur_diameter_px(distance_mm, self.coc_px, d) if d is not None else 0.0
+        """Defocus disc at ``distance_mm`` (``blur_diameter_px``)."""
+        return blur_diameter_px(self.effects, distance_mm, self.profile.lens_sigma_px)
 
     def blur(self, field: np.ndarray, distance_mm: float, oversample: int = 1) -> np.ndarray:
         """Lens PSF (and defocus disc) applied to a real or complex field, then integrated over each pixel.

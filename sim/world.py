@@ -12,7 +12,7 @@ from typing import Any, Protocol
 
 from drivers.protocols import Clock
 from procedures.steps import Step
-from sim.effects import EffectParams
+from sim.effects import EffectParams, plate_placement_mm
 from sim.faults import FaultInjector
 from sim.geometry import Pose
 from sim.lab import LabGeometry
@@ -89,11 +89,9 @@ class SimWorld:
         """What the camera sees now: the target's scene and the camera's pose in it."""
         wavelength = self.profile.wavelength_nm
         if self.target in PLATE_MATERIALS:
-            axis = self.effects.get("camera_axis_offset")
-            misaligned = self.effects.get("target_misalignment")
-            pose = Pose.on_circle(self.robot_angle_deg, self.robot_radius_mm, axis.offset_mm if axis else 0.0)
-            scene = plate_scene(self.target, wavelength, offset_mm=misaligned.offset_mm if misaligned else 0.0,
-                                **self.target_params)
+            axis_mm, plate_mm = plate_placement_mm(self.effects)
+            pose = Pose.on_circle(self.robot_angle_deg, self.robot_radius_mm, axis_mm)
+            scene = plate_scene(self.target, wavelength, offset_mm=plate_mm, **self.target_params)
             return scene, pose
         pose = Pose.at_origin(self.lab.tilt_x_deg, self.lab.tilt_y_deg)
         return build_scene(self.target, self.target_params, wavelength, self.camera_distance_mm()), pose

@@ -5,6 +5,7 @@ Read from the import statements of every module (static, so a lazy import inside
 """
 
 import ast
+import math
 from pathlib import Path
 
 import pytest
@@ -179,17 +180,61 @@ def test_cycle_check_follows_lazy_and_from_imports_to_submodules(tmp_path: Path)
 
 #: modules that act on or fit effects through their declarations (sim/effects/<name>.py), never by name
 EFFECT_NEUTRAL = ("labctl/reconcile/candidates.py", "sim/tof.py", "sim/stereo.py")
+#: where no effect fact may be stated: the simulator outside its effect library, and reconcile
+EFFECT_FREE = ("sim", "labctl/reconcile")
+EFFECT_LIBRARY = "sim/effects"
+#: parameter names reconcile fits that are also words of another vocabulary of the project (what they mean there)
+SHARED_WORDS = {
+    "offset_mm": "a target's placement on the board or plate (sim/scenes/targets.py)",
+    "distance_mm": "a step's camera-wall distance (procedures, run files, scene builders)",
+    "reflectance": "a surface's reflectance where a ray hits it (sim/render.py)",
+}
+#: a fraction's range, everybody's: not taken for a parameter's stated bounds
+UNIT_INTERVAL = (0.0, 1.0)
 
 
-def effect_literals() -> set[str]:
-    """Every effect's name and the names of the parameters reconcile fits or sets (``Observed``)."""
+def effect_names() -> set[str]:
     from sim.effects import EFFECTS
 
-    names = set(EFFECTS)
+    return set(EFFECTS)
+
+
+def fitted_names() -> set[str]:
+    """The names of the parameters reconcile fits or sets (``Observed.fitted``, ``fixed``, the corner fit's
+    variants)."""
+    from sim.effects import EFFECTS
+
+    names: set[str] = set()
     for effect in EFFECTS.values():
         if effect.observed is not None:
             names.update(effect.observed.fitted, effect.observed.fixed)
+            if effect.observed.corners is not None:
+                names.update(*effect.observed.corners.variants)
     return names
+
+
+def effect_literals() -> set[str]:
+    """Every effect's name and the names of the parameters reconcile fits or sets."""
+    return effect_names() | fitted_names()
+
+
+def declared_bounds() -> dict[tuple[float, float], str]:
+    """Every (lower, upper) pair an effect declares, to the parameter it bounds: its fields' valid ranges (both
+    ends finite), its solver bounds and its corner fit's bounds; the unit interval left out."""
+    from sim.effects import EFFECTS, valid_range
+
+    found: dict[tuple[float, float], str] = {}
+    for effect in EFFECTS.values():
+        for key in effect.params.model_fields:
+            found[valid_range(effect.params, key)] = f"{effect.name}.{key}"
+        observed = effect.observed
+        if observed is not None:
+            found.update({(float(lo), float(hi)): f"{effect.name}.{key}"
+                          for key, (lo, hi) in observed.solver_bounds.items()})
+            if observed.corners is not None:
+                c = observed.corners
+                found.update({(lo, hi): f"{effect.name}.{key}" for key, lo, hi in zip(c.keys, c.lower, c.upper)})
+    return {pair: name for pair, name in found.items() if all(map(math.isfinite, pair)) and pair != UNIT_INTERVAL}
 
 
 def string_literals(source: str) -> set[str]:
@@ -204,3 +249,109 @@ def test_effect_facts_stay_in_their_modules(module: str) -> None:
     and reconcile builds its candidate from its declaration, so neither names an effect or a fitted parameter."""
     found = string_literals((ROOT / module).read_text(encoding="utf-8")) & effect_literals()
     assert found == set(), f"{module} names {sorted(found)}"
+
+
+def effect_free_modules(root: Path) -> list[Path]:
+    """The modules of ``EFFECT_FREE`` under ``root``, the effect library left out."""
+    library = root / EFFECT_LIBRARY
+    return sorted(p for folder in EFFECT_FREE for p in (root / folder).rglob("*.py")
+                  if library not in p.parents)
+
+
+def _number(node: ast.AST) -> float | None:
+    """The value of a numeric literal (signed), else None."""
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+        value = _number(node.operand)
+        return None if value is None else (-value if isinstance(node.op, ast.USub) else value)
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
+        return float(node.value)
+    return None
+
+
+def _numbers(node: ast.AST) -> list[float | None]:
+    """The numbers a literal, or a call, list or tuple of them (a call's arguments), holds; None for anything else."""
+    value = _number(node)
+    if value is not None:
+        return [value]
+    if isinstance(node, ast.Call):
+        return [n for arg in node.args for n in _numbers(arg)] if node.args and not node.keywords else [None]
+    if isinstance(node, (ast.List, ast.Tuple)):
+        return [n for elt in node.elts for n in _numbers(elt)]
+    return [None]
+
+
+def _bound(node: ast.AST) -> float | None:
+    """The number an end of a bound pair states: a numeric literal, or a call, list or tuple of literals all equal
+    to one number (``np.array([10.0, 10.0])``)."""
+    numbers = set(_numbers(node))
+    return numbers.pop() if len(numbers) == 1 else None
+
+
+def stated_bounds(source: str) -> set[tuple[float, float]]:
+    """The (lower, upper) pairs a module writes out: two-element tuples and lists (``(-0.5, 0.5)``,
+    ``(np.array([-0.5]), np.array([0.5]))``) and chained comparisons (``10.0 <= v <= 170.0``)."""
+    pairs: set[tuple[float, float]] = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.Tuple, ast.List)) and len(node.elts) == 2:
+            pairs.add((_bound(node.elts[0]), _bound(node.elts[1])))
+        elif isinstance(node, ast.Compare) and len(node.ops) == 2:
+            pairs.add((_number(node.left), _number(node.comparators[1])))
+    return {pair for pair in pairs if None not in pair}
+
+
+def stated_effect_facts(root: Path, names: set[str], parameters: set[str],
+                        bounds: dict[tuple[float, float], str]) -> list[str]:
+    """What the modules of ``EFFECT_FREE`` under ``root`` state of the effects: a string literal equal to an
+    effect's name or to a fitted parameter's name (``SHARED_WORDS`` left out), a declared bound pair."""
+    found = []
+    for path in effect_free_modules(root):
+        source = path.read_text(encoding="utf-8")
+        where = path.relative_to(root).as_posix()
+        literals = string_literals(source)
+        found += [f"{where}: effect name {n!r}" for n in sorted(literals & names)]
+        found += [f"{where}: parameter name {n!r}" for n in sorted(literals & (parameters - set(SHARED_WORDS)))]
+        found += [f"{where}: bounds {pair} of {bounds[pair]}" for pair in sorted(stated_bounds(source) & set(bounds))]
+    return found
+
+
+def test_effect_facts_are_stated_only_in_their_modules() -> None:
+    """Adding an effect is adding its module: nothing of the simulator outside sim/effects/ and nothing of
+    reconcile states an effect's facts, so none holds a copy that could disagree.
+
+    The rule, read from the syntax tree of every module of ``EFFECT_FREE`` (the effect library left out):
+
+    * no string literal equals an effect's name (the code reaches an effect through its declaration's hooks and
+      fields, or its module's ``EFFECT.name``);
+    * no string literal equals the name of a parameter reconcile fits or sets (``Observed.fitted``, ``fixed``,
+      the corner fit's variants), but for the few that are also words of another vocabulary (``SHARED_WORDS``,
+      each with its meaning there): a whole string counts, so text that mentions an effect is free;
+    * no two-element tuple or list, and no chained comparison, states the (lower, upper) pair of a bound an
+      effect declares (a field's valid range, its solver bounds, its corner fit's bounds); the unit interval,
+      a fraction's range everywhere, is not taken for a bound.
+    """
+    assert stated_effect_facts(ROOT, effect_names(), fitted_names(), declared_bounds()) == []
+
+
+EFFECT_TREE = {
+    "sim/__init__.py": "",
+    "sim/effects/range_scale.py": 'NAME = "range_scale"\nBOUNDS = (-0.1, 0.1)\n',
+    "sim/fine.py": '"""Mentions range_scale in text."""\nSPAN = (0.0, 1.0)\nKEY = "offset_mm"\nPAIR = (-0.1, 0.2)\n',
+    "labctl/reconcile/fine.py": "def f(v):\n    return 0.0 <= v <= 1.0\n",
+    "labctl/run/elsewhere.py": 'NAME = "range_scale"\n',
+}
+
+
+@pytest.mark.parametrize("violation, found", [
+    ('ACTS = {"range_scale": 1}\n', "effect name 'range_scale'"),
+    ('def period(p):\n    return p.get("tau_s", 600.0)\n', "parameter name 'tau_s'"),
+    ("LIMITS = (np.array([-0.1]), np.array([0.1]))\n", "bounds (-0.1, 0.1) of range_scale.scale"),
+    ("def ok(v):\n    return -0.1 <= v <= 0.1\n", "bounds (-0.1, 0.1) of range_scale.scale"),
+])
+@pytest.mark.parametrize("module", ["sim/bad.py", "labctl/reconcile/bad.py"])
+def test_fact_check_finds_an_effect_fact_stated_outside_its_module(tmp_path: Path, module: str, violation: str,
+                                                                   found: str) -> None:
+    root = write_tree(tmp_path, EFFECT_TREE)
+    check = (effect_names(), fitted_names(), declared_bounds())
+    assert stated_effect_facts(root, *check) == []
+    write_tree(root, {module: violation})
+    assert stated_effect_facts(root, *check) == [f"{module}: {found}"]

@@ -44,8 +44,9 @@ from labctl.run.config import load_campaign, model_camera_mismatch, parse_campai
 from labctl.run.filekind import describe, is_hdf5
 from labctl.run.lab import simulated_lab
 from labctl.run.progress import Reporter
+from sim.effects import default_effects
 from sim.model import ModelError, load_model, parse_model
-from sim.profiles import default_effects, get_profile
+from sim.profiles import get_profile
 
 #: figures tabled and plotted when the sweep file names none
 DEFAULT_FIGURES = ["z_trueness_q90_mm", "z_precision_q90_mm", "z_accuracy_q90_mm", "z_repeatability_center_mm"]

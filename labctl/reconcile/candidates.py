@@ -52,7 +52,7 @@ from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout, raw_residuals
 from labctl.reconcile.results import Parameters
-from sim.effects import EFFECTS, Effect
+from sim.effects import EFFECTS, Effect, valid_range
 from sim.materials import get_material
 from sim.model import SimModel
 from sim.render import C_MM_PER_S
@@ -149,11 +149,7 @@ def bounds(effect: Effect, key: str) -> tuple[float, float]:
     """The solver's bounds of parameter ``key``: the effect's ``solver_bounds``, else its valid range."""
     if key in effect.observed.solver_bounds:
         return effect.observed.solver_bounds[key]
-    lo, hi = -math.inf, math.inf
-    for limit in effect.params.model_fields[key].metadata:
-        lo = getattr(limit, "ge", getattr(limit, "gt", lo))
-        hi = getattr(limit, "le", getattr(limit, "lt", hi))
-    return float(lo), float(hi)
+    return valid_range(effect.params, key)
 
 
 def _wrap(angle: float) -> float:

@@ -45,9 +45,11 @@ of the systematic residual sqrt(max(0, mean(r^2 - var))), its floor
 sqrt(mean(var + floor^2)); consistency as for depth (labctl/reconcile/goodness.py:
 gap at most floor and no step above ``STEP_FACTOR`` floors).
 
-Candidates: ``radial_distortion`` (k1 of r_d = r_u (1 + k1 (r_u / R)^2), with
-``cloud`` true or false, whichever the cloud family supports) and
-``fov_error`` (the true horizontal and vertical FOV). Each is fitted by
+Candidates: the effects whose declaration says how the corners show them
+(``Observed.corners``, sim/effects/base.py): ``radial_distortion`` (k1 of
+r_d = r_u (1 + k1 (r_u / R)^2), with the distortion in the cloud or not,
+whichever the cloud family supports) and ``fov_error`` (the true horizontal
+and vertical FOV); those with fewer parameters first. Each is fitted by
 nonlinear least squares on the whitened, profiled residual of both families
 (scipy.optimize.least_squares; the predictions are analytic, so a fit costs
 milliseconds). The corners are the replications: the score is Schwarz's
@@ -71,6 +73,7 @@ from labctl.reconcile.results import CornerFamilyGoodness, CornerGoodnessSummary
 from labctl.run.store import RunReader, StepRecord
 from metrics.distortion import Corners, detect_corners, refine_corners, sample_cloud
 from metrics.stack import stack_stats
+from sim.effects import EFFECTS, Effect
 from sim.geometry import Pose
 from sim.model import SimModel
 from sim.sensor import SensorOptics
@@ -334,18 +337,18 @@ class CornerCandidate:
     variants: tuple[Parameters, ...] = field(default_factory=lambda: ({},))  # fixed settings tried in turn
 
 
-def _fov_start(model: SimModel) -> np.ndarray:
-    p = model.profile()
-    return np.array([p.fov_h_deg, p.fov_v_deg], float)
+def corner_candidate(effect: Effect) -> CornerCandidate:
+    """The corner candidate of an effect whose ``observed.corners`` says how the corners show it."""
+    corners = effect.observed.corners
+    return CornerCandidate(effect.name, lambda model: np.array(corners.start(model.profile()), float),
+                           (np.array(corners.lower, float), np.array(corners.upper, float)), corners.params,
+                           corners.keys, tuple(dict(v) for v in corners.variants))
 
 
-RADIAL_DISTORTION = CornerCandidate(
-    "radial_distortion", lambda _: np.array([0.0]), (np.array([-0.5]), np.array([0.5])),
-    lambda x: {"k1": float(x[0])}, ("k1",), ({"cloud": True}, {"cloud": False}))
-FOV_ERROR = CornerCandidate(
-    "fov_error", _fov_start, (np.array([10.0, 10.0]), np.array([170.0, 170.0])),
-    lambda x: {"fov_deg": [float(x[0]), float(x[1])]}, ("fov_h_deg", "fov_v_deg"))
-CORNER_CANDIDATES = (RADIAL_DISTORTION, FOV_ERROR)
+def corner_candidates() -> tuple[CornerCandidate, ...]:
+    """The library's corner candidates, those with fewer parameters first (the registry's order among equals)."""
+    found = [corner_candidate(e) for e in EFFECTS.values() if e.observed is not None and e.observed.corners]
+    return tuple(sorted(found, key=lambda c: len(c.keys)))
 
 
 @dataclass(frozen=True)

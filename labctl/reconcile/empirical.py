@@ -22,6 +22,7 @@ import numpy as np
 
 from labctl.reconcile.candidates import Context
 from labctl.reconcile.results import Parameters
+from sim.effects import empirical_pixel_map, empirical_range
 from sim.effects.empirical_pixel_map import node_coordinates
 
 RANGE_KNOTS = 13
@@ -69,7 +70,7 @@ def fit_pixel_map(ctx: Context, r: np.ndarray) -> Parameters:
     return {"correction_mm": [[round(float(c), 4) for c in row] for row in grid]}
 
 
-FORMS = {"empirical_range": fit_range, "empirical_pixel_map": fit_pixel_map}
+RANGE, PIXEL_MAP = empirical_range.EFFECT.name, empirical_pixel_map.EFFECT.name
+FORMS = {RANGE: fit_range, PIXEL_MAP: fit_pixel_map}
 #: the form to try first for a residual carried by an axis
-FIRST_FORM = {"distance": "empirical_range", "row": "empirical_pixel_map", "column": "empirical_pixel_map",
-              "radius": "empirical_pixel_map"}
+FIRST_FORM = {"distance": RANGE, "row": PIXEL_MAP, "column": PIXEL_MAP, "radius": PIXEL_MAP}

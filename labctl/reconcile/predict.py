@@ -16,8 +16,9 @@ Per step the prediction holds what the candidate effects' signatures are
 built from: the range and the z / range ratio of the reported rays (ToF), the
 light before vignetting, the pixel's dominant-return phasor mean (multipath),
 and the frames' mean drift factor. Renders are cached per step and per
-geometric effect setting, so that effects acting after the render re-simulate
-a whole run in milliseconds per step.
+setting of the effects that change what the render sees
+(``Effect.changes_render``), so that effects acting after the render
+re-simulate a whole run in milliseconds per step.
 """
 
 from __future__ import annotations
@@ -33,20 +34,15 @@ import numpy as np
 from scipy import ndimage
 
 from labctl.reconcile.observe import StepScene, bin_mean
-from sim.effects import EffectParams, frame_offset_mm
+from sim.effects import EFFECTS, EffectParams, frame_offset_mm, plate_placement_mm
 from sim.geometry import Pose
 from sim.model import SimModel
 from sim.profiles import CameraProfile
 from sim.render import centre_distance_mm, render
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
-from sim.sensor import default_coc_px
+from sim.sensor import blur_diameter_px
 from sim.stereo import StereoSensor, dot_pattern
 from sim.tof import ToFSensor, surface_properties
-
-#: effects that change what the render sees (re-rendered when their parameters change)
-GEOMETRIC = ("radial_distortion", "fov_error", "target_misalignment", "camera_axis_offset", "material_bias",
-             "flying_pixels", "multipath")
-STAGE_GEOMETRIC = tuple(k for k in GEOMETRIC if k not in ("target_misalignment", "camera_axis_offset"))
 
 
 @dataclass(frozen=True)
@@ -74,12 +70,14 @@ def binned_profile(profile: CameraProfile, width: int, height: int, bin_px: int)
 
 
 def binned_effects(model: SimModel, width: int, height: int) -> dict[str, EffectParams]:
-    """The model's effects for the binned camera: all but the blur (``defocus``); a ``fixed_pattern``'s random
-    parts stay drawn on the measured camera's ``width`` x ``height`` grid (each bin takes their bin mean)."""
-    effects = {k: v for k, v in model.effect_params().items() if k != "defocus"}
-    pattern = effects.get("fixed_pattern")
-    if pattern is not None and pattern.grid_px is None:
-        effects["fixed_pattern"] = pattern.model_copy(update={"grid_px": [width, height]})
+    """The model's effects for the binned camera: all but the blur (``blur_px``), each as its ``binned`` hook
+    gives it for the measured camera's ``width`` x ``height`` sensor (e.g. a fixed pattern's random parts stay
+    drawn on that grid, each bin taking their bin mean)."""
+    effects = {}
+    for name, params in model.effect_params().items():
+        effect = EFFECTS[name]
+        if effect.blur_px is None:
+            effects[name] = effect.binned(params, width, height) if effect.binned is not None else params
     return effects
 
 
@@ -95,12 +93,10 @@ def binned_dots(height: int, width: int, lens_sigma_px: float, bin_px: int) -> n
 def scene_and_pose(step: StepScene, model: SimModel, effects: dict[str, EffectParams], wavelength_nm: float):
     """The scene and camera pose of a measured step, as the simulated lab (sim/world.py) builds them."""
     if step.target in PLATE_MATERIALS:
-        axis, misaligned = effects.get("camera_axis_offset"), effects.get("target_misalignment")
-        pose = Pose.on_circle(step.robot_angle_deg or 0.0, step.robot_radius_mm or 0.0,
-                              axis.offset_mm if axis else 0.0)
+        axis_mm, plate_mm = plate_placement_mm(effects)
+        pose = Pose.on_circle(step.robot_angle_deg or 0.0, step.robot_radius_mm or 0.0, axis_mm)
         params = {k: v for k, v in step.target_params.items() if k != "offset_mm"}
-        scene = plate_scene(step.target, wavelength_nm, offset_mm=misaligned.offset_mm if misaligned else 0.0,
-                            **params)
+        scene = plate_scene(step.target, wavelength_nm, offset_mm=plate_mm, **params)
         return scene, pose
     pose = Pose.at_origin(model.lab.tilt_x_deg, model.lab.tilt_y_deg)
     return build_scene(step.target, step.target_params, wavelength_nm, float(step.wall_distance_mm)), pose
@@ -117,9 +113,7 @@ class Predictor:
         self.bin_px = bin_px
         self.profile = binned_profile(full, width, height, bin_px)
         self.effects = binned_effects(model, width, height)
-        defocus = model.effect_params().get("defocus")
-        self._coc_hyperfocal = ((defocus.coc_px or default_coc_px(full.lens_sigma_px)) * defocus.hyperfocal_mm
-                                if defocus is not None else 0.0)
+        self.full_effects = model.effect_params()  # the measured camera's, its blur included
         self.technology = self.profile.technology
         if self.technology == "tof":
             self.sensor: ToFSensor | StereoSensor = ToFSensor(self.profile, self.effects)
@@ -135,8 +129,9 @@ class Predictor:
 
     def geometry_key(self, step: StepScene) -> str:
         """The effect settings that change what this step's render sees."""
-        names = GEOMETRIC if step.target in PLATE_MATERIALS else STAGE_GEOMETRIC
-        return json.dumps({k: self.effects[k].model_dump(mode="json") for k in names if k in self.effects},
+        plates = step.target in PLATE_MATERIALS
+        return json.dumps({k: v.model_dump(mode="json") for k, v in self.effects.items()
+                           if (EFFECTS[k].changes_render if plates else EFFECTS[k].changes_stage_render)},
                           sort_keys=True)
 
     def _render(self, step: StepScene):
@@ -152,7 +147,8 @@ class Predictor:
     def blur_reach_bins(self, distance_mm: float) -> int:
         """How many bins the measured camera's blur (3 sigma of the lens PSF plus the defocus disc radius,
         Thesis 2024, eq. 2-5) reaches at ``distance_mm``."""
-        reach_px = 3.0 * self.full.lens_sigma_px + 0.5 * self._coc_hyperfocal / max(distance_mm, 1.0)
+        reach_px = 3.0 * self.full.lens_sigma_px + 0.5 * blur_diameter_px(self.full_effects, distance_mm,
+                                                                          self.full.lens_sigma_px)
         return 1 + int(math.ceil(reach_px / self.bin_px))
 
     def drift_mm(self, times_s: np.ndarray) -> float:

@@ -47,10 +47,10 @@ from labctl.errors import InputError
 from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
 from labctl.reconcile.characterize import characterize
 from labctl.reconcile.corners import (
-    CORNER_CANDIDATES,
     CornerComparison,
     CornerFit,
     CornerGoodness,
+    corner_candidates,
     fit_corner_candidate,
     observe_corner_run,
 )
@@ -79,11 +79,11 @@ from labctl.reconcile.results import (
     Unexplained,
 )
 from labctl.reconcile.score import Fit, score
+from sim.effects import EFFECTS, default_effects
 from sim.model import SimModel, parse_model
-from sim.profiles import PROFILES, default_effects, get_profile
+from sim.profiles import PROFILES, get_profile
 
 DBIC_THRESHOLD = 30.0
-CORNER_NAMES = {c.name for c in CORNER_CANDIDATES}
 MARGIN = 10.0
 COMPETING_CORRELATION = 0.5
 MAX_EFFECTS = 4
@@ -92,16 +92,24 @@ POOR_RELATIVE_ERROR = 0.05  # a parameter whose standard error exceeds 5 % (2 si
 POOR_ANGLE_ERROR_RAD = 0.05
 POOR_CORRELATION = 0.95
 BACKEND_PROFILES = {"blaze": "blaze101", "amt100": "amt100", "flexx2": "flexx2", "realsense": "d455"}
-#: which procedures give the comparison something to work with (for ``not_comparable``)
-NEEDED_PROCEDURES = {
-    "depth_sweep": "a wall at several distances (range effects: range_scale, wiggling, intensity_related_error, "
-                   "multipath, drift)",
-    "offset_calibration": "the same wall position at the start of the run (with a sweep: drift against distance)",
-    "remission_angle": "material plates on the robot circle at several angles (material_bias, target_misalignment, "
-                       "camera_axis_offset)",
-    "checkerboard": "a checkerboard filling the view, at two or more distances (corner positions: "
-                    "radial_distortion, fov_error)",
+#: which procedures give the comparison something to work with (for ``not_comparable``): what each captures, and
+#: how the effects that declare it as their procedure (``Observed.procedure``) are introduced
+PROCEDURES = {
+    "depth_sweep": ("a wall at several distances", "range effects: "),
+    "offset_calibration": ("the same wall position at the start of the run (with a sweep: drift against distance)",
+                           ""),
+    "remission_angle": ("material plates on the robot circle at several angles", ""),
+    "checkerboard": ("a checkerboard filling the view, at two or more distances", "corner positions: "),
 }
+
+
+def needed_procedures() -> dict[str, str]:
+    """Per procedure of ``PROCEDURES``: what it captures and the effects it shows (in the registry's order)."""
+    needed = {}
+    for procedure, (what, label) in PROCEDURES.items():
+        names = [e.name for e in EFFECTS.values() if e.observed is not None and e.observed.procedure == procedure]
+        needed[procedure] = f"{what} ({label}{', '.join(names)})" if names else what
+    return needed
 
 
 @dataclass
@@ -317,20 +325,12 @@ def determination(candidate: Candidate, params: Parameters, x: np.ndarray, cov: 
 
 
 def capture_hint(name: str, params: Parameters, obs: list[Observation]) -> str:
-    """The capture that would determine an effect's parameters better."""
+    """The capture that would determine an effect's parameters better (the effect's ``Observed.capture``)."""
     stage = [o.scene for o in obs if o.scene.wall_distance_mm is not None]
     first = f"{stage[0].wall_distance_mm:.0f} mm" if stage else "first"
-    if name == "temperature_drift":
-        tau = float(params.get("tau_s", 600.0))
-        return (f"repeat the {first} position later in the run (after about {3 * tau:.0f} s, three time constants) "
-                "and start capturing right after power-on: the drift's amplitude and time constant separate "
-                "only when the same position is seen warm and settled")
-    if name == "wiggling":
-        period = float(params.get("period_mm", 1000.0))
-        return (f"a depth sweep with steps below a quarter of the period ({period / 4:.0f} mm) over at least two "
-                "periods")
-    if name == "multipath":
-        return "the same scene at more distances (the extra path's phase turns with the modulation wavelength)"
+    observed = EFFECTS[name].observed
+    if observed is not None and observed.capture is not None:
+        return observed.capture(params, first)
     return "more steps of the procedure where the effect shows most"
 
 
@@ -377,9 +377,10 @@ def _comparable_steps(lay: Layout) -> int:
 def _not_comparable(observations: list[Observation], model: SimModel, notes: list[str], why: str) -> ReconcileResult:
     """The result for a run with nothing (or too little) the simulator can re-create, with what would help."""
     procedures = sorted({o.scene.procedure for o in observations})
-    needed = {k: v for k, v in NEEDED_PROCEDURES.items() if k not in procedures}
+    every = needed_procedures()
+    needed = {k: v for k, v in every.items() if k not in procedures}
     detail = NotComparable(reason=why, comparable_steps=[o.scene.step_id for o in observations],
-                           procedures_needed=needed or NEEDED_PROCEDURES,
+                           procedures_needed=needed or every,
                            not_compared="edge sharpness is evaluated by labctl evaluate, not compared here")
     nan = math.nan
     return ReconcileResult("not_comparable", [], [], nan, nan, nan, nan, model, observations, [], [],
@@ -447,15 +448,16 @@ def _corner_determination(fit: CornerFit, start: np.ndarray) -> Determination:
 
 def _corner_stage(comparison: CornerComparison, model: SimModel,
                   say: Callable[[str], None]) -> tuple[CornerStage, SimModel]:
-    """Name and fit the effects the checkerboard corners show (radial_distortion, fov_error), as the depth rounds
-    do: the best candidate by Schwarz's criterion over the corner axes, above ``DBIC_THRESHOLD``, no competing
+    """Name and fit the effects the checkerboard corners show (``corner_candidates``), as the depth rounds do:
+    the best candidate by Schwarz's criterion over the corner axes, above ``DBIC_THRESHOLD``, no competing
     runner-up within ``MARGIN``, material on the corner families (``material``); until the corners are
     consistent with their noise."""
     good = before = comparison.goodness(model)
     named: list[NamedEffect] = []
     rounds: list[CornerRound] = []
     ambiguity = None
-    for _ in CORNER_CANDIDATES:
+    candidates = corner_candidates()
+    for _ in candidates:
         entry = CornerRound(model_effects=sorted(model.effects), gap=rounded(good.gap_mm),
                             gap_floor=rounded(good.gap_floor_mm), decision="none significant")
         rounds.append(entry)
@@ -463,7 +465,7 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
             entry.decision = "consistent with noise"
             break
         fits: list[CornerFit] = []
-        for candidate in CORNER_CANDIDATES:
+        for candidate in candidates:
             if candidate.name not in model.effects:
                 say(f"fitting {candidate.name} to the checkerboard corners")
                 fit = fit_corner_candidate(candidate, comparison, model, with_effect)
@@ -485,7 +487,7 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
             entry.decision = (f"{best.name} not material (corner gap {good.gap_mm:.3f} -> {after.gap_mm:.3f} mm, "
                                  f"floor {good.gap_floor_mm:.3f} mm)")
             break
-        candidate = next(c for c in CORNER_CANDIDATES if c.name == best.name)
+        candidate = next(c for c in candidates if c.name == best.name)
         named.append(NamedEffect(name=best.name, parameters=best.params, evidence=Evidence(
             family="corners", delta_bic=round(best.score, 2), loso_gain=None,
             runner_up=runner.name if runner else None,
@@ -616,8 +618,8 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         notes.append(_corner_unexplained(corners))
     if unexplained is not None:
         unexplained.message = _unexplained_message(named, good_physical, unexplained, empirical)
-    notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items()
-              if corners is None or name not in CORNER_NAMES]
+    corner_names = {c.name for c in corner_candidates()} if corners is not None else set()
+    notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items() if name not in corner_names]
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
                            state.model, observations, iterations, _residual_maps(lay, state.dz), notes, ambiguity,
                            good_before, state.good, good_physical, unexplained, empirical, corners=corners)
@@ -629,7 +631,7 @@ def _corner_unexplained(corners: CornerStage) -> str:
     after = " after " + ", ".join(e.name for e in corners.named) if corners.named else ""
     return (f"checkerboard corners: a residual of {g.gap_mm:.3f} mm in the board plane ({g.gap_px:.3f} px in the "
             f"image) remains{after} (floor {g.gap_floor_mm:.3f} mm, {g.gap_floor_px:.3f} px) that neither "
-            "radial_distortion nor fov_error explains")
+            + " nor ".join(c.name for c in corner_candidates()) + " explains")
 
 
 def _corner_result(observations: list[Observation], model: SimModel, notes: list[str], why: str,
@@ -637,9 +639,10 @@ def _corner_result(observations: list[Observation], model: SimModel, notes: list
     """The result of a run whose only comparison is its checkerboard corners: their gap (mm in the board
     plane) is the run's gap, and the depth comparison's absence is said with the procedures it would need."""
     procedures = sorted({o.scene.procedure for o in observations})
-    needed = {k: v for k, v in NEEDED_PROCEDURES.items() if k not in procedures}
+    every = needed_procedures()
+    needed = {k: v for k, v in every.items() if k not in procedures}
     notes = notes + [f"depth and intensity not compared: {why}; range effects would need "
-                     + ", ".join(needed or NEEDED_PROCEDURES)]
+                     + ", ".join(needed or every)]
     if corners.ambiguity is not None:
         verdict = "ambiguous"
     elif not corners.after.consistent:

@@ -15,10 +15,10 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from sim.effects.base import Effect, EffectParams, Observed, RangeStage
+from sim.effects.base import Corners, Effect, EffectParams, Observed, RangeStage, valid_range
 
-__all__ = ["EFFECTS", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "frame_offset_mm", "output_step_mm",
-           "parse_effects", "registered"]
+__all__ = ["EFFECTS", "Corners", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "default_effects",
+           "frame_offset_mm", "output_step_mm", "parse_effects", "plate_placement_mm", "registered", "valid_range"]
 
 
 def _discover() -> dict[str, Effect]:
@@ -64,6 +64,24 @@ def output_step_mm(effects: dict[str, EffectParams]) -> float:
     """The step the camera stores its coordinates in (the coarsest of the effects' ``step_mm``; 0: not stored in
     steps)."""
     return max((hook(params) for hook, params in acting(effects, "step_mm")), default=0.0)
+
+
+def plate_placement_mm(effects: dict[str, EffectParams]) -> tuple[float, float]:
+    """Robot lab: how far the camera's optical axis passes the robot axis to the side and how far the target plate
+    stands behind the robot circle's centre (the effects' ``axis_offset_mm`` and ``plate_offset_mm``; 0 without)."""
+    axis = plate = 0.0
+    for hook, params in acting(effects, "axis_offset_mm"):
+        axis = axis + hook(params)
+    for hook, params in acting(effects, "plate_offset_mm"):
+        plate = plate + hook(params)
+    return axis, plate
+
+
+def default_effects(profile: Any) -> dict[str, dict[str, Any]]:
+    """The effects a built-in camera profile has by nature (each effect's ``built_in``; e.g. its defocus and its
+    output quantization)."""
+    found = {e.name: e.built_in(profile) for e in EFFECTS.values() if e.built_in is not None}
+    return {name: dict(params) for name, params in found.items() if params is not None}
 
 
 def _got(error: Any) -> str:

@@ -3,17 +3,22 @@
 An effect owns its facts in one place: its name (the docs/simulation.md
 name), the technologies it applies to (``tof`` and/or ``stereo``), where its
 formula comes from, its parameters (``Params``: a strict pydantic model with
-units in the field names, defaults and valid ranges), how ``labctl
-reconcile`` can see it in a run (:class:`Observed`) and the hooks through
-which it acts on the sensor's noise-free maps. The sensors (sim/tof.py,
-sim/stereo.py) call the hooks of the effects present in a model's
-``[effects]`` table at the stage where each acts; an effect present is on,
-absent is off. The registry (sim/effects/__init__.py) finds every module of
-this package that declares ``EFFECT``.
+units in the field names, defaults and valid ranges), whether a camera's
+built-in model has it, how ``labctl reconcile`` can see it in a run
+(:class:`Observed`) and the hooks through which it acts on the camera: its
+optics, the robot lab's placement, the render, the blur and the sensor's
+noise-free maps. The simulator (sim/sensor.py, sim/tof.py, sim/stereo.py,
+sim/world.py) and reconcile's prediction call the hooks of the effects present
+in a model's ``[effects]`` table at the stage where each acts; an effect
+present is on, absent is off. No module of the simulator or of reconcile
+names an effect or states its parameters' bounds (tests/test_architecture.py).
+The registry (sim/effects/__init__.py) finds every module
+of this package that declares ``EFFECT``.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,6 +32,16 @@ class EffectParams(StrictModel):
     """Base of every effect's parameters (unknown keys are refused)."""
 
 
+def valid_range(params: type[EffectParams], key: str) -> tuple[float, float]:
+    """The (lower, upper) bound the field ``key`` of ``params`` declares (``ge``/``gt``, ``le``/``lt``;
+    infinite where it declares none)."""
+    lo, hi = -math.inf, math.inf
+    for limit in params.model_fields[key].metadata:
+        lo = getattr(limit, "ge", getattr(limit, "gt", lo))
+        hi = getattr(limit, "le", getattr(limit, "lt", hi))
+    return float(lo), float(hi)
+
+
 @dataclass(frozen=True)
 class RangeStage:
     """What a range hook may use: the sensor it acts in and, on a ToF sensor, the returned light.
@@ -38,6 +53,24 @@ class RangeStage:
 
     sensor: Any
     light: np.ndarray | None = None  # ToF: the returned light before vignetting (amplitude units)
+
+
+@dataclass(frozen=True)
+class Corners:
+    """How the checkerboard corner comparison fits the effect (labctl/reconcile/corners.py, docs/reconcile.md).
+
+    The fit searches a vector (entries named ``keys``) within ``lower`` to
+    ``upper`` from ``start(profile)`` (the camera's :class:`~sim.profiles.CameraProfile`);
+    ``params(x)`` turns it into the effect's parameters, completed by each of
+    ``variants`` in turn (the best kept).
+    """
+
+    keys: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    start: Callable[[Any], tuple[float, ...]]
+    params: Callable[[Any], dict[str, Any]]
+    variants: tuple[Mapping[str, Any], ...] = ({},)
 
 
 @dataclass(frozen=True)
@@ -60,11 +93,35 @@ class Observed:
     solver_bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)  # where the solver's bounds
     # differ from the valid range (an angle searched over two turns and wrapped, a log-scaled time's lower end)
     formula: Callable[..., Any] | None = None  # the effect's own formula, where the signature form needs it
+    corners: Corners | None = None  # how the checkerboard corners show it (None: they do not)
+    procedure: str = ""  # the procedure whose captures show it (named when a run has nothing comparable)
+    capture: Callable[[Mapping[str, Any], str], str] | None = None  # the capture that would determine its fitted
+    # parameters better, from them and the run's first stage position ("850 mm", or "first" without one)
 
 
 @dataclass(frozen=True)
 class Effect:
     """One effect of the library: its facts and the hooks the sensors call (``None``: it does not act there).
+
+    ``built_in(profile)``: its parameters in a camera's built-in model, from the
+    :class:`~sim.profiles.CameraProfile` (``None``: not in it).
+
+    Hooks that decide what the camera images (sim/sensor.py, sim/world.py):
+
+    * ``true_fov_deg(p)``: the [h, v] FOV the scene is imaged with (the datasheet's without);
+    * ``lens_distortion(p)``: (k1, whether the point cloud carries the distortion) of the Brown radial model;
+    * ``axis_offset_mm(p)``: robot lab: the camera's optical axis passes the robot axis this far to the side;
+    * ``plate_offset_mm(p)``: robot lab: the target plate stands this far behind the robot circle's centre;
+    * ``blur_px(distance_mm, p, default_coc_px)``: the diameter of a blur disc at ``distance_mm``
+      (``default_coc_px``: the disc that costs the profile's lens 10 % of its SFR area);
+    * ``binned(p, width, height)``: its parameters for the same camera with pixels merged into bins
+      (reconcile's prediction), drawn on the ``width`` x ``height`` sensor; an effect with ``blur_px`` is left
+      out of the binned camera.
+
+    An effect with any of these hooks but ``blur_px`` and ``binned``, or with
+    ``subsurface_scale``, ``mixes_returns`` or ``mixed_pixels``, changes what
+    the render sees (``changes_render``); the two robot-lab hooks only on the
+    robot's plates (``changes_stage_render``: the others).
 
     Hooks, in the order a sensor calls them:
 
@@ -93,3 +150,21 @@ class Effect:
     on_range: Callable[[np.ndarray, Any, RangeStage], np.ndarray] | None = None
     frame_offset_mm: Callable[[float, Any], float] | None = None
     step_mm: Callable[[Any], float] | None = None
+    built_in: Callable[[Any], Mapping[str, Any] | None] | None = None
+    true_fov_deg: Callable[[Any], tuple[float, float]] | None = None
+    lens_distortion: Callable[[Any], tuple[float, bool]] | None = None
+    axis_offset_mm: Callable[[Any], float] | None = None
+    plate_offset_mm: Callable[[Any], float] | None = None
+    blur_px: Callable[[float, Any, float], float] | None = None
+    binned: Callable[[Any, int, int], Any] | None = None
+
+    @property
+    def changes_stage_render(self) -> bool:
+        """Whether the render of a stage step (a target on the wall) changes with the effect's parameters."""
+        return (self.true_fov_deg is not None or self.lens_distortion is not None
+                or self.subsurface_scale is not None or self.mixes_returns or self.mixed_pixels)
+
+    @property
+    def changes_render(self) -> bool:
+        """Whether the render of a step on the robot's plates changes with the effect's parameters."""
+        return self.changes_stage_render or self.axis_offset_mm is not None or self.plate_offset_mm is not None

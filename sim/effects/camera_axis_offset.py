@@ -20,5 +20,7 @@ EFFECT = Effect(
     ("tof", "stereo"),
     Params,
     "Thesis 2024, 5.4.2, Fig. 5-15 (b)",
-    observed=Observed("resimulated", fitted=("offset_mm",), steps="robot_plates", min_steps=3, probe=10.0),
+    observed=Observed("resimulated", fitted=("offset_mm",), steps="robot_plates", min_steps=3, probe=10.0,
+                      procedure="remission_angle"),
+    axis_offset_mm=lambda p: p.offset_mm,
 )

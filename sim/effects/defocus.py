@@ -26,9 +26,9 @@ class Params(EffectParams):
     coc_px: float | None = Field(None, gt=0.0, le=20.0, description="blur disc diameter at H, px")
 
 
-def blur_diameter_px(distance_mm: float, coc_px: float, p: Params) -> float:
-    """Disc diameter (pixels) at ``distance_mm``."""
-    return coc_px * p.hyperfocal_mm / max(distance_mm, 1.0)
+def blur_diameter_px(distance_mm: float, p: Params, default_coc_px: float) -> float:
+    """Disc diameter (pixels) at ``distance_mm``; ``default_coc_px`` stands for an unset ``coc_px``."""
+    return (p.coc_px or default_coc_px) * p.hyperfocal_mm / max(distance_mm, 1.0)
 
 
 EFFECT = Effect(
@@ -37,4 +37,6 @@ EFFECT = Effect(
     Params,
     "Thesis 2024, 2.2, eq. 2-5 (Lange 2023); Hecht 2017",
     observed=Observed(why_not="acts at edges, which the comparison leaves out (see the slanted-edge evaluation)"),
+    built_in=lambda profile: {"hyperfocal_mm": profile.hyperfocal_mm},
+    blur_px=blur_diameter_px,
 )

@@ -104,4 +104,5 @@ EFFECT = Effect(
     observed=Observed("column_row_profile", fitted=("column_offsets_mm", "row_offsets_mm")),
     order=60,
     on_range=lambda values, p, at: values + sensor_offset_map_mm(at.sensor.profile.width, at.sensor.profile.height, p),
+    binned=lambda p, width, height: p if p.grid_px is not None else p.model_copy(update={"grid_px": [width, height]}),
 )

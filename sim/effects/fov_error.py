@@ -11,7 +11,10 @@ from __future__ import annotations
 
 from pydantic import Field, field_validator
 
-from sim.effects.base import Effect, EffectParams, Observed
+from sim.effects.base import Corners, Effect, EffectParams, Observed
+
+#: the FOV a camera can have, deg
+FOV_RANGE_DEG = (10.0, 170.0)
 
 
 class Params(EffectParams):
@@ -20,8 +23,9 @@ class Params(EffectParams):
     @field_validator("fov_deg")
     @classmethod
     def _range(cls, value: tuple[float, float]) -> tuple[float, float]:
-        if not all(10.0 <= v <= 170.0 for v in value):
-            raise ValueError(f"fov_deg must lie in [10, 170] deg, got {list(value)}")
+        lo, hi = FOV_RANGE_DEG
+        if not all(lo <= v <= hi for v in value):
+            raise ValueError(f"fov_deg must lie in [{lo:g}, {hi:g}] deg, got {list(value)}")
         return value
 
 
@@ -31,5 +35,10 @@ EFFECT = Effect(
     Params,
     "Thesis 2024, 6.4.1, Table 6-2",
     observed=Observed(why_not="the camera's calibration keeps depth and the cloud right; a checkerboard's corners "
-                            "would show it"),
+                            "would show it",
+                      corners=Corners(("fov_h_deg", "fov_v_deg"), (FOV_RANGE_DEG[0],) * 2, (FOV_RANGE_DEG[1],) * 2,
+                                      start=lambda profile: (profile.fov_h_deg, profile.fov_v_deg),
+                                      params=lambda x: {"fov_deg": [float(x[0]), float(x[1])]}),
+                      procedure="checkerboard"),
+    true_fov_deg=lambda p: p.fov_deg,
 )

@@ -28,7 +28,7 @@ EFFECT = Effect(
     ("tof",),
     Params,
     "Lindner & Kolb 2007",
-    observed=Observed("inverse_light", fitted=("error_at_reference_mm",)),
+    observed=Observed("inverse_light", fitted=("error_at_reference_mm",), procedure="depth_sweep"),
     order=50,
     on_range=lambda values, p, at: values + error_mm(at.light, at.sensor.a_ref, p),
 )

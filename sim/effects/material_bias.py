@@ -22,6 +22,6 @@ EFFECT = Effect(
     ("tof",),
     Params,
     "sim/materials.py references; Thesis 2024, 6.5",
-    observed=Observed("resimulated", fitted=("scale",), steps="translucent"),
+    observed=Observed("resimulated", fitted=("scale",), steps="translucent", procedure="remission_angle"),
     subsurface_scale=lambda p: p.scale,
 )

@@ -33,7 +33,10 @@ EFFECT = Effect(
     ("tof",),
     Params,
     "Fuchs 2010; Jimenez et al. 2014",
-    observed=Observed("mean_phasor", fitted=("strength", "extra_path_mm"), solver_bounds={"extra_path_mm": (1.0, 10000.0)}),
+    observed=Observed("mean_phasor", fitted=("strength", "extra_path_mm"), solver_bounds={"extra_path_mm": (1.0, 10000.0)},
+                      procedure="depth_sweep",
+                      capture=lambda _, __: "the same scene at more distances (the extra path's phase turns with the "
+                                            "modulation wavelength)"),
     mixes_returns=True,
     phasor=add_return,
 )

@@ -22,4 +22,5 @@ EFFECT = Effect(
     "Thesis 2024, Table 6-1 (AM-T100 integer mm); librealsense z16 depth units",
     observed=Observed(why_not="does not move the mean of a noisy stack"),
     step_mm=lambda p: p.step_mm,
+    built_in=lambda profile: {"step_mm": profile.output_step_mm} if profile.output_step_mm > 0 else None,
 )

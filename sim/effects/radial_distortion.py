@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from sim.effects.base import Effect, EffectParams, Observed
+from sim.effects.base import Corners, Effect, EffectParams, Observed, valid_range
 
 
 class Params(EffectParams):
@@ -25,5 +25,10 @@ EFFECT = Effect(
     ("tof", "stereo"),
     Params,
     "Brown 1966; Jaehne 2012 p. 97 (Thesis 2024, eq. 5-5); ISO 17850:2015",
-    observed=Observed("resimulated", fitted=("k1",), fixed={"cloud": True}, probe=0.02),
+    observed=Observed("resimulated", fitted=("k1",), fixed={"cloud": True}, probe=0.02,
+                      corners=Corners(("k1",), valid_range(Params, "k1")[:1], valid_range(Params, "k1")[1:],
+                                      start=lambda _: (0.0,), params=lambda x: {"k1": float(x[0])},
+                                      variants=({"cloud": True}, {"cloud": False})),
+                      procedure="checkerboard"),
+    lens_distortion=lambda p: (p.k1, p.cloud),
 )

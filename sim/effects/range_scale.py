@@ -25,7 +25,7 @@ EFFECT = Effect(
     ("tof", "stereo"),
     Params,
     "Lindner & Kolb 2006",
-    observed=Observed("proportional_range", fitted=("scale",)),
+    observed=Observed("proportional_range", fitted=("scale",), procedure="depth_sweep"),
     order=30,
     on_range=lambda values, p, _: apply(values, p),
 )

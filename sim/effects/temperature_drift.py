@@ -13,6 +13,8 @@ known ToF error (Thesis 2024, Table 3-2; Chiabrando et al. 2009).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 from pydantic import Field
 
@@ -36,11 +38,20 @@ def offset_mm(t_s: float, p: Params) -> float:
     return p.delta_mm * math.exp(-t / p.tau_s) + sum(term.delta_mm * math.exp(-t / term.tau_s) for term in p.terms)
 
 
+def capture(params: Mapping[str, Any], first: str) -> str:
+    """The capture that separates the drift's amplitude and time constant (``first``: the stage position)."""
+    tau = float(params.get("tau_s", 600.0))
+    return (f"repeat the {first} position later in the run (after about {3 * tau:.0f} s, three time constants) "
+            "and start capturing right after power-on: the drift's amplitude and time constant separate "
+            "only when the same position is seen warm and settled")
+
+
 EFFECT = Effect(
     "temperature_drift",
     ("tof", "stereo"),
     Params,
     "Chiabrando et al. 2009; Thesis 2024, Table 3-2 (self-heating); further terms: one per thermal time constant",
-    observed=Observed("warm_up", fitted=("delta_mm", "tau_s", "terms"), solver_bounds={"tau_s": (1.0, 86400.0)}),
+    observed=Observed("warm_up", fitted=("delta_mm", "tau_s", "terms"), solver_bounds={"tau_s": (1.0, 86400.0)},
+                      procedure="depth_sweep", capture=capture),
     frame_offset_mm=offset_mm,
 )

@@ -10,6 +10,8 @@ a period of c / (8 f_mod): 375 mm at 100 MHz, 2.5 m at 15 MHz. Source: Lindner
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from pydantic import Field
@@ -41,13 +43,20 @@ def apply(range_mm: np.ndarray, p: Params) -> np.ndarray:
     return range_mm + error_mm(range_mm, p)
 
 
+def capture(params: Mapping[str, Any], _: str) -> str:
+    """The depth sweep that determines the wiggling's period."""
+    period = float(params.get("period_mm", 1000.0))
+    return f"a depth sweep with steps below a quarter of the period ({period / 4:.0f} mm) over at least two periods"
+
+
 EFFECT = Effect(
     "wiggling",
     ("tof",),
     Params,
     "Lindner & Kolb 2006; Giancola et al. 2018; Thesis 2024, 4.2.2",
     observed=Observed("periodic_range", fitted=("amplitude_mm", "period_mm", "phase_rad"),
-                      solver_bounds={"phase_rad": (-4 * math.pi, 4 * math.pi)}),
+                      solver_bounds={"phase_rad": (-4 * math.pi, 4 * math.pi)}, procedure="depth_sweep",
+                      capture=capture),
     order=20,
     on_range=lambda values, p, _: apply(values, p),
 )

@@ -34,7 +34,8 @@ import pytest
 import tomli_w
 
 from labctl.cli import main
-from sim.profiles import default_effects, get_profile
+from sim.effects import default_effects
+from sim.profiles import get_profile
 
 SIZES = {"blaze101": (160, 120), "amt100": (160, 120), "flexx2": (224, 172), "d455": (160, 120)}
 BACKENDS = {"blaze101": "blaze", "amt100": "amt100", "flexx2": "flexx2", "d455": "realsense"}

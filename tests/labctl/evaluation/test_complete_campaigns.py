@@ -37,9 +37,10 @@ from metrics.depth_quality import centre_window, dqt_roi
 from metrics.optics import pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 from metrics.sharpness import ied_pixels
 from procedures.remission_angle import SKIN_LIKE
+from sim.effects import default_effects
 from sim.materials import angle_factor, remission
 from sim.model import parse_model
-from sim.profiles import default_effects, get_profile
+from sim.profiles import get_profile
 from sim.stereo import StereoSensor
 from sim.tof import IRRADIANCE_REF, range_noise_mm, reference_amplitude
 from tests.artefact_model import predicted_acceptance
