@@ -57,6 +57,8 @@ class Evidence:
     intensity_gap_before_pct: float | None = optional()
     intensity_gap_after_pct: float | None = optional()
     steps: int
+    p_value: float | None = optional()  # against the null runs (labctl/reconcile/null.py), when there were any
+    null_runs: int | None = optional()
 
 
 @dataclass(kw_only=True)
@@ -156,3 +158,6 @@ class ReconcileDocument:
     unexplained: dict[str, Any] | None = optional()
     not_comparable: NotComparable | None = optional()
     ambiguity: Ambiguity | None = optional()
+    calibration: str = "fixed thresholds"  # or "null runs" (labctl/reconcile/null.py)
+    null_calibration: dict[str, Any] | None = optional()
+    minimum_detectable: dict[str, Any] | None = optional()
