@@ -132,7 +132,8 @@ class CornerRound:
 @dataclass(kw_only=True)
 class ReconcileDocument:
     """``reconcile.json`` (docs/reconcile.md): the verdict, named effects, candidates and gaps first; then the
-    gap floor and consistency, per-round goodness of fit, significance rule, empirical corrections and notes; the
+    gap floor and consistency, per-round goodness of fit, significance rule, empirical corrections, notes and the
+    calibration of the decisions (with null runs the minimum detectable amplitudes); the
     corner comparison, the unexplained residual's characterization, a not-comparable run's needs and an
     ambiguity only where they apply."""
 
@@ -154,10 +155,10 @@ class ReconcileDocument:
     significance_rule: dict[str, float]
     empirical_corrections: list[EmpiricalCorrection]
     notes: list[str]
+    calibration: str = "fixed thresholds"  # or "null runs" (labctl/reconcile/null.py)
+    null_calibration: dict[str, Any] | None = optional()
+    minimum_detectable: dict[str, float | None] | None = optional()  # effect -> amplitude named with 90 % probability
     corners: dict[str, Any] | None = optional()
     unexplained: dict[str, Any] | None = optional()
     not_comparable: NotComparable | None = optional()
     ambiguity: Ambiguity | None = optional()
-    calibration: str = "fixed thresholds"  # or "null runs" (labctl/reconcile/null.py)
-    null_calibration: dict[str, Any] | None = optional()
-    minimum_detectable: dict[str, Any] | None = optional()

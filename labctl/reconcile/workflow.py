@@ -96,8 +96,8 @@ COMPETING_CORRELATION = 0.5
 MAX_EFFECTS = 4
 MIN_STEPS = 2  # steps are the replications: one step cannot separate an effect from the lab's nuisance
 POOR_RELATIVE_ERROR = 0.05  # a parameter whose standard error exceeds 5 % (2 sigma: 10 %) is poorly determined
-POOR_ANGLE_ERROR_RAD = 0.05
-POOR_CORRELATION = 0.95
+POOR_ANGLE_ERROR_RAD = 0.05  # the same for phases (set by hand: 3 degrees)
+POOR_CORRELATION = 0.95  # set by hand: two parameters this correlated trade off
 BACKEND_PROFILES = {"blaze": "blaze101", "amt100": "amt100", "flexx2": "flexx2", "realsense": "d455"}
 #: which procedures give the comparison something to work with (for ``not_comparable``)
 NEEDED_PROCEDURES = {
