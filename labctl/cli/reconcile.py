@@ -56,5 +56,9 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
                          f" (noise floor {doc.gap_floor:.3f} mm)")
     if result.unexplained is not None:
         reporter.message(result.unexplained["message"])
+    if result.verdict == "none" and result.minimum_detectable:
+        from labctl.reconcile.power import detectable_message
+
+        reporter.message(detectable_message(result.minimum_detectable))
     reporter.message(f"corrected model: {model_file}")
     click.echo(f"report: {report}")
