@@ -113,7 +113,8 @@ def evaluate_run(run: Path, outdir: Path) -> EvaluateSummary:
 
 def reconcile_run(run: Path, outdir: Path, model_text: str | None = None,
                   model_source: str = "model") -> ReconcileSummary:
-    """``labctl reconcile RUN [--model MODEL] -o OUTDIR``: reconcile.json, reconcile.html, model.toml; the
+    """``labctl reconcile RUN [--model MODEL] --null-runs 0 -o OUTDIR`` (the fixed thresholds: null replicas of
+    every run would multiply the batch's cost by K + 1): reconcile.json, reconcile.html, model.toml; the
     verdict, named effects, gaps, the best candidate's dBIC and the largest step gap in units of its floor
     before any effect was added (the two numbers the thresholds are calibrated on)."""
     from labctl.reconcile.report import write_reconcile
@@ -121,7 +122,7 @@ def reconcile_run(run: Path, outdir: Path, model_text: str | None = None,
     from sim.model import parse_model
 
     model = parse_model(model_text, model_source) if model_text is not None else None
-    result = reconcile(run, model)
+    result = reconcile(run, model, null_runs=0)
     report, model_file, doc = write_reconcile(result, run, outdir)
     before = result.goodness_before
     worst = before.worst_step if before is not None else None

@@ -9,6 +9,7 @@ import click
 
 from labctl.cli.outputs import OutputDirectory, output_directory_for
 from labctl.jsondoc import dumps
+from labctl.reconcile.null import DEFAULT_NULL_RUNS
 from labctl.run.progress import Reporter
 
 
@@ -18,10 +19,14 @@ from labctl.run.progress import Reporter
               help="simulation model to correct (default: the camera's built-in model)")
 @click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 @click.option("--json", "as_json", is_flag=True, help="print reconcile.json on stdout")
+@click.option("--null-runs", "null_runs", type=click.IntRange(min=0), default=DEFAULT_NULL_RUNS, show_default=True,
+              help="null replicas of the campaign every decision is judged against (0: fixed thresholds)")
 @click.option("--quiet", is_flag=True, help="no progress output")
-def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bool, quiet: bool) -> None:
+def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bool, null_runs: int,
+              quiet: bool) -> None:
     """Find where the simulation disagrees with MEASURED, name the missing effects, fit them and write
-    OUTPUT/reconcile.json, OUTPUT/reconcile.html and the corrected OUTPUT/model.toml."""
+    OUTPUT/reconcile.json, OUTPUT/reconcile.html and the corrected OUTPUT/model.toml. Every decision is judged
+    against --null-runs simulated replicas of the measured campaign with nothing missing."""
     from labctl.reconcile.report import write_reconcile
     from labctl.reconcile.workflow import reconcile as run_reconcile
     from sim.model import load_model
@@ -37,7 +42,7 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
         click.echo(f"labctl: warning: {model_path}: {message}", err=True)
 
     with output_directory_for(output):
-        result = run_reconcile(measured, model, progress=progress, warn=warn)
+        result = run_reconcile(measured, model, progress=progress, warn=warn, null_runs=null_runs)
         report, model_file, doc = write_reconcile(result, measured, output)
     if as_json:
         click.echo(dumps(doc))
@@ -51,5 +56,9 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
                          f" (noise floor {doc.gap_floor:.3f} mm)")
     if result.unexplained is not None:
         reporter.message(result.unexplained.message)
+    if result.verdict == "none" and result.minimum_detectable:
+        from labctl.reconcile.power import detectable_message
+
+        reporter.message(detectable_message(result.minimum_detectable))
     reporter.message(f"corrected model: {model_file}")
     click.echo(f"report: {report}")

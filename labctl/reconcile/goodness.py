@@ -40,10 +40,11 @@ from labctl.reconcile.observe import Observation
 from labctl.reconcile.residuals import LOG_I_FLOOR, LOG_I_FLOOR_PROJECTOR, Z_FLOOR_MM, Layout
 from labctl.reconcile.results import GoodnessSummary, StepAboveFloor
 
-REFERENCE_NOISE_MM = 0.15  # one distance reading per stage step (the laser meter's repeatability)
-STEP_FACTOR = 3.0
-MATERIAL_FRACTION = 0.2  # an effect must remove at least this share of a family's gap ...
-FLOOR_FRACTION = 0.5  # ... and at least this multiple of that family's noise floor
+# The fixed thresholds (``--null-runs 0``; with null runs, labctl/reconcile/null.py, the replicas' distributions decide)
+REFERENCE_NOISE_MM = 0.15  # one distance reading per stage step (the laser meter's repeatability), set on the test campaign
+STEP_FACTOR = 3.0  # twice the largest step ratio of 200 null runs of the test campaign (1.50, docs/reconcile.md)
+MATERIAL_FRACTION = 0.2  # an effect must remove at least this share of a family's gap (set by hand) ...
+FLOOR_FRACTION = 0.5  # ... and at least this multiple of that family's noise floor (set by hand: half a floor)
 
 
 @dataclass(frozen=True)

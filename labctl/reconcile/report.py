@@ -100,17 +100,18 @@ def plot_residual_map(result: ReconcileResult, path: Path) -> Path:
 
 
 def plot_candidates(result: ReconcileResult, path: Path) -> Path:
-    """Every round's candidate scores (dBIC over steps) against the threshold."""
-    from labctl.reconcile.workflow import DBIC_THRESHOLD
-
+    """Every round's candidate scores (dBIC over steps) against the threshold (with null runs: the value the best
+    must exceed for p <= alpha against the null replicas' best)."""
     rounds = [it for it in result.iterations if it.fits]
     fig = Figure(figsize=(4.2 * max(len(rounds), 1), 3.6))
     axes = fig.subplots(1, max(len(rounds), 1), squeeze=False)
     for ax, (i, it) in zip(axes[0], enumerate(rounds), strict=False):
         names = [f.name for f in it.fits][::-1]
         scores = [max(f.score, -20.0) for f in it.fits][::-1]
-        ax.barh(names, scores, color=["tab:green" if s >= DBIC_THRESHOLD else "0.6" for s in scores])
-        ax.axvline(DBIC_THRESHOLD, color="tab:red", ls="--", lw=1)
+        threshold = result.rule.threshold({f.name for f in it.fits})
+        ax.barh(names, scores, color=["tab:green" if s >= threshold else "0.6" for s in scores])
+        if math.isfinite(threshold):
+            ax.axvline(threshold, color="tab:red", ls="--", lw=1)
         ax.set_title(f"round {i + 1}: {it.decision}", fontsize=9)
         ax.set_xlabel("dBIC over steps")
         ax.tick_params(labelsize=8)
@@ -177,9 +178,12 @@ def _goodness(result: ReconcileResult) -> str:
     if g is None or p is None:
         return ""
     worst = p.worst_step
+    judged = result.rule.judge(p)
+    against = (f" (against {judged.null_runs} null runs of the campaign: p = {judged.p_value:.3f})"
+               if judged else " (the fixed floors)")
     return (f"<p>Noise floor of the gap: <b>{g.gap_floor_mm:.3f} mm</b> (intensity {g.intensity_gap_floor_pct:.2f} %). "
-            f"With the named physical effects the residual is <b>{'consistent' if p.consistent else 'NOT consistent'}"
-            f"</b> with the noise the stacks show"
+            f"With the named physical effects the residual is <b>"
+            f"{'consistent' if result.rule.consistent(p) else 'NOT consistent'}</b> with the noise{against}"
             + (f" (worst step {html.escape(worst.step_id)}: {worst.gap:.3f} against its floor {worst.floor:.3f} in "
                f"{worst.family})" if worst else "") + ".</p>")
 

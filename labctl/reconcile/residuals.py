@@ -37,12 +37,12 @@ from scipy import ndimage
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction
 
-MIN_VALID_FRACTION = 0.9
-Z_FLOOR_MM = 0.02
-LOG_I_FLOOR = 0.002
+MIN_VALID_FRACTION = 0.9  # set by hand: a bin compared only when nine tenths of its pixels are valid
+Z_FLOOR_MM = 0.02  # the binned simulation against the full-resolution one, set on the test campaign (docs/reconcile.md)
+LOG_I_FLOOR = 0.002  # the same for log intensity (0.2 %), set on the test campaign
 LOG_I_FLOOR_PROJECTOR = 0.03  # stereo with the dot projector: the binned dot pattern is approximate
 GROUPS = ("laser", "stage", "robot")
-EDGE_JUMP = 0.05
+EDGE_JUMP = 0.05  # set by hand: a relative jump of the measured depth between neighbouring bins that marks an edge
 
 
 @dataclass

@@ -6,6 +6,7 @@ an ambiguity, a not-comparable run's needs, and ``reconcile.json`` itself (docs/
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from labctl.jsondoc import inline, optional
 
@@ -59,6 +60,8 @@ class Evidence:
     intensity_gap_before_pct: float | None = optional()
     intensity_gap_after_pct: float | None = optional()
     steps: int
+    p_value: float | None = optional()  # against the null runs (labctl/reconcile/null.py), when there were any
+    null_runs: int | None = optional()
 
 
 @dataclass(kw_only=True)
@@ -155,6 +158,18 @@ class GoodnessSummary:
     intensity_consistent: bool
     step_factor: float
     steps_above_floor: list[StepAboveFloor]
+    null: NullJudgement | None = inline()
+
+
+@dataclass(kw_only=True)
+class NullJudgement:
+    """A goodness of fit judged against the campaign's null replicas (labctl/reconcile/null.py): the combined
+    empirical p-value, the K replicas used, and every statistic with its own p-value."""
+
+    p_value: float
+    null_runs: int
+    statistics: dict[str, float]
+    statistic_p_values: dict[str, float]
 
 
 @dataclass(kw_only=True)
@@ -165,6 +180,7 @@ class RoundGoodness:
     model_effects: list[str]
     decision: str
     goodness: GoodnessSummary | None = inline()
+    candidate_p_value: float | None = optional()  # the round's best candidate against the null runs' best
 
 
 @dataclass(kw_only=True)
@@ -279,7 +295,8 @@ class Unexplained:
 @dataclass(kw_only=True)
 class ReconcileDocument:
     """``reconcile.json`` (docs/reconcile.md): the verdict, named effects, candidates and gaps first; then the
-    gap floor and consistency, per-round goodness of fit, significance rule, empirical corrections and notes; the
+    gap floor and consistency, per-round goodness of fit, significance rule, empirical corrections, notes and the
+    calibration of the decisions (with null runs the minimum detectable amplitudes); the
     corner comparison, the unexplained residual's characterization, a not-comparable run's needs and an
     ambiguity only where they apply."""
 
@@ -301,6 +318,9 @@ class ReconcileDocument:
     significance_rule: SignificanceRule
     empirical_corrections: list[EmpiricalCorrection]
     notes: list[str]
+    calibration: str = "fixed thresholds"  # or "null runs" (labctl/reconcile/null.py)
+    null_calibration: dict[str, Any] | None = optional()
+    minimum_detectable: dict[str, float | None] | None = optional()  # effect -> amplitude named with 90 % probability
     corners: CornersSection | None = optional()
     unexplained: Unexplained | None = optional()
     not_comparable: NotComparable | None = optional()

@@ -25,9 +25,12 @@
    (labctl/reconcile/empirical.py). A run with fewer than ``MIN_STEPS``
    comparable steps is ``not_comparable``.
 
-``DBIC_THRESHOLD`` is calibrated on simulated-vs-simulated runs with nothing
-hidden (``bench/reconcile_null.py`` prints the largest dBIC any candidate
-reached over seeds and cameras; the threshold sits well above it).
+With null runs (``null_runs`` K, the CLI's ``--null-runs``, labctl/reconcile/null.py) the decisions "consistent
+with the noise", "significant" and "material" are judged against K simulated null replicas of the measured
+campaign, each with its p-value, and the first round states every candidate's minimum detectable amplitude
+(labctl/reconcile/power.py). Without them the fixed thresholds decide: ``DBIC_THRESHOLD`` is calibrated on
+simulated-vs-simulated runs with nothing hidden (``bench/reconcile_null.py`` prints the largest dBIC any
+candidate reached over seeds and cameras; the threshold sits well above it).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +59,9 @@ from labctl.reconcile.corners import (
 )
 from labctl.reconcile.empirical import FIRST_FORM, FORMS
 from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, goodness, material, rounded
+from labctl.reconcile.null import ALPHA, DEFAULT_NULL_RUNS, FixedThresholds, NullCalibration, simulate_null_runs
 from labctl.reconcile.observe import Observation, observe_run
+from labctl.reconcile.power import detectable, detectable_message
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import Layout, layout, raw_residuals
 from labctl.reconcile.results import (
@@ -70,6 +75,7 @@ from labctl.reconcile.results import (
     EmpiricalCorrection,
     Evidence,
     GoodnessOfFit,
+    GoodnessSummary,
     NamedEffect,
     NotComparable,
     Parameters,
@@ -83,14 +89,20 @@ from sim.effects import EFFECTS, default_effects
 from sim.model import SimModel, parse_model
 from sim.profiles import PROFILES, get_profile
 
+#: without null runs (``--null-runs 0``): the largest dBIC of any candidate on 200 null runs of the test campaign
+#: was 3.87 (docs/reconcile.md, bench/reconcile_null.py); 30 keeps a wide margin above it
 DBIC_THRESHOLD = 30.0
+#: a runner-up within 10 of the winner's dBIC (Kass & Raftery 1995: a BIC difference above 10 is "very strong"
+#: evidence) cannot be told from it
 MARGIN = 10.0
+#: candidates whose fitted changes correlate at least this much explain the same part of the residual (set by hand)
 COMPETING_CORRELATION = 0.5
+#: at most this many effects per reconcile (set by hand: the tests hide at most two)
 MAX_EFFECTS = 4
 MIN_STEPS = 2  # steps are the replications: one step cannot separate an effect from the lab's nuisance
 POOR_RELATIVE_ERROR = 0.05  # a parameter whose standard error exceeds 5 % (2 sigma: 10 %) is poorly determined
-POOR_ANGLE_ERROR_RAD = 0.05
-POOR_CORRELATION = 0.95
+POOR_ANGLE_ERROR_RAD = 0.05  # the same for phases (set by hand: 3 degrees)
+POOR_CORRELATION = 0.95  # set by hand: two parameters this correlated trade off
 BACKEND_PROFILES = {"blaze": "blaze101", "amt100": "amt100", "flexx2": "flexx2", "realsense": "d455"}
 #: which procedures give the comparison something to work with (for ``not_comparable``): what each captures, and
 #: how the effects that declare it as their procedure (``Observed.procedure``) are introduced
@@ -122,6 +134,7 @@ class Iteration:
     decision: str  # "added NAME", "none significant", "ambiguous", "consistent with noise", "NAME not material"
     residual_z: list[np.ndarray]  # per-step depth residual maps (nuisance removed, NaN outside the comparison)
     goodness: Goodness | None = None
+    significance_p: float | None = None  # the best candidate's p-value against the null runs (with null runs)
 
 
 @dataclass
@@ -164,6 +177,8 @@ class ReconcileResult:
     goodness_before: Goodness | None = None
     goodness_after: Goodness | None = None  # the final model (with any empirical correction)
     goodness_physical: Goodness | None = None  # the named physical effects only
+    rule: FixedThresholds | NullCalibration = field(default_factory=lambda: FixedThresholds(DBIC_THRESHOLD))
+    minimum_detectable: dict[str, Any] | None = None
     unexplained: Unexplained | None = None
     empirical: list[EmpiricalCorrection] = field(default_factory=list)
     not_comparable: NotComparable | None = None
@@ -407,12 +422,13 @@ class _State:
         return np.nan_to_num(self.lay.profiled(self.dz, self.di))
 
 
-def _add_empirical(state: _State, carrying: str | None, say: Callable[[str], None]) -> list[EmpiricalCorrection]:
+def _add_empirical(state: _State, carrying: str | None, rule: FixedThresholds | NullCalibration,
+                   say: Callable[[str], None]) -> list[EmpiricalCorrection]:
     """Empirical corrections added to ``state`` while each is material (the carrying axis's form first)."""
     order = sorted(FORMS, key=lambda name: name != FIRST_FORM.get(carrying or "", ""))
     added = []
     for name in order:
-        if state.good.consistent:
+        if rule.consistent(state.good):
             break
         say(f"fitting {name}")
         params = FORMS[name](state.context(), state.whitened())
@@ -420,7 +436,7 @@ def _add_empirical(state: _State, carrying: str | None, say: Callable[[str], Non
         trial = with_effect(state.model, name, params)
         keep = state.model
         state.set(trial)
-        if not material(before, state.good):
+        if not rule.material(before, state.good):
             state.set(keep)
             continue
         added.append(EmpiricalCorrection(name=name, parameters=params, gap_before_mm=before.gap_mm,
@@ -502,10 +518,64 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
     return stage, model
 
 
+def _scored(state: _State, say: Callable[[str], None]) -> list[tuple[Fit, Candidate]]:
+    """Every candidate not yet in the model scored against the current residual, best first."""
+    r = state.whitened()
+    ctx = state.context()
+    fits = []
+    for candidate in candidates_for(ctx):
+        say(f"scoring {candidate.name}")
+        fit = score(candidate, ctx, state.lay, r)
+        if fit is not None:
+            fits.append((fit, candidate))
+    fits.sort(key=lambda fc: -fc[0].score)
+    return fits
+
+
+def first_round(observations: list[Observation], info: dict[str, Any],
+                model: SimModel) -> tuple[Goodness, list[Fit], np.ndarray]:
+    """The first round's comparison of ``observations`` with ``model``: the goodness of fit, every candidate's fit
+    and the whitened residual sum of squares per (step, family) cell. What a null replica is judged by
+    (labctl/reconcile/null.py)."""
+    sim = Simulation(observations, info)
+    lay = layout(observations, sim.predict(model), model.profile().technology)
+    state = _State(sim, lay, model)
+    r = state.whitened()
+    cells = lay.row_cells()
+    return state.good, [f for f, _ in _scored(state, lambda _: None)], np.bincount(cells, r * r)
+
+
+def _calibrate(null_runs: int, workers: int | None, info: dict[str, Any], model: SimModel, lay: Layout,
+               observations: list[Observation], notes: list[str],
+               say: Callable[[str], None]) -> FixedThresholds | NullCalibration:
+    """The decision rule: ``null_runs`` null replicas of the measured campaign (labctl/reconcile/null.py), or the
+    fixed thresholds without them (or when the run file holds no campaign to replicate)."""
+    fixed = FixedThresholds(DBIC_THRESHOLD)
+    if null_runs <= 0:
+        return fixed
+    if not info.get("campaign_toml"):
+        notes.append("null calibration: the run file holds no campaign to replicate; fixed thresholds used")
+        return fixed
+    from labctl.batch.cluster import machine_workers
+
+    if 1 / (null_runs + 1) > ALPHA:
+        notes.append(f"null calibration: {null_runs} null runs cannot give a p-value of {ALPHA} or less (at least "
+                     f"{DEFAULT_NULL_RUNS} are needed): no residual is found outside the null distribution and no "
+                     "effect significant")
+    compared = [o.scene.step_id for o, z, i in zip(observations, lay.z_masks, lay.i_masks, strict=True)
+                if z.any() or i.any()]
+    return simulate_null_runs(info["campaign_toml"], model, info, compared, null_runs,
+                              workers or machine_workers(), say)
+
+
 def reconcile(path: str | Path, model: SimModel | None = None, progress: Callable[[str], None] | None = None,
-              warn: Callable[[str], None] | None = None) -> ReconcileResult:
+              warn: Callable[[str], None] | None = None, null_runs: int = 0,
+              workers: int | None = None, null: NullCalibration | None = None) -> ReconcileResult:
     """Name, fit and add the effects the model is missing to explain the measured run at ``path``; ``warn``
-    hears what is legal but likely a mistake (a model of another camera), which the notes keep as well."""
+    hears what is legal but likely a mistake (a model of another camera), which the notes keep as well.
+    ``null_runs`` K > 0 judges every decision against K null replicas of the campaign (labctl/reconcile/null.py),
+    simulated on ``workers`` processes (default: one per core); 0 uses the fixed thresholds. ``null``: replicas
+    simulated before (of the same campaign and model, e.g. for several runs of one campaign) instead."""
     say = progress or (lambda _: None)
     say("reading the measured run")
     observations, info, notes = observe_run(path)
@@ -537,6 +607,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         return _corner_result(observations, model, notes, why, corners) if corners else \
             _not_comparable(observations, model, notes, why)
     state = _State(sim, lay, model)
+    rule = null or _calibrate(null_runs, workers, info, model, lay, observations, notes, say)
     good_before = state.good
     gap_before, igap_before = good_before.gap_mm, good_before.intensity_gap_pct
     iterations: list[Iteration] = []
@@ -545,25 +616,24 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     first_candidates: list[CandidateScore] = []
     start_model = model
     found: list[tuple[Candidate, Parameters]] = []
+    minimum_detectable = None
     for _ in range(MAX_EFFECTS):
-        r = state.whitened()
-        ctx = state.context()
-        fits = []
-        for candidate in candidates_for(ctx):
-            say(f"scoring {candidate.name}")
-            fit = score(candidate, ctx, lay, r)
-            if fit is not None:
-                fits.append((fit, candidate))
-        fits.sort(key=lambda fc: -fc[0].score)
+        fits = _scored(state, say)
+        if isinstance(rule, NullCalibration) and not iterations:
+            say("minimum detectable amplitudes")
+            minimum_detectable = detectable(state.context(), lay, rule)
         iteration = Iteration(sorted(state.model.effects), state.good.gap_mm, [f for f, _ in fits], "none significant",
                               _residual_maps(lay, state.dz), state.good)
         iterations.append(iteration)
         if not first_candidates:
             first_candidates = [CandidateScore(name=f.name, score=round(f.score, 2)) for f, _ in fits]
-        if state.good.consistent:
+        if rule.consistent(state.good):
             iteration.decision = "consistent with noise"
             break
-        if not fits or fits[0][0].score < DBIC_THRESHOLD or fits[0][0].loso_gain <= 0:
+        if not fits:
+            break
+        significant, iteration.significance_p = rule.significance(fits[0][0], {f.name for f, _ in fits})
+        if not significant or fits[0][0].loso_gain <= 0:
             break
         best, candidate = fits[0]
         runner = fits[1][0] if len(fits) > 1 else None
@@ -576,7 +646,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         params, stderr, info_det, rss = refine(candidate, best, state.model, sim, lay)
         before, previous = state.good, state.model
         state.set(with_effect(state.model, best.name, params))
-        if not material(before, state.good):
+        if not rule.material(before, state.good):
             iteration.decision = (f"{best.name} not material (gap {before.gap_mm:.3f} -> {state.good.gap_mm:.3f} mm, "
                                   f"floor {before.gap_floor_mm:.3f} mm)")
             state.set(previous)
@@ -589,7 +659,8 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             stderr=stderr, determination=info_det, rss_before=best.rss0, rss_after=rss,
             gap_before_mm=before.gap_mm, gap_after_mm=state.good.gap_mm,
             intensity_gap_before_pct=before.intensity_gap_pct,
-            intensity_gap_after_pct=state.good.intensity_gap_pct, steps=lay.n_steps)))
+            intensity_gap_after_pct=state.good.intensity_gap_pct, steps=lay.n_steps,
+            p_value=iteration.significance_p, null_runs=rule.null_runs or None)))
         iteration.decision = f"added {best.name}"
     if len(found) > 1:
         say("refitting the named effects together")
@@ -599,16 +670,17 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     good_physical = state.good
     residual_physical = _residual_maps(lay, state.dz)
     unexplained, empirical = None, []
-    if not good_physical.consistent:
+    physical_consistent = rule.consistent(good_physical)
+    if not physical_consistent:
         say("characterizing the unexplained residual")
         unexplained = characterize(observations, state.preds, residual_physical, sim.t0_s)
-        empirical = _add_empirical(state, unexplained.carrying_axis, say)
+        empirical = _add_empirical(state, unexplained.carrying_axis, rule, say)
     gap_after, igap_after = state.good.gap_mm, state.good.intensity_gap_pct
     if corners is not None:
         named = corners.named + named
         ambiguity = ambiguity or corners.ambiguity
     corners_consistent = corners is None or corners.after.consistent
-    if good_physical.consistent and corners_consistent:
+    if physical_consistent and corners_consistent:
         verdict = "effect_found" if named else "none"
     elif ambiguity is not None:
         verdict = "ambiguous"
@@ -618,11 +690,14 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         notes.append(_corner_unexplained(corners))
     if unexplained is not None:
         unexplained.message = _unexplained_message(named, good_physical, unexplained, empirical)
+    if verdict == "none" and minimum_detectable:
+        notes.append(detectable_message(minimum_detectable))
     corner_names = {c.name for c in corner_candidates()} if corners is not None else set()
     notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items() if name not in corner_names]
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
                            state.model, observations, iterations, _residual_maps(lay, state.dz), notes, ambiguity,
-                           good_before, state.good, good_physical, unexplained, empirical, corners=corners)
+                           good_before, state.good, good_physical, rule, minimum_detectable, unexplained, empirical,
+                           corners=corners)
 
 
 def _corner_unexplained(corners: CornerStage) -> str:
@@ -679,6 +754,12 @@ def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocumen
     corners = result.corners
     corner_floor = rounded(corners.after.gap_floor_mm) if corners else None
     corners_ok = corners.after.consistent if corners else True
+    rule = result.rule
+
+    def judged(good: Goodness | None) -> GoodnessSummary | None:
+        if good is None:
+            return None
+        return replace(good.summary(), consistent_with_noise=rule.consistent(good), null=rule.judge(good))
     return ReconcileDocument(
         verdict=result.verdict,
         named_effects=result.named,
@@ -687,17 +768,17 @@ def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocumen
         gap_after=rounded(result.gap_after),
         model_toml=str(model_path),
         gap_floor=rounded(after.gap_floor_mm) if after else corner_floor,
-        consistent_with_noise=(after.consistent if after else True) and corners_ok if after or corners else None,
+        consistent_with_noise=(rule.consistent(after) if after else True) and corners_ok if after or corners else None,
         gap_after_physical=rounded(result.goodness_physical.gap_mm) if result.goodness_physical else None,
         intensity_gap_before=rounded(result.intensity_gap_before),
         intensity_gap_after=rounded(result.intensity_gap_after),
         intensity_gap_floor=rounded(after.intensity_gap_floor_pct) if after else None,
         goodness_of_fit=GoodnessOfFit(
-            before=result.goodness_before.summary() if result.goodness_before else None,
-            rounds=[RoundGoodness(model_effects=it.model_effects, decision=it.decision,
-                                  goodness=it.goodness.summary() if it.goodness else None) for it in result.iterations],
-            after_physical=result.goodness_physical.summary() if result.goodness_physical else None,
-            after=after.summary() if after else None,
+            before=judged(result.goodness_before),
+            rounds=[RoundGoodness(model_effects=it.model_effects, decision=it.decision, goodness=judged(it.goodness),
+                                  candidate_p_value=it.significance_p) for it in result.iterations],
+            after_physical=judged(result.goodness_physical),
+            after=judged(after),
         ),
         significance_rule=SignificanceRule(material_fraction=MATERIAL_FRACTION, floor_fraction=FLOOR_FRACTION,
                                            dbic_threshold=DBIC_THRESHOLD),
@@ -707,4 +788,9 @@ def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocumen
         unexplained=result.unexplained,
         not_comparable=result.not_comparable,
         ambiguity=result.ambiguity,
+        calibration=rule.name,
+        null_calibration={**rule.summary(), **({"minimum_detectable": result.minimum_detectable}
+                                               if result.minimum_detectable is not None else {})},
+        minimum_detectable={k: v["amplitude"] for k, v in result.minimum_detectable.items()}
+        if result.minimum_detectable is not None else None,
     )

@@ -145,10 +145,11 @@ class Pixels:
 RangeError = Callable[[Pixels], np.ndarray]
 
 
-def reconcile_cli(run: Path, out: Path) -> dict[str, Any]:
-    """``labctl reconcile RUN -o OUT --quiet`` (must exit 0); returns reconcile.json."""
+def reconcile_cli(run: Path, out: Path, null_runs: int = 0) -> dict[str, Any]:
+    """``labctl reconcile RUN -o OUT --null-runs K --quiet`` (must exit 0; by default the fixed thresholds, K = 0);
+    returns reconcile.json."""
     with pytest.raises(SystemExit) as info:
-        main(["reconcile", str(run), "-o", str(out), "--quiet"])
+        main(["reconcile", str(run), "-o", str(out), "--null-runs", str(null_runs), "--quiet"])
     assert info.value.code == 0
     return json.loads((out / "reconcile.json").read_text())
 

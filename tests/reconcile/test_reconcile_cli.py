@@ -134,7 +134,7 @@ def test_cli_writes_the_contract_outputs(tmp_path):
     run = measured_run(tmp_path / "run", "blaze101", {"range_scale": {"scale": 0.01}})
     out = tmp_path / "out"
     with pytest.raises(SystemExit) as info:
-        main(["reconcile", str(run), "-o", str(out), "--json", "--quiet"])
+        main(["reconcile", str(run), "-o", str(out), "--json", "--null-runs", "0", "--quiet"])
     assert info.value.code == 0
     doc = json.loads((out / "reconcile.json").read_text())
     assert set(doc) >= {"verdict", "named_effects", "candidates", "gap_before", "gap_after", "gap_unit", "model_toml"}
@@ -148,7 +148,8 @@ def test_cli_writes_the_contract_outputs(tmp_path):
         assert png in page and (out / png).stat().st_size > 10_000
     # the corrected model reconciles to "nothing missing"
     with pytest.raises(SystemExit) as info:
-        main(["reconcile", str(run), "--model", doc["model_toml"], "-o", str(tmp_path / "again"), "--quiet"])
+        main(["reconcile", str(run), "--model", doc["model_toml"], "-o", str(tmp_path / "again"), "--null-runs", "0",
+              "--quiet"])
     assert info.value.code == 0
     assert json.loads((tmp_path / "again" / "reconcile.json").read_text())["verdict"] == "none"
 

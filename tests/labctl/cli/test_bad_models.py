@@ -156,7 +156,8 @@ def test_a_flexx2_campaign_with_a_blaze101_model_is_refused(capsys, tmp_path: Pa
 
 def test_reconcile_with_a_model_of_another_camera_warns(capsys, tmp_path: Path, measured_flexx2: Path) -> None:
     model = model_file(tmp_path, "")
-    code, _, err = labctl(capsys, "reconcile", measured_flexx2, "--model", model, "-o", tmp_path / "out", "--quiet")
+    code, _, err = labctl(capsys, "reconcile", measured_flexx2, "--model", model, "-o", tmp_path / "out",
+                          "--null-runs", "0", "--quiet")
     assert code == 0
     warning = (f"labctl: warning: {model}: the model simulates camera 'blaze101' but the run was taken with backend "
                "'flexx2' (profile 'flexx2')")

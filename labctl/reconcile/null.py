@@ -1,0 +1,328 @@
+"""Verdicts calibrated on the campaign's own null runs (docs/reconcile.md, *Null calibration*).
+
+Before deciding, reconcile simulates K *null replicas* of the measured
+campaign from the model it is about to judge: the same campaign file (the run
+file stores it), the same sensor size, other seeds, nothing added. Each
+replica is observed and compared to that model exactly like the measured run
+(the first round of labctl/reconcile/workflow.py), which gives what the
+decisions are judged by, as they come out when nothing is missing:
+
+* the residual statistics of the goodness of fit: per residual family the RMS
+  of the step gaps (``gap:<family>``, in the family's unit; every family the
+  ``Goodness`` holds), and the largest step gap in units of its floor
+  (``worst_step_ratio``);
+* every candidate's dBIC (labctl/reconcile/score.py).
+
+Each decision gets an empirical p-value, p = (1 + #{null >= observed}) / (K + 1)
+(a Monte Carlo test, Davison & Hinkley 1997, ch. 4): the share of the K + 1 runs (replicas and
+measured run, exchangeable when nothing is missing) that reach the observed value.
+
+* **Consistent with the noise** (``consistency``): the statistics are combined
+  into one, the largest of them standardized by the mean and standard deviation
+  over the K + 1 runs (a max-type statistic, Westfall & Young 1993: it tests all
+  families at once at level ``ALPHA``). Consistent when p > ``ALPHA``.
+* **A candidate is significant**: the round's best dBIC against the null
+  replicas' best dBIC among the same candidates (the winner is a maximum, so it
+  is judged against the null distribution of the maximum). Significant when
+  p <= ``ALPHA``.
+* **Material** (practical significance): the effect must remove at least
+  ``MATERIAL_FRACTION`` of the excess of one statistic over its null median.
+
+The replicas are simulated once, from the model of the first round. A later
+round (after an effect was added and fitted) is judged against the same first-
+round distributions: the dBIC of the candidates still in play, and the residual
+statistics. Fitting an effect absorbs a little noise, so a later round's
+residual is slightly smaller than a null replica's would be: that judgement is
+slightly lenient towards "consistent".
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import statistics as stats
+import tempfile
+import time
+import tomllib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, StepFit, material
+from labctl.reconcile.observe import MAX_FRAMES
+from labctl.reconcile.results import NullJudgement
+from labctl.reconcile.score import Fit
+from sim.model import SimModel
+
+#: the false-positive rate each decision is held to (a conventional 5 %); with K null runs the smallest
+#: attainable p-value is 1 / (K + 1), so K must be at least 19 for a decision to reach it
+ALPHA = 0.05
+#: the smallest K for which p <= ALPHA is attainable (1 / (K + 1) = 0.05)
+DEFAULT_NULL_RUNS = 19
+#: replica seeds: NULL_SEED_BASE, NULL_SEED_BASE + 1, ... (the measured campaign's own seed skipped); a prime far
+#: above the seeds the project's campaigns and tests use, so that no replica repeats a simulated measurement
+NULL_SEED_BASE = 1_000_003
+WORST = "worst_step_ratio"
+
+
+@dataclass(frozen=True)
+class Replica:
+    """One null replica's first-round comparison: its goodness-of-fit steps, every candidate's dBIC, the whitened
+    residual sum of squares per (step, family) cell, and the seconds it took."""
+
+    seed: int
+    steps: list[StepFit]
+    delta_bic: dict[str, float]
+    cell_rss: np.ndarray
+    seconds: float
+
+
+def p_value(observed: float, null: Sequence[float]) -> float:
+    """Empirical p-value of ``observed`` against the null values: (1 + #{null >= observed}) / (K + 1)."""
+    return (1 + sum(1 for v in null if v >= observed)) / (len(null) + 1)
+
+
+def critical_value(null: Sequence[float], alpha: float = ALPHA) -> float:
+    """The value a statistic must exceed for p <= ``alpha``: the (K - j)-th smallest null value, j the number of
+    null values allowed at or above it (inf when even exceeding them all does not reach ``alpha``)."""
+    ordered = sorted(null)
+    j = math.floor(alpha * (len(ordered) + 1) + 1e-9) - 1
+    if j < 0:
+        return math.inf
+    return ordered[len(ordered) - 1 - j] if j < len(ordered) else -math.inf
+
+
+def step_statistics(steps: Sequence[StepFit]) -> dict[str, float]:
+    """The residual statistics of a goodness of fit: per family the RMS of its step gaps, and the largest step gap
+    in units of its floor."""
+    out: dict[str, float] = {}
+    for family in sorted({s.family for s in steps}):
+        gaps = [s.gap for s in steps if s.family == family and math.isfinite(s.gap)]
+        if gaps:
+            out[f"gap:{family}"] = math.sqrt(float(np.mean(np.square(gaps))))
+    ratios = [s.ratio for s in steps if math.isfinite(s.ratio)]
+    if ratios:
+        out[WORST] = max(ratios)
+    return out
+
+
+def standardized_max(pool: list[dict[str, float]]) -> list[float]:
+    """For every member of ``pool`` (the measured run first, then the replicas) the largest of its statistics
+    standardized by their mean and standard deviation over the pool; statistics some member lacks, or that do
+    not vary, are left out."""
+    keys = sorted(set.intersection(*(set(p) for p in pool))) if pool else []
+    out = [-math.inf] * len(pool)
+    for key in keys:
+        values = np.array([p[key] for p in pool])
+        spread = float(values.std())
+        if not spread > 0:
+            continue
+        z = (values - values.mean()) / spread
+        out = [max(a, float(b)) for a, b in zip(out, z, strict=True)]
+    return out
+
+
+@dataclass(frozen=True)
+class FixedThresholds:
+    """The decisions without null runs: consistent with the noise below the hand-set floors and step factor
+    (labctl/reconcile/goodness.py), a candidate significant above ``dbic_threshold``, material by the floors."""
+
+    dbic_threshold: float
+    name: str = "fixed thresholds"
+    null_runs: int = 0
+
+    def consistent(self, good: Goodness) -> bool:
+        return good.consistent
+
+    def judge(self, good: Goodness) -> NullJudgement | None:
+        """Nothing beyond the goodness of fit's own fixed-threshold check."""
+        return None
+
+    def significance(self, best: Fit, in_play: set[str]) -> tuple[bool, float | None]:
+        return best.score >= self.dbic_threshold, None
+
+    def threshold(self, in_play: set[str]) -> float:
+        """The dBIC a candidate must reach."""
+        return self.dbic_threshold
+
+    def material(self, before: Goodness, after: Goodness) -> bool:
+        return material(before, after)
+
+    def summary(self) -> dict[str, Any]:
+        return {"method": self.name, "null_runs": 0, "dbic_threshold": self.dbic_threshold,
+                "material_fraction": MATERIAL_FRACTION, "floor_fraction": FLOOR_FRACTION}
+
+
+@dataclass
+class NullCalibration:
+    """The decisions judged against ``replicas``, the null replicas' first-round comparisons."""
+
+    replicas: list[Replica]
+    alpha: float = ALPHA
+    seconds: float = 0.0
+    workers: int = 1
+    name: str = "null runs"
+
+    @property
+    def null_runs(self) -> int:
+        return len(self.replicas)
+
+    def null_statistics(self) -> list[dict[str, float]]:
+        return [step_statistics(r.steps) for r in self.replicas]
+
+    def judge(self, good: Goodness) -> NullJudgement:
+        """How far ``good``'s residual lies inside the null distribution: the combined p-value and each
+        statistic's own p-value (consistent with the noise while p > alpha)."""
+        observed = step_statistics(good.steps)
+        null = self.null_statistics()
+        t = standardized_max([observed, *null])
+        p = p_value(t[0], t[1:])
+        marginal = {k: round(p_value(v, [n[k] for n in null if k in n]), 4) for k, v in observed.items()}
+        return NullJudgement(p_value=round(p, 4), null_runs=self.null_runs,
+                             statistics={k: round(v, 4) for k, v in observed.items()}, statistic_p_values=marginal)
+
+    def consistent(self, good: Goodness) -> bool:
+        return self.judge(good).p_value > self.alpha
+
+    def null_best(self, in_play: set[str]) -> list[float]:
+        """Every replica's best dBIC among the candidates ``in_play``."""
+        return [max((v for k, v in r.delta_bic.items() if k in in_play), default=-math.inf) for r in self.replicas]
+
+    def threshold(self, in_play: set[str]) -> float:
+        """The dBIC the best of ``in_play`` must exceed for p <= alpha."""
+        return critical_value(self.null_best(in_play), self.alpha)
+
+    def significance(self, best: Fit, in_play: set[str]) -> tuple[bool, float | None]:
+        """Whether the round's best candidate ``best`` beats the null replicas' best among ``in_play``, and p."""
+        p = p_value(best.score, self.null_best(in_play))
+        return p <= self.alpha, round(p, 4)
+
+    def material(self, before: Goodness, after: Goodness) -> bool:
+        """The change removes at least ``MATERIAL_FRACTION`` of one statistic's excess over its null median."""
+        b, a = step_statistics(before.steps), step_statistics(after.steps)
+        null = self.null_statistics()
+        for key, value in b.items():
+            median = stats.median(n[key] for n in null if key in n) if any(key in n for n in null) else math.nan
+            excess = value - median
+            if key in a and excess > 0 and value - a[key] >= MATERIAL_FRACTION * excess:
+                return True
+        return False
+
+    def summary(self) -> dict[str, Any]:
+        """The ``null_calibration`` section of reconcile.json."""
+        null = self.null_statistics()
+        keys = sorted(set().union(*null)) if null else []
+        dbic = sorted(set().union(*(r.delta_bic for r in self.replicas)))
+        spread = {k: _range([n[k] for n in null if k in n]) for k in keys}
+        return {"method": self.name, "null_runs": self.null_runs, "alpha": self.alpha,
+                "p_value": "empirical: (1 + #{null >= observed}) / (null_runs + 1)",
+                "seeds": [r.seed for r in self.replicas], "seconds": round(self.seconds, 1), "workers": self.workers,
+                "null_statistics": spread,
+                "null_best_delta_bic": _range(self.null_best(set(dbic))),
+                "null_delta_bic": {k: _range([r.delta_bic[k] for r in self.replicas if k in r.delta_bic])
+                                   for k in dbic},
+                "later_rounds": "judged against the first round's null distributions (the replicas are simulated "
+                                "once, from the model the first round compares): the dBIC of the candidates still "
+                                "in play, and the residual statistics",
+                "material_fraction": MATERIAL_FRACTION}
+
+
+def _range(values: list[float]) -> dict[str, float | None]:
+    finite = [v for v in values if math.isfinite(v)]
+    if not finite:
+        return {"min": None, "median": None, "max": None}
+    return {"min": round(min(finite), 4), "median": round(stats.median(finite), 4), "max": round(max(finite), 4)}
+
+
+def replica_campaign(campaign_toml: str, seed: int) -> str:
+    """The measured campaign as a null replica runs it: seed ``seed``, no injected faults, at most ``MAX_FRAMES``
+    frames per stack (the comparison reads no more)."""
+    data = tomllib.loads(campaign_toml)
+    data["sim"] = {"seed": seed}
+    for procedure in data.get("procedure", []):
+        if isinstance(procedure.get("frames"), int):
+            procedure["frames"] = min(procedure["frames"], MAX_FRAMES)
+    return tomli_w.dumps(data)
+
+
+def replica_model(model: SimModel, info: dict[str, Any]) -> str:
+    """``model``'s text at the measured run's sensor size."""
+    data = model.model_dump(mode="json")
+    profile = model.profile()
+    overrides = dict(data.get("camera_overrides") or {})
+    if (profile.width, profile.height) != (info["width"], info["height"]):
+        overrides.update(width=info["width"], height=info["height"])
+    data["camera_overrides"] = overrides
+    return tomli_w.dumps(data)
+
+
+def seeds_for(campaign_toml: str, k: int) -> list[int]:
+    """K replica seeds from ``NULL_SEED_BASE``, skipping the campaign's own ``[sim] seed``."""
+    own = tomllib.loads(campaign_toml).get("sim", {}).get("seed")
+    seeds: list[int] = []
+    seed = NULL_SEED_BASE
+    while len(seeds) < k:
+        if seed != own:
+            seeds.append(seed)
+        seed += 1
+    return seeds
+
+
+def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[str], info: dict[str, Any],
+                 directory: str) -> Replica:
+    """Simulate one null replica into ``directory``, compare its steps ``step_ids`` to the model like the measured
+    run's, delete its run file. A Dask task (labctl/batch/cluster.py) or a serial call."""
+    from labctl.reconcile.observe import observe_run
+    from labctl.reconcile.workflow import first_round  # the measured run's comparison, the very same code
+    from labctl.run.campaign import run_campaign
+    from labctl.run.config import parse_campaign
+    from labctl.run.lab import simulated_lab
+    from labctl.run.progress import Reporter
+    from sim.model import parse_model
+
+    start = time.monotonic()
+    text = replica_campaign(campaign_toml, seed)
+    campaign = parse_campaign(text, "null replica campaign")
+    run = Path(directory) / f"null-{seed}.h5"
+    try:
+        run_campaign(campaign, text, simulated_lab(campaign, model_text, seed=seed, source="null replica model"),
+                     run, reporter=Reporter(quiet=True))
+        observations, _, _ = observe_run(run, info["bin_px"])
+    finally:
+        run.unlink(missing_ok=True)
+    wanted = set(step_ids)
+    observations = [o for o in observations if o.scene.step_id in wanted]
+    good, fits, cell_rss = first_round(observations, info, parse_model(model_text, "null replica model"))
+    return Replica(seed, good.steps, {f.name: f.score for f in fits}, cell_rss, time.monotonic() - start)
+
+
+def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any], step_ids: list[str], k: int,
+                       workers: int, say: Callable[[str], None]) -> NullCalibration:
+    """K null replicas of the measured campaign from ``model``, on a local Dask cluster of ``workers`` processes
+    (labctl/batch/cluster.py), or one after the other for a single worker."""
+    model_text = replica_model(model, info)
+    seeds = seeds_for(campaign_toml, k)
+    workers = max(1, min(workers, k))
+    start = time.monotonic()
+    directory = tempfile.mkdtemp(prefix="labctl-null-")
+    try:
+        if workers == 1:
+            replicas = []
+            for i, seed in enumerate(seeds):
+                say(f"null replica {i + 1} of {k} (seed {seed})")
+                replicas.append(null_replica(campaign_toml, model_text, seed, step_ids, info, directory))
+        else:
+            from labctl.batch.cluster import Cluster, open_client
+
+            say(f"{k} null replicas on {workers} workers")
+            with open_client(Cluster(workers=workers)) as client:
+                futures = client.map(null_replica, [campaign_toml] * k, [model_text] * k, seeds, [step_ids] * k,
+                                     [info] * k, [directory] * k, pure=False)
+                replicas = client.gather(futures)
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)
+    return NullCalibration(list(replicas), seconds=time.monotonic() - start, workers=workers)

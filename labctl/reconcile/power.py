@@ -1,0 +1,230 @@
+"""Minimum detectable effects: the amplitude of each library effect this campaign names with 90 % probability.
+
+A candidate's signature per unit of its amplitude (the change of the whitened,
+profiled residual rows, labctl/reconcile/candidates.py and score.py) is added
+to each null replica (labctl/reconcile/null.py) in thought:
+
+* the residual statistics: each step's gap in family f grows to
+  sqrt(gap^2 + A^2 m_sf), m_sf the mean square of the unwhitened signature over
+  the step's rows (depth in mm, intensity in %); the replica with the effect
+  must then lie outside the other replicas' distribution (``NullCalibration.
+  judge``'s rule, p <= alpha), or the round stops as "consistent";
+* the dBIC: in every (step, family) cell c the residual sum of squares falls by
+  the signal it carries, A^2 q_c, q_c = |u_c|^2 (the noncentrality of the fit),
+  so dBIC(A) = dBIC_0 + sum_c ln(1 + A^2 q_c / RSS_c), with dBIC_0 the replica's
+  own null dBIC of the candidate and RSS_c its cell's residual sum of squares;
+  the cross term of signal and noise adds a normal spread of variance
+  sum_c 4 A^2 q_c / (n_c RSS_c) (n_c rows; each logarithm linearized). The
+  effect is named when dBIC(A) passes the critical value of the null replicas'
+  best dBIC.
+
+The detection probability at A is the mean over the replicas of
+[outside the null] x P(dBIC(A) > critical value); the amplitude where it
+reaches ``POWER`` is found by bisection, at ``GRID_POINTS`` points spread evenly
+over the candidate's grid of nonlinear parameters (a wiggling's period, a drift's
+time constant). The
+headline figure is the median over that grid; the detail gives the grid's
+range and the parameters of the median point. Two-phase signatures (a wiggling's
+sine and cosine) count with their mean power (phase averaged). What this does
+not model: the ambiguity margin against a competing candidate, the leave-one-step-
+out check and the materiality rule, which a named effect must pass as well; and
+effects whose signature is built from the run's own residual (``fixed_pattern``)
+have no amplitude to state.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from scipy.stats import norm
+
+from labctl.reconcile.candidates import Candidate, Context, candidates_for
+from labctl.reconcile.null import NullCalibration, critical_value, p_value, standardized_max
+from labctl.reconcile.residuals import Layout
+
+#: the probability of naming the effect the figure promises (the contract's 90 %)
+POWER = 0.9
+#: the coefficient used to read an amplitude off a candidate's parameters (small: inside every solver bound)
+PROBE = 1e-6
+#: grid points evaluated per candidate, evenly spread over its grid (set by hand: a wiggling's grid has 90 periods,
+#: 15 of them keep the cost to seconds)
+GRID_POINTS = 15
+
+
+def _unit(candidate: Candidate, ctx: Context, nonlinear: Any, k: int, n: int) -> tuple[str, float] | None:
+    """The amplitude parameter column ``k`` of the candidate moves and by how much per unit coefficient (None when
+    the column moves no scalar parameter in proportion)."""
+    values = []
+    for scale in (PROBE, 2 * PROBE):
+        coef = np.zeros(n)
+        coef[k] = scale
+        params = candidate.to_params(ctx, coef, nonlinear)
+        if params is None:
+            coef[k] = -scale
+            params = candidate.to_params(ctx, coef, nonlinear)
+        values.append(params)
+    if values[0] is None or values[1] is None:
+        return None
+    for key, v in values[0].items():
+        w = values[1].get(key)
+        if isinstance(v, float) and isinstance(w, float) and v != 0 and math.isclose(w, 2 * v, rel_tol=1e-3):
+            return key, abs(v) / PROBE
+    return None
+
+
+class _Signal:
+    """A candidate's signature at one grid point per unit amplitude: power per residual cell, and the mean square
+    of its unwhitened change per (step, family)."""
+
+    def __init__(self, q: np.ndarray, rows: np.ndarray, step_power: dict[tuple[str, str], float]) -> None:
+        self.q, self.rows, self.step_power = q, rows, step_power
+
+
+def _signal(candidate: Candidate, ctx: Context, lay: Layout, nonlinear: Any) -> tuple[str, _Signal] | None:
+    columns = candidate.columns(ctx, nonlinear)
+    if not columns:
+        return None
+    cells = lay.row_cells()
+    n_cells = int(cells.max()) + 1 if len(cells) else 0
+    parts, key = [], None
+    for k, (dz, di) in enumerate(columns):
+        unit = _unit(candidate, ctx, nonlinear, k, len(columns))
+        if unit is None or (key is not None and unit[0] != key):
+            continue
+        key, per = unit
+        parts.append((dz / per, di / per))
+    if not parts:
+        return None
+    q = np.zeros(n_cells)
+    step_power: dict[tuple[str, str], float] = {}
+    for dz, di in parts:
+        w = lay.profiled_rows(dz, di)
+        q += np.bincount(cells, w * w, n_cells) / len(parts)
+        z, i = lay.profile_z(dz), 100 * lay.profile_i(di)
+        for s, o in enumerate(ctx.observations):
+            for family, values, steps in (("depth", z, lay.z_step), ("intensity", i, lay.i_step)):
+                m = steps == s
+                if m.any():
+                    step = (o.scene.step_id, family)
+                    step_power[step] = step_power.get(step, 0.0) + float(np.mean(values[m] ** 2)) / len(parts)
+    return key, _Signal(q, np.bincount(cells, minlength=n_cells), step_power)
+
+
+class _Replicas:
+    """The null replicas as arrays: step gaps and floors over a common (step, family) list, cell residual sums of
+    squares, and the statistics of ``null.step_statistics`` computed from them."""
+
+    def __init__(self, null: NullCalibration, name: str, n_params: int, n_steps: int, threshold: float) -> None:
+        self.alpha, self.threshold = null.alpha, threshold
+        self.steps = sorted({(s.step_id, s.family) for r in null.replicas for s in r.steps})
+        index = {k: i for i, k in enumerate(self.steps)}
+        k, n = len(null.replicas), len(self.steps)
+        self.gap, self.floor = np.full((k, n), np.nan), np.full((k, n), np.nan)
+        for j, r in enumerate(null.replicas):
+            for s in r.steps:
+                self.gap[j, index[(s.step_id, s.family)]] = s.gap
+                self.floor[j, index[(s.step_id, s.family)]] = s.floor
+        self.families = sorted({f for _, f in self.steps})
+        self.family_of = np.array([f for _, f in self.steps])
+        self.rss = [np.asarray(r.cell_rss, float) for r in null.replicas]
+        self.dbic0 = np.array([r.delta_bic.get(name, -n_params * math.log(n_steps)) for r in null.replicas])
+        self.base = self.statistics(self.gap)
+
+    def statistics(self, gap: np.ndarray) -> np.ndarray:
+        """(replicas, statistics): per family the RMS of the finite step gaps, then the largest step ratio."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            columns = [np.sqrt(np.nanmean(np.where(self.family_of == f, gap, np.nan) ** 2, axis=1))
+                       for f in self.families]
+            ratio = gap / self.floor
+            columns.append(np.nanmax(np.where(np.isfinite(ratio), ratio, np.nan), axis=1))
+        return np.stack(columns, axis=1)
+
+    def outside(self, moved: np.ndarray) -> np.ndarray:
+        """Per replica j: is its statistics row with the effect, ``moved[j]``, outside the distribution of the K
+        replicas (``standardized_max`` and ``p_value`` of labctl/reconcile/null.py, as the measured run is judged;
+        replica j's own noise-only row stays among the K)?"""
+        base = [dict(enumerate(row)) for row in self.base]
+        out = np.zeros(len(base), bool)
+        for j, row in enumerate(moved):
+            t = standardized_max([dict(enumerate(row)), *base])
+            out[j] = p_value(t[0], t[1:]) <= self.alpha
+        return out
+
+    def probability(self, amplitude: float, signal: _Signal) -> float:
+        """The probability that a replica carrying the effect at ``amplitude`` is judged outside the null and the
+        effect's dBIC passes the threshold."""
+        power = np.array([signal.step_power.get(step, 0.0) for step in self.steps])
+        outside = self.outside(self.statistics(np.sqrt(self.gap**2 + amplitude**2 * power)))
+        q, use = signal.q, signal.q > 0
+        hits = 0.0
+        for j in np.flatnonzero(outside):
+            rss = np.maximum(np.resize(self.rss[j], len(q)), 1e-300)
+            gain = float(np.sum(np.log1p(amplitude**2 * q[use] / rss[use])))
+            var = float(np.sum(4 * amplitude**2 * q[use] / (np.maximum(signal.rows[use], 1) * rss[use])))
+            dbic = self.dbic0[j] + gain
+            hits += float(norm.cdf((dbic - self.threshold) / math.sqrt(var))) if var > 0 else float(
+                dbic > self.threshold)
+        return hits / len(self.base)
+
+
+def _amplitude(signal: _Signal, replicas: _Replicas) -> float:
+    """The amplitude detected with probability ``POWER`` (inf when none within 1e6 times the first guess)."""
+    total = float(np.sum(signal.q))
+    if not total > 0:
+        return math.inf
+    lo, hi = 0.0, 1.0 / math.sqrt(total)
+    while replicas.probability(hi, signal) < POWER:
+        lo, hi = hi, hi * 2
+        if hi > 1e6 / math.sqrt(total):
+            return math.inf
+    for _ in range(12):  # the bracket [hi / 2, hi] to 0.03 % of the amplitude
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if replicas.probability(mid, signal) >= POWER else (mid, hi)
+    return hi
+
+
+def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, dict[str, Any]]:
+    """Per candidate effect of the first round: the amplitude parameter, the amplitude named with probability
+    ``POWER`` (median over the candidate's grid), the grid's range of it and the parameters at the median point."""
+    in_play = {n for r in null.replicas for n in r.delta_bic}
+    threshold = critical_value(null.null_best(in_play), null.alpha)
+    out: dict[str, dict[str, Any]] = {}
+    for candidate in candidates_for(ctx):
+        replicas = _Replicas(null, candidate.name, candidate.n_params, lay.n_steps, threshold)
+        found = []
+        grid = candidate.grid(ctx)
+        for nonlinear in [grid[int(i)] for i in np.unique(np.linspace(0, len(grid) - 1, GRID_POINTS).round())]:
+            signal = _signal(candidate, ctx, lay, nonlinear)
+            if signal is None:
+                continue
+            key, s = signal
+            amplitude = _amplitude(s, replicas)
+            found.append((amplitude, key, nonlinear))
+        if not found:
+            continue
+        found.sort(key=lambda f: f[0])
+        amplitude, key, nonlinear = found[(len(found) - 1) // 2]
+        finite = [f[0] for f in found if math.isfinite(f[0])]
+        at = candidate.to_params(ctx, np.eye(len(candidate.columns(ctx, nonlinear)))[0] * PROBE, nonlinear) or {}
+        out[candidate.name] = {
+            "parameter": key, "amplitude": _round(amplitude),
+            "grid_min": _round(min(finite)) if finite else None, "grid_max": _round(max(finite)) if finite else None,
+            "grid_points": len(found),
+            "at": {k: v for k, v in at.items() if k != key and not isinstance(v, list)},
+        }
+    return out
+
+
+def _round(value: float) -> float | None:
+    return float(f"{value:.3g}") if math.isfinite(value) else None
+
+
+def detectable_message(found: dict[str, dict[str, Any]]) -> str:
+    """What a ``none`` verdict promises: no effect above its minimum detectable amplitude."""
+    parts = [f"{name} above {d['amplitude']:g} ({d['parameter']})" for name, d in sorted(found.items())
+             if d["amplitude"] is not None]
+    return ("with 90 % probability this campaign would have named: no " + ", no ".join(parts)
+            + " (minimum detectable amplitudes, the median over each effect's searched nonlinear parameters)"
+            if parts else "no minimum detectable amplitude could be stated")
