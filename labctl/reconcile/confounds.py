@@ -100,11 +100,10 @@ class Capture:
 @dataclass(frozen=True)
 class Confound:
     """Why the winner of a round is not named: contradicted by the separating steps, or not separated from a
-    competitor; ``capture`` is one the run does not hold that would separate them."""
+    competitor; ``capture`` is one the run does not hold that would separate them (empty when contradicted)."""
 
     winner: str
     competitor: str | None  # None: contradicted by the separating steps themselves
-    evidence: float  # chi^2 difference on the separating steps (positive favours the winner)
     capture: str
     reason: str
 
@@ -391,7 +390,7 @@ def check(best: Fit, others: Sequence[Fit], separation: Separation, margin: floa
         null = float(separation.measured @ separation.measured)
         excess = separation.chi2(best) - null
         if excess >= margin:
-            return Confound(best.name, None, -excess, "",
+            return Confound(best.name, None, "",
                             f"{best.name} predicts differences between steps at one position that the measurement "
                             f"does not show (chi^2 {excess:.1f} above no effect at all, over "
                             f"{len(separation.groups)} position(s) seen more than once)")
@@ -406,7 +405,7 @@ def check(best: Fit, others: Sequence[Fit], separation: Separation, margin: floa
         return None
     _, other, evidence = max(unresolved, key=lambda u: u[0])
     capture = separating_capture(best.name, other.name, captures, separation.steps_apart(best, other))
-    return Confound(best.name, other.name, evidence, capture,
+    return Confound(best.name, other.name, capture,
                     f"{other.name} reproduces {best.name}'s change on this run and its steps at a repeated position "
                     f"do not tell them apart (evidence {evidence:.1f}, needed {margin:g})")
 
@@ -419,7 +418,8 @@ def screen(fits: Sequence[Fit], separation: Separation, threshold: float,
     for fit in fits:
         if fit.score < threshold or fit.loso_gain <= 0:
             break
-        confound = check(fit, fits, separation, margin)
+        confound = check(fit, [f for f in fits if f.name not in {c.winner for c in contradicted}], separation,
+                         margin)
         if confound is None or confound.competitor is not None:
             return contradicted, confound
         contradicted.append(confound)

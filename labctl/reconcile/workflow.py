@@ -550,7 +550,8 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             iteration.decision = "consistent with noise"
             break
         separation = Separation(lay, captures, r)
-        contradicted, confound = screen([f for f, _ in fits], separation, DBIC_THRESHOLD, MARGIN)
+        scored = [f for f, _ in fits]
+        contradicted, confound = screen(scored, separation, DBIC_THRESHOLD, MARGIN)
         notes += [f"{c.winner} not named: {c.reason}" for c in contradicted]
         fits = [fc for fc in fits if fc[0].name not in {c.winner for c in contradicted}]
         if not fits or fits[0][0].score < DBIC_THRESHOLD or fits[0][0].loso_gain <= 0:
@@ -562,7 +563,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
                                   separating_capture=separating_capture(best.name, runner.name, captures,
                                                                         separation.steps_apart(best, runner)))
         elif confound is not None:
-            other = next(f for f, _ in fits if f.name == confound.competitor)
+            other = next(f for f in scored if f.name == confound.competitor)
             notes.append(f"{best.name} not named: {confound.reason}")
             ambiguity = Ambiguity(between=[best.name, other.name], scores=[best.score, other.score],
                                   separating_capture=confound.capture)
