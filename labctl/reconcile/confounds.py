@@ -19,13 +19,14 @@ its group's mean, is the group's *contrast*. Before an effect is named
 * it is *contradicted* when its fitted signature predicts contrasts the
   measurement does not show: chi^2 of the measured contrasts against the
   signature's exceeds chi^2 against no effect at all by the margin;
-* it is *not separated* from a competitor on another axis (every scored
-  candidate, those below the naming threshold included; ``FORM_AXES``: two
-  effects on one axis differ by the form of their curves, which the scores
-  weigh) that reproduces it, its fitted change
-  correlating at ``REPRODUCE_CORRELATION`` or more or its fit removing at least
-  ``REPRODUCE_SHARE`` of what the winner's removes, unless the separating steps
-  favour the winner by the margin.
+* it is *not separated* from a competitor on another of the axes a sweep moves
+  together (``SWEEP_AXES``; every scored candidate, those below the naming
+  threshold included), when the run holds no steps that separate those axes
+  (``time_separated``, ``signal_separated``) and the competitor reproduces it,
+  its fitted change correlating at ``REPRODUCE_CORRELATION`` or more or its fit
+  removing at least ``REPRODUCE_SHARE`` of what the winner's removes, unless
+  the separating steps it has favour the winner by the margin. Two effects on
+  one axis, or on axes the run separates, are told apart by their scores.
 
 The chi^2 takes a step mean of the whitened residual (a bin's residual over its
 noise) as having unit variance: a step mean averages many bins, so its noise is
@@ -140,11 +141,13 @@ def effect_axis(name: str) -> str | None:
     return STEP_AXES.get(effect.observed.steps) or FORM_AXES.get(effect.observed.signature)
 
 
-def same_axis(a: str, b: str) -> bool:
-    """Whether two effects follow the same axis: then the form of their curves, which the candidates' scores
-    weigh, tells them apart, not the separating steps."""
-    axis = effect_axis(a)
-    return axis is not None and axis == effect_axis(b)
+def confounded(a: str, b: str, captures: Sequence[Capture]) -> bool:
+    """Whether effects ``a`` and ``b`` follow two of the axes a sweep moves together (time, distance, signal)
+    and the run holds no steps that separate those axes (``time_separated``, ``signal_separated``)."""
+    axes = {effect_axis(a), effect_axis(b)}
+    if len(axes) != 2 or not axes <= set(SWEEP_AXES):
+        return False
+    return (time_separated(captures) if "time" in axes else signal_separated(captures)) is None
 
 
 def position_groups(captures: Sequence[Capture]) -> list[list[int]]:
@@ -396,7 +399,7 @@ def check(best: Fit, others: Sequence[Fit], separation: Separation, margin: floa
                             f"{len(separation.groups)} position(s) seen more than once)")
     unresolved = []
     for other in others:
-        if other.name == best.name or same_axis(best.name, other.name) or not reproduces(best, other):
+        if other.name == best.name or not confounded(best.name, other.name, captures) or not reproduces(best, other):
             continue
         evidence = separation.chi2(other) - separation.chi2(best) if separation.measured.size else 0.0
         if evidence < margin:
