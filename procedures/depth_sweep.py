@@ -3,6 +3,15 @@
 The stage moves the camera from ``start_mm`` to ``stop_mm`` (inclusive) in
 ``step_mm`` increments; at each position a stack of ``frames`` frames of the
 white wall is captured.
+
+A sweep in one direction moves the distance, the run's time (a warm-up drift)
+and the signal (intensity falls with the distance) together, so that an error
+following one cannot be told from an error following another. ``order``
+breaks the tie between distance and time: ``"descending"`` runs the sweep far
+to near, ``"interleaved"`` takes every other position on the way out and the
+rest on the way back, so that near and far positions are each seen early and
+late. ``return_mm`` adds one more stack at the end at that distance (the
+reference distance of the offset calibration, seen again long after it).
 """
 
 from __future__ import annotations
@@ -21,6 +30,19 @@ def sweep_positions(start_mm: float, stop_mm: float, step_mm: float) -> list[flo
     return [round(start_mm + i * step_mm, 6) for i in range(count)]
 
 
+SweepOrder = Literal["ascending", "descending", "interleaved"]
+
+
+def ordered(positions: list[float], order: SweepOrder) -> list[float]:
+    """The positions in capture order: as given, reversed, or every other one out and the rest back
+    (``[1, 2, 3, 4, 5]`` interleaved: ``[1, 3, 5, 4, 2]``)."""
+    if order == "descending":
+        return positions[::-1]
+    if order == "interleaved":
+        return positions[::2] + positions[1::2][::-1]
+    return list(positions)
+
+
 class DepthSweep(StrictModel):
     """Campaign entry ``kind = "depth_sweep"``."""
 
@@ -33,6 +55,8 @@ class DepthSweep(StrictModel):
     frames: int = Field(100, ge=1, le=10000)
     exposure_us: float | None = Field(None, gt=0)
     camera_settings: dict[str, object] = Field(default_factory=dict)
+    order: SweepOrder = "ascending"
+    return_mm: float | None = Field(None, gt=0, description="one more stack at this distance after the sweep")
 
     @model_validator(mode="after")
     def _ordered(self) -> DepthSweep:
@@ -43,11 +67,12 @@ class DepthSweep(StrictModel):
         return self
 
     def stage_distances_mm(self) -> list[float]:
-        """Nominal distances the stage must reach."""
-        return sweep_positions(self.start_mm, self.stop_mm, self.step_mm)
+        """Nominal distances the stage must reach, in capture order (the return last)."""
+        positions = ordered(sweep_positions(self.start_mm, self.stop_mm, self.step_mm), self.order)
+        return positions + ([self.return_mm] if self.return_mm is not None else [])
 
     def steps(self, first_index: int) -> Iterator[Step]:
-        """One wall stack per position, nearest first."""
+        """One wall stack per position in ``order`` (nearest first by default), then the return stack."""
         for i, distance in enumerate(self.stage_distances_mm()):
             yield Step(
                 index=first_index + i,

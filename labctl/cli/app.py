@@ -26,6 +26,7 @@ from labctl.cli.inputs import distinct, warn, warn_run_suffix
 from labctl.cli.outputs import OutputDirectory, OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
 from labctl.jsondoc import dumps
+from labctl.reconcile.confounds import campaign_confounds
 from labctl.run.campaign import resume_run, run_campaign
 from labctl.run.compression import COMPRESSIONS
 from labctl.run.config import Campaign, load_campaign, model_camera_mismatch
@@ -68,6 +69,7 @@ def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
     total = sum(p.duration_s for p in planned)
     compression = compression or config.runner.compression
     raw_bytes, file_bytes = expected_run_bytes(config, compression)
+    confounds = campaign_confounds(config, planned)
     if as_json:
         doc = {
             "campaign": config.campaign.name,
@@ -92,6 +94,11 @@ def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
                 }
                 for p in planned
             ],
+            "confounds": [
+                {"axes": list(c.axes), "effects": [list(e) for e in c.effects], "separated": c.separated,
+                 **({"by": c.how} if c.separated else {"capture": c.how})}
+                for c in confounds
+            ],
         }
         click.echo(dumps(doc))
         return
@@ -110,6 +117,10 @@ def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
         )
         if s.prompt:
             click.echo(f"{'':<24} operator: {s.prompt}")
+    for c in confounds:
+        (a, b), (ea, eb) = c.axes, c.effects
+        what = f"{a} ({', '.join(ea)}) from {b} ({', '.join(eb)})"
+        click.echo(f"tells {what}: {c.how}" if c.separated else f"cannot tell {what}; would need: {c.how}")
 
 
 # ---------------------------------------------------------------------- run

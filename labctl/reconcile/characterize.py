@@ -5,10 +5,14 @@ the lab's nuisance removed (``workflow._residual_maps``). Every axis a lab
 varies or a sensor has is tried:
 
 * per bin: ``distance`` (the bin's range along its ray as simulated, mm;
-  stereo: its depth), pixel ``row``,
+  stereo: its depth), ``disparity`` (1000 / z, the simulated depth's inverse
+  in 1/m: a stereo camera's disparity up to its focal length times baseline,
+  so that an error constant in disparity, growing with z^2, is a straight
+  line on it), pixel ``row``,
   ``column`` and ``radius`` (bin centre, 0 ... 1 of the half diagonal) and
   ``intensity`` (the measured bin mean, log-spaced groups);
 * per step: ``time`` (mean frame time since the run's first frame, s),
+  ``exposure`` (the step's exposure time, us, where the run records one),
   ``robot_angle`` (deg, robot steps only) and ``target`` (the target or
   material, categorical).
 
@@ -24,7 +28,9 @@ curve (mm). The carrying axis
 is the one with the largest eta^2; axes whose values are strongly
 correlated with it over the compared bins (|Spearman rho| >= ``CONFOUNDED``,
 e.g. distance and time in a sweep run in one direction) are listed as
-confounded with it, since the run cannot tell them apart. For the pixel
+confounded with it, since the run cannot tell them apart (distance and
+disparity are one axis on two scales, always in rank order, and are not said
+to be confounded with each other). For the pixel
 axes, ``same_at_every_distance`` is the correlation of the curve from the
 nearer half of the steps with the curve from the farther half (1: a fixed
 pattern; near 0: it changes with distance).
@@ -47,6 +53,7 @@ GROUPS = 24
 CONFOUNDED = 0.8
 MIN_ETA2 = 0.1  # below this share no axis is said to carry the residual
 PIXEL_AXES = ("row", "column", "radius")
+SAME_AXIS = {"distance", "disparity"}
 
 
 @dataclass(frozen=True)
@@ -75,11 +82,14 @@ def _axes(observations: list[Observation], predictions: list[Prediction], maps: 
     radius = np.hypot(col - (w - 1) / 2, row - (h - 1) / 2) / math.hypot(w / 2, h / 2)
     out: dict[str, tuple[str, list]] = {
         "distance": ("mm", [p.range_mm for p in predictions]),
+        "disparity": ("1/m", [np.where(p.z > 0, 1000.0 / np.where(p.z > 0, p.z, 1.0), np.nan) for p in predictions]),
         "row": ("bin", [row] * len(maps)), "column": ("bin", [col] * len(maps)),
         "radius": ("of the half diagonal", [radius] * len(maps)),
         "intensity": ("log10 of the bin mean", [np.log10(np.where(o.intensity > 0, o.intensity, np.nan))
                                                 for o in observations]),
         "time": ("s", [float(np.mean(o.times_s)) - t0_s if len(o.times_s) else math.nan for o in observations]),
+        "exposure": ("us", [o.scene.exposure_us if o.scene.exposure_us is not None else math.nan
+                            for o in observations]),
         "robot_angle": ("deg", [o.scene.robot_angle_deg if o.scene.reference == "robot" else math.nan
                                 for o in observations]),
         "target": ("", [o.scene.target for o in observations]),
@@ -163,7 +173,7 @@ def characterize(observations: list[Observation], predictions: list[Prediction],
     if carrying is not None and carrying.name != "target":
         xc = values[carrying.name].astype(float)
         for f in fits[1:]:
-            if f.name == "target":
+            if f.name == "target" or {f.name, carrying.name} == SAME_AXIS:
                 continue
             x = values[f.name].astype(float)
             ok = np.isfinite(xc) & np.isfinite(x)
@@ -190,6 +200,7 @@ def describe(carrying: AxisFit | None, confounded: list[Confounded]) -> str:
     if carrying is None:
         return f"no single axis carries the residual (every axis's eta^2 < {MIN_ETA2})"
     what = {"distance": "a curve over the camera-target distance", "time": "a change over the run's time",
+            "disparity": "a curve over the inverse depth (disparity)", "exposure": "a function of the exposure time",
             "row": "a pattern over the pixel rows", "column": "a pattern over the pixel columns",
             "radius": "a pattern over the distance from the image centre", "intensity": "a function of the intensity",
             "robot_angle": "a function of the robot angle", "target": "a difference between targets"}[carrying.name]

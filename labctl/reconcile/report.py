@@ -287,8 +287,8 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
     if result.ambiguity:
         a = result.ambiguity
         ambiguity = (f"<p class=note>Ambiguous between {html.escape(a.between[0])} and {html.escape(a.between[1])}"
-                     f" (dBIC {a.scores[0]:.1f} vs {a.scores[1]:.1f}). Their predictions differ most at "
-                     f"{html.escape(a.separating_capture)}: more captures like it would separate them.</p>")
+                     f" (dBIC {a.scores[0]:.1f} vs {a.scores[1]:.1f}). A capture this run does not hold would separate "
+                     f"them: {html.escape(a.separating_capture)}.</p>")
     body = f"""{ambiguity}{_goodness(result)}
 <p>Gap (RMS of the systematic mean-depth residual over every compared bin, lab nuisance removed, stack noise
 subtracted): <b>{result.gap_before:.3f} mm &rarr; {result.gap_after:.3f} mm</b>; intensity gap

@@ -15,8 +15,12 @@
    the residual is consistent with the noise (labctl/reconcile/goodness.py)
    or ``MAX_EFFECTS`` are named.
    A runner-up within ``MARGIN`` of the winner stops the search: "ambiguous
-   between X and Y", with the step where their predictions differ most
-   (the capture that would separate them).
+   between X and Y", with the capture the run does not hold that would
+   separate them (labctl/reconcile/confounds.py). So does a competitor that
+   reproduces the winner's change where the run's separating steps (a position
+   seen again at another time, with another target or exposure) do not tell
+   them apart; a winner whose change those steps contradict is not named, and
+   the next candidate is tried.
 
 5. The verdict: ``none`` or ``effect_found`` only when the final residual is
    consistent with the noise; otherwise ``unexplained``, with the residual
@@ -49,6 +53,7 @@ from scipy import optimize
 from labctl.errors import InputError
 from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
 from labctl.reconcile.characterize import characterize
+from labctl.reconcile.confounds import Holdings, Separation, run_captures, screen, separating_capture
 from labctl.reconcile.corners import (
     CornerComparison,
     CornerFit,
@@ -339,13 +344,12 @@ def determination(candidate: Candidate, params: Parameters, x: np.ndarray, cov: 
     return stderr, info
 
 
-def capture_hint(name: str, params: Parameters, obs: list[Observation]) -> str:
-    """The capture that would determine an effect's parameters better (the effect's ``Observed.capture``)."""
-    stage = [o.scene for o in obs if o.scene.wall_distance_mm is not None]
-    first = f"{stage[0].wall_distance_mm:.0f} mm" if stage else "first"
+def capture_hint(name: str, params: Parameters, obs: list[Observation], t0_s: float) -> str:
+    """The capture that would determine an effect's parameters better (the effect's ``Observed.capture``, asked
+    what the run already holds so that it names a capture the run lacks)."""
     observed = EFFECTS[name].observed
     if observed is not None and observed.capture is not None:
-        return observed.capture(params, first)
+        return observed.capture(params, Holdings(run_captures(obs, t0_s)))
     return "more steps of the procedure where the effect shows most"
 
 
@@ -359,11 +363,11 @@ def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
     result, _ = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
     params = candidate.from_vector(result.x)
     rss = float(result.fun @ result.fun)
-    hint = capture_hint(candidate.name, params, sim.observations)
+    hint = capture_hint(candidate.name, params, sim.observations, sim.t0_s)
     try:
         cov = _step_covariance(result.jac, result.fun, lay.row_steps(), lay.n_steps)
         stderr, info = determination(candidate, params, result.x, cov, hint)
-    except (np.linalg.LinAlgError, ValueError):
+    except (np.linalg.LinAlgError, ValueError, OverflowError):  # overflow: an error beyond any parameter's range
         stderr, info = {}, Determination(well_determined=False, problems=["no covariance"], capture=hint)
     return params, stderr, info, rss
 
@@ -374,15 +378,6 @@ def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, s
     missing carries some of the other's residual)."""
     result, build = _fit_effects(found, model, sim, lay, max_nfev=20)
     return build(result.x)
-
-
-def _separating_step(a: Fit, b: Fit, lay: Layout, obs: list[Observation]) -> str:
-    """The measured step where the two fitted candidates' predictions differ most."""
-    diff = (a.signature - b.signature) ** 2
-    per_step = np.bincount(lay.row_steps(), diff, lay.n_steps)
-    s = obs[int(np.argmax(per_step))].scene
-    where = f"{s.wall_distance_mm:.0f} mm" if s.wall_distance_mm is not None else f"{s.robot_angle_deg:g} deg"
-    return f"{s.step_id} ({s.procedure}, {s.target} at {where})"
 
 
 def _comparable_steps(lay: Layout) -> int:
@@ -617,6 +612,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     start_model = model
     found: list[tuple[Candidate, Parameters]] = []
     minimum_detectable = None
+    captures = run_captures(observations, sim.t0_s)
     for _ in range(MAX_EFFECTS):
         fits = _scored(state, say)
         if isinstance(rule, NullCalibration) and not iterations:
@@ -630,6 +626,11 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         if rule.consistent(state.good):
             iteration.decision = "consistent with noise"
             break
+        separation = Separation(lay, captures, state.whitened())
+        scored = [f for f, _ in fits]
+        contradicted, confound = screen(scored, separation, rule.threshold({f.name for f in scored}), MARGIN)
+        notes += [f"{c.winner} not named: {c.reason}" for c in contradicted]
+        fits = [fc for fc in fits if fc[0].name not in {c.winner for c in contradicted}]
         if not fits:
             break
         significant, iteration.significance_p = rule.significance(fits[0][0], {f.name for f, _ in fits})
@@ -638,9 +639,16 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         best, candidate = fits[0]
         runner = fits[1][0] if len(fits) > 1 else None
         if runner is not None and runner.score > best.score - MARGIN and competing(best, runner):
-            iteration.decision = "ambiguous"
             ambiguity = Ambiguity(between=[best.name, runner.name], scores=[best.score, runner.score],
-                                  separating_capture=_separating_step(best, runner, lay, observations))
+                                  separating_capture=separating_capture(best.name, runner.name, captures,
+                                                                        separation.steps_apart(best, runner)))
+        elif confound is not None:
+            other = next(f for f in scored if f.name == confound.competitor)
+            notes.append(f"{best.name} not named: {confound.reason}")
+            ambiguity = Ambiguity(between=[best.name, other.name], scores=[best.score, other.score],
+                                  separating_capture=confound.capture)
+        if ambiguity is not None:
+            iteration.decision = "ambiguous"
             break
         say(f"fitting {best.name}")
         params, stderr, info_det, rss = refine(candidate, best, state.model, sim, lay)

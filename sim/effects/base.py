@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -40,6 +40,28 @@ def valid_range(params: type[EffectParams], key: str) -> tuple[float, float]:
         lo = getattr(limit, "ge", getattr(limit, "gt", lo))
         hi = getattr(limit, "le", getattr(limit, "lt", hi))
     return float(lo), float(hi)
+
+
+class RunHoldings(Protocol):
+    """What a measured run already holds, as an effect's capture hint asks it (reconcile answers from the run's
+    steps), so that a hint never asks for a capture the run has."""
+
+    @property
+    def first_position(self) -> str:
+        """The sweep's first stage position ("850 mm"), or "first" when the run has none."""
+        ...
+
+    def repeated_after(self, seconds: float) -> bool:
+        """Whether the run sees a position again at least ``seconds`` after it first saw it."""
+        ...
+
+    def early_stacks(self, within_s: float) -> int:
+        """How many stacks of the first position the run took within ``within_s`` of the first."""
+        ...
+
+    def time_capture(self, after_s: float) -> str:
+        """A capture the run lacks that tells the time from the distance, at least ``after_s`` apart."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -95,8 +117,8 @@ class Observed:
     formula: Callable[..., Any] | None = None  # the effect's own formula, where the signature form needs it
     corners: Corners | None = None  # how the checkerboard corners show it (None: they do not)
     procedure: str = ""  # the procedure whose captures show it (named when a run has nothing comparable)
-    capture: Callable[[Mapping[str, Any], str], str] | None = None  # the capture that would determine its fitted
-    # parameters better, from them and the run's first stage position ("850 mm", or "first" without one)
+    capture: Callable[[Mapping[str, Any], RunHoldings], str] | None = None  # the capture that would determine its
+    # fitted parameters better, from them and what the run already holds (never one the run has)
 
 
 @dataclass(frozen=True)

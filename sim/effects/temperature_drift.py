@@ -18,7 +18,7 @@ from typing import Any
 
 from pydantic import Field
 
-from sim.effects.base import Effect, EffectParams, Observed
+from sim.effects.base import Effect, EffectParams, Observed, RunHoldings
 
 
 class Term(EffectParams):
@@ -38,12 +38,21 @@ def offset_mm(t_s: float, p: Params) -> float:
     return p.delta_mm * math.exp(-t / p.tau_s) + sum(term.delta_mm * math.exp(-t / term.tau_s) for term in p.terms)
 
 
-def capture(params: Mapping[str, Any], first: str) -> str:
-    """The capture that separates the drift's amplitude and time constant (``first``: the stage position)."""
+def capture(params: Mapping[str, Any], run: RunHoldings) -> str:
+    """The capture that separates the drift's amplitude and time constant and that ``run`` does not hold: a
+    position seen again three time constants later; where the run has that, stacks of the first position
+    during the first time constant; where it has both, a capture that tells the time from the distance."""
     tau = float(params.get("tau_s", 600.0))
-    return (f"repeat the {first} position later in the run (after about {3 * tau:.0f} s, three time constants) "
-            "and start capturing right after power-on: the drift's amplitude and time constant separate "
-            "only when the same position is seen warm and settled")
+    first = run.first_position
+    if not run.repeated_after(3 * tau):
+        return (f"repeat the {first} position later in the run (after about {3 * tau:.0f} s, three time constants) "
+                "and start capturing right after power-on: the drift's amplitude and time constant separate "
+                "only when the same position is seen warm and settled")
+    early = run.early_stacks(tau)
+    if early < 3:
+        return (f"short stacks of the {first} position from power-on through the first {tau:.0f} s (one time "
+                f"constant; the run has {early} there): the drift's amplitude shows only while it changes")
+    return run.time_capture(3 * tau)
 
 
 EFFECT = Effect(

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from sim.effects.base import Effect, EffectParams, Observed
+from sim.effects.base import Effect, EffectParams, Observed, RunHoldings
 
 
 class Harmonic(EffectParams):
@@ -43,7 +43,7 @@ def apply(range_mm: np.ndarray, p: Params) -> np.ndarray:
     return range_mm + error_mm(range_mm, p)
 
 
-def capture(params: Mapping[str, Any], _: str) -> str:
+def capture(params: Mapping[str, Any], _: RunHoldings) -> str:
     """The depth sweep that determines the wiggling's period."""
     period = float(params.get("period_mm", 1000.0))
     return f"a depth sweep with steps below a quarter of the period ({period / 4:.0f} mm) over at least two periods"
