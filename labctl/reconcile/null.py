@@ -272,12 +272,16 @@ def seeds_for(campaign_toml: str, k: int) -> list[int]:
     return seeds
 
 
+#: the measured run's first-round comparison (``workflow.first_round``), which a replica goes through as well
+Compare = Callable[[list[Any], dict[str, Any], SimModel], tuple[Goodness, list[Fit], np.ndarray]]
+
+
 def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[str], info: dict[str, Any],
-                 directory: str) -> Replica:
-    """Simulate one null replica into ``directory``, compare its steps ``step_ids`` to the model like the measured
-    run's, delete its run file. A Dask task (labctl/batch/cluster.py) or a serial call."""
+                 directory: str, compare: Compare) -> Replica:
+    """Simulate one null replica into ``directory``, compare its steps ``step_ids`` to the model with ``compare``
+    (the very code the measured run goes through), delete its run file. A Dask task (labctl/batch/cluster.py) or a
+    serial call."""
     from labctl.reconcile.observe import observe_run
-    from labctl.reconcile.workflow import first_round  # the measured run's comparison, the very same code
     from labctl.run.campaign import run_campaign
     from labctl.run.config import parse_campaign
     from labctl.run.lab import simulated_lab
@@ -296,12 +300,12 @@ def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[
         run.unlink(missing_ok=True)
     wanted = set(step_ids)
     observations = [o for o in observations if o.scene.step_id in wanted]
-    good, fits, cell_rss = first_round(observations, info, parse_model(model_text, "null replica model"))
+    good, fits, cell_rss = compare(observations, info, parse_model(model_text, "null replica model"))
     return Replica(seed, good.steps, {f.name: f.score for f in fits}, cell_rss, time.monotonic() - start)
 
 
 def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any], step_ids: list[str], k: int,
-                       workers: int, say: Callable[[str], None]) -> NullCalibration:
+                       workers: int, say: Callable[[str], None], compare: Compare) -> NullCalibration:
     """K null replicas of the measured campaign from ``model``, on a local Dask cluster of ``workers`` processes
     (labctl/batch/cluster.py), or one after the other for a single worker."""
     model_text = replica_model(model, info)
@@ -314,14 +318,14 @@ def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any]
             replicas = []
             for i, seed in enumerate(seeds):
                 say(f"null replica {i + 1} of {k} (seed {seed})")
-                replicas.append(null_replica(campaign_toml, model_text, seed, step_ids, info, directory))
+                replicas.append(null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare))
         else:
             from labctl.batch.cluster import Cluster, open_client
 
             say(f"{k} null replicas on {workers} workers")
             with open_client(Cluster(workers=workers)) as client:
                 futures = client.map(null_replica, [campaign_toml] * k, [model_text] * k, seeds, [step_ids] * k,
-                                     [info] * k, [directory] * k, pure=False)
+                                     [info] * k, [directory] * k, [compare] * k, pure=False)
                 replicas = client.gather(futures)
     finally:
         shutil.rmtree(directory, ignore_errors=True)

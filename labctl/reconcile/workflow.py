@@ -560,7 +560,7 @@ def _calibrate(null_runs: int, workers: int | None, info: dict[str, Any], model:
     compared = [o.scene.step_id for o, z, i in zip(observations, lay.z_masks, lay.i_masks, strict=True)
                 if z.any() or i.any()]
     return simulate_null_runs(info["campaign_toml"], model, info, compared, null_runs,
-                              workers or machine_workers(), say)
+                              workers or machine_workers(), say, first_round)
 
 
 def reconcile(path: str | Path, model: SimModel | None = None, progress: Callable[[str], None] | None = None,
