@@ -17,8 +17,8 @@ from pydantic import ValidationError
 
 from sim.effects.base import Effect, EffectParams, Observed, RangeStage
 
-__all__ = ["EFFECTS", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "frame_offset_mm", "output_step_mm",
-           "parse_effects", "registered"]
+__all__ = ["EFFECTS", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "background_level",
+           "frame_offset_mm", "output_step_mm", "parse_effects", "registered"]
 
 
 def _discover() -> dict[str, Effect]:
@@ -58,6 +58,11 @@ def frame_offset_mm(effects: dict[str, EffectParams], t_s: float) -> float:
     for hook, params in acting(effects, "frame_offset_mm"):
         offset = offset + hook(t_s, params)
     return offset
+
+
+def background_level(effects: dict[str, EffectParams]) -> float:
+    """The effects' background light (``background``) in units of the reference signal (0 without)."""
+    return float(sum(hook(params) for hook, params in acting(effects, "background")))
 
 
 def output_step_mm(effects: dict[str, EffectParams]) -> float:

@@ -60,6 +60,8 @@ class Observed:
     solver_bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)  # where the solver's bounds
     # differ from the valid range (an angle searched over two turns and wrapped, a log-scaled time's lower end)
     formula: Callable[..., Any] | None = None  # the effect's own formula, where the signature form needs it
+    families: tuple[str, ...] = ("depth", "intensity")  # the residual families it changes ("resimulated": the
+    # noise, validity and correlation families are re-simulated only for an effect that names them)
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,9 @@ class Effect:
     * ``shading(cos_alpha, p)``: factor on the light after the blur (amplitude, IR image);
     * ``phasor(phasor, p, sensor)``: the ToF pixel's phasor before its phase gives the range;
     * ``on_range(values, p, stage)``: the noise-free ToF range or stereo depth map, in increasing ``order``;
+    * ``background(p)``: background light the pixels collect besides the camera's own signal (ambient light),
+      in units of the reference signal (ToF: A_ref, the amplitude of the 90 % wall at 2 m; stereo: the
+      projector's dot light on that wall); it adds shot noise and lowers the contrast the stereo matcher sees;
     * ``frame_offset_mm(t_s, p)``: a range offset of the frame taken at device time ``t_s``;
     * ``step_mm(p)``: the step the coordinates are stored in.
     """
@@ -91,5 +96,6 @@ class Effect:
     shading: Callable[[np.ndarray, Any], np.ndarray] | None = None
     phasor: Callable[[np.ndarray, Any, Any], np.ndarray] | None = None
     on_range: Callable[[np.ndarray, Any, RangeStage], np.ndarray] | None = None
+    background: Callable[[Any], float] | None = None
     frame_offset_mm: Callable[[float, Any], float] | None = None
     step_mm: Callable[[Any], float] | None = None
