@@ -14,6 +14,16 @@ Parameters = dict[str, Any]
 
 
 @dataclass(kw_only=True)
+class ExcludedStep:
+    """A measured step left out of one residual family's comparison (``family`` ``"all"``: of every one), and
+    why."""
+
+    step: str
+    family: str
+    reason: str
+
+
+@dataclass(kw_only=True)
 class Correlation:
     """The correlation of two fitted parameters' estimates."""
 
@@ -152,6 +162,8 @@ class ReconcileDocument:
     significance_rule: dict[str, float]
     empirical_corrections: list[EmpiricalCorrection]
     notes: list[str]
+    families: dict[str, dict[str, Any]]
+    excluded_steps: list[ExcludedStep]
     corners: dict[str, Any] | None = optional()
     unexplained: dict[str, Any] | None = optional()
     not_comparable: NotComparable | None = optional()
