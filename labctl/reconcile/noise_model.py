@@ -28,7 +28,10 @@ draws its frames with (sim/tof.py, sim/stereo.py, sim/kernels.py):
   distance, lens and defocus); per frame nothing else drops it. This holds where L and P are uniform over
   the window; where the smooth light's slope g (per pixel) alone would give a contrast
   |g| sqrt((w^2 - 1) / 12) / light of ``SLOPE_SHARE`` of the threshold (an oblique, distant surface), the
-  valid fraction is not predicted (NaN).
+  valid fraction is not predicted (NaN). The contrast is modelled to about ``CONTRAST_TOLERANCE``
+  (relative): the pixels within that band of the threshold may fall either way, and half their share is the
+  model's uncertainty of the valid fraction (``valid_spread``), added to the validity family's sampling
+  variance.
 * ToF output steps (``quantization``, a camera storing millimetres) add Delta^2 / 12 where
   sigma >= Delta / 2 (Sheppard 1898; the neglected ripple is below exp(-2 pi^2 sigma^2 / Delta^2) < 1 %).
   Below sigma = Delta / 2 (both technologies) the rounded noise depends on where the true value sits on the
@@ -67,6 +70,7 @@ def with_output_step(sigma: np.ndarray, step_mm: float) -> np.ndarray:
 DISPARITY_POSITIONS = 8  # where the true disparity sits between two levels of its grid
 OUTPUT_OFFSETS = 16  # where the true depth sits on the output grid
 SLOPE_SHARE = 0.5  # a light slope giving this share of the texture threshold's contrast: validity not predicted
+CONTRAST_TOLERANCE = 0.15  # relative accuracy of the modelled matching contrast
 LATTICE_RATIO = 4.0  # sigma_d / disparity step above which both roundings follow Sheppard's correction
 
 
@@ -135,10 +139,11 @@ def dot_window_stats(optics: SensorOptics, distance_mm: float, bin_px: int) -> t
 
 def stereo_statistics(sensor: StereoSensor, rendered, z: np.ndarray, exposure_us: float, projector: bool,
                       dot_stats: tuple[np.ndarray, np.ndarray],
-                      bin_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      bin_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per bin of a binned stereo sensor: the depth's temporal std (mm, NaN where not predicted), the spread of
-    its logarithm over where the depth sits on the grids (``stored_disparity_noise``) and the expected valid
-    fraction of its full-resolution pixels."""
+    its logarithm over where the depth sits on the grids (``stored_disparity_noise``), the expected valid
+    fraction of its full-resolution pixels, and that fraction's uncertainty (half the share of pixels whose
+    contrast lies within ``CONTRAST_TOLERANCE`` of the threshold)."""
     p = sensor.profile
     gain = exposure_us / p.exposure_us
     k = rendered.oversample
@@ -166,7 +171,9 @@ def stereo_statistics(sensor: StereoSensor, rendered, z: np.ndarray, exposure_us
     with np.errstate(divide="ignore", invalid="ignore"):
         slope = np.sqrt((gx**2 + gy**2) * (MATCHING_WINDOW_PX**2 - 1) / 12.0) / (smooth + background)
         contrast = dots[..., None] * std / (lamps[..., None] + background + dots[..., None] * mean)
-    textured = np.mean(np.nan_to_num(contrast) >= p.texture_threshold, axis=-1)
+    relative = np.nan_to_num(contrast) / p.texture_threshold
+    textured = np.mean(relative >= 1.0, axis=-1)
+    marginal = np.mean(np.abs(relative - 1.0) < CONTRAST_TOLERANCE, axis=-1)
     # the right camera sees column u of the full sensor while u - f b / z >= 0
     u = (np.arange(w)[:, None] * bin_px + np.arange(bin_px)[None, :]).astype(float)  # (w, bin_px)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -176,4 +183,4 @@ def stereo_statistics(sensor: StereoSensor, rendered, z: np.ndarray, exposure_us
     valid = np.where(in_range & ~(slope <= SLOPE_SHARE * p.texture_threshold), np.nan, valid)
     sigma_z, spread = stored_disparity_noise(np.where(in_range, z, np.nan), sigma_d, p.disparity_step_px,
                                              focal_baseline, output_step_mm(sensor.effects))
-    return sigma_z, spread, valid
+    return sigma_z, spread, valid, np.where(in_range, marginal / 2, 0.0)

@@ -67,7 +67,8 @@ class Prediction:
     edge: np.ndarray  # bins next to a depth or reflectance edge
     noise_mm: np.ndarray  # temporal std of a full-resolution pixel's z, NaN where not predicted
     noise_log_spread: np.ndarray  # what the model cannot know of ln noise_mm (where z sits on the output grid)
-    valid_rate: np.ndarray  # expected fraction of valid pixel-frames
+    valid_rate: np.ndarray  # expected fraction of valid pixel-frames (NaN where not predicted)
+    valid_spread: np.ndarray  # the model's uncertainty of valid_rate (stereo: pixels at the texture threshold)
     correlation: np.ndarray  # expected variance of a bin mean over the per-pixel variance / n (1: independent)
 
 
@@ -200,14 +201,15 @@ class Predictor:
             noise, valid = tof_statistics(self.sensor, amplitude, ambient, np.broadcast_to(self.z_per_range, z.shape))
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
-                              _independent(noise))
+                              np.zeros_like(z), _independent(noise))
         z = self.sensor.depth(rendered) + drift
         z = np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
         ir = self.sensor.ir_image(rendered, exposure, step.projector)
-        noise, spread, valid = stereo_statistics(self.sensor, rendered, z, exposure, step.projector,
-                                                 self._dot_stats(centre_distance_mm(rendered)), self.bin_px)
+        noise, spread, valid, valid_spread = stereo_statistics(
+            self.sensor, rendered, z, exposure, step.projector, self._dot_stats(centre_distance_mm(rendered)),
+            self.bin_px)
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
-                          noise, spread, valid, _independent(noise))
+                          noise, spread, valid, valid_spread, _independent(noise))
 
 
 def _independent(noise: np.ndarray) -> np.ndarray:

@@ -34,7 +34,8 @@ nuisance, each weighted by 1 / (its sampling variance + its floor^2):
   plus the model's own spread of ln sigma (``Prediction.noise_log_spread``);
 * validity: the fraction of valid pixel-frames measured minus predicted;
   sampling variance p (1 - p) / N (binomial over the bin's N = b^2 n
-  pixel-frames, p the model's);
+  pixel-frames, p the model's) plus the model's own uncertainty of p
+  (``Prediction.valid_spread``: stereo pixels at the texture threshold);
 * correlation: ln(c_measured) - ln(c_model) - E_c, E_c = psi((n - 1) / 2) +
   ln(2 / (n - 1)) - psi(nu / 2) - ln(2 / nu) (the ratio of two chi-square
   variances, n - 1 and nu degrees of freedom); sampling variance
@@ -236,7 +237,7 @@ def sampling_variance(obs: Observation, pred: Prediction) -> dict[str, np.ndarra
     frames = max(obs.n_frames - 1, 1)
     p = np.clip(pred.valid_rate, 0.0, 1.0)
     return {"noise": special.polygamma(1, nu / 2) / 4 + np.nan_to_num(pred.noise_log_spread) ** 2,
-            "validity": p * (1 - p) / obs.pixel_frames,
+            "validity": p * (1 - p) / obs.pixel_frames + pred.valid_spread**2,
             "correlation": special.polygamma(1, frames / 2) + special.polygamma(1, nu / 2)}
 
 

@@ -675,7 +675,9 @@ def excluded_steps(observations: list[Observation], preds: list[Prediction], lay
             if int(lay.s_masks[family][s].sum()) >= 2:
                 continue
             if family == "validity":
-                reason = "the model sees no surface away from depth and reflectance edges"
+                reason = ("neither the run nor the model has a valid pixel away from depth and reflectance edges "
+                          "(outside the camera's measurement range)" if n_seen >= 2 else
+                          "the model sees no surface away from depth and reflectance edges")
             elif n_seen and not np.isfinite(p.noise_mm[seen]).any():
                 reason = ("the predicted noise is below half the camera's output step: rounding makes it depend on "
                           "where the depth sits on the step, which the model cannot know")
