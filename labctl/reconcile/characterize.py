@@ -288,5 +288,5 @@ def describe_statistics(family: str, observations: list[Observation], prediction
         departure = {"factor": round(math.exp(mean), 4)}
     return {"family": family, "carrying_axis": carrying.name if carrying else None, "where": where,
             **departure, "axes": [{"axis": f.name, "unit": f.unit, "eta2": round(float(f.eta2), 4)} for f in fits],
-            "curve": carrying.curve if carrying else [],
+            "curve": [{"x": c["x"], "mean": c["mean_mm"], "n": c["n"]} for c in carrying.curve] if carrying else [],
             "description": f"{FAMILY_WORDS[family]} {size} {where}"}
