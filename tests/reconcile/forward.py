@@ -245,10 +245,13 @@ def focal_source(fov_deg: tuple[float, float], true_fov_deg: tuple[float, float]
 
 def warp_run(source: Path, destination: Path, where: Warp, cloud_corrected: bool) -> Path:
     """Copy the run at ``source`` to ``destination`` as a camera whose pixel (u, v) sees what the plain camera saw
-    at ``where(u, v)`` (every frame's intensity and cloud resampled bilinearly). ``cloud_corrected``: the camera's
-    calibration knows its optics, so every point keeps its place (x, y, z resampled); otherwise it turns the
-    range it measures (|p| resampled) into a point along the plain pinhole ray of (u, v), slopes
-    ((u - c_u) / f_x, (v - c_v) / f_y) with f from the file's FOV. Returns ``destination``."""
+    at ``where(u, v)``: the stack means of the intensity and the cloud are resampled bilinearly, and every pixel
+    keeps its own temporal noise (its frames' deviations from its own stack mean are added back), as a camera's
+    pixels do whatever its optics; resampling every frame would average the noise of neighbouring pixels (less
+    noise, correlated). ``cloud_corrected``: the camera's calibration knows its optics, so every point keeps its
+    place (x, y, z resampled); otherwise it turns the range it measures (|p| resampled) into a point along the
+    plain pinhole ray of (u, v), slopes ((u - c_u) / f_x, (v - c_v) / f_y) with f from the file's FOV. Returns
+    ``destination``."""
     shutil.copyfile(source, destination)
     with h5py.File(destination, "a") as f:
         fov = tuple(float(v) for v in f["camera"].attrs["fov_deg"])
@@ -258,19 +261,25 @@ def warp_run(source: Path, destination: Path, where: Warp, cloud_corrected: bool
             su, sv = where(u, v, w, h)
             tx = (u - (w - 1) / 2) / ((w / 2) / math.tan(math.radians(fov[0]) / 2))
             ty = (v - (h - 1) / 2) / ((h / 2) / math.tan(math.radians(fov[1]) / 2))
-            for k in range(n):
-                image = np.asarray(group["intensity"][k], float)
-                group["intensity"][k] = np.round(np.nan_to_num(_bilinear(image, su, sv))).astype(
-                    group["intensity"].dtype) if group["intensity"].dtype.kind in "iu" else _bilinear(image, su, sv)
-                x, y, z = (np.asarray(group[c][k], float) for c in ("x", "y", "z"))
-                if cloud_corrected:
-                    new = [_bilinear(c, su, sv) for c in (x, y, z)]
-                else:
-                    r = _bilinear(np.sqrt(x * x + y * y + z * z), su, sv)
-                    norm = np.sqrt(1 + tx * tx + ty * ty)
-                    new = [r * tx / norm, r * ty / norm, r / norm]
-                for c, values in zip(("x", "y", "z"), new):
-                    group[c][k] = values.astype(np.float32)
+            intensity = np.asarray(group["intensity"][:], float)
+            x, y, z = (np.asarray(group[c][:], float) for c in ("x", "y", "z"))
+            r = np.sqrt(x * x + y * y + z * z)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                means = {name: np.nanmean(a, axis=0) for name, a in
+                         (("intensity", intensity), ("x", x), ("y", y), ("z", z), ("r", r))}
+            warped = {name: _bilinear(m, su, sv) for name, m in means.items()}
+            image = warped["intensity"] + (intensity - means["intensity"])
+            group["intensity"][:] = np.round(np.nan_to_num(image)).astype(group["intensity"].dtype) \
+                if group["intensity"].dtype.kind in "iu" else image
+            if cloud_corrected:
+                new = [warped[c] + (a - means[c]) for c, a in (("x", x), ("y", y), ("z", z))]
+            else:
+                measured = warped["r"] + (r - means["r"])
+                norm = np.sqrt(1 + tx * tx + ty * ty)
+                new = [measured * tx / norm, measured * ty / norm, measured / norm]
+            for c, values in zip(("x", "y", "z"), new):
+                group[c][:] = values.astype(np.float32)
     return destination
 
 
