@@ -9,6 +9,9 @@ Per step (noise-free, once):
 * matching needs texture: where the local IR contrast (std / mean over the
   matching window) is below ``texture_threshold`` the pixel is invalid — with
   the projector off, textureless targets (wall, PTFE, the inside of tiles) fail;
+  background light (``ambient_light``, a uniform level b added after the blur)
+  lowers that contrast, and the sub-pixel matching noise grows by
+  (m + b) / m, m the window's mean light without it (Konolige 2010);
 * occlusion: a point the right camera (baseline b to the right) cannot see is
   invalid, as are points outside its view (the left band of D4xx depth maps);
 * ``disparity_bias``: the matcher's sub-pixel bias, periodic in the disparity
@@ -29,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from sim.effects import EffectParams, RangeStage, acting, frame_offset_mm, output_step_mm
+from sim.effects import EffectParams, RangeStage, acting, background_level, frame_offset_mm, output_step_mm
 from sim.geometry import Pose
 from sim.kernels import stereo_frame
 from sim.noise import NoiseBank, make_bank
@@ -96,29 +99,44 @@ class StereoSensor:
         p = self.profile
         left, visible = rendered
         ir = self.ir_image(left, exposure_us, projector)
+        background = self.background(exposure_us)
         z = self.depth(left)
         textured = local_contrast(ir) >= p.texture_threshold
         in_range = (left.hit_fraction > 0) & (z >= p.min_range_mm) & (z <= p.max_range_mm)
         valid = in_range & textured & visible & np.isfinite(z)
         theta = np.arccos(np.clip(left.cos_dom, 1e-6, 1.0))
         angle_term = 1.0 + p.angle_noise_gain * theta**2 / np.maximum(math.pi / 2 - theta, 1e-3) ** 2
-        return np.where(valid, z, np.nan), valid, ir, self.subpixel_noise_px * angle_term
+        sigma = self.subpixel_noise_px * angle_term
+        if background > 0:
+            signal = ndimage.uniform_filter(self._light(left, exposure_us, projector), MATCHING_WINDOW_PX)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sigma = sigma * np.where(signal > 0, 1.0 + background / signal, 1.0)
+        return np.where(valid, z, np.nan), valid, ir, sigma
+
+    def background(self, exposure_us: float) -> float:
+        """The effects' background light on the IR image before vignetting: ``background_level`` times the
+        projector's light on the 90 % wall at 2 m, scaled by the exposure."""
+        return background_level(self.effects) * PROJECTOR_LEVEL * exposure_us / self.profile.exposure_us
 
     def ir_image(self, left: Rendered, exposure_us: float, projector: bool = True) -> np.ndarray:
-        """Noise-free left IR image: lamps plus (with ``projector``) the dots, blurred, times ``vignetting``.
+        """Noise-free left IR image: lamps plus (with ``projector``) the dots, blurred, plus the background
+        light (``background``), times ``vignetting``."""
+        ir = self._light(left, exposure_us, projector) + self.background(exposure_us)
+        for hook, params in acting(self.effects, "shading"):
+            ir = ir * hook(self.geometry.cos_alpha, params)
+        return np.maximum(ir, 0.0)
+
+    def _light(self, left: Rendered, exposure_us: float, projector: bool) -> np.ndarray:
+        """The lamps' and (with ``projector``) the dots' light on each pixel after the blur, before vignetting.
 
         ``self.dots`` holds each pixel's dot coverage (1 or 0, or a fraction for a binned sensor).
         """
-        geo = self.geometry
         k = left.oversample
         light = AMBIENT_LEVEL * left.passive_fine
         if projector:  # each dot covers whole pixels
             dots = np.repeat(np.repeat(self.dots, k, axis=0), k, axis=1)
             light = light + PROJECTOR_LEVEL * left.irradiance_fine / IRRADIANCE_REF * dots
-        ir = geo.blur(light * (exposure_us / self.profile.exposure_us), centre_distance_mm(left), k)
-        for hook, params in acting(self.effects, "shading"):
-            ir = ir * hook(geo.cos_alpha, params)
-        return np.maximum(ir, 0.0)
+        return self.geometry.blur(light * (exposure_us / self.profile.exposure_us), centre_distance_mm(left), k)
 
     def depth(self, left: Rendered) -> np.ndarray:
         """Noise-free depth of the left camera's dominant surface after the effects' range hooks

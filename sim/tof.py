@@ -16,7 +16,8 @@ Per step (noise-free, once):
    ``empirical_pixel_map``); ``material_bias`` lengthens ranges on
    translucent materials;
 4. noise (eq. 2-9, Li 2014): sigma_r = c / (4 sqrt2 pi f_mod) sqrt(A + B) / (c_d A)
-   with B = A + B_ambient, B_ambient = ambient_ratio A_ref t_exp / t_default;
+   with B = A + B_ambient, B_ambient = (ambient_ratio + background) A_ref t_exp / t_default, background
+   the effects' background light (``ambient_light``);
    the amplitude itself scatters by sqrt(B / 2).
 
 Per frame (sim/kernels.py): noise from the step's bank, ``temperature_drift``,
@@ -32,7 +33,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.effects import EFFECTS, EffectParams, RangeStage, acting, frame_offset_mm, output_step_mm
+from sim.effects import (
+    EFFECTS,
+    EffectParams,
+    RangeStage,
+    acting,
+    background_level,
+    frame_offset_mm,
+    output_step_mm,
+)
 from sim.geometry import Pose
 from sim.kernels import tof_frame
 from sim.materials import get_material
@@ -138,7 +147,8 @@ class ToFSensor:
         range_mm = self._measured_range(r.range_dom, phasor, light)
         in_range = (r.hit_fraction > 0) & (range_mm >= p.min_range_mm) & (range_mm <= p.max_range_mm)
         valid = in_range & np.isfinite(range_mm)
-        return np.where(valid, range_mm, np.nan), np.where(valid, amplitude, 0.0), p.ambient_ratio * self.a_ref * gain
+        ambient = (p.ambient_ratio + background_level(self.effects)) * self.a_ref * gain
+        return np.where(valid, range_mm, np.nan), np.where(valid, amplitude, 0.0), ambient
 
     def prepare(self, scene: Scene, pose: Pose, exposure_us: float, seed: int, step_index: int) -> ToFPrepared:
         range_mm, amplitude, ambient = self.expected(self.render_scene(scene, pose), exposure_us)

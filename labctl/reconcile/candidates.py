@@ -13,7 +13,10 @@ act after the render have closed-form signatures from the base prediction
 (the formulas of their sim/effects modules, linearized where needed); effects
 that move the geometry are differentiated by re-simulating with the effect
 switched on (finite difference, the ``resimulated`` form, which suits any
-effect linear in one parameter). Nonlinear parameters (a wiggling period, a
+effect linear in one parameter; in the residual families the effect's
+declaration names, ``Observed.families``: an effect on the noise, such as
+``ambient_light``, changes the predicted temporal noise and valid fraction,
+and is scored and fitted on those families like any other). Nonlinear parameters (a wiggling period, a
 drift time constant, a multipath extra path, a ``floor_multipath`` plane and
 its distance) are searched on a grid, the linear ones solved for at each grid
 point. A candidate with ``bind`` is built from the run itself (its signature
@@ -50,7 +53,7 @@ import numpy as np
 
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
-from labctl.reconcile.residuals import Layout, raw_residuals
+from labctl.reconcile.residuals import STATISTICS, Layout, raw_residuals
 from labctl.reconcile.results import Parameters
 from sim.effects import EFFECTS, Effect, valid_range
 from sim.materials import get_material
@@ -59,7 +62,9 @@ from sim.render import C_MM_PER_S
 from sim.scenes.targets import PLATE_MATERIALS
 from sim.tof import reference_amplitude
 
-Column = tuple[np.ndarray, np.ndarray]  # change of the stacked depth rows and log-intensity rows (Layout order)
+#: change of the stacked depth rows and log-intensity rows (Layout order), and optionally of the statistics rows
+#: (``Layout.stack_statistics``: ln noise, valid fraction, ln correlation)
+Column = tuple[np.ndarray, ...]
 
 
 @dataclass
@@ -106,18 +111,29 @@ class Context:
         return np.zeros(len(self.lay.i_step))
 
     def finite_difference(self, name: str, params: Parameters, step_filter: Callable[[Observation], bool],
-                          scale: float) -> Column:
-        """(prediction with the effect switched on - current prediction) / ``scale``, on the steps it touches."""
+                          scale: float, families: tuple[str, ...] = ("depth", "intensity")) -> Column:
+        """(prediction with the effect switched on - current prediction) / ``scale``, on the steps it touches, in
+        ``families`` (the statistics families' rows are added when one of them is named)."""
         effects = {**self.model.effects, name: params}
         predictor = self.make_predictor(self.model.model_copy(update={"effects": effects}))
-        dz, di = [np.zeros_like(p.z) for p in self.predictions], [np.zeros_like(p.z) for p in self.predictions]
+        zeros = [np.zeros_like(p.z) for p in self.predictions]
+        dz, di = list(zeros), list(zeros)
+        stats = {f: list(zeros) for f in STATISTICS if f in families}
         for s, (obs, base) in enumerate(zip(self.observations, self.predictions, strict=True)):
             if not step_filter(obs):
                 continue
             p = predictor.predict(obs.scene, obs.times_s - self.t0_s)
-            dz[s] = np.nan_to_num((p.z - base.z) / scale)
             with np.errstate(invalid="ignore", divide="ignore"):
-                di[s] = np.nan_to_num((np.log(p.intensity) - np.log(base.intensity)) / scale)
+                if "depth" in families:
+                    dz[s] = np.nan_to_num((p.z - base.z) / scale)
+                if "intensity" in families:
+                    di[s] = np.nan_to_num((np.log(p.intensity) - np.log(base.intensity)) / scale)
+                changes = {"noise": np.log(p.noise_mm) - np.log(base.noise_mm), "validity": p.valid_rate - base.valid_rate,
+                           "correlation": np.log(p.correlation) - np.log(base.correlation)}
+            for f in stats:
+                stats[f][s] = np.nan_to_num(changes[f] / scale)
+        if stats:
+            return self.lay.stack_z(dz), self.lay.stack_i(di), self.lay.stack_statistics(stats)
         return self.lay.stack_z(dz), self.lay.stack_i(di)
 
 
@@ -218,7 +234,7 @@ def _resimulated(effect: Effect) -> Candidate:
     seen = effect.observed
     shows, probe = STEPS[seen.steps], {seen.fitted[0]: seen.probe, **seen.fixed}
     return _linear(
-        effect, lambda ctx, _: [ctx.finite_difference(effect.name, probe, shows, seen.probe)],
+        effect, lambda ctx, _: [ctx.finite_difference(effect.name, probe, shows, seen.probe, seen.families)],
         applies=lambda ctx: sum(shows(o) for o in ctx.observations) >= seen.min_steps,
     )
 

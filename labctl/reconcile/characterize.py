@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -211,3 +212,99 @@ def describe(carrying: AxisFit | None, confounded: list[Confounded]) -> str:
     if confounded:
         text += "; this run cannot tell it from " + ", ".join(c.axis for c in confounded)
     return text
+
+
+#: what each statistics family compares, for the sentence a user reads
+FAMILY_WORDS = {"noise": "temporal noise", "validity": "valid pixels", "correlation": "noise correlation between "
+                "neighbouring pixels (variance of a bin mean over the per-pixel variance / n)"}
+
+
+def _region(curve: list[CurvePoint], unit: str, values: np.ndarray) -> str:
+    """Where along a numeric axis the curve departs most: its groups beyond half the largest departure."""
+    means = np.array([c.mean_mm for c in curve])
+    xs = [c.x for c in curve]
+    big = np.abs(means) >= 0.5 * np.max(np.abs(means))
+    lo, hi = min(x for x, b in zip(xs, big) if b), max(x for x, b in zip(xs, big) if b)
+    scale, shown = (1000.0, "m") if unit == "mm" else (1.0, unit)
+    if hi >= xs[-1] and lo > xs[0]:
+        return f"beyond {lo / scale:.1f} {shown}"
+    if lo <= xs[0] and hi < xs[-1]:
+        return f"below {hi / scale:.1f} {shown}"
+    if lo <= xs[0] and hi >= xs[-1]:
+        return "at every distance" if unit == "mm" else "everywhere"
+    return f"between {lo / scale:.1f} and {hi / scale:.1f} {shown}"
+
+
+def _changes_sign(curve: list[CurvePoint]) -> bool:
+    """Whether a curve departs to both sides by at least a quarter of its largest departure."""
+    means = np.array([c.mean_mm for c in curve])
+    big = 0.25 * np.max(np.abs(means))
+    return bool(np.any(means > big) and np.any(means < -big))
+
+
+def _size(family: str, value: float) -> str:
+    """A departure as the user reads it: a factor on the model's (log ratios) or percentage points (validity)."""
+    if family == "validity":
+        return f"{100 * abs(value):.0f} percentage points {'below' if value < 0 else 'above'} the model's"
+    return f"{math.exp(value):.2f}x the model's"
+
+
+def describe_statistics(family: str, observations: list[Observation], predictions: list[Prediction],
+                        maps: list[np.ndarray], weights: list[np.ndarray], t0_s: float) -> dict[str, Any]:
+    """What a statistics family's residual (per-step maps, NaN outside the compared bins; ``weights`` their
+    inverse variances) follows: the carrying axis and the region of it where the residual departs most, the
+    departure as a factor (noise, correlation: the log ratio's weighted mean, exponentiated) or relative
+    change (validity: measured over predicted valid pixels there), and a sentence."""
+    v = np.concatenate([m[np.isfinite(m)] for m in maps]) if maps else np.zeros(0)
+    if not len(v):
+        return {"family": family, "carrying_axis": None, "description": f"{FAMILY_WORDS[family]}: no compared bins"}
+    weight = _stack(weights, maps).astype(float)
+    fits: list[AxisFit] = []
+    values: dict[str, np.ndarray] = {}
+    for name, (unit, per_step) in _axes(observations, predictions, maps, t0_s).items():
+        if name in ("target", "intensity"):
+            continue
+        x = _stack(per_step, maps).astype(float)
+        ok = np.isfinite(x)
+        if ok.sum() < 2 or len(np.unique(np.round(x[ok], 6))) < 2:
+            continue
+        eta2, size, curve, _ = _curve(v[ok], x[ok], weight[ok])
+        fits.append(AxisFit(name, unit, eta2 * float(weight[ok].sum() / weight.sum()), size, curve))
+        values[name] = x
+    fits.sort(key=lambda f: -f.eta2)
+    carrying = fits[0] if fits and fits[0].eta2 >= MIN_ETA2 else None
+    where = "at every distance" if carrying is None else (
+        _region(carrying.curve, carrying.unit, values[carrying.name]) + f", following the {carrying.name}"
+        if carrying.name != "distance" else _region(carrying.curve, carrying.unit, values[carrying.name]))
+    if carrying is not None:
+        x = values[carrying.name]
+        curve_means = np.array([c.mean_mm for c in carrying.curve])
+        half = 0.5 * np.max(np.abs(curve_means))
+        xs = np.array([c.x for c in carrying.curve], float)
+        lo, hi = xs[np.abs(curve_means) >= half].min(), xs[np.abs(curve_means) >= half].max()
+        edges = np.linspace(float(np.nanmin(x)), float(np.nanmax(x)), GROUPS + 1)
+        step = edges[1] - edges[0]
+        region = np.isfinite(x) & (x >= lo - step) & (x <= hi + step)
+    else:
+        region = np.ones(len(v), bool)
+    mean = float(np.sum(weight[region] * v[region]) / np.sum(weight[region]))
+    departure: dict[str, Any]
+    if carrying is not None and _changes_sign(carrying.curve):
+        first, last = carrying.curve[0], carrying.curve[-1]
+        scale, shown = (1000.0, "m") if carrying.unit == "mm" else (1.0, carrying.unit)
+        ends = [_size(family, c.mean_mm) + f" at {c.x / scale:.1f} {shown}" for c in (first, last)]
+        size, where = f"from {ends[0]} to {ends[1]}", f"following the {carrying.name}"
+        departure = {"at_ends": [round(first.mean_mm, 4), round(last.mean_mm, 4)]}
+    elif family == "validity":
+        measured = _stack([o.valid_rate for o in observations], maps).astype(float)[region]
+        predicted = _stack([p.valid_rate for p in predictions], maps).astype(float)[region]
+        change = float(measured.sum() / predicted.sum() - 1.0) if predicted.sum() > 0 else mean
+        size = f"{100 * abs(change):.0f} % {'below' if change < 0 else 'above'} the model's"
+        departure = {"relative_change": round(change, 4), "difference": round(mean, 4)}
+    else:
+        size = _size(family, mean)
+        departure = {"factor": round(math.exp(mean), 4)}
+    return {"family": family, "carrying_axis": carrying.name if carrying else None, "where": where,
+            **departure, "axes": [{"axis": f.name, "unit": f.unit, "eta2": round(float(f.eta2), 4)} for f in fits],
+            "curve": [{"x": c.x, "mean": c.mean_mm, "n": c.n} for c in carrying.curve] if carrying else [],
+            "description": f"{FAMILY_WORDS[family]} {size} {where}"}

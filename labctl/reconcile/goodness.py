@@ -18,9 +18,27 @@ stage step, which no stack shows: one reading per step). The run's
 ``gap_floor`` is the same over all usable bins (root of the mean of the
 bins' floor^2), in the gap's unit.
 
+The noise's statistics form three more families (labctl/reconcile/residuals.py
+states each residual and its sampling variance var_i, derived from sampling
+statistics): ``noise`` (ln of the measured temporal std over the model's, in
+%), ``validity`` (valid fraction measured minus predicted, in percentage
+points) and ``correlation`` (ln of the measured correlation ratio over the
+model's, in %). Their gaps and floors are built like the depth's, from
+their rows:
+
+    gap = 100 sqrt(max(0, mean(r_i^2 - var_i))),
+    floor = 100 sqrt(mean(var_i) + STAT_FLOORS[family]^2)
+
+per step and over the run. With 10 frames per step (observe.MAX_FRAMES), one
+bin of 16 pixels has var = 0.0035 (6 %) in ``noise`` (psi'(72) / 4), 0.25 (50
+%) in ``correlation`` (psi'(4.5) + psi'(72)) and p (1 - p) / 160 in
+``validity`` (at most 4 percentage points): the per-step and run gaps average
+over hundreds of bins, so a temporal noise 10 % off the model's, or a
+correlation ratio 1.5 times the model's, stands far above them.
+
 A residual is **consistent with noise** when the run's gap is at most its
 floor and no step's gap exceeds ``STEP_FACTOR`` times that step's floor, in
-both families: a systematic residual smaller than the random scatter of a
+every family: a systematic residual smaller than the random scatter of a
 single bin mean cannot be told from noise by eye or by any one step, and a
 step far above its own floor (a drift seen early in a run, one misplaced
 target) is not hidden by averaging over many quiet steps. ``STEP_FACTOR`` is
@@ -37,8 +55,17 @@ from typing import Any
 import numpy as np
 
 from labctl.reconcile.observe import Observation
-from labctl.reconcile.residuals import LOG_I_FLOOR, LOG_I_FLOOR_PROJECTOR, Z_FLOOR_MM, Layout
-from labctl.reconcile.results import GoodnessSummary, StepAboveFloor
+from labctl.reconcile.predict import Prediction
+from labctl.reconcile.residuals import (
+    LOG_I_FLOOR,
+    LOG_I_FLOOR_PROJECTOR,
+    STAT_FLOORS,
+    STATISTICS,
+    Z_FLOOR_MM,
+    Layout,
+    sampling_variance,
+)
+from labctl.reconcile.results import FamilyGoodness, GoodnessSummary, StepAboveFloor
 
 # The fixed thresholds (``--null-runs 0``; with null runs, labctl/reconcile/null.py, the replicas' distributions decide)
 REFERENCE_NOISE_MM = 0.15  # one distance reading per stage step (the laser meter's repeatability), set on the test campaign
@@ -47,12 +74,15 @@ MATERIAL_FRACTION = 0.2  # an effect must remove at least this share of a family
 FLOOR_FRACTION = 0.5  # ... and at least this multiple of that family's noise floor (set by hand: half a floor)
 
 
+UNITS = {"depth": "mm", "intensity": "%", "noise": "%", "validity": "percentage points", "correlation": "%"}
+
+
 @dataclass(frozen=True)
 class StepFit:
     """One step's systematic residual against its noise floor, in one family."""
 
     step_id: str
-    family: str  # "depth" (mm) or "intensity" (%)
+    family: str  # "depth" (mm), "intensity" (%), "noise", "validity", "correlation" (``UNITS``)
     gap: float
     floor: float
 
@@ -62,40 +92,91 @@ class StepFit:
 
 
 @dataclass(frozen=True)
+class FamilyGap:
+    """The run's gap and floor in one statistics family (``STATISTICS``), in its unit (``UNITS``)."""
+
+    family: str
+    gap: float
+    floor: float
+
+
+@dataclass(frozen=True)
 class Goodness:
-    """The residual of one model against the noise: run gaps, their floors, per-step detail, the verdict."""
+    """The residual of one model against the noise: run gaps, their floors, per-step detail, the verdict.
+
+    Every family (``families``) has a run gap and floor (``family_gap``) and its steps in ``steps``."""
 
     gap_mm: float
     gap_floor_mm: float
     intensity_gap_pct: float
     intensity_gap_floor_pct: float
     steps: list[StepFit]
+    statistics: tuple[FamilyGap, ...] = ()  # the noise, validity and correlation families
 
     @property
     def worst_step(self) -> StepFit | None:
         return max(self.steps, key=lambda s: s.ratio, default=None)
 
     @property
+    def families(self) -> tuple[str, ...]:
+        """The families compared: depth, intensity and the statistics families present."""
+        return ("depth", "intensity", *(f.family for f in self.statistics))
+
+    def family_gap(self, family: str) -> tuple[float, float]:
+        """(gap, floor) of the run in ``family``, in its unit (``UNITS``)."""
+        if family == "depth":
+            return self.gap_mm, self.gap_floor_mm
+        if family == "intensity":
+            return self.intensity_gap_pct, self.intensity_gap_floor_pct
+        found = next((f for f in self.statistics if f.family == family), None)
+        return (found.gap, found.floor) if found else (math.nan, math.nan)
+
+    def family_consistent(self, family: str) -> bool:
+        """The run's gap in ``family`` is at most its floor and no step exceeds ``STEP_FACTOR`` floors."""
+        gap, floor = self.family_gap(family)
+        return (not math.isfinite(gap) or gap <= floor) and all(
+            s.ratio <= STEP_FACTOR for s in self.steps if s.family == family)
+
+    @property
     def depth_consistent(self) -> bool:
-        return (not math.isfinite(self.gap_mm) or self.gap_mm <= self.gap_floor_mm) and all(
-            s.ratio <= STEP_FACTOR for s in self.steps if s.family == "depth")
+        return self.family_consistent("depth")
 
     @property
     def intensity_consistent(self) -> bool:
-        return (not math.isfinite(self.intensity_gap_pct) or self.intensity_gap_pct <= self.intensity_gap_floor_pct) \
-            and all(s.ratio <= STEP_FACTOR for s in self.steps if s.family == "intensity")
+        return self.family_consistent("intensity")
+
+    @property
+    def means_consistent(self) -> bool:
+        """Depth and intensity bin means consistent with the noise."""
+        return self.depth_consistent and self.intensity_consistent
+
+    @property
+    def inconsistent_statistics(self) -> list[str]:
+        """The statistics families whose residual stands above its floor."""
+        return [f.family for f in self.statistics if not self.family_consistent(f.family)]
 
     @property
     def consistent(self) -> bool:
-        return self.depth_consistent and self.intensity_consistent
+        return self.means_consistent and not self.inconsistent_statistics
+
+    def family_summary(self) -> dict[str, FamilyGoodness]:
+        """Per family: run gap, floor, unit, consistency and how many steps it compared."""
+        out = {}
+        for family in self.families:
+            gap, floor = self.family_gap(family)
+            out[family] = FamilyGoodness(gap=rounded(gap), floor=rounded(floor), unit=UNITS[family],
+                                         consistent=self.family_consistent(family),
+                                         steps=sum(s.family == family for s in self.steps))
+        return out
 
     def summary(self) -> GoodnessSummary:
-        """The record reconcile.json gives: gaps, floors, consistency, and the steps furthest above their floors."""
+        """The record reconcile.json gives: gaps, floors, consistency, the families, and the steps furthest above their floors."""
         return GoodnessSummary(
             gap=rounded(self.gap_mm), gap_floor=rounded(self.gap_floor_mm), intensity_gap=rounded(self.intensity_gap_pct),
             intensity_gap_floor=rounded(self.intensity_gap_floor_pct), consistent_with_noise=self.consistent,
             depth_consistent=self.depth_consistent, intensity_consistent=self.intensity_consistent,
-            step_factor=STEP_FACTOR, steps_above_floor=steps_above_floor(self.steps))
+            step_factor=STEP_FACTOR, families=self.family_summary(),
+            steps_above_floor=steps_above_floor(self.steps))
 
 
 def rounded(value: float) -> float | None:
@@ -121,9 +202,34 @@ def depth_floor_sq(lay: Layout, obs: list[Observation]) -> np.ndarray:
     return var + Z_FLOOR_MM**2 + np.where(stage, REFERENCE_NOISE_MM**2, 0.0)
 
 
+def statistics_goodness(lay: Layout, obs: list[Observation], preds: list[Prediction],
+                        stats: dict[str, list[np.ndarray]]) -> tuple[list[StepFit], tuple[FamilyGap, ...]]:
+    """Per-step fits and run gaps of the statistics families (``residuals.raw_statistics`` maps ``stats``), in
+    % (noise, correlation: 100 x the log ratio) and percentage points (validity)."""
+    variances = [sampling_variance(o, p) for o, p in zip(obs, preds, strict=True)]
+    steps: list[StepFit] = []
+    runs = []
+    for family in STATISTICS:
+        v = lay.stack_family(family, stats[family])
+        var = lay.stack_family(family, [x[family] for x in variances])
+        floor_sq = var + STAT_FLOORS[family] ** 2
+        rows = lay.s_step.get(family, np.zeros(0, int))
+        for s, o in enumerate(obs):
+            m = rows == s
+            if m.sum() >= 2:
+                steps.append(StepFit(o.scene.step_id, family, 100 * _systematic(v[m], var[m]),
+                                     100 * math.sqrt(np.mean(floor_sq[m]))))
+        if len(v):
+            runs.append(FamilyGap(family, 100 * _systematic(v, var), 100 * math.sqrt(np.mean(floor_sq))))
+    return steps, tuple(runs)
+
+
 def goodness(lay: Layout, obs: list[Observation], dz: list[np.ndarray], di: list[np.ndarray],
-             technology: str) -> Goodness:
-    """The goodness of fit of the residual maps ``dz``, ``di`` (``residuals.raw_residuals``)."""
+             technology: str, preds: list[Prediction] | None = None,
+             stats: dict[str, list[np.ndarray]] | None = None) -> Goodness:
+    """The goodness of fit of the residual maps ``dz``, ``di`` (``residuals.raw_residuals``) and, with the
+    predictions ``preds`` and the statistics maps ``stats`` (``residuals.raw_statistics``), of the noise,
+    validity and correlation families."""
     v = lay.profile_z(np.nan_to_num(lay.stack_z(dz)))
     var = lay.stack_z([o.z_var for o in obs])
     floor_sq = depth_floor_sq(lay, obs)
@@ -142,9 +248,14 @@ def goodness(lay: Layout, obs: list[Observation], dz: list[np.ndarray], di: list
         if m.sum() >= 2:
             steps.append(StepFit(o.scene.step_id, "intensity", 100 * _systematic(w[m], log_var[m]),
                                  100 * math.sqrt(np.mean(i_floor_sq[m]))))
+    statistics: tuple[FamilyGap, ...] = ()
+    if preds is not None and stats is not None:
+        stat_steps, statistics = statistics_goodness(lay, obs, preds, stats)
+        steps += stat_steps
     nan = math.nan
     return Goodness(_systematic(v, var), math.sqrt(np.mean(floor_sq)) if len(v) else nan,
-                    100 * _systematic(w, log_var), 100 * math.sqrt(np.mean(i_floor_sq)) if len(w) else nan, steps)
+                    100 * _systematic(w, log_var), 100 * math.sqrt(np.mean(i_floor_sq)) if len(w) else nan, steps,
+                    statistics)
 
 
 def material(before: Any, after: Any) -> bool:
@@ -152,8 +263,9 @@ def material(before: Any, after: Any) -> bool:
     ``FLOOR_FRACTION`` of their floor (an effect may act on part of the run only: a drift early on, a target on
     the robot), in one residual family, the change must reduce their RMS gap in units of their own floors
     (whitened, so that a quiet step counts as much as a noisy one) by at least ``MATERIAL_FRACTION`` of it and
-    by at least ``FLOOR_FRACTION`` (half a floor). The families are those of ``before.steps``: depth and
-    intensity of a ``Goodness``, the corner families of a ``CornerGoodness`` (labctl/reconcile/corners.py)."""
+    by at least ``FLOOR_FRACTION`` (half a floor). The families are those of ``before.steps``: every family
+    of a ``Goodness`` (depth, intensity, noise, validity, correlation), the corner families of a
+    ``CornerGoodness`` (labctl/reconcile/corners.py)."""
     after_steps = {(s.step_id, s.family): s for s in after.steps}
     for family in sorted({s.family for s in before.steps}):
         pairs = [(b, after_steps[(b.step_id, family)]) for b in before.steps

@@ -5,8 +5,27 @@ star, mask or material plate) becomes a :class:`StepScene` (where the camera
 was, what it saw, with which exposure and when) and an :class:`Observation`:
 the stack mean of z and intensity averaged over ``bin_px`` x ``bin_px`` pixel
 bins, the variance of each bin's mean estimated from the stack itself, and the
-bin's valid fraction. At most ``max_frames`` frames per step are read: a
-reconcile needs the means, not every frame. ``/sim`` of the file is never read.
+bin's valid fraction; and the statistics of the depth noise per bin:
+
+* ``noise_mm``: the temporal noise, sqrt of the mean over the bin's pixels
+  that are valid in every frame of their sample variance over the stack
+  (``noise_dof`` = m (n - 1) degrees of freedom for m such pixels and n
+  frames, divided by the local correlation ratio where it exceeds 1:
+  correlated pixels carry less independent evidence);
+* ``valid_rate``: the fraction of the bin's pixel-frames that are valid;
+* ``correlation``: the variance over the stack of the frame's bin mean of
+  those pixels' deviations from their own stack mean, over the per-pixel
+  variance / m: 1 for independent pixels, up to m for pixels that move
+  together (n - 1 degrees of freedom).
+
+The variance of each bin's depth mean is the per-pixel variance / count / n
+times the correlation ratio (pooled over the bin and its eight neighbours, so
+that it rests on 9 (n - 1) degrees of freedom): spatially correlated noise
+does not average out over a bin, and the comparison must not take a bin mean
+for more precise than it is. At most ``max_frames`` frames per step are read
+(10: the correlation ratio of one bin then has 9 degrees of freedom, a
+sampling spread of 0.50 in its logarithm; labctl/reconcile/goodness.py derives
+the floors from these). ``/sim`` of the file is never read.
 """
 
 from __future__ import annotations
@@ -19,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from labctl.reconcile.results import ExcludedStep
 from labctl.run.store import RunReader, StepRecord, finite_or_none
 from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
@@ -49,9 +69,19 @@ class Observation:
     z_var: np.ndarray  # variance of the binned mean
     intensity: np.ndarray  # binned stack-mean intensity
     intensity_var: np.ndarray  # variance of the binned mean intensity
-    valid_fraction: np.ndarray
+    valid_fraction: np.ndarray  # share of the bin's pixels whose stack mean is valid
     times_s: np.ndarray  # device time of the frames used, s
+    noise_mm: np.ndarray  # temporal std of the depth per pixel, pooled over the bin (NaN: not measured)
+    noise_dof: np.ndarray  # its effective degrees of freedom, m (n - 1) / max(1, local correlation ratio)
+    valid_rate: np.ndarray  # fraction of valid pixel-frames of the bin
+    correlation: np.ndarray  # variance of the bin mean over the per-pixel variance / m (NaN: not measured)
+    n_frames: int
+    bin_px: int
 
+    @property
+    def pixel_frames(self) -> int:
+        """Pixel-frames of one bin: bin_px^2 n."""
+        return self.bin_px * self.bin_px * self.n_frames
 
 
 def step_scene(step: StepRecord) -> StepScene | None:
@@ -97,24 +127,70 @@ def bin_mean(values: np.ndarray, bin_px: int) -> tuple[np.ndarray, np.ndarray]:
     return mean, count
 
 
+def _bins(values: np.ndarray, bin_px: int) -> np.ndarray:
+    """(..., H, W) -> (..., h, w, bin_px^2): the pixels of every bin (image cropped to whole bins)."""
+    *lead, height, width = values.shape
+    h, w = height // bin_px, width // bin_px
+    v = values[..., :h * bin_px, :w * bin_px].reshape(*lead, h, bin_px, w, bin_px)
+    return np.moveaxis(v, -3, -2).reshape(*lead, h, w, bin_px * bin_px)
+
+
+def noise_statistics(z: np.ndarray, bin_px: int) -> tuple[np.ndarray, ...]:
+    """Per bin of an (n, H, W) depth stack: the pooled temporal std, its degrees of freedom, the valid
+    fraction of the pixel-frames, the correlation ratio, and its two sums (the variance of the frame's bin
+    mean and the per-pixel variance / m, for pooling)."""
+    n = z.shape[0]
+    pixels = _bins(z.astype(float), bin_px)  # (n, h, w, m)
+    finite = np.isfinite(pixels)
+    valid_rate = finite.mean(axis=(0, 3))
+    full = finite.all(axis=0)  # (h, w, m): valid in every frame
+    m = full.sum(axis=-1)
+    deviation = np.where(full, pixels - np.where(full, pixels, 0.0).mean(axis=0), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pixel_var = (deviation**2).sum(axis=0) / max(n - 1, 1)  # (h, w, m), 0 where not full
+        mean_var = pixel_var.sum(axis=-1) / m
+        frame_mean = deviation.sum(axis=-1) / m  # (n, h, w)
+        between = (frame_mean**2).sum(axis=0) / max(n - 1, 1)
+        ok = (m >= 2) & (n >= 2) & (mean_var > 0)
+        independent = np.where(ok, mean_var / m, np.nan)
+        between = np.where(ok, between, np.nan)
+        return (np.where(ok, np.sqrt(mean_var), np.nan), m * (n - 1), valid_rate, between / independent,
+                between, independent)
+
+
+def _pooled_ratio(between: np.ndarray, independent: np.ndarray) -> np.ndarray:
+    """The correlation ratio pooled over each bin and its eight neighbours (the step's pooled ratio where none
+    of them is measured, 1 where no bin of the step is)."""
+    b, i = np.nan_to_num(between), np.nan_to_num(independent)
+    sb = sum(np.roll(np.roll(np.pad(b, 1), dy, 0), dx, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1))[1:-1, 1:-1]
+    si = sum(np.roll(np.roll(np.pad(i, 1), dy, 0), dx, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1))[1:-1, 1:-1]
+    step = float(b.sum() / i.sum()) if i.sum() > 0 else 1.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(si > 0, sb / si, step)
+
+
 def observe(step: StepRecord, scene: StepScene, bin_px: int, max_frames: int = MAX_FRAMES) -> Observation:
     """Binned stack statistics of one step from its first ``max_frames`` frames."""
     n = min(int(step.group["z"].shape[0]), max_frames)
-    z_stats = stack_stats(step.group["z"][:n])
+    z_stack = step.group["z"][:n]
+    z_stats = stack_stats(z_stack)
     i_stats = stack_stats(step.group["intensity"][:n].astype(np.float32))
     z_mean, count = bin_mean(z_stats.mean, bin_px)
     per_pixel_var = np.where(z_stats.valid, z_stats.std**2 / np.maximum(z_stats.count, 1), np.nan)
     var_sum, _ = bin_mean(per_pixel_var, bin_px)
     valid_fraction = count / float(bin_px * bin_px)
     keep = valid_fraction >= 0.5
+    noise, dof, valid_rate, correlation, between, independent = noise_statistics(z_stack, bin_px)
+    pooled = _pooled_ratio(between, independent)
     with np.errstate(invalid="ignore", divide="ignore"):
-        z_var = np.where(keep, var_sum / np.maximum(count, 1), np.nan)
+        z_var = np.where(keep, var_sum / np.maximum(count, 1) * pooled, np.nan)
     i_mean, i_count = bin_mean(np.where(i_stats.valid, i_stats.mean, np.nan), bin_px)
     i_var_sum, _ = bin_mean(np.where(i_stats.valid, i_stats.std**2 / np.maximum(i_stats.count, 1), np.nan), bin_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         i_var = i_var_sum / np.maximum(i_count, 1)
     times = np.asarray(step.group["timestamp"][:n], float) if "timestamp" in step.group else np.zeros(0)
-    return Observation(scene, np.where(keep, z_mean, np.nan), z_var, i_mean, i_var, valid_fraction, times)
+    return Observation(scene, np.where(keep, z_mean, np.nan), z_var, i_mean, i_var, valid_fraction, times,
+                       noise, dof / np.maximum(pooled, 1.0), valid_rate, correlation, n, bin_px)
 
 
 def choose_bin(width: int, height: int, target_width: int = 48) -> int:
@@ -127,16 +203,20 @@ def choose_bin(width: int, height: int, target_width: int = 48) -> int:
 
 def observe_run(path: str | Path, bin_px: int | None = None,
                 max_frames: int = MAX_FRAMES) -> tuple[list[Observation], dict[str, Any], list[str]]:
-    """Observations of every re-creatable step, the camera description, and notes on skipped steps."""
+    """Observations of every re-creatable step, the camera description (``skipped``: the steps left out, with
+    the reason), and notes on skipped steps."""
     notes: list[str] = []
     with RunReader(path) as run:
         camera = run.camera
         bin_px = bin_px or choose_bin(camera.width, camera.height)
         observations = []
+        skipped = []
         for step in run.steps():
             scene = step_scene(step)
             if scene is None:
-                notes.append(f"{step.step_id}: target {step.attrs.get('target')!r} has no simulated scene; skipped")
+                why = f"target {step.attrs.get('target')!r} has no simulated scene"
+                notes.append(f"{step.step_id}: {why}; skipped")
+                skipped.append(ExcludedStep(step=step.step_id, family="all", reason=why))
                 continue
             observations.append(observe(step, scene, bin_px, max_frames))
         info = {
@@ -144,5 +224,6 @@ def observe_run(path: str | Path, bin_px: int | None = None,
             "bin_px": bin_px, "backend": run.devices.get("camera", {}).get("backend", ""),
             "model": run.devices.get("camera", {}).get("model", ""),
             "campaign_toml": run.attrs.get("campaign_toml", ""),
+            "skipped": skipped,
         }
     return observations, info, notes

@@ -12,8 +12,10 @@ over neighbouring bins (``bin_curvature``; 0.2 mm on a plate tilted by 60 deg
 at 850 mm in 16-pixel bins, where z'' = 2 z tan^2(tilt) / f^2). Bins that straddle a depth or reflectance
 edge are flagged (``edge``) and left out of the comparison.
 
-Per step the prediction holds what the candidate effects' signatures are
-built from: the range and the z / range ratio of the reported rays (ToF), the
+Per step the prediction also holds what a full-resolution pixel of each bin
+shows over its stack: its temporal depth noise, its valid fraction and the
+correlation of its noise with its neighbours' (labctl/reconcile/noise_model.py),
+and what the candidate effects' signatures are built from: the range and the z / range ratio of the reported rays (ToF), the
 light before vignetting, the pixel's dominant-return phasor mean (multipath),
 and the frames' mean drift factor. Renders are cached per step and per
 setting of the effects that change what the render sees
@@ -33,6 +35,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
+from labctl.reconcile.noise_model import dot_window_stats, stereo_statistics, tof_statistics
 from labctl.reconcile.observe import StepScene, bin_mean
 from sim.effects import EFFECTS, EffectParams, frame_offset_mm, plate_placement_mm
 from sim.geometry import Pose
@@ -40,7 +43,7 @@ from sim.model import SimModel
 from sim.profiles import CameraProfile
 from sim.render import centre_distance_mm, render
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
-from sim.sensor import blur_diameter_px
+from sim.sensor import SensorOptics, blur_diameter_px
 from sim.stereo import StereoSensor, dot_pattern
 from sim.tof import ToFSensor, surface_properties
 
@@ -58,6 +61,11 @@ class Prediction:
     phasor_mean: complex  # mean dominant-return phasor over the image (ToF)
     cos_alpha: np.ndarray  # cosine of each bin's ray to the optical axis
     edge: np.ndarray  # bins next to a depth or reflectance edge
+    noise_mm: np.ndarray  # temporal std of a full-resolution pixel's z, NaN where not predicted
+    noise_log_spread: np.ndarray  # what the model cannot know of ln noise_mm (where z sits on the output grid)
+    valid_rate: np.ndarray  # expected fraction of valid pixel-frames (NaN where not predicted)
+    valid_spread: np.ndarray  # the model's uncertainty of valid_rate (stereo: pixels at the texture threshold)
+    correlation: np.ndarray  # expected variance of a bin mean over the per-pixel variance / n (1: independent)
 
 
 def binned_profile(profile: CameraProfile, width: int, height: int, bin_px: int) -> CameraProfile:
@@ -144,6 +152,17 @@ class Predictor:
                 self.cache[key] = render(scene, pose, self.sensor.geometry.optics, surface_properties(scene, {}))
         return self.cache[key]
 
+    def _dot_stats(self, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
+        """The full sensor's blurred dot pattern over the matching window, per bin (``dot_window_stats``;
+        cached with the renders, per distance and blur)."""
+        optical = {k: v for k, v in self.model.effect_params().items()
+                   if EFFECTS[k].blur_px is not None or EFFECTS[k].true_fov_deg is not None}
+        key = ("dots", json.dumps([round(distance_mm), {k: v.model_dump(mode="json") for k, v in sorted(optical.items())}]))
+        if key not in self.cache:
+            optics = SensorOptics(self.full, optical)
+            self.cache[key] = dot_window_stats(optics, float(round(distance_mm)), self.bin_px)
+        return self.cache[key]
+
     def blur_reach_bins(self, distance_mm: float) -> int:
         """How many bins the measured camera's blur (3 sigma of the lens PSF plus the defocus disc radius,
         Thesis 2024, eq. 2-5) reaches at ``distance_mm``."""
@@ -170,18 +189,28 @@ class Predictor:
         reach = self.blur_reach_bins(centre_distance_mm(rendered))
         edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
         if isinstance(self.sensor, ToFSensor):
-            range_mm, amplitude, _ = self.sensor.expected(rendered, exposure)
+            range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure)
             range_mm = range_mm + drift
             light = amplitude / self.sensor.shading()
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = range_mm * self.z_per_range
+            noise, valid = tof_statistics(self.sensor, amplitude, ambient, np.broadcast_to(self.z_per_range, z.shape))
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
-                              complex(dominant.mean()),
-                              self.cos_alpha, edge)
+                              complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
+                              np.zeros_like(z), _independent(noise))
         z = self.sensor.depth(rendered) + drift
         z = np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
         ir = self.sensor.ir_image(rendered, exposure, step.projector)
-        return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge)
+        noise, spread, valid, valid_spread = stereo_statistics(
+            self.sensor, rendered, z, exposure, step.projector, self._dot_stats(centre_distance_mm(rendered)),
+            self.bin_px)
+        return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
+                          noise, spread, valid, valid_spread, _independent(noise))
+
+
+def _independent(noise: np.ndarray) -> np.ndarray:
+    """The correlation ratio of the simulator's noise: 1 (every pixel drawn independently) where it is predicted."""
+    return np.where(np.isfinite(noise), 1.0, np.nan)
 
 
 def bin_curvature(z: np.ndarray, bin_px: int) -> np.ndarray:

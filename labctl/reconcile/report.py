@@ -10,6 +10,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from labctl.jsondoc import write_json
+from labctl.reconcile.goodness import UNITS
 from labctl.reconcile.results import Determination, NotComparable, Parameters, ReconcileDocument
 from labctl.reconcile.workflow import ReconcileResult, json_document
 from labctl.report.html import CSS as REPORT_CSS
@@ -185,7 +186,28 @@ def _goodness(result: ReconcileResult) -> str:
             f"With the named physical effects the residual is <b>"
             f"{'consistent' if result.rule.consistent(p) else 'NOT consistent'}</b> with the noise{against}"
             + (f" (worst step {html.escape(worst.step_id)}: {worst.gap:.3f} against its floor {worst.floor:.3f} in "
-               f"{worst.family})" if worst else "") + ".</p>")
+               f"{worst.family})" if worst else "") + ".</p>" + _families(result))
+
+
+def _families(result: ReconcileResult) -> str:
+    """Every residual family's gap before and after against its floor, and the steps each left out."""
+    before, after = result.goodness_before, result.goodness_after
+    if before is None or after is None:
+        return ""
+
+    def cell(value: float) -> str:
+        return f"{value:.3f}" if math.isfinite(value) else "&ndash;"
+
+    rows = "".join(
+        f"<tr><td class=l>{family}</td><td>{cell(before.family_gap(family)[0])}</td>"
+        f"<td>{cell(after.family_gap(family)[0])}</td><td>{cell(after.family_gap(family)[1])}</td>"
+        f"<td class=l>{html.escape(UNITS[family])}</td>"
+        f"<td class=l>{'yes' if after.family_consistent(family) else 'NO'}</td></tr>" for family in after.families)
+    left_out = "".join(f"<li>{html.escape(e.step)} ({html.escape(e.family)}): {html.escape(e.reason)}</li>"
+                       for e in result.excluded)
+    return ("<table><tr><th class=l>family</th><th>gap before</th><th>gap after</th><th>floor</th>"
+            f"<th class=l>unit</th><th class=l>consistent</th></tr>{rows}</table>"
+            + (f"<p>Steps left out of a family's comparison:</p><ul>{left_out}</ul>" if left_out else ""))
 
 
 def _corners(result: ReconcileResult) -> str:

@@ -1,8 +1,9 @@
 """Measurement minus simulation on the binned grid, with the lab's unknowns profiled out.
 
-Two families of residuals, each over the bins where the comparison is sound
-(the measured bin is valid in at least ``MIN_VALID_FRACTION`` of its pixels,
-the simulated bin has no depth or reflectance edge):
+Two families of residuals of the bin means, each over the bins where the
+comparison is sound (the measured bin is valid in at least
+``MIN_VALID_FRACTION`` of its pixels, the simulated bin has no depth or
+reflectance edge):
 
 * depth: z_measured - z_simulated, weighted by 1 / (var + ``Z_FLOOR_MM``^2)
   with var the bin mean's variance estimated from the stack itself;
@@ -21,18 +22,41 @@ illumination power are not known in absolute terms). Candidate effect
 signatures are profiled the same way, so that an effect is credited only
 with what the nuisance cannot explain.
 
-The floors are the simulator's own disagreement with itself on the bin grid
-(bin means of a full-resolution simulation against the binned simulation,
-``bench/reconcile_null.py``).
+Three families of the noise's statistics (``STATISTICS``), over the bins away
+from depth and reflectance edges where both the run and the model give them
+(labctl/reconcile/observe.py, labctl/reconcile/noise_model.py), with no
+nuisance, each weighted by 1 / (its sampling variance + its floor^2):
+
+* noise: ln(s_measured) - ln(sigma_model) - E, s the bin's pooled temporal std
+  on nu = m (n - 1) / max(1, c) degrees of freedom (c the local correlation
+  ratio), E = (psi(nu / 2) + ln(2 / nu)) / 2 the mean of ln s / sigma for a
+  chi-square variance; sampling variance psi'(nu / 2) / 4 (psi: digamma),
+  plus the model's own spread of ln sigma (``Prediction.noise_log_spread``);
+* validity: the fraction of valid pixel-frames measured minus predicted;
+  sampling variance p (1 - p) / N (binomial over the bin's N = b^2 n
+  pixel-frames, p the model's) plus the model's own uncertainty of p
+  (``Prediction.valid_spread``: stereo pixels at the texture threshold);
+* correlation: ln(c_measured) - ln(c_model) - E_c, E_c = psi((n - 1) / 2) +
+  ln(2 / (n - 1)) - psi(nu / 2) - ln(2 / nu) (the ratio of two chi-square
+  variances, n - 1 and nu degrees of freedom); sampling variance
+  psi'((n - 1) / 2) + psi'(nu / 2).
+
+The floors of the bin-mean families are the simulator's own disagreement with
+itself on the bin grid (bin means of a full-resolution simulation against the
+binned simulation, ``bench/reconcile_null.py``); those of the statistics'
+families (``STAT_FLOORS``) what the binned noise law leaves out (the amplitude
+at the bin centre for the mean over its pixels, the lens blur, the output
+step's rounding), checked on simulated runs with nothing hidden.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, special
 
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction
@@ -43,6 +67,9 @@ LOG_I_FLOOR = 0.002  # the same for log intensity (0.2 %), set on the test campa
 LOG_I_FLOOR_PROJECTOR = 0.03  # stereo with the dot projector: the binned dot pattern is approximate
 GROUPS = ("laser", "stage", "robot")
 EDGE_JUMP = 0.05  # set by hand: a relative jump of the measured depth between neighbouring bins that marks an edge
+STATISTICS = ("noise", "validity", "correlation")
+FAMILIES = ("depth", "intensity", *STATISTICS)
+STAT_FLOORS = {"noise": 0.03, "validity": 0.02, "correlation": 0.05}  # ln std, valid fraction, ln ratio
 
 
 @dataclass
@@ -56,10 +83,32 @@ class Layout:
     z_nuisance: np.ndarray  # (rows, parameters) design of the depth nuisance
     z_weight: np.ndarray
     i_weight: np.ndarray
+    s_masks: dict[str, list[np.ndarray]] = field(default_factory=dict)  # per statistics family (``STATISTICS``)
+    s_step: dict[str, np.ndarray] = field(default_factory=dict)
+    s_weight: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n_steps(self) -> int:
         return len(self.z_masks)
+
+    @property
+    def n_cells(self) -> int:
+        """(step, family) cells of ``row_cells``."""
+        return len(FAMILIES) * self.n_steps
+
+    def stack_family(self, family: str, maps: list[np.ndarray]) -> np.ndarray:
+        """One statistics family's per-step maps stacked over its rows."""
+        masks = self.s_masks.get(family, [])
+        return np.concatenate([m[k] for m, k in zip(maps, masks, strict=True)]) if masks else np.zeros(0)
+
+    def stack_statistics(self, maps: dict[str, list[np.ndarray]] | None) -> np.ndarray:
+        """The statistics families' maps stacked in ``STATISTICS`` order (zeros for a family not given)."""
+        maps = maps or {}
+        return np.concatenate([self.stack_family(f, maps[f]) if f in maps else np.zeros(len(self.s_step.get(f, [])))
+                               for f in STATISTICS])
+
+    def _s_weight(self) -> np.ndarray:
+        return np.concatenate([self.s_weight.get(f, np.zeros(0)) for f in STATISTICS])
 
     def stack_z(self, maps: list[np.ndarray]) -> np.ndarray:
         return np.concatenate([m[k] for m, k in zip(maps, self.z_masks, strict=True)]) if maps else np.zeros(0)
@@ -88,22 +137,30 @@ class Layout:
         mean = np.bincount(self.i_step, self.i_weight * v, n) / np.maximum(wsum, 1e-300)
         return v - mean[self.i_step]
 
-    def profiled(self, dz: list[np.ndarray], di: list[np.ndarray]) -> np.ndarray:
-        """Per-step maps of both families stacked, nuisance profiled out and whitened (sqrt weight)."""
-        return self.profiled_rows(self.stack_z(dz), self.stack_i(di))
+    def profiled(self, dz: list[np.ndarray], di: list[np.ndarray],
+                 stats: dict[str, list[np.ndarray]] | None = None) -> np.ndarray:
+        """Per-step maps of every family stacked, nuisance profiled out and whitened (sqrt weight); the
+        statistics families' rows (``stats``, ``raw_statistics``) are zero when not given."""
+        return self.profiled_rows(self.stack_z(dz), self.stack_i(di), self.stack_statistics(stats))
 
-    def profiled_rows(self, z_rows: np.ndarray, i_rows: np.ndarray) -> np.ndarray:
-        """Stacked depth and intensity rows with the nuisance profiled out, whitened (sqrt weight)."""
+    def profiled_rows(self, z_rows: np.ndarray, i_rows: np.ndarray, s_rows: np.ndarray | None = None) -> np.ndarray:
+        """Stacked depth, intensity and statistics rows (``stack_statistics``; zero when not given) with the
+        nuisance profiled out, whitened (sqrt weight)."""
+        weight = self._s_weight()
+        s_rows = np.zeros(len(weight)) if s_rows is None else s_rows
         return np.concatenate([self.profile_z(z_rows) * np.sqrt(self.z_weight),
-                               self.profile_i(i_rows) * np.sqrt(self.i_weight)])
+                               self.profile_i(i_rows) * np.sqrt(self.i_weight), s_rows * np.sqrt(weight)])
 
     def row_steps(self) -> np.ndarray:
         """Step number of every row of ``profiled``."""
-        return np.concatenate([self.z_step, self.i_step])
+        return np.concatenate([self.z_step, self.i_step, *(self.s_step.get(f, np.zeros(0, int)) for f in STATISTICS)])
 
     def row_cells(self) -> np.ndarray:
-        """(step, family) cell of every row of ``profiled``: 2 s for depth, 2 s + 1 for intensity."""
-        return np.concatenate([2 * self.z_step, 2 * self.i_step + 1])
+        """(step, family) cell of every row of ``profiled``: F s + f, f the family's place in ``FAMILIES``."""
+        f = len(FAMILIES)
+        return np.concatenate([f * self.z_step, f * self.i_step + 1,
+                               *(f * self.s_step.get(name, np.zeros(0, int)) + 2 + k
+                                 for k, name in enumerate(STATISTICS))]).astype(int)
 
 
 def _uniform_light(pred: Prediction) -> np.ndarray:
@@ -111,8 +168,9 @@ def _uniform_light(pred: Prediction) -> np.ndarray:
     return ~pred.edge & np.isfinite(pred.intensity) & (pred.intensity > 0)
 
 
-def measured_edges(z: np.ndarray) -> np.ndarray:
-    """Bins next to a jump of the measured depth (more than ``EDGE_JUMP`` relative, or an invalid bin).
+def measured_edges(z: np.ndarray, invalid_is_edge: bool = True) -> np.ndarray:
+    """Bins next to a jump of the measured depth (more than ``EDGE_JUMP`` relative, or, with
+    ``invalid_is_edge``, an invalid bin).
 
     Where a depth edge sits in the measurement is itself uncertain (a target
     misplaced by the effect being sought moves its outline), so bins at the
@@ -124,7 +182,8 @@ def measured_edges(z: np.ndarray) -> np.ndarray:
     for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
         neighbour = padded[dy:dy + z.shape[0], dx:dx + z.shape[1]]
         with np.errstate(invalid="ignore"):
-            jump |= ~(np.abs(neighbour - centre) <= EDGE_JUMP * np.abs(centre))
+            step = np.abs(neighbour - centre) > EDGE_JUMP * np.abs(centre)
+            jump |= ~(np.abs(neighbour - centre) <= EDGE_JUMP * np.abs(centre)) if invalid_is_edge else step
     return ndimage.binary_dilation(jump)
 
 
@@ -153,11 +212,63 @@ def layout(observations: list[Observation], predictions: list[Prediction], techn
             design[:, 4] = (pred.z * ty)[ok]
         rows.append(design)
     used = [x for x in rows if len(x)]
+    s_masks, s_step, s_weight = _statistics_layout(observations, predictions)
     return Layout(z_masks, i_masks,
                   np.concatenate(z_step).astype(int) if z_step else np.zeros(0, int),
                   np.concatenate(i_step).astype(int) if i_step else np.zeros(0, int),
                   np.concatenate(used) if used else np.zeros((0, len(GROUPS) + 2)),
-                  np.concatenate(zw) if zw else np.zeros(0), np.concatenate(iw) if iw else np.zeros(0))
+                  np.concatenate(zw) if zw else np.zeros(0), np.concatenate(iw) if iw else np.zeros(0),
+                  s_masks, s_step, s_weight)
+
+
+def statistics_masks(obs: Observation, pred: Prediction) -> dict[str, np.ndarray]:
+    """The bins each statistics family compares on one step (away from simulated and measured depth edges)."""
+    away = ~pred.edge & ~measured_edges(obs.z, invalid_is_edge=False)
+    noise = away & np.isfinite(obs.noise_mm) & np.isfinite(pred.noise_mm) & (pred.noise_mm > 0)
+    seen = (pred.valid_rate > 0) | (obs.valid_rate > 0)
+    return {"noise": noise, "validity": away & seen & np.isfinite(pred.valid_rate),
+            "correlation": noise & np.isfinite(obs.correlation) & (obs.correlation > 0)
+            & np.isfinite(pred.correlation)}
+
+
+def sampling_variance(obs: Observation, pred: Prediction) -> dict[str, np.ndarray]:
+    """Per bin, the sampling variance of each statistics family's residual (module docstring)."""
+    nu = np.maximum(obs.noise_dof, 1.0)
+    frames = max(obs.n_frames - 1, 1)
+    p = np.clip(pred.valid_rate, 0.0, 1.0)
+    return {"noise": special.polygamma(1, nu / 2) / 4 + np.nan_to_num(pred.noise_log_spread) ** 2,
+            "validity": p * (1 - p) / obs.pixel_frames + pred.valid_spread**2,
+            "correlation": special.polygamma(1, frames / 2) + special.polygamma(1, nu / 2)}
+
+
+def _statistics_layout(observations: list[Observation], predictions: list[Prediction]):
+    masks: dict[str, list[np.ndarray]] = {f: [] for f in STATISTICS}
+    steps: dict[str, list[np.ndarray]] = {f: [] for f in STATISTICS}
+    weights: dict[str, list[np.ndarray]] = {f: [] for f in STATISTICS}
+    for s, (obs, pred) in enumerate(zip(observations, predictions, strict=True)):
+        ok, var = statistics_masks(obs, pred), sampling_variance(obs, pred)
+        for f in STATISTICS:
+            masks[f].append(ok[f])
+            steps[f].append(np.full(int(ok[f].sum()), s))
+            weights[f].append(1.0 / (var[f][ok[f]] + STAT_FLOORS[f] ** 2))
+    return (masks, {f: np.concatenate(steps[f]).astype(int) if steps[f] else np.zeros(0, int) for f in STATISTICS},
+            {f: np.concatenate(weights[f]) if weights[f] else np.zeros(0) for f in STATISTICS})
+
+
+def raw_statistics(observations: list[Observation], predictions: list[Prediction]) -> dict[str, list[np.ndarray]]:
+    """Per-step maps of the statistics families (module docstring): noise and correlation as bias-corrected
+    log ratios of measured to model, validity as the difference of the valid fractions."""
+    out: dict[str, list[np.ndarray]] = {f: [] for f in STATISTICS}
+    for obs, pred in zip(observations, predictions, strict=True):
+        nu = np.maximum(obs.noise_dof, 1.0)
+        frames = max(obs.n_frames - 1, 1)
+        mean_log_var = special.digamma(nu / 2) + np.log(2 / nu)  # E ln(chi2_nu / nu)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out["noise"].append(np.log(obs.noise_mm / pred.noise_mm) - mean_log_var / 2)
+            out["correlation"].append(np.log(obs.correlation / pred.correlation)
+                                      - (special.digamma(frames / 2) + math.log(2 / frames) - mean_log_var))
+        out["validity"].append(obs.valid_rate - pred.valid_rate)
+    return out
 
 
 def raw_residuals(observations: list[Observation], predictions: list[Prediction]) -> tuple[list, list]:

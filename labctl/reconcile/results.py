@@ -17,6 +17,16 @@ Parameters = dict[str, ParameterValue]
 
 
 @dataclass(kw_only=True)
+class ExcludedStep:
+    """A measured step left out of one residual family's comparison (``family`` ``"all"``: of every one), and
+    why."""
+
+    step: str
+    family: str
+    reason: str
+
+
+@dataclass(kw_only=True)
 class Correlation:
     """The correlation of two fitted parameters' estimates."""
 
@@ -157,8 +167,21 @@ class GoodnessSummary:
     depth_consistent: bool
     intensity_consistent: bool
     step_factor: float
+    families: dict[str, FamilyGoodness]
     steps_above_floor: list[StepAboveFloor]
     null: NullJudgement | None = inline()
+
+
+@dataclass(kw_only=True)
+class FamilyGoodness:
+    """One residual family of a goodness of fit (depth, intensity, noise, validity, correlation): the run's gap
+    and its floor in the family's unit, whether it is consistent with the noise, and how many steps it compared."""
+
+    gap: float | None
+    floor: float | None
+    unit: str
+    consistent: bool
+    steps: int
 
 
 @dataclass(kw_only=True)
@@ -289,7 +312,22 @@ class Unexplained:
     curve: list[CurvePoint] | None = optional()
     spatial_map_mm: list[list[float | None]]
     description: str
+    families: list[dict[str, Any]] | None = optional()  # the statistics families above their floors, what each follows
     message: str | None = optional()
+
+
+@dataclass(kw_only=True)
+class ResidualFamily:
+    """One residual family of reconcile.json's ``families`` (depth, intensity, noise, validity, correlation,
+    corners): its gap before and after (the final model), its floor and unit, whether it is consistent with the
+    noise, and how many steps it compared."""
+
+    gap_before: float | None
+    gap_after: float | None
+    floor: float | None
+    unit: str
+    consistent: bool
+    steps: int
 
 
 @dataclass(kw_only=True)
@@ -321,6 +359,8 @@ class ReconcileDocument:
     calibration: str = "fixed thresholds"  # or "null runs" (labctl/reconcile/null.py)
     null_calibration: dict[str, Any] | None = optional()
     minimum_detectable: dict[str, float | None] | None = optional()  # effect -> amplitude named with 90 % probability
+    families: dict[str, ResidualFamily]
+    excluded_steps: list[ExcludedStep]
     corners: CornersSection | None = optional()
     unexplained: Unexplained | None = optional()
     not_comparable: NotComparable | None = optional()

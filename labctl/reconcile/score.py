@@ -11,7 +11,8 @@ Bayesian information criterion improvement counted over the n steps:
 
     dBIC = sum_s sum_f ln(RSS_0,sf / RSS_1,sf) - k ln(n)        (Schwarz 1978)
 
-with f the residual family (depth, intensity: each with its own scale) and k
+with f the residual family (depth, intensity, noise, validity, correlation:
+each with its own scale) and k
 the effect's free parameters. Leave-one-step-out cross-validation
 checks that the fit predicts each step from the others (closed form for the
 linear fit: theta_-s = (A - A_s)^-1 (b - b_s) with A = S'S, b = S'r).
@@ -78,11 +79,11 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray) -> Fit
     """The candidate at its best grid point (None when no physically valid fit exists)."""
     n = lay.n_steps
     steps = lay.row_steps()
-    cells = lay.row_cells()  # (step, family): depth and intensity residuals of a step have their own scale
-    rss0 = np.bincount(cells, r * r, 2 * n)
+    cells = lay.row_cells()  # (step, family): each family's residuals of a step have their own scale
+    rss0 = np.bincount(cells, r * r, lay.n_cells)
     best: tuple[float, np.ndarray, np.ndarray, Parameters] | None = None
     for nonlinear in candidate.grid(ctx):
-        columns = np.column_stack([lay.profiled_rows(dz, di) for dz, di in candidate.columns(ctx, nonlinear)])
+        columns = np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, nonlinear)])
         a, b = columns.T @ columns, columns.T @ r
         if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
             continue
@@ -91,7 +92,7 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray) -> Fit
         if params is None:
             continue
         rest = r - columns @ coef
-        value = delta_bic(rss0, np.bincount(cells, rest * rest, 2 * n), candidate.n_params, n)
+        value = delta_bic(rss0, np.bincount(cells, rest * rest, lay.n_cells), candidate.n_params, n)
         if best is None or value > best[0]:
             best = (value, coef, columns, params)
     if best is None:

@@ -52,7 +52,7 @@ from scipy import optimize
 
 from labctl.errors import InputError
 from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
-from labctl.reconcile.characterize import characterize
+from labctl.reconcile.characterize import characterize, describe_statistics
 from labctl.reconcile.confounds import Holdings, Separation, run_captures, screen, separating_capture
 from labctl.reconcile.corners import (
     CornerComparison,
@@ -63,12 +63,21 @@ from labctl.reconcile.corners import (
     observe_corner_run,
 )
 from labctl.reconcile.empirical import FIRST_FORM, FORMS
-from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, goodness, material, rounded
+from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, UNITS, Goodness, goodness, material, rounded
 from labctl.reconcile.null import ALPHA, DEFAULT_NULL_RUNS, FixedThresholds, NullCalibration, simulate_null_runs
 from labctl.reconcile.observe import Observation, observe_run
 from labctl.reconcile.power import detectable, detectable_message
 from labctl.reconcile.predict import Prediction, Predictor
-from labctl.reconcile.residuals import Layout, layout, raw_residuals
+from labctl.reconcile.residuals import (
+    MIN_VALID_FRACTION,
+    STAT_FLOORS,
+    STATISTICS,
+    Layout,
+    layout,
+    raw_residuals,
+    raw_statistics,
+    sampling_variance,
+)
 from labctl.reconcile.results import (
     Ambiguity,
     CandidateScore,
@@ -79,12 +88,14 @@ from labctl.reconcile.results import (
     Determination,
     EmpiricalCorrection,
     Evidence,
+    ExcludedStep,
     GoodnessOfFit,
     GoodnessSummary,
     NamedEffect,
     NotComparable,
     Parameters,
     ReconcileDocument,
+    ResidualFamily,
     RoundGoodness,
     SignificanceRule,
     Unexplained,
@@ -188,6 +199,7 @@ class ReconcileResult:
     empirical: list[EmpiricalCorrection] = field(default_factory=list)
     not_comparable: NotComparable | None = None
     corners: CornerStage | None = None
+    excluded: list[ExcludedStep] = field(default_factory=list)
 
     def model_toml(self) -> str:
         """The corrected model as a model file."""
@@ -292,8 +304,9 @@ def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim
         return trial
 
     def residual(x: np.ndarray) -> np.ndarray:
-        dz, di = raw_residuals(sim.observations, sim.predict(build(x)))
-        return np.nan_to_num(lay.profiled(dz, di))
+        preds = sim.predict(build(x))
+        dz, di = raw_residuals(sim.observations, preds)
+        return np.nan_to_num(lay.profiled(dz, di, raw_statistics(sim.observations, preds)))
 
     return optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev), build
 
@@ -408,13 +421,15 @@ class _State:
         self.model = model
         self.preds = self.sim.predict(model)
         self.dz, self.di = raw_residuals(self.sim.observations, self.preds)
-        self.good = goodness(self.lay, self.sim.observations, self.dz, self.di, model.profile().technology)
+        self.stats = raw_statistics(self.sim.observations, self.preds)
+        self.good = goodness(self.lay, self.sim.observations, self.dz, self.di, model.profile().technology,
+                             self.preds, self.stats)
 
     def context(self) -> Context:
         return Context(self.sim.observations, self.preds, self.model, self.sim.predictor, self.sim.t0_s, self.lay)
 
     def whitened(self) -> np.ndarray:
-        return np.nan_to_num(self.lay.profiled(self.dz, self.di))
+        return np.nan_to_num(self.lay.profiled(self.dz, self.di, self.stats))
 
 
 def _add_empirical(state: _State, carrying: str | None, rule: FixedThresholds | NullCalibration,
@@ -423,7 +438,7 @@ def _add_empirical(state: _State, carrying: str | None, rule: FixedThresholds | 
     order = sorted(FORMS, key=lambda name: name != FIRST_FORM.get(carrying or "", ""))
     added = []
     for name in order:
-        if rule.consistent(state.good):
+        if state.good.means_consistent or rule.consistent(state.good):
             break
         say(f"fitting {name}")
         params = FORMS[name](state.context(), state.whitened())
@@ -681,8 +696,15 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     physical_consistent = rule.consistent(good_physical)
     if not physical_consistent:
         say("characterizing the unexplained residual")
-        unexplained = characterize(observations, state.preds, residual_physical, sim.t0_s)
-        empirical = _add_empirical(state, unexplained.carrying_axis, rule, say)
+        if good_physical.means_consistent:
+            unexplained = Unexplained(axes=[], carrying_axis=None, spatial_map_mm=[],
+                                      description="the bin means of depth and intensity agree with the model within "
+                                                  "their noise")
+        else:
+            unexplained = characterize(observations, state.preds, residual_physical, sim.t0_s)
+            empirical = _add_empirical(state, unexplained.carrying_axis, rule, say)
+        unexplained.families = [_describe_family(family, state, lay)
+                                for family in good_physical.inconsistent_statistics]
     gap_after, igap_after = state.good.gap_mm, state.good.intensity_gap_pct
     if corners is not None:
         named = corners.named + named
@@ -702,10 +724,59 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         notes.append(detectable_message(minimum_detectable))
     corner_names = {c.name for c in corner_candidates()} if corners is not None else set()
     notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items() if name not in corner_names]
+    excluded = info.get("skipped", []) + excluded_steps(observations, state.preds, lay)
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
                            state.model, observations, iterations, _residual_maps(lay, state.dz), notes, ambiguity,
                            good_before, state.good, good_physical, rule, minimum_detectable, unexplained, empirical,
-                           corners=corners)
+                           corners=corners,
+                           excluded=excluded)
+
+
+def _describe_family(family: str, state: _State, lay: Layout) -> dict[str, Any]:
+    """What a statistics family's residual follows (``describe_statistics``) with its gap and floor."""
+    obs, preds = state.sim.observations, state.preds
+    maps, weights = [], []
+    for o, p, r, mask in zip(obs, preds, state.stats[family], lay.s_masks[family], strict=True):
+        maps.append(np.where(mask, r, np.nan))
+        weights.append(1.0 / (sampling_variance(o, p)[family] + STAT_FLOORS[family] ** 2))
+    found = describe_statistics(family, obs, preds, maps, weights, state.sim.t0_s)
+    gap, floor = state.good.family_gap(family)
+    return {**found, "gap": rounded(gap), "floor": rounded(floor)}
+
+
+def excluded_steps(observations: list[Observation], preds: list[Prediction], lay: Layout) -> list[ExcludedStep]:
+    """The steps each residual family leaves out (fewer than two compared bins), with the reason."""
+    out: list[ExcludedStep] = []
+    for s, (o, p) in enumerate(zip(observations, preds, strict=True)):
+        seen = np.isfinite(p.z) & ~p.edge
+        n_seen = int(seen.sum())
+        full = int((o.valid_fraction[seen] >= MIN_VALID_FRACTION).sum())
+        fill = 100 * float(np.mean(o.valid_rate[seen])) if n_seen else 0.0
+        if int(lay.z_masks[s].sum()) < 2:
+            reason = ("the model sees no surface away from depth and reflectance edges" if n_seen < 2 else
+                      f"too few valid pixels: {full} of {n_seen} bins hold at least {100 * MIN_VALID_FRACTION:.0f} % "
+                      f"valid pixels ({fill:.0f} % of the pixel-frames valid)" if full < n_seen / 2 else
+                      "no bin away from the measured depth edges")
+            out.append(ExcludedStep(step=o.scene.step_id, family="depth", reason=reason))
+        if int(lay.i_masks[s].sum()) < 2 and int(lay.z_masks[s].sum()) >= 2:
+            out.append(ExcludedStep(step=o.scene.step_id, family="intensity",
+                                    reason="no compared bin with smooth simulated light"))
+        for family in STATISTICS:
+            if int(lay.s_masks[family][s].sum()) >= 2:
+                continue
+            if family == "validity":
+                reason = ("neither the run nor the model has a valid pixel away from depth and reflectance edges "
+                          "(outside the camera's measurement range)" if n_seen >= 2 else
+                          "the model sees no surface away from depth and reflectance edges")
+            elif n_seen and not np.isfinite(p.noise_mm[seen]).any():
+                reason = ("the predicted noise is below half the camera's output step: rounding makes it depend on "
+                          "where the depth sits on the step, which the model cannot know")
+            elif n_seen and not np.isfinite(o.noise_mm[seen]).any():
+                reason = f"too few pixels valid in every frame ({fill:.0f} % of the pixel-frames valid)"
+            else:
+                reason = "no bin where both the run and the model give the noise"
+            out.append(ExcludedStep(step=o.scene.step_id, family=family, reason=reason))
+    return out
 
 
 def _corner_unexplained(corners: CornerStage) -> str:
@@ -740,7 +811,21 @@ def _corner_result(observations: list[Observation], model: SimModel, notes: list
 
 def _unexplained_message(named: list[NamedEffect], good: Goodness, found: Unexplained,
                          empirical: list[EmpiricalCorrection]) -> str:
-    """What the user reads: what remains, what it follows, and what the empirical correction is."""
+    """What the user reads: what remains, what it follows, and what the empirical correction is; and which of
+    the noise's statistics (noise, validity, correlation) depart from the model's, along which axis."""
+    families = "; ".join(f"{f['family']}: {f['description']} (gap {f['gap']}, floor {f['floor']} "
+                         f"{UNITS[f['family']]})" for f in found.get("families", []))
+    after = " after " + ", ".join(e.name for e in named) if named else ""
+    if good.means_consistent:
+        return (f"the mean depth agrees with the model (gap {good.gap_mm:.3f} mm, floor {good.gap_floor_mm:.3f} mm)"
+                f"{after}, but the noise's statistics do not, and no library effect explains it: {families}.")
+    text = _means_message(named, good, found, empirical)
+    return text + (f" The noise's statistics depart as well: {families}." if families else "")
+
+
+def _means_message(named: list[NamedEffect], good: Goodness, found: dict[str, Any],
+                   empirical: list[EmpiricalCorrection]) -> str:
+    """What remains of the bin means, what it follows, and the empirical correction."""
     worst = good.worst_step
     text = (f"a residual of {good.gap_mm:.3f} mm remains (noise floor {good.gap_floor_mm:.3f} mm"
             + (f"; step {worst.step_id} {worst.ratio:.1f} x its floor in {worst.family}" if worst else "") + ")"
@@ -752,6 +837,24 @@ def _unexplained_message(named: list[NamedEffect], good: Goodness, found: Unexpl
     else:
         text += " No empirical correction closed it materially."
     return text
+
+
+def _families(result: ReconcileResult) -> dict[str, ResidualFamily]:
+    """Every residual family compared, its gap and floor before and after (the final model), unit and
+    consistency: depth, intensity, noise, validity, correlation and the checkerboard corners."""
+    out: dict[str, ResidualFamily] = {}
+    before, after = result.goodness_before, result.goodness_after
+    if before is not None and after is not None:
+        for family, entry in after.family_summary().items():
+            gap_before, _ = before.family_gap(family)
+            out[family] = ResidualFamily(gap_before=rounded(gap_before), gap_after=entry.gap, floor=entry.floor,
+                                         unit=entry.unit, consistent=entry.consistent, steps=entry.steps)
+    if result.corners is not None:
+        c = result.corners
+        out["corners"] = ResidualFamily(gap_before=rounded(c.before.gap_mm), gap_after=rounded(c.after.gap_mm),
+                                        floor=rounded(c.after.gap_floor_mm), unit="mm", consistent=c.after.consistent,
+                                        steps=len(c.steps))
+    return out
 
 
 def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocument:
@@ -792,6 +895,8 @@ def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocumen
                                            dbic_threshold=DBIC_THRESHOLD),
         empirical_corrections=result.empirical,
         notes=result.notes,
+        families=_families(result),
+        excluded_steps=result.excluded,
         corners=corners.summary() if corners is not None else None,
         unexplained=result.unexplained,
         not_comparable=result.not_comparable,

@@ -17,8 +17,9 @@ from pydantic import ValidationError
 
 from sim.effects.base import Corners, Effect, EffectParams, Observed, RangeStage, valid_range
 
-__all__ = ["EFFECTS", "Corners", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "default_effects",
-           "frame_offset_mm", "output_step_mm", "parse_effects", "plate_placement_mm", "registered", "valid_range"]
+__all__ = ["EFFECTS", "Corners", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "background_level",
+           "default_effects", "frame_offset_mm", "output_step_mm", "parse_effects", "plate_placement_mm", "registered",
+           "valid_range"]
 
 
 def _discover() -> dict[str, Effect]:
@@ -58,6 +59,11 @@ def frame_offset_mm(effects: dict[str, EffectParams], t_s: float) -> float:
     for hook, params in acting(effects, "frame_offset_mm"):
         offset = offset + hook(t_s, params)
     return offset
+
+
+def background_level(effects: dict[str, EffectParams]) -> float:
+    """The effects' background light (``background``) in units of the reference signal (0 without)."""
+    return float(sum(hook(params) for hook, params in acting(effects, "background")))
 
 
 def output_step_mm(effects: dict[str, EffectParams]) -> float:

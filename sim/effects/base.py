@@ -119,6 +119,8 @@ class Observed:
     procedure: str = ""  # the procedure whose captures show it (named when a run has nothing comparable)
     capture: Callable[[Mapping[str, Any], RunHoldings], str] | None = None  # the capture that would determine its
     # fitted parameters better, from them and what the run already holds (never one the run has)
+    families: tuple[str, ...] = ("depth", "intensity")  # the residual families it changes ("resimulated": the
+    # noise, validity and correlation families are re-simulated only for an effect that names them)
 
 
 @dataclass(frozen=True)
@@ -154,6 +156,9 @@ class Effect:
     * ``shading(cos_alpha, p)``: factor on the light after the blur (amplitude, IR image);
     * ``phasor(phasor, p, sensor)``: the ToF pixel's phasor before its phase gives the range;
     * ``on_range(values, p, stage)``: the noise-free ToF range or stereo depth map, in increasing ``order``;
+    * ``background(p)``: background light the pixels collect besides the camera's own signal (ambient light),
+      in units of the reference signal (ToF: A_ref, the amplitude of the 90 % wall at 2 m; stereo: the
+      projector's dot light on that wall); it adds shot noise and lowers the contrast the stereo matcher sees;
     * ``frame_offset_mm(t_s, p)``: a range offset of the frame taken at device time ``t_s``;
     * ``step_mm(p)``: the step the coordinates are stored in.
     """
@@ -170,6 +175,7 @@ class Effect:
     shading: Callable[[np.ndarray, Any], np.ndarray] | None = None
     phasor: Callable[[np.ndarray, Any, Any], np.ndarray] | None = None
     on_range: Callable[[np.ndarray, Any, RangeStage], np.ndarray] | None = None
+    background: Callable[[Any], float] | None = None
     frame_offset_mm: Callable[[float, Any], float] | None = None
     step_mm: Callable[[Any], float] | None = None
     built_in: Callable[[Any], Mapping[str, Any] | None] | None = None

@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -246,10 +247,13 @@ def focal_source(fov_deg: tuple[float, float], true_fov_deg: tuple[float, float]
 
 def warp_run(source: Path, destination: Path, where: Warp, cloud_corrected: bool) -> Path:
     """Copy the run at ``source`` to ``destination`` as a camera whose pixel (u, v) sees what the plain camera saw
-    at ``where(u, v)`` (every frame's intensity and cloud resampled bilinearly). ``cloud_corrected``: the camera's
-    calibration knows its optics, so every point keeps its place (x, y, z resampled); otherwise it turns the
-    range it measures (|p| resampled) into a point along the plain pinhole ray of (u, v), slopes
-    ((u - c_u) / f_x, (v - c_v) / f_y) with f from the file's FOV. Returns ``destination``."""
+    at ``where(u, v)``: the stack means of the intensity and the cloud are resampled bilinearly, and every pixel
+    keeps its own temporal noise (its frames' deviations from its own stack mean are added back), as a camera's
+    pixels do whatever its optics; resampling every frame would average the noise of neighbouring pixels (less
+    noise, correlated). ``cloud_corrected``: the camera's calibration knows its optics, so every point keeps its
+    place (x, y, z resampled); otherwise it turns the range it measures (|p| resampled) into a point along the
+    plain pinhole ray of (u, v), slopes ((u - c_u) / f_x, (v - c_v) / f_y) with f from the file's FOV. Returns
+    ``destination``."""
     shutil.copyfile(source, destination)
     with h5py.File(destination, "a") as f:
         fov = tuple(float(v) for v in f["camera"].attrs["fov_deg"])
@@ -259,17 +263,79 @@ def warp_run(source: Path, destination: Path, where: Warp, cloud_corrected: bool
             su, sv = where(u, v, w, h)
             tx = (u - (w - 1) / 2) / ((w / 2) / math.tan(math.radians(fov[0]) / 2))
             ty = (v - (h - 1) / 2) / ((h / 2) / math.tan(math.radians(fov[1]) / 2))
-            for k in range(n):
-                image = np.asarray(group["intensity"][k], float)
-                group["intensity"][k] = np.round(np.nan_to_num(_bilinear(image, su, sv))).astype(
-                    group["intensity"].dtype) if group["intensity"].dtype.kind in "iu" else _bilinear(image, su, sv)
-                x, y, z = (np.asarray(group[c][k], float) for c in ("x", "y", "z"))
-                if cloud_corrected:
-                    new = [_bilinear(c, su, sv) for c in (x, y, z)]
-                else:
-                    r = _bilinear(np.sqrt(x * x + y * y + z * z), su, sv)
-                    norm = np.sqrt(1 + tx * tx + ty * ty)
-                    new = [r * tx / norm, r * ty / norm, r / norm]
-                for c, values in zip(("x", "y", "z"), new):
-                    group[c][k] = values.astype(np.float32)
+            intensity = np.asarray(group["intensity"][:], float)
+            x, y, z = (np.asarray(group[c][:], float) for c in ("x", "y", "z"))
+            r = np.sqrt(x * x + y * y + z * z)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                means = {name: np.nanmean(a, axis=0) for name, a in
+                         (("intensity", intensity), ("x", x), ("y", y), ("z", z), ("r", r))}
+            warped = {name: _bilinear(m, su, sv) for name, m in means.items()}
+            image = warped["intensity"] + (intensity - means["intensity"])
+            group["intensity"][:] = np.round(np.nan_to_num(image)).astype(group["intensity"].dtype) \
+                if group["intensity"].dtype.kind in "iu" else image
+            if cloud_corrected:
+                new = [warped[c] + (a - means[c]) for c, a in (("x", x), ("y", y), ("z", z))]
+            else:
+                measured = warped["r"] + (r - means["r"])
+                norm = np.sqrt(1 + tx * tx + ty * ty)
+                new = [measured * tx / norm, measured * ty / norm, measured / norm]
+            for c, values in zip(("x", "y", "z"), new):
+                group[c][:] = values.astype(np.float32)
     return destination
+
+
+def rewrite_noise(source: Path, destination: Path, change: Callable[[np.ndarray], np.ndarray]) -> Path:
+    """Copy the run at ``source`` to ``destination`` with every step's temporal noise rewritten: each valid point
+    is its pixel's stack mean plus ``change(deviations)``, where ``deviations`` are the (N, 3, H, W) departures of
+    the frames' points from that mean (NaN where invalid). The stack means stay where they were (up to the
+    change's own mean). Returns ``destination``."""
+    shutil.copyfile(source, destination)
+    with h5py.File(destination, "a") as f:
+        for group in f["steps"].values():
+            points = np.stack([np.asarray(group[c][:], float) for c in ("x", "y", "z")], axis=1)  # (N, 3, H, W)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean = np.nanmean(points, axis=0)
+            new = mean + change(points - mean)
+            for i, c in enumerate(("x", "y", "z")):
+                group[c][:] = new[:, i].astype(np.float32)
+    return destination
+
+
+def scale_noise(factor: float) -> Callable[[np.ndarray], np.ndarray]:
+    """A camera whose temporal noise is ``factor`` times the plain one's (every deviation scaled)."""
+    return lambda deviations: factor * deviations
+
+
+def box_sum(values: np.ndarray, size: int) -> np.ndarray:
+    """Sum of the last two axes' values over a ``size`` x ``size`` window (zero outside the image)."""
+    h, w = values.shape[-2:]
+    padded = np.zeros(values.shape[:-2] + (h + size, w + size))
+    lo = size // 2
+    padded[..., lo + 1:lo + 1 + h, lo + 1:lo + 1 + w] = values
+    c = padded.cumsum(-1).cumsum(-2)
+    return c[..., size:, size:] - c[..., :-size, size:] - c[..., size:, :-size] + c[..., :-size, :-size]
+
+
+def correlate_noise(size: int) -> Callable[[np.ndarray], np.ndarray]:
+    """A camera whose temporal noise is the plain one's made spatially correlated over ``size`` x ``size`` pixels
+    with the same per-pixel variance: each frame's deviation is the sum over the window of its valid neighbours'
+    deviations divided by the square root of their number (a sum of k independent deviations of equal variance
+    has k times the variance)."""
+    def change(deviations: np.ndarray) -> np.ndarray:
+        ok = np.isfinite(deviations)
+        total = box_sum(np.where(ok, deviations, 0.0), size)
+        count = box_sum(ok.astype(float), size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(ok, total / np.sqrt(count), np.nan)
+    return change
+
+
+def correlated_field(shape: tuple[int, int], size: int, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """Zero-mean Gaussian noise of std ``sigma`` correlated over ``size`` x ``size`` pixels: white noise summed
+    over the window (drawn beyond the image, so that every window is full) and divided by ``size`` (the sum of
+    size^2 unit variances has variance size^2)."""
+    h, w = shape
+    white = rng.standard_normal((h + size, w + size))
+    return sigma * box_sum(white, size)[size // 2:size // 2 + h, size // 2:size // 2 + w] / size

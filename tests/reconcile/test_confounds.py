@@ -47,7 +47,7 @@ def test_a_signal_following_error_on_a_returning_sweep_is_not_named_a_drift(tmp_
     assert result.ambiguity is None or "temperature_drift" not in result.ambiguity.between or \
         "return_mm" not in result.ambiguity.separating_capture  # the run already returns to 2000 mm
     if result.verdict == "unexplained":
-        assert result.unexplained["carrying_axis"] == "intensity", result.unexplained["description"]
+        assert result.unexplained.carrying_axis == "intensity", result.unexplained.description
 
 
 def test_a_constant_disparity_offset_is_not_named_a_range_scale(tmp_path):

@@ -43,7 +43,7 @@ def test_vocabulary_is_the_contract():
         "range_offset", "range_scale", "wiggling", "temperature_drift", "intensity_related_error", "vignetting",
         "radial_distortion", "fov_error", "defocus", "quantization", "flying_pixels", "multipath",
         "material_bias", "target_misalignment", "camera_axis_offset", "fixed_pattern", "floor_multipath",
-        "disparity_bias", "empirical_range", "empirical_pixel_map",
+        "disparity_bias", "empirical_range", "empirical_pixel_map", "ambient_light",
     }
 
 
@@ -315,6 +315,27 @@ def test_disparity_bias_at_known_disparities():
         on, off = prep(biased, distance=z), prep(plain, distance=z)
         centre = (slice(58, 62), slice(78, 82))
         np.testing.assert_allclose(on.disparity[centre] - off.disparity[centre], bias, atol=2e-3)
+
+
+def test_ambient_light_adds_shot_noise_and_lowers_the_stereo_contrast():
+    level = 2.0
+    lit_effects = f"[effects.ambient_light]\nlevel = {level}\n"
+    plain, lit = make(), make(effects=lit_effects)
+    a, b = prep(plain), prep(lit)
+    # ToF: the background joins B of eq. 2-9 as level x A_ref; the noise-free maps stay
+    assert b.ambient - a.ambient == pytest.approx(level * plain.a_ref, rel=1e-6)
+    np.testing.assert_array_equal(b.range_mm, a.range_mm)
+    np.testing.assert_array_equal(b.amplitude, a.amplitude)
+    # stereo, far wall: a uniform background of level x the projector's light at 2 m (2000 counts) on the IR image
+    # lowers the window's contrast std / mean; the matching noise grows by (m + b) / m, m the window's mean light
+    plain_s, lit_s = make("d455", base=False), make("d455", effects=lit_effects, base=False)
+    c, d = prep(plain_s, distance=3500.0), prep(lit_s, distance=3500.0)
+    np.testing.assert_allclose(d.ir - c.ir, level * 2000.0, rtol=1e-4)
+    window_mean = cv2.blur(c.ir.astype(float), (7, 7), borderType=cv2.BORDER_REFLECT)
+    inner = (slice(10, -10), slice(10, -10))
+    np.testing.assert_allclose((d.sigma_disp / c.sigma_disp)[inner], (1 + level * 2000.0 / window_mean)[inner],
+                               rtol=1e-3)
+    assert d.valid.sum() < 0.5 * c.valid.sum()
 
 
 def test_projector_off_fails_on_textureless_wall():

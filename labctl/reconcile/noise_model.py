@@ -1,0 +1,186 @@
+"""The model's temporal noise, valid fraction and noise correlation of every bin, from the simulator's own laws.
+
+The reconcile's predictor runs the camera at the bin grid (labctl/reconcile/predict.py); these are the
+statistics a full-resolution pixel of that bin would show over its stack, derived from the laws the simulator
+draws its frames with (sim/tof.py, sim/stereo.py, sim/kernels.py):
+
+* ToF (Li 2014, eq. 2-9): sigma_r = k sqrt(2 A + B_ambient) / (c_d A), B_ambient = (ambient_ratio +
+  background) A_ref t_exp / t_default; the depth's noise is sigma_r z / r. A pixel is valid in a frame when
+  its noisy amplitude A + sigma_A n (sigma_A = sqrt((2 A + B_ambient) / 2)) lies between the confidence
+  threshold and saturation: P = Phi((sat - A) / sigma_A) - Phi((thr - A) / sigma_A). The amplitude is an
+  intensive quantity (the light per pixel relative to the 90 % wall at 2 m), so a binned pixel's amplitude
+  is the full-resolution pixel's at the bin centre (the lens blur only moves light across edges, and bins
+  near edges are not compared).
+* Stereo (Thesis 2024, 2.3.2): the disparity d0 + sigma_d n is rounded to the disparity step Delta_d, with
+  f b and sigma_d = s (1 + g theta^2 / (pi/2 - theta)^2) (1 + b / m) in the full sensor's pixels (b the
+  background light, m the light without it), and z = f b / d; level j of the disparity grid has probability
+  Phi((j + 1/2 - delta) Delta_d / sigma_d) - Phi((j - 1/2 - delta) Delta_d / sigma_d) and depth
+  z0 - z0^2 / (f b) (j - delta) Delta_d (delta: where d0 sits between two levels). The depth's std is that
+  of this distribution (about z^2 / (f b) sqrt(sigma_d^2 + Delta_d^2 / 12)), or, where the camera stores
+  the depth in steps Delta, of its rounded values: the levels of the disparity grid are then about as far
+  apart as the steps, and rounding them compresses the noise by up to 20 % (aliasing), depending on where
+  the depth sits on both grids. The model averages the variance over both positions (delta and the
+  output grid's offset uniform) and states the spread of ln std over them (``noise_log_spread``), which
+  the comparison adds to the sampling spread. A pixel is valid where it is in
+  range, the right camera sees it (its disparity keeps it inside the right image) and the local IR contrast
+  over the matching window, P sd_w(D) / (L + b + P mean_w(D)), reaches ``texture_threshold`` (L the lamps'
+  light, P the projector's, D the dot pattern of the full sensor blurred by its optics at the step's
+  distance, lens and defocus); per frame nothing else drops it. This holds where L and P are uniform over
+  the window; where the smooth light's slope g (per pixel) alone would give a contrast
+  |g| sqrt((w^2 - 1) / 12) / light of ``SLOPE_SHARE`` of the threshold (an oblique, distant surface), the
+  valid fraction is not predicted (NaN). The contrast is modelled to about ``CONTRAST_TOLERANCE``
+  (relative): the pixels within that band of the threshold may fall either way, and half their share is the
+  model's uncertainty of the valid fraction (``valid_spread``), added to the validity family's sampling
+  variance.
+* ToF output steps (``quantization``, a camera storing millimetres) add Delta^2 / 12 where
+  sigma >= Delta / 2 (Sheppard 1898; the neglected ripple is below exp(-2 pi^2 sigma^2 / Delta^2) < 1 %).
+  Below sigma = Delta / 2 (both technologies) the rounded noise depends on where the true value sits on the
+  grid, which the model cannot know: the bin's noise is not predicted (NaN).
+* Correlation: the simulator draws every pixel's noise independently (the stereo matching window is not
+  simulated as a correlation of neighbours), so the ratio of a bin mean's variance to the per-pixel
+  variance / n is 1 wherever the noise is predicted.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage, special
+
+from sim.effects import output_step_mm
+from sim.sensor import SensorOptics
+from sim.stereo import AMBIENT_LEVEL, DOT_DENSITY, MATCHING_WINDOW_PX, PROJECTOR_LEVEL, StereoSensor, dot_pattern
+from sim.tof import IRRADIANCE_REF, ToFSensor, range_noise_mm
+
+
+def _phi(x: np.ndarray) -> np.ndarray:
+    return 0.5 * special.erfc(-x / math.sqrt(2.0))
+
+
+def with_output_step(sigma: np.ndarray, step_mm: float) -> np.ndarray:
+    """The std of a value with noise ``sigma`` stored in steps of ``step_mm``: sqrt(sigma^2 + step^2 / 12) where
+    sigma >= step / 2 (Sheppard's correction), NaN below (unpredictable), sigma itself without a step."""
+    if step_mm <= 0:
+        return sigma
+    with np.errstate(invalid="ignore"):
+        return np.where(sigma >= step_mm / 2, np.sqrt(sigma**2 + step_mm**2 / 12.0), np.nan)
+
+
+DISPARITY_POSITIONS = 8  # where the true disparity sits between two levels of its grid
+OUTPUT_OFFSETS = 16  # where the true depth sits on the output grid
+SLOPE_SHARE = 0.5  # a light slope giving this share of the texture threshold's contrast: validity not predicted
+CONTRAST_TOLERANCE = 0.15  # relative accuracy of the modelled matching contrast
+LATTICE_RATIO = 4.0  # sigma_d / disparity step above which both roundings follow Sheppard's correction
+
+
+def stored_disparity_noise(z: np.ndarray, sigma_d: np.ndarray, step_d: float, focal_baseline: float,
+                           step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Std of a stereo depth whose disparity is rounded to ``step_d`` and, with ``step_mm`` > 0, stored in
+    steps of ``step_mm`` (module docstring), averaged over where the true values sit on both grids; and the
+    spread (std) of ln std over those positions. NaN where the noise is below half the output step. Where
+    sigma_d exceeds ``LATTICE_RATIO`` disparity steps, the grids no longer alias and Sheppard's correction
+    holds for both roundings."""
+    scale = np.nan_to_num(z) ** 2 / focal_baseline
+    sheppard = with_output_step(scale * np.sqrt(sigma_d**2 + step_d**2 / 12.0), step_mm)
+    ratio = np.nan_to_num(sigma_d / step_d, nan=1.0)
+    lattice = ratio <= LATTICE_RATIO
+    std, spread = np.where(lattice, np.nan, sheppard), np.where(lattice, np.nan, 0.0)
+    levels = int(math.ceil(5 * LATTICE_RATIO)) + 1
+    j = np.arange(-levels, levels + 1, dtype=float)[:, None]
+    delta = (np.arange(DISPARITY_POSITIONS) + 0.5) / DISPARITY_POSITIONS - 0.5
+    r = ratio[lattice][:, None, None]
+    probs = _phi((j + 0.5 - delta) / r) - _phi((j - 0.5 - delta) / r)  # (bins, J, D)
+    values = -scale[lattice][:, None, None] * (j - delta) * step_d
+    if step_mm > 0:
+        u = (np.arange(OUTPUT_OFFSETS) + 0.5) / OUTPUT_OFFSETS * step_mm
+        values = np.round((values[..., None] + u) / step_mm) * step_mm  # (bins, J, D, U)
+        probs = probs[..., None]
+    mean = (probs * values).sum(axis=1)
+    var = np.maximum((probs * values**2).sum(axis=1) - mean**2, 0.0).reshape(len(r), -1)
+    std[lattice] = np.sqrt(var.mean(axis=-1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread[lattice] = np.std(0.5 * np.log(var), axis=-1)
+    sigma = scale * sigma_d
+    ok = np.isfinite(z) & ((step_mm <= 0) | (sigma >= step_mm / 2))
+    return np.where(ok, std, np.nan), np.where(ok, spread, np.nan)
+
+
+def tof_statistics(sensor: ToFSensor, amplitude: np.ndarray, ambient: float,
+                   z_per_range: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per bin: the depth's temporal std (mm, NaN where not predicted) and the expected valid fraction."""
+    p = sensor.profile
+    seen = amplitude > 0
+    a = np.where(seen, amplitude, 1.0)
+    sigma_z = np.where(seen, range_noise_mm(p, a, ambient) * z_per_range, np.nan)
+    sigma_a = np.sqrt((2.0 * a + ambient) / 2.0)
+    threshold, saturation = p.confidence_threshold_ratio * sensor.a_ref, p.saturation_ratio * sensor.a_ref
+    valid = _phi((saturation - a) / sigma_a) - _phi((threshold - a) / sigma_a)
+    return with_output_step(sigma_z, output_step_mm(sensor.effects)), np.where(seen, valid, 0.0)
+
+
+def dot_window_stats(optics: SensorOptics, distance_mm: float, bin_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std over the matching window around every pixel of the full sensor's dot pattern as its optics
+    blur it at ``distance_mm`` (``optics``: the full sensor's, with the model's effects; the blur acts on 2 x 2
+    sub-pixels before each pixel integrates them, as sim/stereo.py renders it), gathered per bin: two
+    (height / bin_px, width / bin_px, bin_px^2) arrays."""
+    p = optics.profile
+    fine = np.repeat(np.repeat(dot_pattern(p.height, p.width), 2, axis=0), 2, axis=1)
+    dots = optics.blur(fine, distance_mm, 2)
+    mean = ndimage.uniform_filter(dots, MATCHING_WINDOW_PX)
+    std = np.sqrt(np.maximum(ndimage.uniform_filter(dots**2, MATCHING_WINDOW_PX) - mean**2, 0.0))
+    h, w = p.height // bin_px, p.width // bin_px
+
+    def per_bin(a: np.ndarray) -> np.ndarray:
+        return a[:h * bin_px, :w * bin_px].reshape(h, bin_px, w, bin_px).transpose(0, 2, 1, 3).reshape(h, w, -1)
+
+    return per_bin(mean), per_bin(std)
+
+
+def stereo_statistics(sensor: StereoSensor, rendered, z: np.ndarray, exposure_us: float, projector: bool,
+                      dot_stats: tuple[np.ndarray, np.ndarray],
+                      bin_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per bin of a binned stereo sensor: the depth's temporal std (mm, NaN where not predicted), the spread of
+    its logarithm over where the depth sits on the grids (``stored_disparity_noise``), the expected valid
+    fraction of its full-resolution pixels, and that fraction's uncertainty (half the share of pixels whose
+    contrast lies within ``CONTRAST_TOLERANCE`` of the threshold)."""
+    p = sensor.profile
+    gain = exposure_us / p.exposure_us
+    k = rendered.oversample
+    h, w = z.shape
+
+    def fine_mean(a: np.ndarray) -> np.ndarray:
+        return a.reshape(h, k, w, k).mean(axis=(1, 3))
+
+    lamps = AMBIENT_LEVEL * fine_mean(rendered.passive_fine) * gain
+    dots = PROJECTOR_LEVEL * fine_mean(rendered.irradiance_fine) / IRRADIANCE_REF * gain if projector \
+        else np.zeros_like(lamps)
+    background = sensor.background(exposure_us)
+    signal = lamps + dots * sensor.dots
+    focal_baseline = sensor.matching_focal_baseline  # the full sensor's f b
+    theta = np.arccos(np.clip(rendered.cos_dom, 1e-6, 1.0))
+    angle_term = 1.0 + p.angle_noise_gain * theta**2 / np.maximum(math.pi / 2 - theta, 1e-3) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        contrast_term = np.where(signal > 0, 1.0 + background / signal, 1.0)
+        sigma_d = p.noise_mm_at_2m * focal_baseline / 2000.0**2 * angle_term * contrast_term
+    mean, std = dot_stats
+    # a smooth light with slope g per pixel of the full sensor adds g^2 (w^2 - 1) / 12 per axis to the window's
+    # variance: on an oblique surface the falling light is texture the model does not hold
+    smooth = lamps + dots * DOT_DENSITY
+    gy, gx = np.gradient(smooth, bin_px) if min(smooth.shape) > 1 else (np.zeros_like(smooth),) * 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.sqrt((gx**2 + gy**2) * (MATCHING_WINDOW_PX**2 - 1) / 12.0) / (smooth + background)
+        contrast = dots[..., None] * std / (lamps[..., None] + background + dots[..., None] * mean)
+    relative = np.nan_to_num(contrast) / p.texture_threshold
+    textured = np.mean(relative >= 1.0, axis=-1)
+    marginal = np.mean(np.abs(relative - 1.0) < CONTRAST_TOLERANCE, axis=-1)
+    # the right camera sees column u of the full sensor while u - f b / z >= 0
+    u = (np.arange(w)[:, None] * bin_px + np.arange(bin_px)[None, :]).astype(float)  # (w, bin_px)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inside = np.mean(u[None, :, :] - (focal_baseline / z)[..., None] >= -0.5, axis=-1)  # u_right rounded
+        in_range = np.isfinite(z) & (z >= p.min_range_mm) & (z <= p.max_range_mm)
+    valid = np.where(in_range, textured * inside, 0.0)
+    valid = np.where(in_range & ~(slope <= SLOPE_SHARE * p.texture_threshold), np.nan, valid)
+    sigma_z, spread = stored_disparity_noise(np.where(in_range, z, np.nan), sigma_d, p.disparity_step_px,
+                                             focal_baseline, output_step_mm(sensor.effects))
+    return sigma_z, spread, valid, np.where(in_range, marginal / 2, 0.0)
