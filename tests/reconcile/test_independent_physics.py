@@ -31,7 +31,8 @@ import pytest
 from labctl.cli import main
 from labctl.reconcile.workflow import reconcile
 from sim.profiles import get_profile
-from tests.reconcile.forward import CAMPAIGN, Pixels, rewrite_run, simulated_run, stretch_time
+from tests.reconcile.forward import Pixels, rewrite_run, stretch_time
+from tests.reconcile.runs import CAMPAIGN, simulated_run
 
 C_MM_PER_S = 299_792_458_000.0
 
