@@ -15,8 +15,8 @@ that move the geometry are differentiated by re-simulating with the effect
 switched on (finite difference, the ``resimulated`` form, which suits any
 effect linear in one parameter). Nonlinear parameters (a wiggling period, a
 disparity bias period, a drift time constant, a multipath extra path, a
-bouncing plane and its distance) are searched on a grid, the linear ones solved for at each grid
-point. A candidate with ``bind`` is built from the run itself (its signature
+bouncing plane and its distance) are searched on a grid, the linear ones
+solved for at each grid point. A candidate with ``bind`` is built from the run itself (its signature
 depends on the run's residual: ``fixed_pattern``; or its form is chosen by
 it: the number of ``temperature_drift`` time constants).
 
@@ -585,12 +585,9 @@ def _periodic_disparity(effect: Effect) -> Candidate:
     )
 
 
-# disparity_offset_and_scale: z' = f b (1 + e) / (d + delta) -> dz = -z^2 / (f b) per px of delta, z per unit e
-def _disparity_offset_and_scale(effect: Effect) -> Candidate:
-    def columns(ctx: Context, _: Any) -> list[Column]:
-        return [_depth(ctx, _disparity_rows(ctx)[1]), _depth(ctx, ctx.z_rows("z"))]
-
-    return _linear_terms(effect, columns)
+# disparity_offset: z' = f b / (d + delta) -> dz = -z^2 / (f b) per px of delta
+def _disparity_offset(effect: Effect) -> Candidate:
+    return _linear(effect, lambda ctx, _: [_depth(ctx, _disparity_rows(ctx)[1])])
 
 
 #: the signature forms an effect can declare (``Observed.signature``)
@@ -605,7 +602,7 @@ FORMS: dict[str, Callable[[Effect], Candidate]] = {
     "plane_bounce": _plane_bounce,
     "plane_phasor": _plane_phasor,
     "periodic_disparity": _periodic_disparity,
-    "disparity_offset_and_scale": _disparity_offset_and_scale,
+    "disparity_offset": _disparity_offset,
     "log_light_polynomial": _log_light_polynomial,
     "resimulated": _resimulated,
 }

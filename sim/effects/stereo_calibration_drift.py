@@ -8,11 +8,13 @@ imager after calibration moves the rectified image rows and columns: the
 matched disparity is off by a constant ``disparity_offset_px`` delta, which
 to first order changes the depth by -z^2 delta / (f b), an error growing as
 the square of the distance; a wrong baseline (or focal length) in the stored
-calibration scales every depth by 1 + ``baseline_error`` e. Source: Gallup et
-al. 2008 (depth error of stereo = z^2 / (f b) x disparity error); Dang,
-Hoffmann & Stiller 2009 (continuous stereo self-calibration: drift of the
-relative orientation after calibration); Intel 2021 (RealSense D400
-self-calibration: on-chip calibration and the tare of the absolute depth).
+calibration scales every depth by 1 + ``baseline_error`` e, the form of
+``range_scale``: reconcile fits the offset and leaves a scale to that effect.
+Source: Gallup et al. 2008 (depth error of stereo = z^2 / (f b) x disparity
+error); Dang, Hoffmann & Stiller 2009 (continuous stereo self-calibration:
+drift of the relative orientation after calibration); Grunnet-Jepsen et al.,
+Intel RealSense self-calibration for D400 series depth cameras (white paper:
+on-chip calibration and the tare of the absolute depth).
 """
 
 from __future__ import annotations
@@ -39,8 +41,8 @@ EFFECT = Effect(
     "stereo_calibration_drift",
     ("stereo",),
     Params,
-    "Gallup et al. 2008; Dang, Hoffmann & Stiller 2009; Intel 2021 (D400 self-calibration)",
-    observed=Observed("disparity_offset_and_scale", fitted=("disparity_offset_px", "baseline_error")),
+    "Gallup et al. 2008; Dang et al. 2009; Intel RealSense D400 self-calibration (Grunnet-Jepsen et al.)",
+    observed=Observed("disparity_offset", fitted=("disparity_offset_px",), fixed={"baseline_error": 0.0}),
     order=16,
     on_range=lambda values, p, at: apply(values, at.sensor.matching_focal_baseline, p),
 )
