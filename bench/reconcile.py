@@ -32,7 +32,7 @@ from labctl.reconcile.observe import MAX_FRAMES
 from labctl.reconcile.workflow import reconcile
 from sim.effects import default_effects
 from sim.profiles import get_profile
-from tests.reconcile.forward import CAMPAIGN, ROBOT, SIZES
+from tests.reconcile.runs import CAMPAIGN, ROBOT, SIZES
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 BUDGET_S = 60.0

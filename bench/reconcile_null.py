@@ -36,7 +36,7 @@ from labctl.batch.index import ErrorRates
 from labctl.batch.orchestrate import batch_sweep
 from labctl.batch.sweep import load_sweep
 from labctl.reconcile.workflow import reconcile
-from tests.reconcile.forward import BACKENDS, CAMPAIGN, ROBOT, SIZES, simulated_run
+from tests.reconcile.runs import BACKENDS, CAMPAIGN, ROBOT, SIZES, simulated_run
 from tests.reconcile.test_corner_positions import BOARD, SECOND
 
 SWEEP_STEP_MM = 600

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from labctl.reconcile.null import DEFAULT_NULL_RUNS
 from labctl.reconcile.workflow import reconcile
-from tests.reconcile.forward import simulated_run
+from tests.reconcile.runs import simulated_run
 
 
 def main(seeds: int, effect: str, factor: float) -> int:

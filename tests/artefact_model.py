@@ -1,16 +1,17 @@
 """What a simulated camera should measure on the VDI/VDE 2634-2 ball bar, computed here independently of the
-simulator and of labctl's evaluation: the exact spheres, each pixel's footprint mean, the profile's noise law.
+simulator (nothing of it is imported; the camera's numbers come from the model's profile) and of labctl's
+evaluation: the exact spheres, each pixel's footprint mean, the profile's noise law.
 
 Per pixel of a sphere, with the pinhole of the profile's FOV:
 
 * footprint mean: the pixel's area sampled at ``FOOTPRINT`` x ``FOOTPRINT`` regular sub-positions, each ray
   cut with the exact sphere; the range (ToF) or depth (stereo) of the hits weighted by the light each returns,
-  rho cos^m / t^2 (Lambert, the wall paint's exponent), and reported along the pixel's centre ray (as a camera
-  reports a pixel); the mean is deeper than the sphere at the pixel's centre (the front of a sphere is
-  convex towards the camera), so the points lie slightly inside;
-* noise: ToF eq. 2-9 along the ray with the amplitude of that light (``range_noise_mm``, the amplitude
-  reference of ``noise_mm_at_2m``); stereo: disparity noise s (1 + g theta^2 / (pi/2 - theta)^2) with s from
-  ``noise_mm_at_2m``, rounded to the disparity step; then the output rounded to ``output_step_mm``;
+  rho cos^m / t^2 (Lambert, the wall paint's remission and exponent: tests/noise_model.py ``WALL``), and
+  reported along the pixel's centre ray (as a camera reports a pixel); the mean is deeper than the sphere at
+  the pixel's centre (the front of a sphere is convex towards the camera), so the points lie slightly inside;
+* noise: ToF, the shot-noise law of tests/noise_model.py along the ray with that light relative to the
+  90 % wall at 2 m on the axis (``tof_sigma_mm``); stereo: disparity noise s (1 + g theta^2 / (pi/2 - theta)^2)
+  with s from ``noise_mm_at_2m``, rounded to the disparity step; then the output rounded to ``output_step_mm``;
 * the rim rule, in its definition (pixel ray at most 60 deg incidence on the true sphere and one pixel
   inside its silhouette), and a least-squares sphere of its own.
 """
@@ -24,11 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from sim.materials import get_material, remission
-from sim.tof import IRRADIANCE_REF, REFERENCE_RANGE_MM, range_noise_mm, reference_amplitude
+from tests.noise_model import REFERENCE_MM, WALL, focal_baseline, tof_sigma_mm
 
 FOOTPRINT = 8
-ARTEFACT_MATERIAL = "wall"  # the ball bar's matte white paint
 
 
 def ball_bar_centres(wall_distance_mm: float, params: dict) -> list[np.ndarray]:
@@ -84,23 +83,24 @@ def sphere_pixels(model, centre: np.ndarray, radius: float, max_incidence_deg: f
     du, dv = (a.ravel() for a in np.meshgrid(offsets, offsets))
     sub = _rays(p, cols[:, None] + du, rows[:, None] + dv)
     t, cos = _cut(sub, centre, radius)
-    material = get_material(ARTEFACT_MATERIAL)
-    light = remission(ARTEFACT_MATERIAL, p.wavelength_nm) * cos**material.lambertian_exponent / (t / 1e3) ** 2
+    light = _relative_light(cos, t)
     norm = np.linalg.norm(sub, axis=-1)
     along = t if p.technology == "tof" else t / norm  # range, or depth z = t / |(x/z, y/z, 1)|
     mean = (light * along).sum(1) / light.sum(1)
     if p.technology == "tof":
-        a_ref = reference_amplitude(p)
-        sigma = range_noise_mm(p, a_ref * light.mean(1) / IRRADIANCE_REF, p.ambient_ratio * a_ref)
+        sigma = tof_sigma_mm(p, light.mean(1))
     else:
         theta = np.arccos((light * cos).sum(1) / light.sum(1))
-        s = p.noise_mm_at_2m * _focal_baseline(p) / REFERENCE_RANGE_MM**2
+        s = p.noise_mm_at_2m * focal_baseline(p) / REFERENCE_MM**2
         sigma = s * (1 + p.angle_noise_gain * theta**2 / np.maximum(math.pi / 2 - theta, 1e-3) ** 2)
     return SpherePixels(rows, cols, rays[rows, cols], mean, sigma)
 
 
-def _focal_baseline(p) -> float:
-    return p.width / 2 / math.tan(math.radians(p.fov_h_deg) / 2) * p.baseline_mm
+def _relative_light(cos: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Light the wall paint returns at incidence cosine ``cos`` and range ``t`` (mm), relative to the 90 % wall
+    at 2 m on the axis: (rho / 0.9) cos^m (2000 / t)^2."""
+    rho, m = WALL
+    return rho / 0.9 * cos**m * (REFERENCE_MM / t) ** 2
 
 
 def draw_points(model, pixels: SpherePixels, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -112,7 +112,7 @@ def draw_points(model, pixels: SpherePixels, valid: np.ndarray, rng: np.random.G
     if p.technology == "tof":
         z = (mean + sigma * noise) / np.linalg.norm(rays, axis=1)
     else:
-        fb = _focal_baseline(p)
+        fb = focal_baseline(p)
         disparity = fb / mean + sigma * noise
         if p.disparity_step_px > 0:
             disparity = np.round(disparity / p.disparity_step_px) * p.disparity_step_px
@@ -136,7 +136,7 @@ def sphere_fit(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
 def plate_model(model, distance_mm: float, tilt_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A flat plate ``distance_mm`` away on the axis, turned ``tilt_deg`` about the vertical, at every pixel (its
     extent aside): (H, W, 3) noise-free points, (H, W, 3) the direction one unit of noise moves a point, (H, W)
-    that noise: ToF eq. 2-9 along the unit ray with the light the plate returns; stereo z^2 / (f B) times the
+    that noise: ToF ``tof_sigma_mm`` along the unit ray with the light the plate returns; stereo z^2 / (f B) times the
     disparity noise with its angle term (and the disparity step's step^2 / 12) along (x/z, y/z, 1)."""
     p = model.profile()
     v, u = np.mgrid[0:p.height, 0:p.width].astype(float)
@@ -147,15 +147,12 @@ def plate_model(model, distance_mm: float, tilt_deg: float) -> tuple[np.ndarray,
     cos = np.abs(unit @ normal)
     t = distance_mm * normal[2] / cos
     if p.technology == "tof":
-        material = get_material(ARTEFACT_MATERIAL)
-        light = remission(ARTEFACT_MATERIAL, p.wavelength_nm) * cos**material.lambertian_exponent / (t / 1e3) ** 2
-        a_ref = reference_amplitude(p)
-        return unit * t[..., None], unit, range_noise_mm(p, a_ref * light / IRRADIANCE_REF, p.ambient_ratio * a_ref)
+        return unit * t[..., None], unit, tof_sigma_mm(p, _relative_light(cos, t))
     theta = np.arccos(cos)
-    s = p.noise_mm_at_2m * _focal_baseline(p) / REFERENCE_RANGE_MM**2
+    s = p.noise_mm_at_2m * focal_baseline(p) / REFERENCE_MM**2
     disparity = s * (1 + p.angle_noise_gain * theta**2 / (math.pi / 2 - theta) ** 2)
     z = t * unit[..., 2]
-    return unit * t[..., None], rays, z**2 / _focal_baseline(p) * np.sqrt(disparity**2 + p.disparity_step_px**2 / 12)
+    return unit * t[..., None], rays, z**2 / focal_baseline(p) * np.sqrt(disparity**2 + p.disparity_step_px**2 / 12)
 
 
 def plate_flatness(model, points: np.ndarray, along: np.ndarray, sigma: np.ndarray, rng: np.random.Generator) -> float:

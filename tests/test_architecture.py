@@ -178,6 +178,46 @@ def test_cycle_check_follows_lazy_and_from_imports_to_submodules(tmp_path: Path)
     assert import_cycles(import_graph(root)) == []
 
 
+#: the tests' own physics, the independent truth the simulator is checked against: none of it may come from the
+#: simulator (or from labctl, which uses it), directly or through another module of tests/
+INDEPENDENT_MODELS = ("tests/artefact_model.py", "tests/noise_model.py", "tests/reconcile/forward.py")
+
+
+def borrowed_packages(root: Path, module: str) -> set[str]:
+    """The top-level packages ``module`` (a path under ``root``) imports, following its imports of ``tests.*``."""
+    seen: set[Path] = set()
+    found: set[str] = set()
+    pending = [root / module]
+    while pending:
+        path = pending.pop()
+        if path in seen or not path.exists():
+            continue
+        seen.add(path)
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            for name in names:
+                found.add(name.split(".")[0])
+                if name.startswith("tests."):
+                    pending.append(root / (name.replace(".", "/") + ".py"))
+    return found
+
+
+@pytest.mark.parametrize("module", INDEPENDENT_MODELS)
+def test_the_tests_physics_owes_nothing_to_the_simulator(module: str) -> None:
+    assert borrowed_packages(ROOT, module) & {"sim", "labctl"} == set()
+
+
+def test_independence_check_follows_the_tests_own_imports(tmp_path: Path) -> None:
+    root = write_tree(tmp_path, {
+        "tests/model.py": "import math\nfrom tests.helper import law\n",
+        "tests/helper.py": "def law():\n    from sim.tof import range_noise_mm\n    return range_noise_mm\n",
+        "tests/clean.py": "import numpy as np\nfrom tests import other\n",
+    })
+    assert "sim" in borrowed_packages(root, "tests/model.py")
+    assert borrowed_packages(root, "tests/clean.py") == {"numpy", "tests"}
+
+
 #: modules that act on or fit effects through their declarations (sim/effects/<name>.py), never by name
 EFFECT_NEUTRAL = ("labctl/reconcile/candidates.py", "sim/tof.py", "sim/stereo.py")
 #: where no effect fact may be stated: the simulator outside its effect library, and reconcile

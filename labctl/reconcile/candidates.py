@@ -17,9 +17,9 @@ effect linear in one parameter; in the residual families the effect's
 declaration names, ``Observed.families``: an effect on the noise, such as
 ``ambient_light``, changes the predicted temporal noise and valid fraction,
 and is scored and fitted on those families like any other). Nonlinear parameters (a wiggling period, a
-drift time constant, a multipath extra path, a ``floor_multipath`` plane and
-its distance) are searched on a grid, the linear ones solved for at each grid
-point. A candidate with ``bind`` is built from the run itself (its signature
+disparity bias period, a drift time constant, a multipath extra path, a
+bouncing plane and its distance) are searched on a grid, the linear ones
+solved for at each grid point. A candidate with ``bind`` is built from the run itself (its signature
 depends on the run's residual: ``fixed_pattern``; or its form is chosen by
 it: the number of ``temperature_drift`` time constants).
 
@@ -187,6 +187,18 @@ def _linear(effect: Effect, columns: Callable[[Context, Any], list[Column]],
     )
 
 
+# several linear parameters: the fitted coefficients are the parameters (each within its bounds)
+def _linear_terms(effect: Effect, columns: Callable[[Context, Any], list[Column]]) -> Candidate:
+    keys = effect.observed.fitted
+    lo, hi = (np.array(v) for v in zip(*(bounds(effect, k) for k in keys)))
+    return Candidate(
+        effect.name, effect.technologies, len(keys), _none, columns,
+        lambda ctx, c, _: dict(zip(keys, map(float, c))) if np.all((lo <= c) & (c <= hi)) else None,
+        lambda p: (np.array([p[k] for k in keys]), (lo, hi)),
+        lambda x: dict(zip(keys, map(float, x))),
+    )
+
+
 # proportional_range: r' = r (1 + scale)  ->  dz = z per unit scale
 def _proportional_range(effect: Effect) -> Candidate:
     return _linear(effect, lambda ctx, _: [_depth(ctx, ctx.z_rows("z"))])
@@ -202,6 +214,19 @@ def _inverse_light_columns(ctx: Context, _: float | None) -> list[Column]:
 
 def _inverse_light(effect: Effect) -> Candidate:
     return _linear(effect, _inverse_light_columns)
+
+
+# log_light_polynomial: dr = sum_i c_i x^i, x = log10(A / A_ref) (light before vignetting), one coefficient per
+# fitted parameter (i = 1, 2, ...)
+def _log_light_polynomial(effect: Effect) -> Candidate:
+    def columns(ctx: Context, _: Any) -> list[Column]:
+        light = ctx.z_rows("light")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = np.where(light > 0, np.log10(light / reference_amplitude(ctx.model.profile())), 0.0)
+        ratio = ctx.z_rows("z_per_range")
+        return [_depth(ctx, x ** (i + 1) * ratio) for i in range(len(effect.observed.fitted))]
+
+    return _linear_terms(effect, columns)
 
 
 # log_cos_alpha: ln A' = ln A + exponent ln cos(alpha)
@@ -477,69 +502,105 @@ def _column_row_profile(effect: Effect) -> Candidate:
     )
 
 
-# plane_bounce: dr ~ q sin(k (R' - r) / 2) / k per unit reflectance (first order), the plane and its distance
-# from the optical axis searched on a grid. The plane is coded into the distance parameter of the refit
-# (PLANE_CODE_MM per plane), whose bounds keep the solver on the plane the grid found.
+# plane_bounce: dr ~ q sin(k (R' - r) / 2) / k per unit reflectance (first order); plane_phasor: dr ~ Im(m) / k per
+# unit of the linear parameter, m the bounce's phasor relative to the direct light (the effect's ``formula``).
+# The plane and its distance from the optical axis are searched on a grid. The plane is coded into the distance
+# parameter of the refit (PLANE_CODE_MM per plane), whose bounds keep the solver on the plane the grid found.
 PLANE_CODE_MM = 20000.0
 
 
-def _plane_bounce(effect: Effect) -> Candidate:
-    plane_key, distance_key, reflectance_key = effect.observed.fitted
+def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray, str, float], np.ndarray]) -> Candidate:
+    """The candidate of a bounce off a plane: ``first_order(ctx, points, plane, distance)`` is the range change per
+    unit of the linear parameter at the rows' points."""
+    plane_key, distance_key, linear_key = effect.observed.fitted
     planes = typing.get_args(effect.params.model_fields[plane_key].annotation)
-    bounce = effect.observed.formula
     d_lo, d_hi = bounds(effect, distance_key)
-    r_lo, r_hi = bounds(effect, reflectance_key)
+    r_lo, r_hi = bounds(effect, linear_key)
 
     def grid(_: Context) -> list[Any]:
         return [(plane, float(d)) for plane in planes for d in np.geomspace(100.0, 3000.0, 24)]
 
     def columns(ctx: Context, where: Any) -> list[Column]:
         plane, distance = where
-        k = _wavenumber(ctx)
-        x, y, z = ctx.points()
-        ratio, half_extra = bounce(x, y, z, plane, distance)
-        return [_depth(ctx, ratio * np.sin(k * half_extra) / k * ctx.z_rows("z_per_range"))]
+        return [_depth(ctx, first_order(ctx, ctx.points(), plane, distance) * ctx.z_rows("z_per_range"))]
 
     def to_params(ctx: Context, c: np.ndarray, where: Any) -> Parameters | None:
         plane, distance = where
-        return {plane_key: plane, distance_key: distance, reflectance_key: float(c[0])} \
+        return {plane_key: plane, distance_key: distance, linear_key: float(c[0])} \
             if r_lo < c[0] <= r_hi else None
 
     def vector(p: Parameters) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         code = planes.index(p[plane_key]) * PLANE_CODE_MM
-        return (np.array([p[reflectance_key], code + p[distance_key]]),
+        return (np.array([p[linear_key], code + p[distance_key]]),
                 (np.array([r_lo, code + d_lo]), np.array([r_hi, code + d_hi])))
 
     def from_vector(x: np.ndarray) -> Parameters:
         index = int(x[1] // PLANE_CODE_MM)
         return {plane_key: planes[index], distance_key: float(x[1] - index * PLANE_CODE_MM),
-                reflectance_key: float(x[0])}
+                linear_key: float(x[0])}
 
     return Candidate(effect.name, effect.technologies, 3, grid, columns, to_params, vector, from_vector)
 
 
-# periodic_disparity: dz = -z^2 / (f b) * (a sin(2 pi d) + b cos(2 pi d)), d = f b / z in the matcher's pixels
-def _periodic_disparity_columns(ctx: Context, _: Any) -> list[Column]:
+def _plane_bounce(effect: Effect) -> Candidate:
+    bounce = effect.observed.formula
+
+    def first_order(ctx: Context, points: np.ndarray, plane: str, distance: float) -> np.ndarray:
+        k = _wavenumber(ctx)
+        ratio, half_extra = bounce(*points, plane, distance)
+        return ratio * np.sin(k * half_extra) / k
+
+    return _plane_candidate(effect, first_order)
+
+
+def _plane_phasor(effect: Effect) -> Candidate:
+    phasor = effect.observed.formula
+
+    def first_order(ctx: Context, points: np.ndarray, plane: str, distance: float) -> np.ndarray:
+        sensor = ctx.make_predictor(ctx.model).sensor
+        return phasor(*points, plane, distance, sensor).imag / sensor.wavenumber
+
+    return _plane_candidate(effect, first_order)
+
+
+# periodic_disparity: dz = -z^2 / (f b) * (a sin(2 pi d / P) + b cos(2 pi d / P)), d = f b / z in the matcher's
+# pixels; the period P searched on a grid of octave fractions around the 1 px of sub-pixel interpolation
+DISPARITY_PERIODS_PX = tuple(float(2.0 ** (i / 4)) for i in range(-4, 9))  # 0.5 ... 4 px, 1 px among them
+
+
+def _disparity_rows(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
+    """(d, dz/dd) of every depth row: the disparity in the matcher's pixels and -z^2 / (f b)."""
     focal_baseline = ctx.make_predictor(ctx.model).sensor.matching_focal_baseline
     z = np.nan_to_num(ctx.z_rows("z"), nan=1.0)
-    d = focal_baseline / z
-    slope = -z * z / focal_baseline
-    return [_depth(ctx, slope * np.sin(2 * math.pi * d)), _depth(ctx, slope * np.cos(2 * math.pi * d))]
+    return focal_baseline / z, -z * z / focal_baseline
+
+
+def _periodic_disparity_columns(ctx: Context, period: Any) -> list[Column]:
+    d, slope = _disparity_rows(ctx)
+    phase = 2 * math.pi * d / float(period)
+    return [_depth(ctx, slope * np.sin(phase)), _depth(ctx, slope * np.cos(phase))]
 
 
 def _periodic_disparity(effect: Effect) -> Candidate:
-    keys = effect.observed.fitted  # amplitude, phase
-    (a_lo, a_hi), (f_lo, f_hi) = (bounds(effect, k) for k in keys)
+    keys = effect.observed.fitted  # amplitude, period, phase
+    (a_lo, a_hi), (p_lo, p_hi), (f_lo, f_hi) = (bounds(effect, k) for k in keys)
 
-    def to_params(ctx: Context, c: np.ndarray, _: Any) -> Parameters | None:
+    def to_params(ctx: Context, c: np.ndarray, period: Any) -> Parameters | None:
         amplitude = float(np.hypot(c[0], c[1]))
-        return {keys[0]: amplitude, keys[1]: float(math.atan2(c[1], c[0]))} if amplitude <= a_hi else None
+        return {keys[0]: amplitude, keys[1]: float(period), keys[2]: float(math.atan2(c[1], c[0]))} \
+            if amplitude <= a_hi else None
 
     return Candidate(
-        effect.name, effect.technologies, 2, _none, _periodic_disparity_columns, to_params,
-        lambda p: (np.array([p[k] for k in keys]), (np.array([a_lo, f_lo]), np.array([a_hi, f_hi]))),
-        lambda x: {keys[0]: float(x[0]), keys[1]: _wrap(x[1])},
+        effect.name, effect.technologies, 3, lambda _: list(DISPARITY_PERIODS_PX), _periodic_disparity_columns,
+        to_params,
+        lambda p: (np.array([p[k] for k in keys]), (np.array([a_lo, p_lo, f_lo]), np.array([a_hi, p_hi, f_hi]))),
+        lambda x: {keys[0]: float(x[0]), keys[1]: float(x[1]), keys[2]: _wrap(x[2])},
     )
+
+
+# disparity_offset: z' = f b / (d + delta) -> dz = -z^2 / (f b) per px of delta
+def _disparity_offset(effect: Effect) -> Candidate:
+    return _linear(effect, lambda ctx, _: [_depth(ctx, _disparity_rows(ctx)[1])])
 
 
 #: the signature forms an effect can declare (``Observed.signature``)
@@ -552,7 +613,10 @@ FORMS: dict[str, Callable[[Effect], Candidate]] = {
     "mean_phasor": _mean_phasor,
     "column_row_profile": _column_row_profile,
     "plane_bounce": _plane_bounce,
+    "plane_phasor": _plane_phasor,
     "periodic_disparity": _periodic_disparity,
+    "disparity_offset": _disparity_offset,
+    "log_light_polynomial": _log_light_polynomial,
     "resimulated": _resimulated,
 }
 

@@ -4,7 +4,8 @@ d' = d + a sin(2 pi d / P + phi),   z' = f b / d',   d = f b / z
 
 with d the true disparity in pixels of the camera's own sensor, f its focal
 length (px), b the baseline (mm), P the period in pixels (1 for the sub-pixel
-interpolation of a correlation peak). Area-based matching finds the
+interpolation of a correlation peak; other periods where the matcher works on
+a finer or coarser disparity grid, so reconcile fits it). Area-based matching finds the
 correlation peak at integer disparities and interpolates the sub-pixel part
 (parabola or equiangular line fit); the interpolated position is pulled
 towards integer values, a bias that repeats every pixel of disparity and
@@ -47,7 +48,7 @@ EFFECT = Effect(
     ("stereo",),
     Params,
     "Shimizu & Okutomi 2001; Szeliski & Scharstein 2004",
-    observed=Observed("periodic_disparity", fitted=("amplitude_px", "phase_rad"),
+    observed=Observed("periodic_disparity", fitted=("amplitude_px", "period_px", "phase_rad"),
                       solver_bounds={"phase_rad": (-4 * math.pi, 4 * math.pi)}),
     order=15,
     on_range=lambda values, p, at: apply(values, at.sensor.matching_focal_baseline, p),

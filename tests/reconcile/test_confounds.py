@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from labctl.reconcile.workflow import reconcile
-from tests.reconcile.forward import BACKENDS, CAMPAIGN, rewrite_run, simulated_run
+from tests.reconcile.forward import rewrite_run
+from tests.reconcile.runs import BACKENDS, CAMPAIGN, simulated_run
 
 RETURN = "return_mm = 2000\n"  # a key of the template's depth sweep: back to 2000 mm after 4000 mm
 D455_BASELINE_MM = 95.0

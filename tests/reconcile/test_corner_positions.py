@@ -17,15 +17,8 @@ from __future__ import annotations
 import pytest
 
 from labctl.reconcile.workflow import reconcile
-from tests.reconcile.forward import (
-    CAMPAIGN,
-    brown_source,
-    decentering_source,
-    focal_source,
-    reconcile_cli,
-    simulated_run,
-    warp_run,
-)
+from tests.reconcile.forward import brown_source, decentering_source, focal_source, warp_run
+from tests.reconcile.runs import CAMPAIGN, reconcile_cli, simulated_run
 
 BOARD = ('[campaign]\nname = "board"\n[devices.camera]\nbackend = "blaze"\n[devices.stage]\nprotocol = "zaber"\n'
          'port = "/dev/ttyUSB0"\ntravel_mm = [0, 4000]\nspeed_mm_s = 50\n'

@@ -14,15 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from tests.reconcile.forward import (
-    correlate_noise,
-    correlated_field,
-    reconcile_cli,
-    rewrite_noise,
-    rewrite_run,
-    scale_noise,
-    simulated_run,
-)
+from tests.reconcile.forward import correlate_noise, correlated_field, rewrite_noise, rewrite_run, scale_noise
+from tests.reconcile.runs import reconcile_cli, simulated_run
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,8 @@ import math
 import h5py
 import numpy as np
 
-from tests.reconcile.forward import rewrite_run, simulated_run
+from tests.reconcile.forward import rewrite_run
+from tests.reconcile.runs import simulated_run
 
 
 def test_rewrite_moves_every_valid_point_along_its_ray(tmp_path):

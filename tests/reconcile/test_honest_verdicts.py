@@ -21,7 +21,8 @@ from labctl.cli import main
 from labctl.reconcile.goodness import Goodness, StepFit
 from labctl.reconcile.workflow import material, reconcile
 from sim.model import parse_model
-from tests.reconcile.forward import BACKENDS, reconcile_cli, rewrite_run, simulated_run
+from tests.reconcile.forward import rewrite_run
+from tests.reconcile.runs import BACKENDS, reconcile_cli, simulated_run
 
 
 def _bump(px):

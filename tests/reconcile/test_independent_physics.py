@@ -8,14 +8,20 @@ effect would have measured them:
 * 4-tap demodulation of a correlation function with odd harmonics (square-wave
   modulation through a finite bandwidth) -> ``wiggling`` with the period
   c / (8 f_mod) the 4-tap sampling aliases the harmonics to;
-* a warm-up with two thermal time constants, over a sweep spread in time ->
-  ``temperature_drift`` with both;
+* a warm-up of a two-node thermal network (die and housing, two coupled
+  first-order equations integrated numerically), over a sweep spread in time ->
+  ``temperature_drift`` with two time constants;
 * a specular floor below the camera: the bounce camera -> floor -> target,
   its reflection point found by Fermat's principle, as a second return whose
   phasor adds to the direct one -> ``floor_multipath`` on the floor;
 * column stripes plus row stripes of range offset -> ``fixed_pattern``;
-* pixel locking of the stereo matcher, a disparity bias periodic in the
-  disparity (1 px period) -> ``disparity_bias``.
+* pixel locking of the stereo matcher: the matching cost of a texture sampled
+  at whole disparities and a parabola fitted through its minimum ->
+  ``disparity_bias`` with a 1 px period;
+* a pixel whose charge transfer lags more as its gate fills (a saturating
+  first-order lag, demodulated numerically) -> ``log_amplitude_error``;
+* a matte floor below the camera, its bounce summed over floor patches ->
+  ``diffuse_floor_multipath`` on the floor.
 
 Asserted: the effect is named and the gap at least halves.
 """
@@ -27,11 +33,13 @@ import math
 import h5py
 import numpy as np
 import pytest
+from scipy import integrate
 
 from labctl.cli import main
 from labctl.reconcile.workflow import reconcile
 from sim.profiles import get_profile
-from tests.reconcile.forward import CAMPAIGN, Pixels, rewrite_run, simulated_run, stretch_time
+from tests.reconcile.forward import Pixels, rewrite_run, stretch_time
+from tests.reconcile.runs import CAMPAIGN, simulated_run
 
 C_MM_PER_S = 299_792_458_000.0
 
@@ -79,12 +87,28 @@ def test_four_tap_harmonic_correlation_is_wiggling(plain, tmp_path):
     _halved(result)
 
 
-def test_two_time_constant_warm_up_is_temperature_drift(plain, tmp_path):
-    def warm_up(t):  # the die (8 min) and, pulling the other way, the housing and lens mount (50 min)
-        return 5.0 * np.exp(-t / 500.0) - 3.0 * np.exp(-t / 3000.0)
+def two_node_warm_up(times_s: np.ndarray) -> np.ndarray:
+    """Range error (mm) of a camera warming up, from a two-node thermal network: the die (heat capacity 2 J/K)
+    dissipates 0.05 W into the housing through 200 K/W, the housing (60 J/K) into the room through 40 K/W, both
+    at room temperature at power-on. C_1 T_1' = P - (T_1 - T_2) / R_12, C_2 T_2' = (T_1 - T_2) / R_12 - T_2 / R_2a,
+    integrated numerically (temperatures above the room's). The range error is -0.5 mm/K of die temperature
+    (the driver's delay) and +2 mm/K of housing temperature (the lens mount), taken from the steady state."""
+    c1, c2, r12, r2a, power = 2.0, 60.0, 200.0, 40.0, 0.05
 
+    def rates(_: float, t: np.ndarray) -> list[float]:
+        flow = (t[0] - t[1]) / r12
+        return [(power - flow) / c1, (flow - t[1] / r2a) / c2]
+
+    end = float(np.max(times_s))
+    solution = integrate.solve_ivp(rates, (0.0, end), [0.0, 0.0], dense_output=True, rtol=1e-9, atol=1e-12)
+    steady = np.array([power * (r12 + r2a), power * r2a])
+    die, housing = solution.sol(np.clip(times_s, 0.0, end))
+    return -0.5 * (die - steady[0]) + 2.0 * (housing - steady[1])
+
+
+def test_two_node_thermal_warm_up_is_temperature_drift(plain, tmp_path):
     slow = stretch_time(plain("blaze101"), tmp_path / "slow.h5", 10.0)  # the sweep spread over 32 min
-    result, names = _reconciled(slow, tmp_path, lambda px: warm_up(px.time_s))
+    result, names = _reconciled(slow, tmp_path, lambda px: two_node_warm_up(np.array([px.time_s]))[0])
     assert names[0] == "temperature_drift", names
     _halved(result)
     fitted = result.named[0].parameters
@@ -93,7 +117,7 @@ def test_two_time_constant_warm_up_is_temperature_drift(plain, tmp_path):
     times = np.concatenate([o.times_s for o in result.observations if o.scene.procedure == "depth_sweep"])
     model = fitted["delta_mm"] * np.exp(-times / fitted["tau_s"]) + sum(
         term["delta_mm"] * np.exp(-times / term["tau_s"]) for term in fitted["terms"])
-    difference = model - warm_up(times)
+    difference = model - two_node_warm_up(times)
     assert np.ptp(difference) <= 0.3, np.ptp(difference)
 
 
@@ -154,16 +178,114 @@ def test_column_and_row_stripes_are_fixed_pattern(plain, tmp_path):
             assert np.std(left - right) <= 0.25 * np.std(true_columns), (np.std(left - right), np.std(true_columns))
 
 
-def test_pixel_locking_is_disparity_bias(plain, tmp_path):
+TEXTURE_CORRELATION_PX = 0.8  # the projected pattern's autocorrelation width, px
+
+
+def matched_disparity(d: np.ndarray) -> np.ndarray:
+    """The disparity a block matcher reports for true disparities ``d`` (px): the SSD cost of a texture with
+    Gaussian autocorrelation exp(-s^2 / (4 w^2)) is 1 - exp(-(k - d)^2 / (4 w^2)) at the integer candidates k;
+    the sub-pixel position is the vertex of the parabola through the best k and its two neighbours."""
+    best = np.round(d)
+    cost = [1.0 - np.exp(-((best + i) - d) ** 2 / (4 * TEXTURE_CORRELATION_PX**2)) for i in (-1, 0, 1)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return best + (cost[0] - cost[2]) / (2 * (cost[0] - 2 * cost[1] + cost[2]))
+
+
+def test_pixel_locking_of_a_parabola_fit_is_disparity_bias(plain, tmp_path):
     baseline = get_profile("d455").baseline_mm
-    amplitude_px = 0.03
 
     def error(px: Pixels):
         d = px.disparity_px(baseline)
-        z_biased = px.focal_px * baseline / (d + amplitude_px * np.sin(2 * math.pi * d))
+        z_biased = px.focal_px * baseline / matched_disparity(d)
         return (z_biased - px.z_mm) * px.range_mm / px.z_mm
 
     result, names = _reconciled(plain("d455"), tmp_path, error)
     assert names[0] == "disparity_bias", names
-    assert abs(result.named[0].parameters["amplitude_px"] - amplitude_px) <= 0.2 * amplitude_px
+    # the bias's fundamental: 2 <(matched - d) sin(2 pi d)> over a period (its phase is pi: the fit pulls towards
+    # whole pixels); the parabola's bias has a weaker second harmonic besides
+    d = np.linspace(5.0, 6.0, 2000, endpoint=False)
+    fundamental = abs(2 * np.mean((matched_disparity(d) - d) * np.sin(2 * math.pi * d)))
+    fitted = result.named[0].parameters
+    assert abs(fitted["amplitude_px"] - fundamental) <= 0.2 * fundamental, (fitted, fundamental)
+    assert abs(fitted["period_px"] - 1.0) <= 0.05, fitted
+    _halved(result)
+
+
+def pixel_delay_mm(amplitude: np.ndarray, saturation: float, f_mod: float) -> np.ndarray:
+    """Range error (mm) of a pixel whose photo-charge reaches its storage gate through a first-order lag whose
+    time constant grows as the gate fills: tau = 100 ps + 30 ps A / (A + A_sat). The lag's output for the
+    modulated light is integrated numerically over one modulation period against the four square demodulation
+    gates (tabulated over tau, interpolated per pixel); the error is the phase of the taps over the phase per mm
+    of range, less that of the zero-signal pixel."""
+    period = 1.0 / f_mod
+    t = (np.arange(256) + 0.5) / 256 * period
+    taus = np.linspace(100e-12, 130e-12, 61)
+    history = np.arange(0.0, 20 * 130e-12, period / 256)  # the impulse response's reach
+    phases = []
+    for tau in taus:
+        response = np.exp(-history / tau)
+        response /= response.sum()
+        lagged = np.array([np.sum((1 + np.cos(2 * math.pi * f_mod * (ti - history))) * response) for ti in t])
+        taps = [np.sum(lagged * (np.cos(2 * math.pi * f_mod * t - i * math.pi / 2) > 0)) for i in range(4)]
+        phases.append(math.atan2(taps[1] - taps[3], taps[0] - taps[2]))
+    per_mm = 4 * math.pi * f_mod / C_MM_PER_S
+    delay = (np.array(phases) - phases[0]) / per_mm
+    tau = 100e-12 + 30e-12 * amplitude / (amplitude + saturation)
+    return np.interp(tau, taus, delay)
+
+
+def test_a_saturating_pixel_delay_is_log_amplitude_error(plain, tmp_path):
+    run = plain("blaze101")
+    f_mod = get_profile("blaze101").modulation_mhz * 1e6
+    with h5py.File(run, "r") as f:
+        at_2m = float(np.median(f["steps"]["00000_offset_calibration"]["intensity"][:]))
+
+    result, names = _reconciled(run, tmp_path, lambda px: pixel_delay_mm(px.intensity, at_2m, f_mod))
+    assert names[0] == "log_amplitude_error", names
+    _halved(result)
+
+
+def lambertian_floor_error(px: Pixels, floor_mm: float, albedo: float, f_mod: float, patches: int = 48):
+    """Range error (mm) of every pixel from a matte floor ``floor_mm`` below the optical axis: the floor inside
+    the emitter's cone (the camera's field of view) cut into ``patches`` x ``patches`` patches between the
+    cone's reach and the target's depth; each patch F gets the emitter's irradiance cos / |CF|^2 and re-emits
+    albedo / pi of it as radiance; the target point P (facing the camera) receives that with the cosines at F
+    and at P over |FP|^2, against its direct irradiance cos / r^2; each patch's light returns with the phase
+    of its path |CF| + |FP| + r, the direct light with 2 r, and the pixel measures the phase of the sum."""
+    k = 4 * math.pi * f_mod / C_MM_PER_S
+    tan_h, tan_v = (math.tan(math.radians(a) / 2) for a in px.fov_deg)
+    x, y, z = (np.nan_to_num(a) for a in (px.x_mm, px.y_mm, px.z_mm))
+    r = np.sqrt(x * x + y * y + z * z)
+    height = floor_mm - y
+    near = floor_mm / tan_v
+    seen = (height > 0) & (z > near)
+    total = np.zeros(z.shape, complex)
+    for i in range(patches):
+        depth = near + (z - near) * (i + 0.5) / patches  # patch centres between the cone's reach and P
+        d_depth = (z - near) / patches
+        for j in range(patches):
+            side = depth * tan_h * (2 * (j + 0.5) / patches - 1)
+            d_side = 2 * depth * tan_h / patches
+            cf = np.sqrt(floor_mm**2 + side**2 + depth**2)
+            fp = np.sqrt(height**2 + (side - x) ** 2 + (z - depth) ** 2)
+            irradiance = floor_mm / cf**3  # cos = floor_mm / |CF| over |CF|^2
+            received = albedo / math.pi * irradiance * (height / fp) * ((z - depth) / fp) / fp**2
+            total += received * d_depth * d_side * np.exp(1j * k * (cf + fp - r) / 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        relative = np.where(seen, total / (z / r**3), 0.0)
+    return np.angle(1 + relative) / k
+
+
+def test_a_lambertian_floor_summed_over_patches_is_diffuse_floor_multipath(plain, tmp_path):
+    f_mod = get_profile("blaze101").modulation_mhz * 1e6
+    first_frame: dict[str, np.ndarray] = {}
+
+    def error(px: Pixels):
+        if px.frame == 0:  # one patch sum per step: the bounce hardly changes with a frame's noise
+            first_frame["error"] = lambertian_floor_error(px, 350.0, 0.5, f_mod)
+        return first_frame["error"]
+
+    result, names = _reconciled(plain("blaze101"), tmp_path, error)
+    assert names[0] == "diffuse_floor_multipath", names
+    assert result.named[0].parameters["plane"] == "floor"
     _halved(result)

@@ -24,7 +24,7 @@ from sim.model import default_model_text, parse_model
 from sim.scenes.targets import build_scene
 from sim.stereo import StereoSensor
 from sim.tof import ToFSensor
-from tests.reconcile.forward import simulated_run
+from tests.reconcile.runs import simulated_run
 
 
 class BowParams(EffectParams):

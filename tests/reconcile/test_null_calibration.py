@@ -30,7 +30,7 @@ from labctl.reconcile.null import (
     step_statistics,
 )
 from labctl.reconcile.workflow import json_document, reconcile
-from tests.reconcile.forward import CAMPAIGN, ROBOT, reconcile_cli, simulated_run
+from tests.reconcile.runs import CAMPAIGN, ROBOT, reconcile_cli, simulated_run
 
 WIGGLING = {"wiggling": {"amplitude_mm": 0.25, "period_mm": 1500.0, "phase_rad": 0.5}}
 

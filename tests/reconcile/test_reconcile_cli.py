@@ -27,7 +27,7 @@ from labctl.reconcile.score import delta_bic, loso_gain
 from labctl.reconcile.workflow import reconcile
 from sim.model import parse_model
 from sim.profiles import get_profile
-from tests.reconcile.forward import SIZES, simulated_run
+from tests.reconcile.runs import SIZES, simulated_run
 
 
 def measured_run(directory: Path, camera: str, hidden: dict, seed: int = 3) -> Path:

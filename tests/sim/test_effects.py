@@ -43,7 +43,8 @@ def test_vocabulary_is_the_contract():
         "range_offset", "range_scale", "wiggling", "temperature_drift", "intensity_related_error", "vignetting",
         "radial_distortion", "fov_error", "defocus", "quantization", "flying_pixels", "multipath",
         "material_bias", "target_misalignment", "camera_axis_offset", "fixed_pattern", "floor_multipath",
-        "disparity_bias", "empirical_range", "empirical_pixel_map", "ambient_light",
+        "disparity_bias", "empirical_range", "empirical_pixel_map", "ambient_light", "log_amplitude_error",
+        "stereo_calibration_drift", "diffuse_floor_multipath",
     }
 
 
@@ -160,6 +161,58 @@ def test_intensity_related_error_grows_as_light_falls():
     expected = 2.0 * on.a_ref / p_off.amplitude
     np.testing.assert_allclose(p_on.range_mm - p_off.range_mm, expected, rtol=1e-3, atol=1e-3)
     assert expected.min() > 2.0 * (3000 / 2000) ** 2 * 0.99  # less light than the 2 m reference
+
+
+def test_log_amplitude_error_is_a_curve_over_the_decades_of_light():
+    on = make(effects="[effects.log_amplitude_error]\nper_decade_mm = -1.5\nper_decade_squared_mm = 0.8\n"
+                      "table_log10_ratio = [-1.0, 0.0]\ntable_error_mm = [2.0, 0.0]\n")
+    p_on, p_off = prep(on, distance=3000.0), prep(make(), distance=3000.0)
+    centre = (slice(59, 61), slice(79, 81))
+    # the 90 % wall at 3 m on the axis returns (2 / 3)^2 of the reference light: x = 2 log10(2 / 3) = -0.3522
+    x = 2 * math.log10(2 / 3)
+    expected = -1.5 * x + 0.8 * x * x + 2.0 * -x  # the table: 2 mm at x = -1, 0 at x = 0, linear between: 1.332 mm
+    np.testing.assert_allclose(p_on.range_mm[centre] - p_off.range_mm[centre], expected, atol=0.01)
+    with pytest.raises(ValueError, match="same length"):
+        parse_model('camera = "blaze101"\n[effects.log_amplitude_error]\ntable_log10_ratio = [0.0]\n')
+
+
+def test_stereo_calibration_drift_offsets_the_disparity_and_scales_the_depth():
+    drift = make("d455", effects="[effects.stereo_calibration_drift]\ndisparity_offset_px = 0.2\n"
+                                 "baseline_error = 0.01\n")
+    plain = make("d455")
+    fb = drift.focal_baseline
+    centre = (slice(58, 62), slice(78, 82))
+    for z in (1000.0, 2000.0, 4000.0):
+        on, off = prep(drift, distance=z), prep(plain, distance=z)
+        # z' = f b 1.01 / (f b / z + 0.2): the stored disparity f b / z' is (f b / z + 0.2) / 1.01
+        np.testing.assert_allclose(on.disparity[centre], (fb / z + 0.2) / 1.01, rtol=1e-4)
+        np.testing.assert_allclose(off.disparity[centre], fb / z, rtol=1e-4)
+
+
+def test_diffuse_floor_multipath_is_the_bounce_summed_over_floor_patches():
+    on = make(effects='[effects.diffuse_floor_multipath]\nplane = "floor"\ndistance_mm = 300\nalbedo = 0.5\n')
+    p_on, p_off = prep(on, distance=2000.0), prep(make(), distance=2000.0)
+    k, fov_h, fov_v = on.wavenumber, math.radians(on.profile.fov_h_deg), math.radians(on.profile.fov_v_deg)
+    rays = on.geometry.optics.directions(*on.geometry.optics.pixel_grid())
+    for row, col in ((60, 80), (75, 40), (30, 150)):  # points above the floor (y < 300 mm)
+        x, y, z = rays[:, row, col] * float(p_off.range_mm[row, col])
+        r, h = math.sqrt(x * x + y * y + z * z), 300.0 - y
+        # midpoint sum over 1200 x 1200 patches of the floor lit by the emitter (depth w from 300 / tan(fov_v / 2)
+        # to the target, width +-w tan(fov_h / 2)): irradiance 300 / |CF|^3, radiance 0.5 E / pi, cosines
+        # h / |FP| at the patch and (z - w) / |FP| at the target, against the direct z / r^3
+        edges = np.linspace(300.0 / math.tan(fov_v / 2), z, 1201)
+        w = (edges[1:] + edges[:-1]) / 2
+        u = (np.arange(1200) + 0.5) / 1200 * 2 - 1
+        b = np.outer(w * math.tan(fov_h / 2), u)
+        area = (edges[1] - edges[0]) * (2 * w * math.tan(fov_h / 2) / 1200)
+        cf = np.sqrt(300.0**2 + b**2 + w[:, None] ** 2)
+        fp = np.sqrt(h**2 + (b - x) ** 2 + (z - w[:, None]) ** 2)
+        light = 0.5 / math.pi * 300.0 / cf**3 * h * (z - w[:, None]) / fp**4 * area[:, None]
+        m = np.sum(light * np.exp(1j * k * (cf + fp - r) / 2)) / (z / r**3)
+        assert p_on.range_mm[row, col] - p_off.range_mm[row, col] == pytest.approx(np.angle(1 + m) / k, abs=0.02)
+    assert np.nanmax(np.abs(p_on.range_mm - p_off.range_mm)) > 1.0
+    beyond = (rays[1] * p_off.range_mm) >= 300.0  # the wall below the floor's height gets no bounce
+    assert beyond.any() and np.all(p_on.range_mm[beyond] == p_off.range_mm[beyond])
 
 
 def test_vignetting_multiplies_amplitude_by_cos_power():
@@ -336,6 +389,17 @@ def test_ambient_light_adds_shot_noise_and_lowers_the_stereo_contrast():
     np.testing.assert_allclose((d.sigma_disp / c.sigma_disp)[inner], (1 + level * 2000.0 / window_mean)[inner],
                                rtol=1e-3)
     assert d.valid.sum() < 0.5 * c.valid.sum()
+
+
+def test_disparity_bias_period_is_a_parameter():
+    biased = make("d455", effects="[effects.disparity_bias]\namplitude_px = 0.1\nperiod_px = 2.0\n")
+    plain = make("d455")
+    fb = biased.focal_baseline
+    for disparity, bias in ((4.0, 0.0), (4.5, 0.1), (5.0, 0.0), (5.5, -0.1)):  # sin(2 pi d / 2)
+        z = fb / disparity
+        on, off = prep(biased, distance=z), prep(plain, distance=z)
+        centre = (slice(58, 62), slice(78, 82))
+        np.testing.assert_allclose(on.disparity[centre] - off.disparity[centre], bias, atol=2e-3)
 
 
 def test_projector_off_fails_on_textureless_wall():

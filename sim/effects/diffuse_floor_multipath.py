@@ -1,0 +1,103 @@
+"""diffuse_floor_multipath: a matte second surface (floor, ceiling or side wall) adds a diffuse bounce (CW-ToF).
+
+A plane parallel to the optical axis at ``distance_mm`` D from it (the planes
+of ``floor_multipath``) is a Lambertian reflector of ``albedo`` rho. The
+camera's emitter (taken as uniform over the camera's field of view) lights
+the part of the plane inside its cone; every lit patch F re-emits with radiance
+rho E_F / pi towards the target point P a pixel sees, and that light returns
+along P -> camera like the direct light. With the target facing the camera
+(normal along the optical axis) and h = D - (P's coordinate towards the plane)
+the height of P above the plane, the pixel's phasor is the direct one times
+
+    1 + m,   m = rho / pi  r^3 / z  Int  D h (z - w) / (|CF|^3 |FP|^4)
+                 exp(j k (|CF| + |FP| - r) / 2) dA,
+
+integrated over the lit patches F (depth w < z, inside the emitter's cone),
+with r = |CP|, k = 4 pi f_mod / c: D / |CF|^3 is the emitter's irradiance of
+the patch (per unit of the emitter's intensity), h / |FP| and (z - w) / |FP|
+the cosines at F and at P, and z / r^3 the direct irradiance of P. The
+measured range is r + arg(1 + m) / k; points beyond the plane get no bounce.
+The integral is a product Gauss-Legendre rule (``NODES`` x 2 ``NODES`` / 2
+nodes) in coordinates that crowd the nodes towards P's foot on the plane,
+where the kernel peaks. Source: Fuchs 2010 and Jimenez et al. 2014 (diffuse
+multipath as the sum over Lambertian scene patches of the light they
+re-emit); the radiometry of a Lambertian reflector (radiance rho E / pi).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field
+
+from sim.effects.base import Effect, EffectParams, Observed, RangeStage
+from sim.effects.floor_multipath import PLANES
+
+NODES = 16  # Gauss-Legendre nodes across the depth of the lit patches (and as many across their width)
+_S, _WS = np.polynomial.legendre.leggauss(NODES)
+_S, _WS = (_S + 1.0) / 2.0, _WS / 2.0  # on [0, 1]
+_T, _WT = np.polynomial.legendre.leggauss(NODES // 2)
+_T, _WT = (_T + 1.0) / 2.0, _WT / 2.0
+
+
+class Params(EffectParams):
+    plane: Literal["floor", "ceiling", "left", "right"] = "floor"
+    distance_mm: float = Field(300.0, gt=0.0, le=10000.0, description="plane's distance from the optical axis, mm")
+    albedo: float = Field(0.3, ge=0.0, le=1.0, description="Lambertian albedo of the plane")
+
+
+def bounce_phasor(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: str, distance_mm: float,
+                  sensor: Any) -> np.ndarray:
+    """m / rho of the points (x, y, z) (camera frame, mm): the diffuse bounce's phasor relative to the direct
+    light per unit albedo (0 where the point lies beyond the plane or before its lit part). ``sensor`` gives
+    the field of view (``profile``) and the phase per mm of range (``wavenumber``)."""
+    axis, side = PLANES[plane]
+    p = sensor.profile
+    across, lateral = (p.fov_h_deg, p.fov_v_deg) if axis == 0 else (p.fov_v_deg, p.fov_h_deg)
+    d = float(distance_mm)
+    w0 = d / math.tan(math.radians(across) / 2)  # the depth where the emitter's cone reaches the plane
+    tan_lateral = math.tan(math.radians(lateral) / 2)
+    x, y, z = (np.nan_to_num(np.asarray(v, float)) for v in (x, y, z))
+    h = d - side * (x, y)[axis]
+    b = y if axis == 0 else x
+    r = np.sqrt(x * x + y * y + z * z)
+    seen = (h > 0) & (z > w0)
+    depth = np.where(seen, z - w0, 0.0)
+    k = sensor.wavenumber
+    total = np.zeros(np.shape(z), complex)
+    for s, ws in zip(_S, _WS):
+        gap = depth * s * s  # z - w, crowded towards P's foot
+        w = z - gap
+        half = w * tan_lateral
+        c = np.clip(b, -half, half)
+        for sign, length in ((-1.0, c + half), (1.0, half - c)):
+            for t, wt in zip(_T, _WT):
+                beta = c + sign * length * t * t
+                cf = np.sqrt(d * d + beta * beta + w * w)
+                fp2 = h * h + (beta - b) ** 2 + gap * gap
+                kernel = d * h * gap / (cf**3 * fp2 * fp2) * np.exp(0.5j * k * (cf + np.sqrt(fp2) - r))
+                total += kernel * (ws * 2.0 * depth * s) * (wt * 2.0 * length * t)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(seen, total * r**3 / (math.pi * np.where(seen, z, 1.0)), 0.0)
+
+
+def acting_on_range(range_mm: np.ndarray, p: Params, at: RangeStage) -> np.ndarray:
+    """``range_mm`` plus the bounce's error at the points it puts along the sensor's true rays."""
+    optics, k = at.sensor.geometry.optics, at.sensor.wavenumber
+    x, y, z = optics.directions(*optics.pixel_grid()) * range_mm
+    m = p.albedo * bounce_phasor(x, y, z, p.plane, p.distance_mm, at.sensor)
+    return range_mm + np.angle(1.0 + m) / k
+
+
+EFFECT = Effect(
+    "diffuse_floor_multipath",
+    ("tof",),
+    Params,
+    "Fuchs 2010; Jimenez et al. 2014 (Lambertian patches' re-emitted light)",
+    observed=Observed("plane_phasor", fitted=("plane", "distance_mm", "albedo"),
+                      solver_bounds={"distance_mm": (1.0, 10000.0)}, formula=bounce_phasor),
+    order=11,
+    on_range=acting_on_range,
+)
