@@ -384,8 +384,8 @@ EFFECT_TREE = {
 @pytest.mark.parametrize("violation, found", [
     ('ACTS = {"range_scale": 1}\n', "effect name 'range_scale'"),
     ('def period(p):\n    return p.get("tau_s", 600.0)\n', "parameter name 'tau_s'"),
-    ("LIMITS = (np.array([-0.1]), np.array([0.1]))\n", "bounds (-0.1, 0.1) of range_scale.scale"),
-    ("def ok(v):\n    return -0.1 <= v <= 0.1\n", "bounds (-0.1, 0.1) of range_scale.scale"),
+    ("LIMITS = (np.array([-0.1]), np.array([0.1]))\n", "bounds (-0.1, 0.1) of {owner}"),
+    ("def ok(v):\n    return -0.1 <= v <= 0.1\n", "bounds (-0.1, 0.1) of {owner}"),
 ])
 @pytest.mark.parametrize("module", ["sim/bad.py", "labctl/reconcile/bad.py"])
 def test_fact_check_finds_an_effect_fact_stated_outside_its_module(tmp_path: Path, module: str, violation: str,
@@ -394,4 +394,5 @@ def test_fact_check_finds_an_effect_fact_stated_outside_its_module(tmp_path: Pat
     check = (effect_names(), fitted_names(), declared_bounds())
     assert stated_effect_facts(root, *check) == []
     write_tree(root, {module: violation})
-    assert stated_effect_facts(root, *check) == [f"{module}: {found}"]
+    owner = check[2].get((-0.1, 0.1), "")  # range_scale.scale, or another effect's parameter with the same bounds
+    assert stated_effect_facts(root, *check) == [f"{module}: {found.format(owner=owner)}"]

@@ -32,20 +32,20 @@ def _run():
 
 
 def _axes(found):
-    return {a["axis"]: a for a in found["axes"]}
+    return {a.axis: a for a in found.axes}
 
 
 def test_a_residual_constant_in_exposure_is_carried_by_the_exposure():
     observations, predictions = _run()
     maps = [np.full(SHAPE, 0.5 if e == 400.0 else 0.0) for e in EXPOSURES]
     found = characterize(observations, predictions, maps, 0.0)
-    assert found["carrying_axis"] == "exposure"
+    assert found.carrying_axis == "exposure"
     exposure = _axes(found)["exposure"]
-    assert exposure["unit"] == "us"
-    assert exposure["eta2"] == pytest.approx(1.0, abs=1e-6)
-    assert exposure["effect_mm"] == pytest.approx(0.5, abs=1e-6)
-    assert _axes(found)["distance"]["eta2"] == pytest.approx(0.0, abs=1e-6)  # both exposures at every distance
-    assert _axes(found)["time"]["eta2"] < 1.0
+    assert exposure.unit == "us"
+    assert exposure.eta2 == pytest.approx(1.0, abs=1e-6)
+    assert exposure.effect_mm == pytest.approx(0.5, abs=1e-6)
+    assert _axes(found)["distance"].eta2 == pytest.approx(0.0, abs=1e-6)  # both exposures at every distance
+    assert _axes(found)["time"].eta2 < 1.0
 
 
 def test_the_disparity_axis_is_the_inverse_depth():
@@ -54,11 +54,11 @@ def test_the_disparity_axis_is_the_inverse_depth():
     maps = [np.full(SHAPE, c / d) for d in DISTANCES]
     found = characterize(observations, predictions, maps, 0.0)
     disparity = _axes(found)["disparity"]
-    assert disparity["unit"] == "1/m"
+    assert disparity.unit == "1/m"
     # 24 groups of equal width in 1/z: the far positions, close in disparity, share groups, so the group means
     # follow the line to within the spread of a group and carry nearly all of it
-    assert disparity["eta2"] == pytest.approx(1.0, abs=0.01)
-    assert disparity["effect_mm"] == pytest.approx(c / DISTANCES[0] - c / DISTANCES[-1], rel=0.05)
+    assert disparity.eta2 == pytest.approx(1.0, abs=0.01)
+    assert disparity.effect_mm == pytest.approx(c / DISTANCES[0] - c / DISTANCES[-1], rel=0.05)
     # one axis on two scales: never listed as confounded with the distance
-    assert "disparity" not in [c["axis"] for c in found["confounded_with"]]
-    assert "distance" not in [c["axis"] for c in found["confounded_with"]]
+    assert "disparity" not in [c.axis for c in found.confounded_with or []]
+    assert "distance" not in [c.axis for c in found.confounded_with or []]
