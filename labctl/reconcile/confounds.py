@@ -76,7 +76,8 @@ MIN_REPEAT_S = SHORTEST_TAU_SEARCHED_S
 #: the axis an effect's signature follows, by its declared form (``Observed.signature``)
 FORM_AXES = {"warm_up": "time", "inverse_light": "signal", "proportional_range": "distance",
              "periodic_range": "distance", "periodic_disparity": "distance", "mean_phasor": "distance",
-             "plane_bounce": "distance", "log_cos_alpha": "pixel", "column_row_profile": "pixel",
+             "plane_bounce": "distance", "plane_phasor": "distance", "disparity_offset": "distance",
+             "log_light_polynomial": "signal", "log_cos_alpha": "pixel", "column_row_profile": "pixel",
              "resimulated": "pixel"}
 #: the axis of a ``resimulated`` effect that only some steps show (``Observed.steps``)
 STEP_AXES = {"robot_plates": "angle", "translucent": "target"}
