@@ -17,11 +17,7 @@ effect would have measured them:
 * column stripes plus row stripes of range offset -> ``fixed_pattern``;
 * pixel locking of the stereo matcher: the matching cost of a texture sampled
   at whole disparities and a parabola fitted through its minimum ->
-  ``disparity_bias`` with a 1 px period;
-* a pixel whose charge transfer lags more as its gate fills (a saturating
-  first-order lag, demodulated numerically) -> ``log_amplitude_error``;
-* a matte floor below the camera, its bounce summed over floor patches ->
-  ``diffuse_floor_multipath`` on the floor.
+  ``disparity_bias`` with a 1 px period.
 
 Asserted: the effect is named and the gap at least halves.
 """
@@ -208,84 +204,4 @@ def test_pixel_locking_of_a_parabola_fit_is_disparity_bias(plain, tmp_path):
     fitted = result.named[0].parameters
     assert abs(fitted["amplitude_px"] - fundamental) <= 0.2 * fundamental, (fitted, fundamental)
     assert abs(fitted["period_px"] - 1.0) <= 0.05, fitted
-    _halved(result)
-
-
-def pixel_delay_mm(amplitude: np.ndarray, saturation: float, f_mod: float) -> np.ndarray:
-    """Range error (mm) of a pixel whose photo-charge reaches its storage gate through a first-order lag whose
-    time constant grows as the gate fills: tau = 100 ps + 30 ps A / (A + A_sat). The lag's output for the
-    modulated light is integrated numerically over one modulation period against the four square demodulation
-    gates (tabulated over tau, interpolated per pixel); the error is the phase of the taps over the phase per mm
-    of range, less that of the zero-signal pixel."""
-    period = 1.0 / f_mod
-    t = (np.arange(256) + 0.5) / 256 * period
-    taus = np.linspace(100e-12, 130e-12, 61)
-    history = np.arange(0.0, 20 * 130e-12, period / 256)  # the impulse response's reach
-    phases = []
-    for tau in taus:
-        response = np.exp(-history / tau)
-        response /= response.sum()
-        lagged = np.array([np.sum((1 + np.cos(2 * math.pi * f_mod * (ti - history))) * response) for ti in t])
-        taps = [np.sum(lagged * (np.cos(2 * math.pi * f_mod * t - i * math.pi / 2) > 0)) for i in range(4)]
-        phases.append(math.atan2(taps[1] - taps[3], taps[0] - taps[2]))
-    per_mm = 4 * math.pi * f_mod / C_MM_PER_S
-    delay = (np.array(phases) - phases[0]) / per_mm
-    tau = 100e-12 + 30e-12 * amplitude / (amplitude + saturation)
-    return np.interp(tau, taus, delay)
-
-
-def test_a_saturating_pixel_delay_is_log_amplitude_error(plain, tmp_path):
-    run = plain("blaze101")
-    f_mod = get_profile("blaze101").modulation_mhz * 1e6
-    with h5py.File(run, "r") as f:
-        at_2m = float(np.median(f["steps"]["00000_offset_calibration"]["intensity"][:]))
-
-    result, names = _reconciled(run, tmp_path, lambda px: pixel_delay_mm(px.intensity, at_2m, f_mod))
-    assert names[0] == "log_amplitude_error", names
-    _halved(result)
-
-
-def lambertian_floor_error(px: Pixels, floor_mm: float, albedo: float, f_mod: float, patches: int = 48):
-    """Range error (mm) of every pixel from a matte floor ``floor_mm`` below the optical axis: the floor inside
-    the emitter's cone (the camera's field of view) cut into ``patches`` x ``patches`` patches between the
-    cone's reach and the target's depth; each patch F gets the emitter's irradiance cos / |CF|^2 and re-emits
-    albedo / pi of it as radiance; the target point P (facing the camera) receives that with the cosines at F
-    and at P over |FP|^2, against its direct irradiance cos / r^2; each patch's light returns with the phase
-    of its path |CF| + |FP| + r, the direct light with 2 r, and the pixel measures the phase of the sum."""
-    k = 4 * math.pi * f_mod / C_MM_PER_S
-    tan_h, tan_v = (math.tan(math.radians(a) / 2) for a in px.fov_deg)
-    x, y, z = (np.nan_to_num(a) for a in (px.x_mm, px.y_mm, px.z_mm))
-    r = np.sqrt(x * x + y * y + z * z)
-    height = floor_mm - y
-    near = floor_mm / tan_v
-    seen = (height > 0) & (z > near)
-    total = np.zeros(z.shape, complex)
-    for i in range(patches):
-        depth = near + (z - near) * (i + 0.5) / patches  # patch centres between the cone's reach and P
-        d_depth = (z - near) / patches
-        for j in range(patches):
-            side = depth * tan_h * (2 * (j + 0.5) / patches - 1)
-            d_side = 2 * depth * tan_h / patches
-            cf = np.sqrt(floor_mm**2 + side**2 + depth**2)
-            fp = np.sqrt(height**2 + (side - x) ** 2 + (z - depth) ** 2)
-            irradiance = floor_mm / cf**3  # cos = floor_mm / |CF| over |CF|^2
-            received = albedo / math.pi * irradiance * (height / fp) * ((z - depth) / fp) / fp**2
-            total += received * d_depth * d_side * np.exp(1j * k * (cf + fp - r) / 2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        relative = np.where(seen, total / (z / r**3), 0.0)
-    return np.angle(1 + relative) / k
-
-
-def test_a_lambertian_floor_summed_over_patches_is_diffuse_floor_multipath(plain, tmp_path):
-    f_mod = get_profile("blaze101").modulation_mhz * 1e6
-    first_frame: dict[str, np.ndarray] = {}
-
-    def error(px: Pixels):
-        if px.frame == 0:  # one patch sum per step: the bounce hardly changes with a frame's noise
-            first_frame["error"] = lambertian_floor_error(px, 350.0, 0.5, f_mod)
-        return first_frame["error"]
-
-    result, names = _reconciled(plain("blaze101"), tmp_path, error)
-    assert names[0] == "diffuse_floor_multipath", names
-    assert result.named[0].parameters["plane"] == "floor"
     _halved(result)
