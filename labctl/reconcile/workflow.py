@@ -11,7 +11,8 @@
    (scipy.optimize.least_squares), added to the model if it is material
    (``material``: on the steps it moves, it reduces their gap in units of
    their noise floors by at least ``MATERIAL_FRACTION`` of it and by at
-   least ``FLOOR_FRACTION``), and the run re-simulated; repeat until nothing passes,
+   least ``FLOOR_FRACTION``), the named effects refitted together once there are two
+   (``refine_jointly``), and the run re-simulated; repeat until nothing passes,
    the residual is consistent with the noise (labctl/reconcile/goodness.py)
    or ``MAX_EFFECTS`` are named.
    A runner-up within ``MARGIN`` of the winner stops the search: "ambiguous
@@ -685,11 +686,12 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             intensity_gap_after_pct=state.good.intensity_gap_pct, steps=lay.n_steps,
             p_value=iteration.significance_p, null_runs=rule.null_runs or None)))
         iteration.decision = f"added {best.name}"
-    if len(found) > 1:
-        say("refitting the named effects together")
-        state.set(refine_jointly(found, start_model, sim, lay))
-        for effect in named:
-            effect.parameters = dict(state.model.effects[effect.name])
+        if len(found) > 1:  # before the next round: what one effect carried of another's residual is not left over
+            say("refitting the named effects together")
+            state.set(refine_jointly(found, start_model, sim, lay))
+            found = [(c, dict(state.model.effects[c.name])) for c, _ in found]
+    for effect in named:
+        effect.parameters = dict(state.model.effects[effect.name])
     good_physical = state.good
     residual_physical = _residual_maps(lay, state.dz)
     unexplained, empirical = None, []
