@@ -816,7 +816,7 @@ def _unexplained_message(named: list[NamedEffect], good: Goodness, found: Unexpl
     """What the user reads: what remains, what it follows, and what the empirical correction is; and which of
     the noise's statistics (noise, validity, correlation) depart from the model's, along which axis."""
     families = "; ".join(f"{f['family']}: {f['description']} (gap {f['gap']}, floor {f['floor']} "
-                         f"{UNITS[f['family']]})" for f in found.get("families", []))
+                         f"{UNITS[f['family']]})" for f in found.families or [])
     after = " after " + ", ".join(e.name for e in named) if named else ""
     if good.means_consistent:
         return (f"the mean depth agrees with the model (gap {good.gap_mm:.3f} mm, floor {good.gap_floor_mm:.3f} mm)"
@@ -825,7 +825,7 @@ def _unexplained_message(named: list[NamedEffect], good: Goodness, found: Unexpl
     return text + (f" The noise's statistics depart as well: {families}." if families else "")
 
 
-def _means_message(named: list[NamedEffect], good: Goodness, found: dict[str, Any],
+def _means_message(named: list[NamedEffect], good: Goodness, found: Unexplained,
                    empirical: list[EmpiricalCorrection]) -> str:
     """What remains of the bin means, what it follows, and the empirical correction."""
     worst = good.worst_step
