@@ -23,11 +23,28 @@ from pydantic import Field, model_validator
 
 from procedures.steps import Step, StrictModel
 
+#: the most positions one sweep may have: a 4 m stage travel in 0.4 mm steps. Beyond it the step is a typing
+#: error (a step of 1e-7 mm would plan 10^10 stacks, and planning alone would exhaust the memory)
+MAX_POSITIONS = 10_000
+
+
+def _count(start_mm: float, stop_mm: float, step_mm: float) -> int:
+    return int((stop_mm - start_mm) / step_mm + 1e-9) + 1
+
 
 def sweep_positions(start_mm: float, stop_mm: float, step_mm: float) -> list[float]:
     """Inclusive arithmetic sweep ``start, start+step, ... <= stop`` (tolerant to rounding)."""
-    count = int((stop_mm - start_mm) / step_mm + 1e-9) + 1
-    return [round(start_mm + i * step_mm, 6) for i in range(count)]
+    return [round(start_mm + i * step_mm, 6) for i in range(_count(start_mm, stop_mm, step_mm))]
+
+
+def check_sweep(start_mm: float, stop_mm: float, step_mm: float) -> None:
+    """ValueError (a campaign validation message) when the sweep runs backwards or has more than
+    ``MAX_POSITIONS`` positions."""
+    if stop_mm < start_mm:
+        raise ValueError(f"stop_mm ({stop_mm:g}) must not be smaller than start_mm ({start_mm:g})")
+    if (count := _count(start_mm, stop_mm, step_mm)) > MAX_POSITIONS:
+        raise ValueError(f"step_mm = {step_mm:g} gives {count:.3g} positions from {start_mm:g} to {stop_mm:g} mm, "
+                         f"more than the {MAX_POSITIONS} a sweep may have: check the step's unit (mm)")
 
 
 SweepOrder = Literal["ascending", "descending", "interleaved"]
@@ -60,10 +77,7 @@ class DepthSweep(StrictModel):
 
     @model_validator(mode="after")
     def _ordered(self) -> DepthSweep:
-        if self.stop_mm < self.start_mm:
-            raise ValueError(
-                f"stop_mm ({self.stop_mm:g}) must not be smaller than start_mm ({self.start_mm:g})"
-            )
+        check_sweep(self.start_mm, self.stop_mm, self.step_mm)
         return self
 
     def stage_distances_mm(self) -> list[float]:

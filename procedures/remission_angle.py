@@ -14,16 +14,20 @@ from typing import ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from procedures.depth_sweep import MAX_POSITIONS
 from procedures.steps import Step, StrictModel
 
 MATERIALS = ("ptfe", "molleton", "silicone", "gelatine", "collagen")
 SKIN_LIKE = ("silicone", "gelatine", "collagen")
 
 
+def _count(start: float, stop: float, step: float) -> int:
+    return int(round((stop - start) / step)) + 1
+
+
 def angle_positions(start: float, stop: float, step: float) -> list[float]:
     """Inclusive angles start, start + step, ... <= stop."""
-    count = int(round((stop - start) / step)) + 1
-    return [round(start + i * step, 6) for i in range(count)]
+    return [round(start + i * step, 6) for i in range(_count(start, stop, step))]
 
 
 class RemissionAngle(StrictModel):
@@ -56,8 +60,11 @@ class RemissionAngle(StrictModel):
         if step <= 0 or stop < start:
             raise ValueError(f"angles_deg must be [start, stop, step] with step > 0 and stop >= start, got "
                              f"{list(self.angles_deg)}")
-        if not -90.0 < start and stop < 90.0:
+        if not (-90.0 < start and stop < 90.0):
             raise ValueError(f"angles_deg must stay inside (-90, 90) deg, got {list(self.angles_deg)}")
+        if (count := _count(start, stop, step)) > MAX_POSITIONS:
+            raise ValueError(f"angles_deg step {step:g} gives {count:.3g} robot poses from {start:g} to {stop:g} deg, "
+                             f"more than the {MAX_POSITIONS} a sweep may have: check the step's unit (deg)")
         return self
 
     def angles(self) -> list[float]:

@@ -15,7 +15,7 @@ from typing import ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from procedures.depth_sweep import sweep_positions
+from procedures.depth_sweep import check_sweep, sweep_positions
 from procedures.steps import Step, StrictModel
 
 COVER_PROMPT = "cover the slanted-edge chart with the white sheet (white reference)"
@@ -56,8 +56,7 @@ class SlantedEdge(StrictModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> SlantedEdge:
-        if self.stop_mm < self.start_mm:
-            raise ValueError(f"stop_mm ({self.stop_mm:g}) must not be smaller than start_mm ({self.start_mm:g})")
+        check_sweep(self.start_mm, self.stop_mm, self.step_mm)
         if self.exposure_us is not None and self.exposure_table:
             raise ValueError("give either exposure_us or exposure_table, not both")
         return self

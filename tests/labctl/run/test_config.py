@@ -71,6 +71,35 @@ def test_reversed_sweep():
     assert "stop_mm (3000) must not be smaller than start_mm (3500)" in errors_of(text)
 
 
+@pytest.mark.parametrize("kind", ["depth_sweep", "slanted_edge"])
+def test_a_sweep_with_more_positions_than_a_stage_travel_holds_is_refused(kind):
+    # 2000 mm in steps of 1e-7 mm: 2e10 positions, which planning would otherwise try to hold in memory
+    text = campaign_text(procedures=f"""
+    [[procedure]]
+    kind = "{kind}"
+    start_mm = 1000
+    stop_mm = 3000
+    step_mm = 1e-7
+    """)
+    message = errors_of(text)
+    assert "step_mm = 1e-07 gives 2e+10 positions from 1000 to 3000 mm" in message
+    assert "more than the 10000 a sweep may have" in message
+
+
+@pytest.mark.parametrize(("angles", "expected"), [
+    ("[-80, 80, 1e-6]", "angles_deg step 1e-06 gives 1.6e+08 robot poses from -80 to 80 deg, more than the 10000"),
+    ("[-100, 100, 10]", "angles_deg must stay inside (-90, 90) deg, got [-100.0, 100.0, 10.0]"),
+    ("[-80, 95, 5]", "angles_deg must stay inside (-90, 90) deg, got [-80.0, 95.0, 5.0]"),
+])
+def test_a_remission_angle_sweep_outside_the_half_circle_or_too_fine_is_refused(angles, expected):
+    text = campaign_text(procedures=f"""
+    [[procedure]]
+    kind = "remission_angle"
+    angles_deg = {angles}
+    """)
+    assert expected in errors_of(text)
+
+
 def test_sweep_needs_offset_before_it():
     text = campaign_text(procedures="""
     [[procedure]]
