@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import resource
 import subprocess
 import sys
 import textwrap
@@ -19,6 +20,14 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # one pytest-xdist worker per core: the compiled kernels run single-threaded in each, instead of
     # every worker starting a thread per core (oversubscribed, the suite ran twice as long)
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+#: address space a test process may take. The whole suite stays under 1.3 GB resident per process; a test that
+#: runs away (a sweep of 10^10 planned positions once did) gets a MemoryError and fails alone, instead of being
+#: killed by the kernel's OOM killer, which took its pytest-xdist worker down and left the run waiting forever
+TEST_ADDRESS_SPACE_BYTES = 10 * 1000**3
+_soft, _hard = resource.getrlimit(resource.RLIMIT_AS)
+if _soft == resource.RLIM_INFINITY or _soft > TEST_ADDRESS_SPACE_BYTES:
+    resource.setrlimit(resource.RLIMIT_AS, (TEST_ADDRESS_SPACE_BYTES, _hard))
 
 #: the xdist group of the tests that need the CPU on time and of those that take every core
 REALTIME_GROUP = "realtime"

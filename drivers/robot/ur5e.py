@@ -453,6 +453,7 @@ class UR5eRobot(LinkedDevice):
         self._pending = (name, answered)
         threading.Thread(target=run, name=f"ur-rtde {name} ({self.host})", daemon=True).start()
         self._watch(rtde, name, answered)
+        self._pending = None
         succeeded, value = outcome[0]
         if not succeeded:
             raise value
