@@ -26,7 +26,7 @@ from sim.emulators import DimetixEmulator, GrblEmulator, ZaberEmulator
 from sim.emulators.ur import URControllerProcess
 from tests.drivers.test_realsense import H, W, scene, write_recording
 from tests.drivers.test_ur_rtde_emulator import CENTER_MM, RADIUS_MM, ZERO_POSE_M, circle, home_q
-from tests.labctl.run.test_real_lab import BAG, STEP, campaign
+from tests.labctl.run.test_real_lab import STEP, campaign, lab_header
 from tests.pty_terminal import Terminal
 
 SPEED_MM_S = 200.0
@@ -166,21 +166,7 @@ def test_an_unplugged_laser_aborts_cleanly_with_the_stage_stopped_and_resume_con
 def robot_campaign(stage_port: str, robot_host: str) -> str:
     """Two materials, each swept by the robot over -10, 0, 10 deg on the emulator's circle; the stage parked."""
     zero_pose = [float(v) for v in (*(1000.0 * np.array(ZERO_POSE_M[:3])), *ZERO_POSE_M[3:])]
-    return textwrap.dedent(f"""
-        [campaign]
-        name = "robot-lab"
-
-        [devices.camera]
-        backend = "realsense"
-        playback = "{BAG}"
-
-        [devices.stage]
-        {stage_section("zaber", stage_port)}
-        travel_mm = [0, 400]
-        speed_mm_s = 1000
-        settle_s = 0
-        distance_at_zero_mm = 1000
-
+    return lab_header("robot-lab", stage_section("zaber", stage_port), home_on_connect=False) + textwrap.dedent(f"""
         [devices.robot]
         host = "{robot_host}"
         circle_center_mm = {[float(v) for v in CENTER_MM]}
@@ -257,22 +243,7 @@ def camera_stall_campaign(stage_port: str, recording: Path) -> str:
         """)
         for start, frames in ((1000, 2), (1200, 3))
     )
-    return textwrap.dedent(f"""
-        [campaign]
-        name = "camera-stall"
-
-        [devices.camera]
-        backend = "d455"
-        playback = "{recording}"
-
-        [devices.stage]
-        {stage_section("zaber", stage_port)}
-        travel_mm = [0, 400]
-        speed_mm_s = 1000
-        settle_s = 0
-        distance_at_zero_mm = 1000
-        home_on_connect = true
-    """) + sweeps
+    return lab_header("camera-stall", stage_section("zaber", stage_port), backend="d455", playback=recording) + sweeps
 
 
 def assert_stacks_of_the_scene(run_file: Path, frames_by_step: dict[str, int]) -> None:
