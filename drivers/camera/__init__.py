@@ -3,7 +3,7 @@
 =========== ================================================ =====================
 backend     SDK                                              recordings
 =========== ================================================ =====================
-realsense   pyrealsense2 (librealsense)                      ``.bag``
+realsense   pyrealsense2 (librealsense)                      ``.bag``, ``.db3``
 blaze       pypylon or harvesters + Basler's blaze producer  --
 amt100      harvesters + Schmersal's GenTL producer          --
 flexx2      roypy (pmd Royale SDK)                           ``.rrf``

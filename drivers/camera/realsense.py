@@ -1,4 +1,4 @@
-"""Intel RealSense D4xx active-stereo cameras, live or from a ``.bag`` recording, via pyrealsense2.
+"""Intel RealSense D4xx active-stereo cameras, live or from a ``.bag`` / ``.db3`` recording, via pyrealsense2.
 
 librealsense Python API (https://intelrealsense.github.io/librealsense/python_docs/):
 ``rs.pipeline`` / ``rs.config`` stream depth (z16) and the left infrared imager
@@ -95,7 +95,7 @@ class RealSenseCamera(CameraDevice):
     """A RealSense D4xx as a :class:`~drivers.protocols.DepthCamera`.
 
     Live (``serial``: which camera, default the only one) it streams depth and left IR at
-    ``width`` × ``height`` and ``fps``; with ``playback`` it plays a ``.bag`` recording instead,
+    ``width`` × ``height`` and ``fps``; with ``playback`` it plays a ``.bag`` or ``.db3`` recording instead,
     every stack from the recording's first frame (a stack longer than the recording is an
     error). ``timeout_s`` bounds the wait for a frame.
     """

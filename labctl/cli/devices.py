@@ -160,7 +160,7 @@ def _capture_file(
 
 @device.command()
 @click.option("--backend", required=True, type=click.Choice(["realsense", "blaze", "amt100", "flexx2"]))
-@click.option("--playback", type=click.Path(dir_okay=False, path_type=Path), help="recording (.bag, .rrf)")
+@click.option("--playback", type=click.Path(dir_okay=False, path_type=Path), help="recording (.bag, .db3, .rrf)")
 @click.option("--frames", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("-o", "--output", required=True, type=OutputFile("capture.h5"), help="run file")
 @click.option("--serial", help="which camera, if several are connected")

@@ -65,7 +65,7 @@ class CameraConfig(StrictModel):
     backend: Literal["realsense", "blaze", "amt100", "flexx2", "d455", "blaze101"]
     serial: str | None = None
     settings: dict[str, Any] = Field(default_factory=dict)
-    playback: str | None = Field(None, description="recording played instead of the live camera (.bag, .rrf)")
+    playback: str | None = Field(None, description="recording played instead of the live camera (.bag, .db3, .rrf)")
     producer: str | None = Field(None, description="GenTL producer .cti (blaze with sdk = harvesters, amt100)")
     sdk: Literal["pypylon", "harvesters"] = Field("pypylon", description="blaze: pypylon or harvesters")
     frame_timeout_s: float = Field(5.0, gt=0, le=120, description="longest wait for one frame")

@@ -81,6 +81,24 @@ def test_open_configure_acquire_convert(viky: GenTLCamera) -> None:
         assert np.array_equal(frame.confidence, valid.astype(np.float32))
 
 
+def test_a_camera_that_delivers_nothing_within_the_timeout_is_a_dropped_frame_and_acquisition_stops() -> None:
+    """Viky at its slowest (1 frame/s) against a 0.25 s buffer timeout: the producer's own TimeoutException
+    becomes a DroppedFrame naming the camera and the frame (what the runner retries and then aborts on), the
+    acquisition is stopped, and the camera delivers again once it runs at its rate."""
+    camera = GenTLCamera(viky_profile(), producers=[VIKY], serial="1", timeout_s=0.25)
+    camera.connect()
+    try:
+        camera.configure(None, {"nodes": {"AcquisitionFrameRate": 1.0}})
+        with pytest.raises(DroppedFrame, match=r"Viky.*no buffer for frame 4 within 0.25 s"):
+            list(camera.capture(2, first_index=4))
+        camera.configure(None, {"nodes": {"AcquisitionFrameRate": 20.0}})
+        camera.timeout_s = 2.0
+        frames = list(camera.capture(2))
+        assert len(frames) == 2 and frames[1].timestamp > frames[0].timestamp
+    finally:
+        camera.close()
+
+
 def test_scan3d_features_and_their_chunk_values(viky: GenTLCamera) -> None:
     nodes = GenApiNodes(viky._acquirer.remote_device.node_map, viky.name)
     nodes.set("ComponentSelector", "Range")

@@ -1,9 +1,11 @@
 """RealSense backend against real librealsense: frames injected into an ``rs.software_device``
-(through a syncer, not a pipeline) and the real D435 recording played back from its ``.bag``."""
+(through a syncer, not a pipeline), recordings of it written by ``rs.recorder`` and played back,
+and the real D435 recording played back from its ``.bag``."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pyrealsense2 as rs
@@ -19,12 +21,20 @@ W, H, FPS = 64, 48, 30
 FX, FY, PPX, PPY = 50.0, 51.0, 31.5, 23.25
 
 
-class SoftwareCamera:
-    """A librealsense software device with a depth (z16, 1 mm units) and a left IR (y8) stream."""
+IDENTITY = ("Intel RealSense D455", "233722070123", "5.16.0.1")
+"""Product name, serial number and firmware the software camera reports (``rs.camera_info``)."""
 
-    def __init__(self) -> None:
+
+class SoftwareCamera:
+    """A librealsense software device with a depth (z16, 1 mm units) and a left IR (y8) stream;
+    with ``record_to``, ``rs.recorder`` writes what it streams to that file (on :meth:`close`)."""
+
+    def __init__(self, record_to: Path | None = None) -> None:
         self.device = rs.software_device()
         self.device.create_matcher(rs.matchers.default)
+        for field, value in zip((rs.camera_info.name, rs.camera_info.serial_number, rs.camera_info.firmware_version),
+                                IDENTITY, strict=True):
+            self.device.register_info(field, value)
         self.sensor = self.device.add_sensor("Stereo Module")
         intrinsics = rs.intrinsics()
         intrinsics.width, intrinsics.height = W, H
@@ -33,6 +43,7 @@ class SoftwareCamera:
         self.depth = self._stream(rs.stream.depth, 0, rs.format.z16, 2, intrinsics)
         self.ir = self._stream(rs.stream.infrared, 1, rs.format.y8, 1, intrinsics)
         self.sensor.add_read_only_option(rs.option.depth_units, 0.001)
+        self.recorder = rs.recorder(str(record_to), self.device) if record_to is not None else None
         self.syncer = rs.syncer(100)  # a queue, so no frameset is dropped while the test feeds frames
         self.sensor.open([self.depth, self.ir])
         self.sensor.start(self.syncer)
@@ -66,8 +77,10 @@ class SoftwareCamera:
         return found
 
     def close(self) -> None:
+        """Stop streaming; a recording is complete once its recorder is released."""
         self.sensor.stop()
         self.sensor.close()
+        self.recorder = None
 
 
 @pytest.fixture
@@ -83,6 +96,16 @@ def scene(k: int) -> tuple[np.ndarray, np.ndarray]:
     depth = 1200 + 3 * u + 2 * v + k
     depth[10:14, 20:30] = 0
     return depth, (u * 3 + v + k) % 256
+
+
+def write_recording(path: Path, frames: int) -> Path:
+    """A recording at ``path`` of ``frames`` frames of :func:`scene`, as the software camera streamed
+    them (name it ``.db3``: librealsense's recorder writes ROS 2 bags and refuses other names)."""
+    camera = SoftwareCamera(record_to=path)
+    for k in range(frames):
+        camera.push(k, *scene(k))
+    camera.close()
+    return path
 
 
 def synced(software: SoftwareCamera, count: int) -> list[object]:
@@ -173,6 +196,26 @@ def test_a_recording_takes_filters_but_no_device_options(playback: RealSenseCame
         playback.configure(1000.0, {"projector": False})
     with pytest.raises(DeviceError, match=r"unknown setting\(s\) \['gain'\]"):
         playback.configure(None, {"gain": 2})
+
+
+def test_a_written_recording_plays_back_the_frames_streamed(tmp_path: Path) -> None:
+    camera = RealSenseCamera(playback=write_recording(tmp_path / "scene.db3", 3))
+    camera.connect()
+    try:
+        identity = camera.identity()
+        assert (identity.model, identity.serial, identity.firmware) == IDENTITY
+        camera.configure(None, {})
+        frames = list(camera.capture(3))
+        assert [frame.meta["frame_number"] for frame in frames] == [0, 1, 2]
+        for k, frame in enumerate(frames):
+            depth, ir = scene(k)
+            valid = depth > 0
+            assert np.allclose(frame.z[valid], depth[valid], atol=1e-3) and np.isnan(frame.z[~valid]).all()
+            assert np.array_equal(frame.intensity, ir.astype(np.float32))
+        with pytest.raises(DeviceError, match="recording ended after 3 frame"):
+            list(camera.capture(4))
+    finally:
+        camera.close()
 
 
 def test_missing_files_and_devices() -> None:

@@ -6,7 +6,9 @@ a lost robot connection is the UR controller emulator's servers closed under ur-
 The run must end with exit 1 and one message naming the device and its port, no traceback, the
 other devices in their safe state (what their emulators received), and the run file ``aborted``;
 ``labctl resume --port ROLE=NEW`` (``--host robot=NEW``) then finishes it on the device under its
-new name (address).
+new name (address). A camera that stops delivering frames in the middle of a stack is the real
+RealSense adapter playing a recording shorter than the stack; re-plugged, it is a recording long
+enough at the same path, and plain ``labctl resume`` finishes the run.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ import pytest
 
 from sim.emulators import DimetixEmulator, GrblEmulator, ZaberEmulator
 from sim.emulators.ur import URControllerProcess
+from tests.drivers.test_realsense import H, W, scene, write_recording
 from tests.drivers.test_ur_rtde_emulator import CENTER_MM, RADIUS_MM, ZERO_POSE_M, circle, home_q
-from tests.labctl.run.test_real_lab import BAG, STEP, campaign
+from tests.labctl.run.test_real_lab import STEP, campaign, lab_header
 from tests.pty_terminal import Terminal
 
 SPEED_MM_S = 200.0
@@ -163,21 +166,7 @@ def test_an_unplugged_laser_aborts_cleanly_with_the_stage_stopped_and_resume_con
 def robot_campaign(stage_port: str, robot_host: str) -> str:
     """Two materials, each swept by the robot over -10, 0, 10 deg on the emulator's circle; the stage parked."""
     zero_pose = [float(v) for v in (*(1000.0 * np.array(ZERO_POSE_M[:3])), *ZERO_POSE_M[3:])]
-    return textwrap.dedent(f"""
-        [campaign]
-        name = "robot-lab"
-
-        [devices.camera]
-        backend = "realsense"
-        playback = "{BAG}"
-
-        [devices.stage]
-        {stage_section("zaber", stage_port)}
-        travel_mm = [0, 400]
-        speed_mm_s = 1000
-        settle_s = 0
-        distance_at_zero_mm = 1000
-
+    return lab_header("robot-lab", stage_section("zaber", stage_port), home_on_connect=False) + textwrap.dedent(f"""
         [devices.robot]
         host = "{robot_host}"
         circle_center_mm = {[float(v) for v in CENTER_MM]}
@@ -238,3 +227,65 @@ def test_a_lost_robot_connection_aborts_cleanly_and_resume_continues_at_its_new_
     assert final.angle_deg == pytest.approx(-10.0, abs=0.05)  # the molleton sweep runs back: 10, 0, -10 deg
     state, _, complete = status(run_file)
     assert state == "complete" and complete == 6
+
+
+def camera_stall_campaign(stage_port: str, recording: Path) -> str:
+    """The camera playing ``recording``; a sweep of 2 frames a step at 1000 and 1100 mm, then one of
+    3 frames a step at 1200 and 1300 mm (reference: the stage's nominal distance)."""
+    sweeps = "".join(
+        textwrap.dedent(f"""
+            [[procedure]]
+            kind = "depth_sweep"
+            start_mm = {start}
+            stop_mm = {start + 100}
+            step_mm = 100
+            frames = {frames}
+        """)
+        for start, frames in ((1000, 2), (1200, 3))
+    )
+    return lab_header("camera-stall", stage_section("zaber", stage_port), backend="d455", playback=recording) + sweeps
+
+
+def assert_stacks_of_the_scene(run_file: Path, frames_by_step: dict[str, int]) -> None:
+    """Every step in ``frames_by_step`` complete, its stack the recorded scene's first frames."""
+    with h5py.File(run_file, "r") as f:
+        for step_id, frames in frames_by_step.items():
+            step = f["steps"][step_id]
+            assert step.attrs["complete"] and step["z"].shape == (frames, H, W)
+            for k in range(frames):
+                depth, _ = scene(k)
+                assert np.allclose(step["z"][k][depth > 0], depth[depth > 0], atol=1e-3)
+
+
+@pytest.mark.slow
+def test_a_camera_that_stops_delivering_mid_stack_aborts_cleanly_and_resume_continues_on_the_replugged_camera(
+    tmp_path: Path, labctl
+) -> None:
+    """The real RealSense adapter plays a recording of 2 frames: the first sweep's stacks of 2 complete,
+    the first stack of 3 ends after its second frame. The camera "re-plugged" is a recording long enough
+    at the same path; resume runs the stack that was cut short again, and the last one."""
+    path, run_file, recording = tmp_path / "campaign.toml", tmp_path / "run.h5", tmp_path / "camera.db3"
+    write_recording(recording, 2)
+    with ZaberEmulator(mm_per_microstep=STEP, travel_mm=400.0, speed_mm_s=2000.0, start_mm=150.0) as stage:
+        path.write_text(camera_stall_campaign(stage.port, recording))
+        output = run_to_abort(path, run_file, lambda terminal: None)
+        assert_stage_stopped(stage)
+        assert "Traceback" not in output and output.count("labctl: error:") == 1
+        ended = f"RealSense playback of {recording}: the recording ended after 2 frame(s)"
+        assert f"run aborted: {ended}" in output and f"Continue with: labctl resume {run_file}" in output
+        info = labctl("info", run_file, "--json")
+        assert info.returncode == 0, info.stderr
+        doc = json.loads(info.stdout)
+        assert doc["status"] == "aborted" and ended in doc["status_reason"]
+        assert [step["status"] for step in doc["steps"]] == ["complete", "complete", "unfinished", "pending"]
+        assert_stacks_of_the_scene(run_file, {"00000_depth_sweep": 2, "00001_depth_sweep": 2})
+        recording.unlink()
+        write_recording(recording, 3)
+        assert "resuming at 00002_depth_sweep" in resume(run_file)
+        with stage.lock:
+            assert stage.commands.count("home") == 2 and stage.position_mm == pytest.approx(300.0, abs=1e-3)
+    state, _, complete = status(run_file)
+    assert state == "complete" and complete == 4
+    assert_stacks_of_the_scene(
+        run_file, {"00000_depth_sweep": 2, "00001_depth_sweep": 2, "00002_depth_sweep": 3, "00003_depth_sweep": 3}
+    )

@@ -5,6 +5,9 @@ key figures of an uninterrupted run.
 
 Before the run file reserved each step's space, HDF5 hit "No space left on device" inside the step and the
 process died of SIGSEGV (exit 139 / -11 from Popen) with the file left `running` and unresumable.
+
+The last test fails the disk itself: the run file's ext4 lies on a loop device whose store is full, so the
+device answers writes with errors (I/O errors in the kernel log) while the file system still shows free space.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import h5py
 import pytest
 
 from tests.conftest import SMALL_MODEL, campaign_text, run_labctl
-from tests.labctl.run.small_fs import fill, small_fs
+from tests.labctl.run.small_fs import failing_disk, fill, small_fs
 
 # 6 steps of 30 frames of 160 x 120: 10.4 MB raw each, about 6 MB stored
 PROCEDURES = """
@@ -138,4 +141,36 @@ def test_a_write_failing_inside_hdf5_ends_the_run_without_a_crash_and_the_run_co
             target = tmp_path / "into.h5"
             resumed = run_labctl("resume", out, "--into", target)
         assert resumed.returncode == 0, resumed.stderr
+        assert figures(target, tmp_path / "resumed") == expected
+
+
+@pytest.mark.slow
+def test_a_disk_failing_its_writes_ends_the_run_without_a_crash_and_the_run_completes(tmp_path, sweep):
+    """The device under the file system fails (its store is full: "Buffer I/O error", ext4 aborts its
+    journal): the run ends with exit 1 and a message naming the file system, never a crash. After the disk is
+    repaired, resume continues in place or, when the failed writes damaged the file, ``--into`` a new file
+    with the complete steps carried over; the completed run has the key figures of an uninterrupted one."""
+    campaign, model, expected = sweep
+    # about 6 MB stored per step: the 24 MB store fills after three or four steps (ext4's own metadata takes some)
+    with failing_disk(tmp_path, size_mb=256, backing_mb=24) as disk:
+        out = disk.mnt / "run.h5"
+        result = run_labctl("run", campaign, "--sim", "--model", model, "-o", out)
+        err = result.stderr
+        assert result.returncode == 1, err
+        assert "Traceback" not in err and "Fatal Python error" not in err
+        assert f"on the file system mounted at {disk.mnt}" in err, err
+        assert "Input/output error" in err or "No space left on device" in err, err
+        assert f"labctl resume {out}" in err, err
+
+        disk.repair()
+        info = run_labctl("info", out)
+        assert info.returncode in (0, 2) and "Traceback" not in info.stderr, info.stderr
+        resumed, target = run_labctl("resume", out), out
+        if resumed.returncode == 2 and "--into NEW.h5" in resumed.stderr:
+            assert "complete step(s) can be recovered (00000_offset_calibration .." in resumed.stderr, resumed.stderr
+            target = disk.mnt / "into.h5"
+            resumed = run_labctl("resume", out, "--into", target)
+        assert resumed.returncode == 0, resumed.stderr
+        with h5py.File(target, "r") as f:
+            assert f.attrs["status"] == "complete"
         assert figures(target, tmp_path / "resumed") == expected

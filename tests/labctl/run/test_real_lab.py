@@ -26,6 +26,28 @@ BAG = shared_data("realsense_d4xx_640x480.bag")
 STEP = 0.000125  # Zaber mm per microstep
 
 
+def lab_header(name: str, stage: str, *, backend: str = "realsense", playback: Path | str = BAG,
+               speed_mm_s: float = 1000, home_on_connect: bool = True) -> str:
+    """``[campaign]``, the camera playing ``playback`` and the stage (``stage``: its protocol and port lines) with
+    400 mm of travel, the wall 1000 mm away at its zero."""
+    return textwrap.dedent(f"""
+        [campaign]
+        name = "{name}"
+
+        [devices.camera]
+        backend = "{backend}"
+        playback = "{playback}"
+
+        [devices.stage]
+        {stage}
+        travel_mm = [0, 400]
+        speed_mm_s = {speed_mm_s}
+        settle_s = 0
+        distance_at_zero_mm = 1000
+        home_on_connect = {str(home_on_connect).lower()}
+    """)
+
+
 def campaign(stage: str, laser_port: str | None, extra: str = "", speed_mm_s: float = 1000) -> str:
     """Offset calibration at 1200 mm and a sweep 1000..1400 mm, 2 frames each (the recording holds 2);
     without ``laser_port`` the sweep alone."""
@@ -40,21 +62,7 @@ def campaign(stage: str, laser_port: str | None, extra: str = "", speed_mm_s: fl
         distance_mm = 1200
         frames = 2
     """ if laser_port else ""
-    return textwrap.dedent(f"""
-        [campaign]
-        name = "emulated-lab"
-
-        [devices.camera]
-        backend = "realsense"
-        playback = "{BAG}"
-
-        [devices.stage]
-        {stage}
-        travel_mm = [0, 400]
-        speed_mm_s = {speed_mm_s}
-        settle_s = 0
-        distance_at_zero_mm = 1000
-        home_on_connect = true
+    return lab_header("emulated-lab", stage, speed_mm_s=speed_mm_s) + textwrap.dedent(f"""
         {laser}
         [[procedure]]
         kind = "depth_sweep"
