@@ -47,10 +47,10 @@ def optional() -> Any:
     return dataclasses.field(default=None, metadata={OMIT_IF_NONE: True})
 
 
-def inline() -> Any:
+def inline(default: Any = dataclasses.MISSING) -> Any:
     """A dataclass field holding a dataclass (or None) whose fields are written in its place, as keys of the
-    enclosing object; nothing is written while it is None."""
-    return dataclasses.field(metadata={INLINE: True})
+    enclosing object; nothing is written while it is None. ``default`` as in ``dataclasses.field``."""
+    return dataclasses.field(default=default, metadata={INLINE: True})
 
 
 def to_json(value: object) -> JSONValue:

@@ -169,7 +169,7 @@ class GoodnessSummary:
     step_factor: float
     families: dict[str, FamilyGoodness]
     steps_above_floor: list[StepAboveFloor]
-    null: NullJudgement | None = inline()
+    null: NullJudgement | None = inline(None)  # set by the decision rule (json_document)
 
 
 @dataclass(kw_only=True)
