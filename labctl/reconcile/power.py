@@ -35,6 +35,7 @@ have no amplitude to state.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,7 @@ from scipy.stats import norm
 
 from labctl.reconcile.candidates import Candidate, Context, candidates_for
 from labctl.reconcile.null import NullCalibration, critical_value, p_value, standardized_max
-from labctl.reconcile.residuals import Layout
+from labctl.reconcile.residuals import STATISTICS, Layout
 
 #: the probability of naming the effect the figure promises (the contract's 90 %)
 POWER = 0.9
@@ -89,27 +90,40 @@ def _signal(candidate: Candidate, ctx: Context, lay: Layout, nonlinear: Any) -> 
     cells = lay.row_cells()
     n_cells = int(cells.max()) + 1 if len(cells) else 0
     parts, key = [], None
-    for k, (dz, di) in enumerate(columns):
+    for k, column in enumerate(columns):
         unit = _unit(candidate, ctx, nonlinear, k, len(columns))
         if unit is None or (key is not None and unit[0] != key):
             continue
         key, per = unit
-        parts.append((dz / per, di / per))
+        parts.append(tuple(rows / per for rows in column))
     if not parts:
         return None
     q = np.zeros(n_cells)
     step_power: dict[tuple[str, str], float] = {}
-    for dz, di in parts:
-        w = lay.profiled_rows(dz, di)
+    for part in parts:
+        w = lay.profiled_rows(*part)
         q += np.bincount(cells, w * w, n_cells) / len(parts)
-        z, i = lay.profile_z(dz), 100 * lay.profile_i(di)
-        for s, o in enumerate(ctx.observations):
-            for family, values, steps in (("depth", z, lay.z_step), ("intensity", i, lay.i_step)):
+        for family, values, steps in _family_rows(lay, part):
+            for s, o in enumerate(ctx.observations):
                 m = steps == s
                 if m.any():
                     step = (o.scene.step_id, family)
                     step_power[step] = step_power.get(step, 0.0) + float(np.mean(values[m] ** 2)) / len(parts)
     return key, _Signal(q, np.bincount(cells, minlength=n_cells), step_power)
+
+
+def _family_rows(lay: Layout, column: tuple[np.ndarray, ...]) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+    """A signature column's change per residual family, in the unit of the family's step gaps (labctl/reconcile/
+    goodness.py: mm; % of the intensity; % or percentage points of the statistics), with each row's step."""
+    dz, di, *statistics = column
+    yield "depth", lay.profile_z(dz), lay.z_step
+    yield "intensity", 100 * lay.profile_i(di), lay.i_step
+    if statistics:
+        start = 0
+        for family in STATISTICS:
+            steps = lay.s_step.get(family, np.zeros(0, int))
+            yield family, 100 * statistics[0][start:start + len(steps)], steps
+            start += len(steps)
 
 
 class _Replicas:
