@@ -220,7 +220,7 @@ class Campaign(StrictModel):
                 kind = entry.get("kind") if isinstance(entry, dict) else None
                 if kind is None:
                     raise ValueError(f"procedure[{i}] has no 'kind'")
-                if kind not in PROCEDURES:
+                if not isinstance(kind, str) or kind not in PROCEDURES:
                     raise ValueError(
                         f"procedure[{i}].kind = {kind!r} is not available; "
                         f"known kinds: {', '.join(PROCEDURES)}"

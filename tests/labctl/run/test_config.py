@@ -64,6 +64,8 @@ def test_unknown_backend_lists_the_allowed_ones():
 def test_unknown_procedure_kind():
     text = campaign_text().replace('kind = "depth_sweep"', 'kind = "spiral"')
     assert "procedure[1].kind = 'spiral' is not available" in errors_of(text)
+    text = campaign_text().replace('kind = "depth_sweep"', "kind = []")  # not a name at all: no TypeError
+    assert "procedure[1].kind = [] is not available" in errors_of(text)
 
 
 def test_reversed_sweep():
