@@ -553,12 +553,19 @@ def _plane_bounce(effect: Effect) -> Candidate:
     return _plane_candidate(effect, first_order)
 
 
+# The grid's signature integrates the bounce with a smaller quadrature rule than the simulation's (``nodes``; the
+# refit re-simulates with the effect's own): on a 0.4-4 m sweep's points, 8 nodes keep Im m within 0.5 % (RMS)
+# of the 16-node rule for planes 150-600 mm from the axis (5 % at 2 m, where the bounce is weak) at a quarter of
+# the cost, which the grid pays at every trial plane of every round and null replica.
+SIGNATURE_NODES = 8
+
+
 def _plane_phasor(effect: Effect) -> Candidate:
     phasor = effect.observed.formula
 
     def first_order(ctx: Context, points: np.ndarray, plane: str, distance: float) -> np.ndarray:
         sensor = ctx.make_predictor(ctx.model).sensor
-        return phasor(*points, plane, distance, sensor).imag / sensor.wavenumber
+        return phasor(*points, plane, distance, sensor, nodes=SIGNATURE_NODES).imag / sensor.wavenumber
 
     return _plane_candidate(effect, first_order)
 

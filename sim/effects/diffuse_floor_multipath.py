@@ -26,6 +26,7 @@ re-emit); the radiometry of a Lambertian reflector (radiance rho E / pi).
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Literal
 
@@ -37,10 +38,13 @@ from sim.effects.base import Effect, EffectParams, Observed, RangeStage
 from sim.effects.floor_multipath import PLANES
 
 NODES = 16  # Gauss-Legendre nodes across the depth of the lit patches (and as many across their width)
-_S, _WS = np.polynomial.legendre.leggauss(NODES)
-_S, _WS = (_S + 1.0) / 2.0, _WS / 2.0  # on [0, 1]
-_T, _WT = np.polynomial.legendre.leggauss(NODES // 2)
-_T, _WT = (_T + 1.0) / 2.0, _WT / 2.0
+
+
+@functools.cache
+def _rule(nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [0, 1]."""
+    s, w = np.polynomial.legendre.leggauss(nodes)
+    return (s + 1.0) / 2.0, w / 2.0
 
 
 class Params(EffectParams):
@@ -50,10 +54,11 @@ class Params(EffectParams):
 
 
 def bounce_phasor(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: str, distance_mm: float,
-                  sensor: Any) -> np.ndarray:
+                  sensor: Any, nodes: int = NODES) -> np.ndarray:
     """m / rho of the points (x, y, z) (camera frame, mm): the diffuse bounce's phasor relative to the direct
     light per unit albedo (0 where the point lies beyond the plane or before its lit part). ``sensor`` gives
-    the field of view (``profile``) and the phase per mm of range (``wavenumber``)."""
+    the field of view (``profile``) and the phase per mm of range (``wavenumber``); ``nodes`` the rule's size
+    across the depth of the lit patches (a smaller rule is faster and less exact close to the plane)."""
     axis, side = PLANES[plane]
     p = sensor.profile
     across, lateral = (p.fov_h_deg, p.fov_v_deg) if axis == 0 else (p.fov_v_deg, p.fov_h_deg)
@@ -65,7 +70,8 @@ def bounce_phasor(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: str, dista
     x, y, z = (np.ascontiguousarray(np.broadcast_to(v, shape)).ravel() for v in (x, y, z))
     h = d - side * (x, y)[axis]
     b = y if axis == 0 else x
-    total = _bounce(h, b, x * x + y * y + z * z, z, d, w0, tan_lateral, sensor.wavenumber, _S, _WS, _T, _WT)
+    total = _bounce(h, b, x * x + y * y + z * z, z, d, w0, tan_lateral, sensor.wavenumber, *_rule(nodes),
+                    *_rule(nodes // 2))
     return total.reshape(shape)
 
 

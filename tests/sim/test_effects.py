@@ -10,8 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
+from labctl.reconcile.candidates import SIGNATURE_NODES
 from metrics.sfr import edge_sfr
 from sim.effects import EFFECTS
+from sim.effects.diffuse_floor_multipath import bounce_phasor
 from sim.effects.fixed_pattern import Params, cell_average, offset_map_mm
 from sim.geometry import Pose
 from sim.materials import get_material
@@ -210,6 +212,9 @@ def test_diffuse_floor_multipath_is_the_bounce_summed_over_floor_patches():
         light = 0.5 / math.pi * 300.0 / cf**3 * h * (z - w[:, None]) / fp**4 * area[:, None]
         m = np.sum(light * np.exp(1j * k * (cf + fp - r) / 2)) / (z / r**3)
         assert p_on.range_mm[row, col] - p_off.range_mm[row, col] == pytest.approx(np.angle(1 + m) / k, abs=0.02)
+        # the reconcile grid's smaller rule: its first-order signature Im m / k within 0.02 mm at albedo 0.5
+        coarse = 0.5 * bounce_phasor(*(np.array([v]) for v in (x, y, z)), "floor", 300.0, on, nodes=SIGNATURE_NODES)
+        assert coarse[0].imag / k == pytest.approx(m.imag / k, abs=0.02)
     assert np.nanmax(np.abs(p_on.range_mm - p_off.range_mm)) > 1.0
     beyond = (rays[1] * p_off.range_mm) >= 300.0  # the wall below the floor's height gets no bounce
     assert beyond.any() and np.all(p_on.range_mm[beyond] == p_off.range_mm[beyond])
