@@ -5,7 +5,9 @@ Forward models written here from first principles (tests/reconcile/forward.py re
 * a range error of -1.5 mm per decade of the pixel's signal, on a depth sweep that returns to 2 m at its end
   (an offset calibration at 2 m before and after the 0.4-4 m sweep): the signal falls as the sweep moves
   out and is back at the 2 m value at the end, so over the run's time it looks like a drift; over the
-  signal it is a straight line in log10 of the intensity -> ``log_amplitude_error``;
+  signal it is a straight line in log10 of the intensity -> ``log_amplitude_error``. The run also holds the
+  robot's PTFE and silicone plates (two signals at one position), which separate an error following the
+  signal from one following the distance (without them: ``ambiguous``, tests/reconcile/test_confounds.py);
 * a constant offset of 0.1 px on every stereo disparity d = f b / z: the depth f b / (d + 0.1) is short by
   about z^2 0.1 / (f b), growing as the square of the distance -> ``stereo_calibration_drift``.
 """
@@ -18,7 +20,7 @@ import numpy as np
 from labctl.reconcile.workflow import reconcile
 from sim.profiles import get_profile
 from tests.reconcile.forward import Pixels, rewrite_run
-from tests.reconcile.runs import BACKENDS, CAMPAIGN, simulated_run
+from tests.reconcile.runs import BACKENDS, CAMPAIGN, ROBOT, simulated_run
 
 RETURN_TO_2M = """
 [[procedure]]
@@ -29,7 +31,7 @@ frames = 10
 
 
 def test_a_signal_dependent_error_on_a_sweep_back_to_2m_is_log_amplitude_error(tmp_path):
-    campaign = CAMPAIGN.format(backend=BACKENDS["blaze101"], seed=3, sweep_step_mm=200, robot="") + RETURN_TO_2M
+    campaign = CAMPAIGN.format(backend=BACKENDS["blaze101"], seed=3, sweep_step_mm=200, robot=ROBOT) + RETURN_TO_2M
     plain = simulated_run(tmp_path / "plain", "blaze101", campaign=campaign)
     with h5py.File(plain, "r") as f:
         steps = sorted(f["steps"])
