@@ -17,7 +17,7 @@ import pytest
 from labctl.cli import main
 from labctl.jsondoc import dumps, to_json
 from sim.emulators import DimetixEmulator
-from tests.conftest import campaign_text
+from tests.conftest import REALTIME_GROUP, campaign_text
 
 SMALL = 'camera = "blaze101"\n[camera_overrides]\nwidth = 48\nheight = 36\n'
 
@@ -164,6 +164,7 @@ def strict_json(text: str) -> object:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group(REALTIME_GROUP)  # its null replicas run on a local Dask cluster that takes both cores
 def test_reconcile_of_a_step_without_valid_points_prints_no_warning_and_no_nan(
     capsys, tmp_path: Path, blank_mask_run: Path
 ) -> None:
