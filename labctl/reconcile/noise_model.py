@@ -46,6 +46,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from scipy import ndimage, special
 
 from sim.effects import output_step_mm
@@ -87,23 +88,47 @@ def stored_disparity_noise(z: np.ndarray, sigma_d: np.ndarray, step_d: float, fo
     lattice = ratio <= LATTICE_RATIO
     std, spread = np.where(lattice, np.nan, sheppard), np.where(lattice, np.nan, 0.0)
     levels = int(math.ceil(5 * LATTICE_RATIO)) + 1
-    j = np.arange(-levels, levels + 1, dtype=float)[:, None]
-    delta = (np.arange(DISPARITY_POSITIONS) + 0.5) / DISPARITY_POSITIONS - 0.5
-    r = ratio[lattice][:, None, None]
-    probs = _phi((j + 0.5 - delta) / r) - _phi((j - 0.5 - delta) / r)  # (bins, J, D)
-    values = -scale[lattice][:, None, None] * (j - delta) * step_d
-    if step_mm > 0:
-        u = (np.arange(OUTPUT_OFFSETS) + 0.5) / OUTPUT_OFFSETS * step_mm
-        values = np.round((values[..., None] + u) / step_mm) * step_mm  # (bins, J, D, U)
-        probs = probs[..., None]
-    mean = (probs * values).sum(axis=1)
-    var = np.maximum((probs * values**2).sum(axis=1) - mean**2, 0.0).reshape(len(r), -1)
-    std[lattice] = np.sqrt(var.mean(axis=-1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        spread[lattice] = np.std(0.5 * np.log(var), axis=-1)
+    offsets = OUTPUT_OFFSETS if step_mm > 0 else 1
+    std[lattice], spread[lattice] = _lattice_noise(ratio[lattice], scale[lattice], step_d, step_mm, levels,
+                                                   DISPARITY_POSITIONS, offsets)
     sigma = scale * sigma_d
     ok = np.isfinite(z) & ((step_mm <= 0) | (sigma >= step_mm / 2))
     return np.where(ok, std, np.nan), np.where(ok, spread, np.nan)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")  # x / 0 is inf, as in numpy (a zero disparity noise)
+def _lattice_noise(ratio: np.ndarray, scale: np.ndarray, step_d: float, step_mm: float, levels: int,
+                   positions: int, offsets: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+    """Per bin: sqrt of the mean over the grid positions (``positions`` of the disparity, ``offsets`` of the
+    output grid, 1 without an output step) of the variance of the depth over the disparity levels -``levels`` ...
+    ``levels``, and the std of half its logarithm (``stored_disparity_noise``; compiled: reconcile predicts every
+    bin of every step at each evaluation of its fits)."""
+    n_pos = positions * offsets
+    std, spread = np.empty(ratio.size), np.empty(ratio.size)
+    probs, values, half_log = np.empty(2 * levels + 1), np.empty(2 * levels + 1), np.empty(n_pos)
+    root2 = math.sqrt(2.0)
+    for i in range(ratio.size):
+        r, total = ratio[i], 0.0
+        for d in range(positions):
+            delta = (d + 0.5) / positions - 0.5
+            for k in range(2 * levels + 1):
+                j = k - levels
+                probs[k] = 0.5 * math.erfc(-(j + 0.5 - delta) / r / root2) - \
+                    0.5 * math.erfc(-(j - 0.5 - delta) / r / root2)
+                values[k] = -scale[i] * (j - delta) * step_d
+            for o in range(offsets):
+                u = (o + 0.5) / offsets * step_mm
+                m1, m2 = 0.0, 0.0
+                for k in range(2 * levels + 1):
+                    v = np.rint((values[k] + u) / step_mm) * step_mm if step_mm > 0 else values[k]
+                    m1 += probs[k] * v
+                    m2 += probs[k] * v * v
+                var = max(m2 - m1 * m1, 0.0)
+                total += var
+                half_log[d * offsets + o] = 0.5 * np.log(var)
+        std[i] = math.sqrt(total / n_pos)
+        spread[i] = np.std(half_log)
+    return std, spread
 
 
 def tof_statistics(sensor: ToFSensor, amplitude: np.ndarray, ambient: float,
