@@ -99,7 +99,8 @@ def run_null() -> Result:
             outcome[f"s{n}"] = best_of(1, once)
     serial, parallel = outcome["s1"], outcome[f"s{workers}"]
     result = outcome[workers]
-    wiggling = (result.minimum_detectable or {}).get("wiggling", {}).get("amplitude")
+    found = (result.minimum_detectable or {}).get("wiggling")
+    wiggling = found.amplitude if found is not None else None
     replicas = result.rule.seconds
     return Result("reconcile_null", f"{parallel:.1f} s with {DEFAULT_NULL_RUNS} null replicas on {workers} workers "
                   f"({replicas:.1f} s of it the replicas; verdict {result.verdict}, minimum detectable wiggling "

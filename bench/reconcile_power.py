@@ -31,13 +31,13 @@ def main(seeds: int, effect: str, factor: float) -> int:
         null_run = simulated_run(Path(tmp) / "null", "blaze101", {}, seed=200)
         base = reconcile(null_run, null_runs=DEFAULT_NULL_RUNS)
         detail = (base.minimum_detectable or {}).get(effect)
-        if detail is None or detail["amplitude"] is None:
+        if detail is None or detail.amplitude is None:
             print(f"no minimum detectable amplitude stated for {effect}")
             return 1
-        print(f"null run: verdict {base.verdict}; {effect}: {detail['parameter']} {detail['amplitude']} at "
-              f"{detail['at']} (grid {detail['grid_min']} ... {detail['grid_max']}); replicas "
+        print(f"null run: verdict {base.verdict}; {effect}: {detail.parameter} {detail.amplitude} at "
+              f"{detail.at} (grid {detail.grid_min} ... {detail.grid_max}); replicas "
               f"{base.rule.seconds:.0f} s", flush=True)
-        hidden = {effect: {**detail["at"], detail["parameter"]: factor * detail["amplitude"]}}
+        hidden = {effect: {**detail.at, detail.parameter: factor * detail.amplitude}}
         named = 0
         for seed in range(201, 201 + seeds):
             run = simulated_run(Path(tmp) / f"s{seed}", "blaze101", hidden, seed=seed)
@@ -46,7 +46,7 @@ def main(seeds: int, effect: str, factor: float) -> int:
             named += hit
             print(f"seed {seed}: verdict {result.verdict}, named {[e.name for e in result.named] or 'nothing'}"
                   f"{' (hit)' if hit else ''}", flush=True)
-        print(f"{effect} at {factor:g} x its minimum detectable {detail['parameter']} ({hidden[effect]}): named in "
+        print(f"{effect} at {factor:g} x its minimum detectable {detail.parameter} ({hidden[effect]}): named in "
               f"{named} of {seeds} seeds (the figure promises 90 % at 1x); {time.monotonic() - start:.0f} s")
     return 0
 

@@ -48,7 +48,15 @@ from scipy import stats
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction
 from labctl.reconcile.residuals import Z_FLOOR_MM
-from labctl.reconcile.results import AxisSummary, Confounded, CurvePoint, Unexplained
+from labctl.reconcile.results import (
+    AxisSummary,
+    Confounded,
+    CurvePoint,
+    FamilyDeparture,
+    StatisticsAxis,
+    StatisticsCurvePoint,
+    Unexplained,
+)
 
 GROUPS = 24
 CONFOUNDED = 0.8
@@ -250,14 +258,14 @@ def _size(family: str, value: float) -> str:
 
 
 def describe_statistics(family: str, observations: list[Observation], predictions: list[Prediction],
-                        maps: list[np.ndarray], weights: list[np.ndarray], t0_s: float) -> dict[str, Any]:
+                        maps: list[np.ndarray], weights: list[np.ndarray], t0_s: float) -> FamilyDeparture:
     """What a statistics family's residual (per-step maps, NaN outside the compared bins; ``weights`` their
     inverse variances) follows: the carrying axis and the region of it where the residual departs most, the
     departure as a factor (noise, correlation: the log ratio's weighted mean, exponentiated) or relative
     change (validity: measured over predicted valid pixels there), and a sentence."""
     v = np.concatenate([m[np.isfinite(m)] for m in maps]) if maps else np.zeros(0)
     if not len(v):
-        return {"family": family, "carrying_axis": None, "description": f"{FAMILY_WORDS[family]}: no compared bins"}
+        return FamilyDeparture(family=family, carrying_axis=None, description=f"{FAMILY_WORDS[family]}: no compared bins")
     weight = _stack(weights, maps).astype(float)
     fits: list[AxisFit] = []
     values: dict[str, np.ndarray] = {}
@@ -304,7 +312,8 @@ def describe_statistics(family: str, observations: list[Observation], prediction
     else:
         size = _size(family, mean)
         departure = {"factor": round(math.exp(mean), 4)}
-    return {"family": family, "carrying_axis": carrying.name if carrying else None, "where": where,
-            **departure, "axes": [{"axis": f.name, "unit": f.unit, "eta2": round(float(f.eta2), 4)} for f in fits],
-            "curve": [{"x": c.x, "mean": c.mean_mm, "n": c.n} for c in carrying.curve] if carrying else [],
-            "description": f"{FAMILY_WORDS[family]} {size} {where}"}
+    return FamilyDeparture(
+        family=family, carrying_axis=carrying.name if carrying else None, where=where, **departure,
+        axes=[StatisticsAxis(axis=f.name, unit=f.unit, eta2=round(float(f.eta2), 4)) for f in fits],
+        curve=[StatisticsCurvePoint(x=c.x, mean=c.mean_mm, n=c.n) for c in carrying.curve] if carrying else [],
+        description=f"{FAMILY_WORDS[family]} {size} {where}")

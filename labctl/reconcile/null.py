@@ -54,7 +54,7 @@ import tomli_w
 
 from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, StepFit, material
 from labctl.reconcile.observe import MAX_FRAMES
-from labctl.reconcile.results import NullJudgement
+from labctl.reconcile.results import CalibrationSection, NullJudgement, ValueRange
 from labctl.reconcile.score import Fit
 from sim.model import SimModel
 
@@ -152,9 +152,10 @@ class FixedThresholds:
     def material(self, before: Goodness, after: Goodness) -> bool:
         return material(before, after)
 
-    def summary(self) -> dict[str, Any]:
-        return {"method": self.name, "null_runs": 0, "dbic_threshold": self.dbic_threshold,
-                "material_fraction": MATERIAL_FRACTION, "floor_fraction": FLOOR_FRACTION}
+    def summary(self) -> CalibrationSection:
+        """The ``null_calibration`` section of reconcile.json."""
+        return CalibrationSection(method=self.name, null_runs=0, dbic_threshold=self.dbic_threshold,
+                                  material_fraction=MATERIAL_FRACTION, floor_fraction=FLOOR_FRACTION)
 
 
 @dataclass
@@ -212,30 +213,29 @@ class NullCalibration:
                 return True
         return False
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> CalibrationSection:
         """The ``null_calibration`` section of reconcile.json."""
         null = self.null_statistics()
         keys = sorted(set().union(*null)) if null else []
         dbic = sorted(set().union(*(r.delta_bic for r in self.replicas)))
-        spread = {k: _range([n[k] for n in null if k in n]) for k in keys}
-        return {"method": self.name, "null_runs": self.null_runs, "alpha": self.alpha,
-                "p_value": "empirical: (1 + #{null >= observed}) / (null_runs + 1)",
-                "seeds": [r.seed for r in self.replicas], "seconds": round(self.seconds, 1), "workers": self.workers,
-                "null_statistics": spread,
-                "null_best_delta_bic": _range(self.null_best(set(dbic))),
-                "null_delta_bic": {k: _range([r.delta_bic[k] for r in self.replicas if k in r.delta_bic])
-                                   for k in dbic},
-                "later_rounds": "judged against the first round's null distributions (the replicas are simulated "
-                                "once, from the model the first round compares): the dBIC of the candidates still "
-                                "in play, and the residual statistics",
-                "material_fraction": MATERIAL_FRACTION}
+        return CalibrationSection(
+            method=self.name, null_runs=self.null_runs, alpha=self.alpha,
+            p_value="empirical: (1 + #{null >= observed}) / (null_runs + 1)",
+            seeds=[r.seed for r in self.replicas], seconds=round(self.seconds, 1), workers=self.workers,
+            null_statistics={k: _range([n[k] for n in null if k in n]) for k in keys},
+            null_best_delta_bic=_range(self.null_best(set(dbic))),
+            null_delta_bic={k: _range([r.delta_bic[k] for r in self.replicas if k in r.delta_bic]) for k in dbic},
+            later_rounds="judged against the first round's null distributions (the replicas are simulated once, "
+                         "from the model the first round compares): the dBIC of the candidates still in play, and "
+                         "the residual statistics",
+            material_fraction=MATERIAL_FRACTION)
 
 
-def _range(values: list[float]) -> dict[str, float | None]:
+def _range(values: list[float]) -> ValueRange:
     finite = [v for v in values if math.isfinite(v)]
     if not finite:
-        return {"min": None, "median": None, "max": None}
-    return {"min": round(min(finite), 4), "median": round(stats.median(finite), 4), "max": round(max(finite), 4)}
+        return ValueRange(min=None, median=None, max=None)
+    return ValueRange(min=round(min(finite), 4), median=round(stats.median(finite), 4), max=round(max(finite), 4))
 
 
 def replica_campaign(campaign_toml: str, seed: int) -> str:

@@ -44,6 +44,7 @@ from scipy.stats import norm
 from labctl.reconcile.candidates import Candidate, Context, candidates_for
 from labctl.reconcile.null import NullCalibration, critical_value, p_value, standardized_max
 from labctl.reconcile.residuals import STATISTICS, Layout
+from labctl.reconcile.results import MinimumDetectable
 
 #: the probability of naming the effect the figure promises (the contract's 90 %)
 POWER = 0.9
@@ -199,12 +200,12 @@ def _amplitude(signal: _Signal, replicas: _Replicas) -> float:
     return hi
 
 
-def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, dict[str, Any]]:
+def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, MinimumDetectable]:
     """Per candidate effect of the first round: the amplitude parameter, the amplitude named with probability
     ``POWER`` (median over the candidate's grid), the grid's range of it and the parameters at the median point."""
     in_play = {n for r in null.replicas for n in r.delta_bic}
     threshold = critical_value(null.null_best(in_play), null.alpha)
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, MinimumDetectable] = {}
     for candidate in candidates_for(ctx):
         replicas = _Replicas(null, candidate.name, candidate.n_params, lay.n_steps, threshold)
         found = []
@@ -222,12 +223,10 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, di
         amplitude, key, nonlinear = found[(len(found) - 1) // 2]
         finite = [f[0] for f in found if math.isfinite(f[0])]
         at = candidate.to_params(ctx, np.eye(len(candidate.columns(ctx, nonlinear)))[0] * PROBE, nonlinear) or {}
-        out[candidate.name] = {
-            "parameter": key, "amplitude": _round(amplitude),
-            "grid_min": _round(min(finite)) if finite else None, "grid_max": _round(max(finite)) if finite else None,
-            "grid_points": len(found),
-            "at": {k: v for k, v in at.items() if k != key and not isinstance(v, list)},
-        }
+        out[candidate.name] = MinimumDetectable(
+            parameter=key, amplitude=_round(amplitude),
+            grid_min=_round(min(finite)) if finite else None, grid_max=_round(max(finite)) if finite else None,
+            grid_points=len(found), at={k: v for k, v in at.items() if k != key and not isinstance(v, list)})
     return out
 
 
@@ -235,10 +234,10 @@ def _round(value: float) -> float | None:
     return float(f"{value:.3g}") if math.isfinite(value) else None
 
 
-def detectable_message(found: dict[str, dict[str, Any]]) -> str:
+def detectable_message(found: dict[str, MinimumDetectable]) -> str:
     """What a ``none`` verdict promises: no effect above its minimum detectable amplitude."""
-    parts = [f"{name} above {d['amplitude']:g} ({d['parameter']})" for name, d in sorted(found.items())
-             if d["amplitude"] is not None]
+    parts = [f"{name} above {d.amplitude:g} ({d.parameter})" for name, d in sorted(found.items())
+             if d.amplitude is not None]
     return ("with 90 % probability this campaign would have named: no " + ", no ".join(parts)
             + " (minimum detectable amplitudes, the median over each effect's searched nonlinear parameters)"
             if parts else "no minimum detectable amplitude could be stated")

@@ -6,7 +6,6 @@ an ambiguity, a not-comparable run's needs, and ``reconcile.json`` itself (docs/
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from labctl.jsondoc import inline, optional
 
@@ -300,6 +299,49 @@ class Confounded:
 
 
 @dataclass(kw_only=True)
+class StatisticsAxis:
+    """An axis a statistics family's residual was tried against: its unit and the share of the residual's
+    variance it carries (eta^2)."""
+
+    axis: str
+    unit: str
+    eta2: float
+
+
+@dataclass(kw_only=True)
+class StatisticsCurvePoint:
+    """One group of a statistics family's curve: its centre, the residual's weighted mean there (the family's
+    unit: log ratio, or valid fraction), its bins."""
+
+    x: float | str
+    mean: float
+    n: int
+
+
+@dataclass(kw_only=True)
+class FamilyDeparture:
+    """How a statistics family (noise, validity, correlation) departs from the model
+    (labctl/reconcile/characterize.py ``describe_statistics``): the axis carrying it and where along it, the
+    departure (at the curve's ends where it changes sign; else the valid fraction's relative change and
+    difference, or the noise's and correlation's factor), the axes tried, the carrying axis's curve, one
+    sentence, and the family's gap and floor. A family with no compared bins has only its name, the
+    sentence, gap and floor."""
+
+    family: str
+    carrying_axis: str | None
+    where: str | None = optional()
+    at_ends: list[float] | None = optional()
+    relative_change: float | None = optional()
+    difference: float | None = optional()
+    factor: float | None = optional()
+    axes: list[StatisticsAxis] | None = optional()
+    curve: list[StatisticsCurvePoint] | None = optional()
+    description: str
+    gap: float | None = None
+    floor: float | None = None
+
+
+@dataclass(kw_only=True)
 class Unexplained:
     """``unexplained`` of reconcile.json (labctl/reconcile/characterize.py): the axes by eta^2, the carrying axis
     (None when none carries the residual), the axes confounded with it and its curve (absent when no bin was
@@ -312,7 +354,7 @@ class Unexplained:
     curve: list[CurvePoint] | None = optional()
     spatial_map_mm: list[list[float | None]]
     description: str
-    families: list[dict[str, Any]] | None = optional()  # the statistics families above their floors, what each follows
+    families: list[FamilyDeparture] | None = optional()  # the statistics families above their floors
     message: str | None = optional()
 
 
@@ -328,6 +370,54 @@ class ResidualFamily:
     unit: str
     consistent: bool
     steps: int
+
+
+@dataclass(kw_only=True)
+class ValueRange:
+    """The smallest, median and largest of a statistic over the null replicas (rounded; None when none is
+    finite)."""
+
+    min: float | None
+    median: float | None
+    max: float | None
+
+
+@dataclass(kw_only=True)
+class MinimumDetectable:
+    """An effect's minimum detectable amplitude (labctl/reconcile/power.py): the amplitude parameter, the amplitude
+    named with 90 % probability at the median point of the effect's grid of nonlinear parameters (None: none
+    within reach), its smallest and largest over the grid points evaluated, and the parameters at the median."""
+
+    parameter: str
+    amplitude: float | None
+    grid_min: float | None
+    grid_max: float | None
+    grid_points: int
+    at: Parameters
+
+
+@dataclass(kw_only=True)
+class CalibrationSection:
+    """``null_calibration`` of reconcile.json: the decision rule. Fixed thresholds: the dBIC threshold and the
+    floors' fractions. Null runs: the K replicas (seeds, seconds, workers), the p-value's formula, the null
+    distributions of the residual statistics and of the candidates' dBIC, how later rounds are judged, and the
+    minimum detectable amplitudes."""
+
+    method: str
+    null_runs: int
+    alpha: float | None = optional()
+    p_value: str | None = optional()
+    seeds: list[int] | None = optional()
+    seconds: float | None = optional()
+    workers: int | None = optional()
+    null_statistics: dict[str, ValueRange] | None = optional()
+    null_best_delta_bic: ValueRange | None = optional()
+    null_delta_bic: dict[str, ValueRange] | None = optional()
+    later_rounds: str | None = optional()
+    dbic_threshold: float | None = optional()
+    material_fraction: float
+    floor_fraction: float | None = optional()
+    minimum_detectable: dict[str, MinimumDetectable] | None = optional()
 
 
 @dataclass(kw_only=True)
@@ -357,7 +447,7 @@ class ReconcileDocument:
     empirical_corrections: list[EmpiricalCorrection]
     notes: list[str]
     calibration: str = "fixed thresholds"  # or "null runs" (labctl/reconcile/null.py)
-    null_calibration: dict[str, Any] | None = optional()
+    null_calibration: CalibrationSection | None = optional()
     minimum_detectable: dict[str, float | None] | None = optional()  # effect -> amplitude named with 90 % probability
     families: dict[str, ResidualFamily]
     excluded_steps: list[ExcludedStep]

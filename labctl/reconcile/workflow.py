@@ -90,8 +90,10 @@ from labctl.reconcile.results import (
     EmpiricalCorrection,
     Evidence,
     ExcludedStep,
+    FamilyDeparture,
     GoodnessOfFit,
     GoodnessSummary,
+    MinimumDetectable,
     NamedEffect,
     NotComparable,
     Parameters,
@@ -195,7 +197,7 @@ class ReconcileResult:
     goodness_after: Goodness | None = None  # the final model (with any empirical correction)
     goodness_physical: Goodness | None = None  # the named physical effects only
     rule: FixedThresholds | NullCalibration = field(default_factory=lambda: FixedThresholds(DBIC_THRESHOLD))
-    minimum_detectable: dict[str, Any] | None = None
+    minimum_detectable: dict[str, MinimumDetectable] | None = None
     unexplained: Unexplained | None = None
     empirical: list[EmpiricalCorrection] = field(default_factory=list)
     not_comparable: NotComparable | None = None
@@ -734,7 +736,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
                            excluded=excluded)
 
 
-def _describe_family(family: str, state: _State, lay: Layout) -> dict[str, Any]:
+def _describe_family(family: str, state: _State, lay: Layout) -> FamilyDeparture:
     """What a statistics family's residual follows (``describe_statistics``) with its gap and floor."""
     obs, preds = state.sim.observations, state.preds
     maps, weights = [], []
@@ -743,7 +745,7 @@ def _describe_family(family: str, state: _State, lay: Layout) -> dict[str, Any]:
         weights.append(1.0 / (sampling_variance(o, p)[family] + STAT_FLOORS[family] ** 2))
     found = describe_statistics(family, obs, preds, maps, weights, state.sim.t0_s)
     gap, floor = state.good.family_gap(family)
-    return {**found, "gap": rounded(gap), "floor": rounded(floor)}
+    return replace(found, gap=rounded(gap), floor=rounded(floor))
 
 
 def excluded_steps(observations: list[Observation], preds: list[Prediction], lay: Layout) -> list[ExcludedStep]:
@@ -815,8 +817,8 @@ def _unexplained_message(named: list[NamedEffect], good: Goodness, found: Unexpl
                          empirical: list[EmpiricalCorrection]) -> str:
     """What the user reads: what remains, what it follows, and what the empirical correction is; and which of
     the noise's statistics (noise, validity, correlation) depart from the model's, along which axis."""
-    families = "; ".join(f"{f['family']}: {f['description']} (gap {f['gap']}, floor {f['floor']} "
-                         f"{UNITS[f['family']]})" for f in found.families or [])
+    families = "; ".join(f"{f.family}: {f.description} (gap {f.gap}, floor {f.floor} {UNITS[f.family]})"
+                         for f in found.families or [])
     after = " after " + ", ".join(e.name for e in named) if named else ""
     if good.means_consistent:
         return (f"the mean depth agrees with the model (gap {good.gap_mm:.3f} mm, floor {good.gap_floor_mm:.3f} mm)"
@@ -904,8 +906,7 @@ def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocumen
         not_comparable=result.not_comparable,
         ambiguity=result.ambiguity,
         calibration=rule.name,
-        null_calibration={**rule.summary(), **({"minimum_detectable": result.minimum_detectable}
-                                               if result.minimum_detectable is not None else {})},
-        minimum_detectable={k: v["amplitude"] for k, v in result.minimum_detectable.items()}
+        null_calibration=replace(rule.summary(), minimum_detectable=result.minimum_detectable),
+        minimum_detectable={k: v.amplitude for k, v in result.minimum_detectable.items()}
         if result.minimum_detectable is not None else None,
     )

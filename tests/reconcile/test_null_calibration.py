@@ -128,7 +128,7 @@ def test_one_and_a_half_times_the_minimum_detectable_wiggling_is_named(null_resu
     """One seed here; bench/reconcile_power.py checks 9 of 10 seeds (docs/reconcile.md). The amplitude lies under
     the fixed floor (0.48 mm): without null runs it is missed."""
     detail = null_result.minimum_detectable["wiggling"]
-    hidden = {"wiggling": {**detail["at"], "amplitude_mm": 1.5 * detail["amplitude"]}}
+    hidden = {"wiggling": {**detail.at, "amplitude_mm": 1.5 * detail.amplitude}}
     run = simulated_run(tmp_path, "blaze101", hidden, seed=31)
     assert reconcile(run).verdict == "none"
     result = reconcile(run, null=null_result.rule)
