@@ -85,6 +85,13 @@ class StepFit:
     family: str  # "depth" (mm), "intensity" (%), "noise", "validity", "correlation" (``UNITS``)
     gap: float
     floor: float
+    excess: float | None = None  # mean(v^2 - var), the gap's square before it is clipped at 0 (None: gap^2)
+
+    @property
+    def mean_square(self) -> float:
+        """The systematic residual's mean square, unclipped: an unbiased estimate that is negative when the
+        residual is smaller than its noise alone would make it (the gap is its root, 0 there)."""
+        return self.gap**2 if self.excess is None else self.excess
 
     @property
     def ratio(self) -> float:
@@ -191,8 +198,13 @@ def steps_above_floor(steps: list[StepFit]) -> list[StepAboveFloor]:
                            ratio=rounded(s.ratio)) for s in worst if s.ratio > 1.0]
 
 
+def _excess(v: np.ndarray, var: np.ndarray) -> float:
+    """The residual's mean square beyond its noise's variance (unbiased, may be negative)."""
+    return float(np.mean(v * v - var)) if len(v) else math.nan
+
+
 def _systematic(v: np.ndarray, var: np.ndarray) -> float:
-    return float(np.sqrt(max(0.0, float(np.mean(v * v - var))))) if len(v) else math.nan
+    return math.sqrt(max(0.0, _excess(v, var))) if len(v) else math.nan
 
 
 def depth_floor_sq(lay: Layout, obs: list[Observation]) -> np.ndarray:
@@ -218,7 +230,7 @@ def statistics_goodness(lay: Layout, obs: list[Observation], preds: list[Predict
             m = rows == s
             if m.sum() >= 2:
                 steps.append(StepFit(o.scene.step_id, family, 100 * _systematic(v[m], var[m]),
-                                     100 * math.sqrt(np.mean(floor_sq[m]))))
+                                     100 * math.sqrt(np.mean(floor_sq[m])), 100**2 * _excess(v[m], var[m])))
         if len(v):
             runs.append(FamilyGap(family, 100 * _systematic(v, var), 100 * math.sqrt(np.mean(floor_sq))))
     return steps, tuple(runs)
@@ -243,11 +255,12 @@ def goodness(lay: Layout, obs: list[Observation], dz: list[np.ndarray], di: list
     for s, o in enumerate(obs):
         m = lay.z_step == s
         if m.sum() >= 2:
-            steps.append(StepFit(o.scene.step_id, "depth", _systematic(v[m], var[m]), math.sqrt(np.mean(floor_sq[m]))))
+            steps.append(StepFit(o.scene.step_id, "depth", _systematic(v[m], var[m]), math.sqrt(np.mean(floor_sq[m])),
+                                 _excess(v[m], var[m])))
         m = lay.i_step == s
         if m.sum() >= 2:
             steps.append(StepFit(o.scene.step_id, "intensity", 100 * _systematic(w[m], log_var[m]),
-                                 100 * math.sqrt(np.mean(i_floor_sq[m]))))
+                                 100 * math.sqrt(np.mean(i_floor_sq[m])), 100**2 * _excess(w[m], log_var[m])))
     statistics: tuple[FamilyGap, ...] = ()
     if preds is not None and stats is not None:
         stat_steps, statistics = statistics_goodness(lay, obs, preds, stats)

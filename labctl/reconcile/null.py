@@ -7,10 +7,11 @@ replica is observed and compared to that model exactly like the measured run
 (the first round of labctl/reconcile/workflow.py), which gives what the
 decisions are judged by, as they come out when nothing is missing:
 
-* the residual statistics of the goodness of fit: per residual family the RMS
-  of the step gaps (``gap:<family>``, in the family's unit; every family the
-  ``Goodness`` holds), and the largest step gap in units of its floor
-  (``worst_step_ratio``);
+* the residual statistics of the goodness of fit: per residual family the
+  signed root of the steps' unclipped mean square beyond the noise
+  (``gap:<family>``, in the family's unit: the RMS of the step gaps where no
+  step is below its noise; every family the ``Goodness`` holds), and the
+  largest step gap in units of its floor (``worst_step_ratio``);
 * every candidate's dBIC (labctl/reconcile/score.py).
 
 Each decision gets an empirical p-value, p = (1 + #{null >= observed}) / (K + 1)
@@ -96,14 +97,22 @@ def critical_value(null: Sequence[float], alpha: float = ALPHA) -> float:
     return ordered[len(ordered) - 1 - j] if j < len(ordered) else -math.inf
 
 
+def signed_root(mean_square: float) -> float:
+    """sqrt of a mean square that may be negative, with its sign: a gap-like value (the gap's unit) that goes on
+    below 0 instead of piling up there."""
+    return math.copysign(math.sqrt(abs(mean_square)), mean_square)
+
+
 def step_statistics(steps: Sequence[StepFit]) -> dict[str, float]:
-    """The residual statistics of a goodness of fit: per family the RMS of its step gaps, and the largest step gap
-    in units of its floor."""
+    """The residual statistics of a goodness of fit: per family the signed root of its steps' unclipped mean
+    squares (``StepFit.mean_square``; the RMS of the step gaps where none is below its noise), and the largest step
+    gap in units of its floor. Unclipped, a family whose gaps are 0 in most null runs (the residual within its
+    noise) still has a continuous null distribution, which the standardized maximum needs."""
     out: dict[str, float] = {}
     for family in sorted({s.family for s in steps}):
-        gaps = [s.gap for s in steps if s.family == family and math.isfinite(s.gap)]
-        if gaps:
-            out[f"gap:{family}"] = math.sqrt(float(np.mean(np.square(gaps))))
+        squares = [s.mean_square for s in steps if s.family == family and math.isfinite(s.gap)]
+        if squares:
+            out[f"gap:{family}"] = signed_root(float(np.mean(squares)))
     ratios = [s.ratio for s in steps if math.isfinite(s.ratio)]
     if ratios:
         out[WORST] = max(ratios)

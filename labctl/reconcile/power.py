@@ -4,9 +4,10 @@ A candidate's signature per unit of its amplitude (the change of the whitened,
 profiled residual rows, labctl/reconcile/candidates.py and score.py) is added
 to each null replica (labctl/reconcile/null.py) in thought:
 
-* the residual statistics: each step's gap in family f grows to
-  sqrt(gap^2 + A^2 m_sf), m_sf the mean square of the unwhitened signature over
-  the step's rows (depth in mm, intensity in %); the replica with the effect
+* the residual statistics: each step's mean square in family f (``StepFit.
+  mean_square``, unclipped) grows by A^2 m_sf, m_sf the mean square of the
+  unwhitened signature over the step's rows (depth in mm, intensity in %, the
+  statistics families in their units); the replica with the effect
   must then lie outside the other replicas' distribution (``NullCalibration.
   judge``'s rule, p <= alpha), or the round stops as "consistent";
 * the dBIC: in every (step, family) cell c the residual sum of squares falls by
@@ -128,31 +129,34 @@ def _family_rows(lay: Layout, column: tuple[np.ndarray, ...]) -> Iterator[tuple[
 
 
 class _Replicas:
-    """The null replicas as arrays: step gaps and floors over a common (step, family) list, cell residual sums of
-    squares, and the statistics of ``null.step_statistics`` computed from them."""
+    """The null replicas as arrays: step mean squares (``StepFit.mean_square``) and floors over a common (step,
+    family) list, cell residual sums of squares, and the statistics of ``null.step_statistics`` computed from
+    them."""
 
     def __init__(self, null: NullCalibration, name: str, n_params: int, n_steps: int, threshold: float) -> None:
         self.alpha, self.threshold = null.alpha, threshold
         self.steps = sorted({(s.step_id, s.family) for r in null.replicas for s in r.steps})
         index = {k: i for i, k in enumerate(self.steps)}
         k, n = len(null.replicas), len(self.steps)
-        self.gap, self.floor = np.full((k, n), np.nan), np.full((k, n), np.nan)
+        self.square, self.floor = np.full((k, n), np.nan), np.full((k, n), np.nan)
         for j, r in enumerate(null.replicas):
             for s in r.steps:
-                self.gap[j, index[(s.step_id, s.family)]] = s.gap
+                if math.isfinite(s.gap):
+                    self.square[j, index[(s.step_id, s.family)]] = s.mean_square
                 self.floor[j, index[(s.step_id, s.family)]] = s.floor
         self.families = sorted({f for _, f in self.steps})
         self.family_of = np.array([f for _, f in self.steps])
         self.rss = [np.asarray(r.cell_rss, float) for r in null.replicas]
         self.dbic0 = np.array([r.delta_bic.get(name, -n_params * math.log(n_steps)) for r in null.replicas])
-        self.base = self.statistics(self.gap)
+        self.base = self.statistics(self.square)
 
-    def statistics(self, gap: np.ndarray) -> np.ndarray:
-        """(replicas, statistics): per family the RMS of the finite step gaps, then the largest step ratio."""
+    def statistics(self, square: np.ndarray) -> np.ndarray:
+        """(replicas, statistics): per family the signed root of the mean of the step mean squares, then the largest
+        step ratio (gap = the root of the mean square clipped at 0)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            columns = [np.sqrt(np.nanmean(np.where(self.family_of == f, gap, np.nan) ** 2, axis=1))
-                       for f in self.families]
-            ratio = gap / self.floor
+            mean = [np.nanmean(np.where(self.family_of == f, square, np.nan), axis=1) for f in self.families]
+            columns = [np.sign(m) * np.sqrt(np.abs(m)) for m in mean]
+            ratio = np.sqrt(np.maximum(square, 0.0)) / self.floor
             columns.append(np.nanmax(np.where(np.isfinite(ratio), ratio, np.nan), axis=1))
         return np.stack(columns, axis=1)
 
@@ -171,7 +175,7 @@ class _Replicas:
         """The probability that a replica carrying the effect at ``amplitude`` is judged outside the null and the
         effect's dBIC passes the threshold."""
         power = np.array([signal.step_power.get(step, 0.0) for step in self.steps])
-        outside = self.outside(self.statistics(np.sqrt(self.gap**2 + amplitude**2 * power)))
+        outside = self.outside(self.statistics(self.square + amplitude**2 * power))
         q, use = signal.q, signal.q > 0
         hits = 0.0
         for j in np.flatnonzero(outside):

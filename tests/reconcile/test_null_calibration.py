@@ -4,9 +4,9 @@ The p-value and the critical value are checked against hand-made
 distributions. The end-to-end cases reconcile the test campaign (offset
 calibration, 0.4-4 m sweep in 200 mm steps, PTFE and silicone plates on the
 robot, 10 frames, blaze-101 at 160 x 120) with 19 null replicas, the fewest for
-which p <= 0.05 is attainable: with nothing hidden the verdict is ``none``; 1.5
-times the minimum detectable wiggling, under the fixed floor (0.48 mm) and
-``none`` with the fixed thresholds, is named.
+which p <= 0.05 is attainable: with nothing hidden the verdict is ``none``; a
+0.25 mm wiggling, well under the fixed floor (0.48 mm) and ``none`` with the
+fixed thresholds, is named; so is 1.5 times the minimum detectable wiggling.
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ from labctl.reconcile.null import (
 from labctl.reconcile.workflow import json_document, reconcile
 from tests.conftest import REALTIME_GROUP
 from tests.reconcile.runs import CAMPAIGN, ROBOT, reconcile_cli, simulated_run
+
+WIGGLING = {"wiggling": {"amplitude_mm": 0.25, "period_mm": 1500.0, "phase_rad": 0.5}}
 
 # the replicas run on a local Dask cluster that takes both cores: on one worker, never beside a realtime test, and
 # the module's replicas simulated once
@@ -61,6 +63,17 @@ def test_the_combined_statistic_is_the_largest_standardized_one():
     # a: mean 2, std sqrt(2/3); b: mean 1, std sqrt(2/3)
     s = math.sqrt(2 / 3)
     assert t == pytest.approx([1 / s, 0.0, 1 / s])
+
+
+def test_a_familys_statistic_is_the_signed_root_of_its_unclipped_mean_square():
+    # a step within its noise has gap 0 but a negative mean square beyond the noise; the statistic keeps it
+    steps = [StepFit("a", "depth", 0.0, 1.0, -0.04), StepFit("b", "depth", 0.3, 1.0, 0.09)]
+    assert step_statistics(steps)["gap:depth"] == pytest.approx(math.sqrt((0.09 - 0.04) / 2))
+    quiet = [StepFit("a", "depth", 0.0, 1.0, -0.04), StepFit("b", "depth", 0.0, 1.0, -0.02)]
+    assert step_statistics(quiet)["gap:depth"] == pytest.approx(-math.sqrt(0.03))  # below 0, not piled up at it
+    plain = [StepFit("a", "depth", 0.1, 1.0), StepFit("b", "depth", 0.3, 1.0)]  # no excess given: the gaps' RMS
+    assert step_statistics(plain)["gap:depth"] == pytest.approx(math.sqrt((0.01 + 0.09) / 2))
+    assert step_statistics(steps)["worst_step_ratio"] == pytest.approx(0.3)
 
 
 def _replica(seed, gaps, dbic):
@@ -124,14 +137,22 @@ def test_null_replicas_of_the_test_campaign_give_none(null_result, tmp_path):
 
 
 @pytest.mark.slow
+def test_a_quarter_millimetre_wiggling_is_named_with_null_runs(null_result, tmp_path):
+    run = simulated_run(tmp_path, "blaze101", WIGGLING)
+    assert reconcile(run).verdict == "none"  # under the fixed floor (0.48 mm): missed without null runs
+    result = reconcile(run, null=null_result.rule)
+    assert [e.name for e in result.named] == ["wiggling"], (result.verdict, result.candidates)
+    evidence = result.named[0].evidence
+    assert evidence.p_value <= ALPHA and evidence.null_runs == DEFAULT_NULL_RUNS
+    assert result.named[0].parameters["period_mm"] == pytest.approx(1500.0, rel=0.1)
+
+
+@pytest.mark.slow
 def test_one_and_a_half_times_the_minimum_detectable_wiggling_is_named(null_result, tmp_path):
-    """One seed here; bench/reconcile_power.py checks 9 of 10 seeds (docs/reconcile.md). The amplitude lies under
-    the fixed floor (0.48 mm): without null runs it is missed."""
+    """One seed here; bench/reconcile_power.py checks 9 of 10 seeds (docs/reconcile.md)."""
     detail = null_result.minimum_detectable["wiggling"]
     hidden = {"wiggling": {**detail.at, "amplitude_mm": 1.5 * detail.amplitude}}
-    run = simulated_run(tmp_path, "blaze101", hidden, seed=31)
-    assert reconcile(run).verdict == "none"
-    result = reconcile(run, null=null_result.rule)
+    result = reconcile(simulated_run(tmp_path, "blaze101", hidden, seed=31), null=null_result.rule)
     assert "wiggling" in [e.name for e in result.named], (hidden, result.verdict, result.candidates)
     evidence = next(e for e in result.named if e.name == "wiggling").evidence
     assert evidence.p_value <= ALPHA and evidence.null_runs == DEFAULT_NULL_RUNS
