@@ -507,18 +507,24 @@ def _column_row_profile(effect: Effect) -> Candidate:
 # The plane and its distance from the optical axis are searched on a grid. The plane is coded into the distance
 # parameter of the refit (PLANE_CODE_MM per plane), whose bounds keep the solver on the plane the grid found.
 PLANE_CODE_MM = 20000.0
+# distances searched per plane, 100 ... 3000 mm evenly in log: the specular bounce's phase k (R' - r) / 2 turns
+# quickly with the distance (24: 16 % apart); the diffuse bounce averages it over the lit patches and changes
+# smoothly (12: 36 % apart), its refit then sets the distance
+SPECULAR_DISTANCES = 24
+DIFFUSE_DISTANCES = 12
 
 
-def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray, str, float], np.ndarray]) -> Candidate:
+def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray, str, float], np.ndarray],
+                     distances: int) -> Candidate:
     """The candidate of a bounce off a plane: ``first_order(ctx, points, plane, distance)`` is the range change per
-    unit of the linear parameter at the rows' points."""
+    unit of the linear parameter at the rows' points, searched at ``distances`` distances per plane."""
     plane_key, distance_key, linear_key = effect.observed.fitted
     planes = typing.get_args(effect.params.model_fields[plane_key].annotation)
     d_lo, d_hi = bounds(effect, distance_key)
     r_lo, r_hi = bounds(effect, linear_key)
 
     def grid(_: Context) -> list[Any]:
-        return [(plane, float(d)) for plane in planes for d in np.geomspace(100.0, 3000.0, 24)]
+        return [(plane, float(d)) for plane in planes for d in np.geomspace(100.0, 3000.0, distances)]
 
     def columns(ctx: Context, where: Any) -> list[Column]:
         plane, distance = where
@@ -550,13 +556,14 @@ def _plane_bounce(effect: Effect) -> Candidate:
         ratio, half_extra = bounce(*points, plane, distance)
         return ratio * np.sin(k * half_extra) / k
 
-    return _plane_candidate(effect, first_order)
+    return _plane_candidate(effect, first_order, SPECULAR_DISTANCES)
 
 
 # The grid's signature integrates the bounce with a smaller quadrature rule than the simulation's (``nodes``; the
 # refit re-simulates with the effect's own): on a 0.4-4 m sweep's points, 8 nodes keep Im m within 0.5 % (RMS)
 # of the 16-node rule for planes 150-600 mm from the axis (5 % at 2 m, where the bounce is weak) at a quarter of
-# the cost, which the grid pays at every trial plane of every round and null replica.
+# the cost, which the grid pays at every trial plane of every round and null replica (tests/sim/test_effects.py
+# checks it against a fine patch sum).
 SIGNATURE_NODES = 8
 
 
@@ -567,7 +574,7 @@ def _plane_phasor(effect: Effect) -> Candidate:
         sensor = ctx.make_predictor(ctx.model).sensor
         return phasor(*points, plane, distance, sensor, nodes=SIGNATURE_NODES).imag / sensor.wavenumber
 
-    return _plane_candidate(effect, first_order)
+    return _plane_candidate(effect, first_order, DIFFUSE_DISTANCES)
 
 
 # periodic_disparity: dz = -z^2 / (f b) * (a sin(2 pi d / P) + b cos(2 pi d / P)), d = f b / z in the matcher's
