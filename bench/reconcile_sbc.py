@@ -1,0 +1,148 @@
+"""Simulation-based calibration of reconcile: does it recover what the library itself hides?
+
+``python -m bench.reconcile_sbc [DRAWS] [--pairs N] [--seed S] [--scheduler ADDRESS] [--workers N]``
+draws, for every library effect of the reconcile tests (the cases of
+tests/reconcile/test_reconcile_cli.py and tests/reconcile/test_library_effects.py,
+each on its camera at the test size), DRAWS parameter sets at random within
+the test ranges, and N random pairs of two effects of one camera; hides each in
+a simulated run of the reconcile test campaign (tests/reconcile/runs.py, a
+random seed) and reconciles it from the camera's built-in model with the fixed
+thresholds, one Dask task per run (Talts et al. 2018, simulation-based
+calibration: a method that recovers what it is given names the right effects,
+and its 95 % intervals cover the truth about 95 % of the time). Prints per
+draw the outcome, then a table per effect and for the pairs: the share named
+right and nothing else (target >= 90 %), the share of the stated 95 %
+intervals covering the true parameter (target 85-99 %; the scalar parameters
+of the effects named right; a drift's amplitude at the run's first frame is
+not the hidden one and is left out), and the share whose gap after the named
+effects (before any empirical correction) is within the floor (target
+>= 90 %). Not a budget benchmark.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from labctl.batch.cluster import Cluster, open_client
+from labctl.reconcile.workflow import reconcile
+from sim.effects import EFFECTS
+from sim.profiles import get_profile
+from tests.reconcile.runs import simulated_run
+from tests.reconcile.test_reconcile_cli import CASES
+
+Draw = Callable[[np.random.Generator], dict[str, Any]]
+#: the newer library effects at the test's value (tests/reconcile/test_library_effects.py), drawn around it
+NEWER: dict[str, tuple[str, str, Draw]] = {
+    "log_amplitude_error-blaze101": ("blaze101", "log_amplitude_error", lambda r: {
+        "per_decade_mm": -float(r.uniform(1.5, 4.5)), "per_decade_squared_mm": float(r.uniform(1.0, 3.0))}),
+    "diffuse_floor_multipath-blaze101": ("blaze101", "diffuse_floor_multipath", lambda r: {
+        "plane": "floor", "distance_mm": float(r.uniform(250, 450)), "albedo": float(r.uniform(0.3, 0.7))}),
+    "stereo_calibration_drift-d455": ("d455", "stereo_calibration_drift", lambda r: {
+        "disparity_offset_px": float(r.choice([-1.0, 1.0]) * r.uniform(0.04, 0.12))}),
+    "disparity_bias-d455": ("d455", "disparity_bias", lambda r: {
+        "amplitude_px": float(r.uniform(0.03, 0.06)), "period_px": float(r.uniform(1.5, 2.5)),
+        "phase_rad": float(r.uniform(-3, 3))}),
+}
+DRAWS: dict[str, tuple[str, str, Draw]] = {**CASES, **NEWER}
+NOT_COMPARED = {"temperature_drift": {"delta_mm"}}  # fitted at the run's first frame, hidden at the run's start
+
+
+def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: int) -> dict[str, Any]:
+    """Simulate and reconcile one draw (a Dask task): what was named, fitted and covered, the verdict and gaps."""
+    start = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="labctl-sbc-") as tmp:
+        result = reconcile(simulated_run(Path(tmp), camera, hidden, seed=seed))
+    named = {e.name: e for e in result.named}
+    covered: list[bool] = []
+    for name, truth in hidden.items():
+        effect = named.get(name)
+        intervals = effect.evidence.determination.interval_95 if effect is not None and effect.evidence else None
+        for key, value in truth.items():
+            if not isinstance(value, float) or key in NOT_COMPARED.get(name, set()) or not intervals \
+                    or key not in intervals:
+                continue
+            lo, hi = intervals[key]
+            if key.endswith("_rad"):  # an angle: the truth's turn inside or above the interval
+                value = lo + (value - lo) % (2 * math.pi)
+            elif key == "extra_path_mm":  # known modulo the ambiguity interval c / (2 f_mod)
+                value = lo + (value - lo) % (299792458e3 / (2e6 * get_profile(camera).modulation_mhz))
+            covered.append(lo <= value <= hi)
+    after = result.goodness_physical or result.goodness_after  # the named effects', before any empirical correction
+    return {"label": label, "seed": seed, "hidden": sorted(hidden), "named": sorted(named),
+            "verdict": result.verdict, "covered": covered,
+            "within_floor": bool(after is not None and result.rule.consistent(after)),
+            "seconds": time.monotonic() - start}
+
+
+def plan(draws: int, pairs: int, seed: int) -> list[tuple[str, str, dict[str, dict[str, Any]], int]]:
+    """The draws: ``draws`` per effect and ``pairs`` random pairs of two effects one camera can show."""
+    rng = np.random.default_rng(seed)
+    tasks = []
+    for label, (camera, effect, draw) in sorted(DRAWS.items()):
+        for _ in range(draws):
+            tasks.append((label, camera, {effect: draw(rng)}, int(rng.integers(1000, 100000))))
+    keys = sorted(DRAWS)
+    for _ in range(pairs):
+        first = DRAWS[keys[int(rng.integers(len(keys)))]]
+        camera, effect, draw = first
+        technology = get_profile(camera).technology
+        others = [k for k in keys if DRAWS[k][1] != effect and technology in EFFECTS[DRAWS[k][1]].technologies]
+        other = DRAWS[others[int(rng.integers(len(others)))]]
+        tasks.append(("pairs", camera, {effect: draw(rng), other[1]: other[2](rng)}, int(rng.integers(1000, 100000))))
+    return tasks
+
+
+def _share(hits: int, n: int) -> str:
+    return f"{hits}/{n} ({hits / n:.0%})" if n else "-"
+
+
+def table(outcomes: list[dict[str, Any]]) -> str:
+    """Per effect (and the pairs): named right and nothing else, interval coverage, gap after within the floor."""
+    lines = ["| hidden | draws | named right, nothing else | 95 % intervals covering | gap after within floor |",
+             "|---|---|---|---|---|"]
+    for label in sorted({o["label"] for o in outcomes}):
+        rows = [o for o in outcomes if o["label"] == label]
+        right = sum(o["named"] == o["hidden"] for o in rows)
+        covered = [c for o in rows for c in o["covered"]]
+        within = sum(o["within_floor"] for o in rows)
+        lines.append(f"| {label} | {len(rows)} | {_share(right, len(rows))} | {_share(sum(covered), len(covered))} "
+                     f"| {_share(within, len(rows))} |")
+    return "\n".join(lines)
+
+
+def main(draws: int, pairs: int, seed: int, cluster: Cluster) -> int:
+    tasks = plan(draws, pairs, seed)
+    start = time.monotonic()
+    outcomes = []
+    with open_client(cluster) as client:
+        workers = len(client.scheduler_info()["workers"])
+        futures = [client.submit(one_draw, *task, pure=False) for task in tasks]
+        for future in futures:
+            o = future.result()
+            outcomes.append(o)
+            print(f"{o['label']} seed {o['seed']}: verdict {o['verdict']}, named {o['named'] or 'nothing'} "
+                  f"(hidden {o['hidden']}), intervals covering {sum(o['covered'])}/{len(o['covered'])}, "
+                  f"{o['seconds']:.0f} s", flush=True)
+    print(table(outcomes))
+    print(f"{len(outcomes)} draws on {workers} workers in {time.monotonic() - start:.0f} s (seed {seed})")
+    return 0
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(prog="python -m bench.reconcile_sbc", description=__doc__.split("\n\n")[0])
+    parser.add_argument("draws", nargs="?", type=int, default=40, help="draws per effect (default 40)")
+    parser.add_argument("--pairs", type=int, default=40, help="draws of two effects together (default 40)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of the draws (default 1)")
+    parser.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a local cluster)")
+    parser.add_argument("--workers", type=int, help="worker processes of the local cluster (default: one per core)")
+    args = parser.parse_args()
+    sys.exit(main(args.draws, args.pairs, args.seed, Cluster(args.scheduler, args.workers)))
