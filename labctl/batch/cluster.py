@@ -23,7 +23,8 @@ from labctl.errors import InputError, RunAborted
 if TYPE_CHECKING:
     from distributed import Client
 
-#: a worker's compiled kernels run on its one core (numba would start a thread per core in every worker)
+#: a worker's compiled kernels run on its one core (numba would start a thread per core in every worker); set in
+#: this process's environment while the local cluster spawns its workers (``_worker_environment``)
 WORKER_ENVIRONMENT = {"NUMBA_NUM_THREADS": "1"}
 #: the local cluster's own log lines shown: none below CRITICAL. Its scheduler, nannies and workers log their
 #: errors with tracebacks (a worker's heartbeat that meets the scheduler already closing after a Ctrl-C is
@@ -83,6 +84,27 @@ def _workers_block_ctrl_c() -> Iterator[None]:
 
 
 @contextmanager
+def _worker_environment() -> Iterator[None]:
+    """``WORKER_ENVIRONMENT`` in this process's environment while the workers are spawned, restored afterwards.
+
+    A worker process reads NUMBA_NUM_THREADS when it first imports numba, which it does while it imports the
+    parent's main module, before a Nanny's ``env`` would be applied; a value set after that makes numba refuse to
+    compile anything once its threads run ("Cannot set NUMBA_NUM_THREADS to a different value once the threads
+    have been launched"). Inherited at the spawn, the value is there from the start. This process's own numba
+    keeps the value it started with. A worker the Nanny restarts later starts with this process's environment."""
+    saved = {key: os.environ.get(key) for key in WORKER_ENVIRONMENT}
+    os.environ.update(WORKER_ENVIRONMENT)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+@contextmanager
 def open_client(cluster: Cluster) -> Iterator[Client]:
     """A connected Dask client of ``cluster``; a local cluster is closed on the way out. The local scheduler's
     HTTP server (its dashboard when the ``bokeh`` package is installed) listens on a free port. Used inside
@@ -100,9 +122,9 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
         finally:
             client.close()
         return
-    with _workers_block_ctrl_c():
+    with _workers_block_ctrl_c(), _worker_environment():
         local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
-                             dashboard_address=":0", silence_logs=CLUSTER_LOG_LEVEL, env=WORKER_ENVIRONMENT)
+                             dashboard_address=":0", silence_logs=CLUSTER_LOG_LEVEL)
     try:
         with Client(local) as client:
             yield client
