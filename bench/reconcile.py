@@ -32,7 +32,7 @@ from labctl.reconcile.observe import MAX_FRAMES
 from labctl.reconcile.workflow import reconcile
 from sim.effects import default_effects
 from sim.profiles import get_profile
-from tests.reconcile.runs import CAMPAIGN, ROBOT, SIZES
+from tests.reconcile.runs import simulated_run
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 BUDGET_S = 60.0
@@ -67,30 +67,11 @@ def _read(run: Path) -> None:
             step["intensity"][:MAX_FRAMES]
 
 
-def _test_campaign(directory: Path) -> Path:
-    """The reconcile test campaign of the blaze-101 at 160 x 120, nothing hidden, ``/sim`` removed."""
-    width, height = SIZES["blaze101"]
-    (directory / "campaign.toml").write_text(CAMPAIGN.format(backend="blaze", seed=3, sweep_step_mm=200, robot=ROBOT))
-    (directory / "model.toml").write_text(tomli_w.dumps({
-        "camera": "blaze101", "camera_overrides": {"width": width, "height": height},
-        "effects": default_effects(get_profile("blaze101"))}))
-    run = directory / "test.h5"
-    try:
-        labctl_main(["run", str(directory / "campaign.toml"), "--sim", "--model", str(directory / "model.toml"),
-                     "-o", str(run), "--quiet"])
-    except SystemExit as exc:
-        if exc.code != 0:
-            raise RuntimeError(f"simulating the test campaign failed (exit {exc.code})") from None
-    with h5py.File(run, "a") as f:
-        del f["sim"]
-    return run
-
-
 def run_null() -> Result:
     """The test campaign with its null replicas: on one worker per core against one worker."""
     workers = machine_workers()
     with scratch_dir() as tmp:
-        measured = _test_campaign(Path(tmp))
+        measured = simulated_run(Path(tmp), "blaze101")  # the test campaign, nothing hidden, /sim removed
         reconcile(measured)  # warm: the compiled kernels of this process
         outcome = {}
         for n in (1, workers):
