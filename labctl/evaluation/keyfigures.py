@@ -11,6 +11,7 @@ import json
 import math
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -252,8 +253,8 @@ def read_keyfigures(path: Path) -> KeyFiguresDocument:
     figures = {name: FigureEntry(value=f.get("value"), unit=f.get("unit", ""), source=f.get("source", ""),
                                  meaning=f.get("meaning", ""), flags=f.get("flags", []))
                for name, f in data["figures"].items()}
+    hints = typing.get_type_hints(KeyFiguresDocument)
     try:
-        hints = typing.get_type_hints(KeyFiguresDocument)
         sections = {f.name: _section(hints[f.name], data.get(f.name)) for f in dataclasses.fields(KeyFiguresDocument)
                     if f.name not in ("camera", "figures", "suitability")}
         return KeyFiguresDocument(camera=_known_fields(CameraDescription, data["camera"]), figures=figures,
@@ -278,7 +279,7 @@ def _section(hint: object, value: object) -> object:
     return value
 
 
-def _known_fields(record: type[Record], data: dict[str, Any]) -> Record:
+def _known_fields(record: type[Record], data: Mapping[str, object]) -> Record:
     """``record`` from the keys of ``data`` that are its fields (those of other labctl versions left out)."""
     names = {f.name for f in dataclasses.fields(record)}  # type: ignore[arg-type]  # a dataclass
     return record(**{k: v for k, v in data.items() if k in names})
