@@ -206,19 +206,21 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: K
     if geo.chosen_star is not None:
         star = geo.chosen_star
         img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
-        stars: list[BoehlerStarRow] = [{"star": f"{s.segments} segments ({s.step_id})", "placed_mm": s.placed_mm,
-                 "resolution_h_mm": s.result.resolution_h_mm, "resolution_v_mm": s.result.resolution_v_mm,
-                 "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg,
-                 "distance_mm": s.result.distance_mm} for s in geo.stars]
+        stars: list[BoehlerStarRow] = [
+            {"star": f"{s.segments} segments ({s.step_id})", "placed_mm": s.placed_mm,
+             "resolution_h_mm": s.result.resolution_h_mm, "resolution_v_mm": s.result.resolution_v_mm,
+             "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg,
+             "distance_mm": s.result.distance_mm} for s in geo.stars]
         doc.boehler_star = _clean_rows(stars)
         sections.append(_section("Resolution of the point cloud: Boehler star (Thesis 2024, 5.1.3)", img, outdir,
                                  _rows_table(stars, "star")))
     if geo.precision:
-        noise: list[XYNoiseRow] = [{"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
-                 "repeatability_center_y_mm": p.repeatability_center_y_mm,
-                 "repeatability_off_axis_x_mm": p.repeatability_off_axis_x_mm,
-                 "repeatability_off_axis_y_mm": p.repeatability_off_axis_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
-                 "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
+        noise: list[XYNoiseRow] = [
+            {"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
+             "repeatability_center_y_mm": p.repeatability_center_y_mm,
+             "repeatability_off_axis_x_mm": p.repeatability_off_axis_x_mm,
+             "repeatability_off_axis_y_mm": p.repeatability_off_axis_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
+             "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
         doc.xy_noise = _clean_rows(noise)
         img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
         sections.append(_section("x/y noise on the wall (Thesis 2024, 5.3)", img, outdir, _rows_table(noise, "step")))
