@@ -6,10 +6,9 @@ import csv
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from labctl.batch.tasks import Summary
-from labctl.jsondoc import inline, optional, write_json
+from labctl.jsondoc import JSONValue, inline, optional, write_json
 from labctl.run.store import labctl_version, now_iso
 
 RECONCILE_COLUMNS = ["verdict", "named", "empirical", "gap_before", "gap_after", "gap_floor", "consistent_with_noise",
@@ -104,13 +103,14 @@ class BatchIndex:
         self.labctl_version, self.created, self.counts = labctl_version(), now_iso(), counts(self.runs)
 
 
-def _cell(value: Any) -> Any:
+def _cell(value: JSONValue) -> JSONValue:
+    """A value as index.csv writes it: a list joined with ``;``, None as empty."""
     if isinstance(value, list):
         return ";".join(str(v) for v in value)
     return "" if value is None else value
 
 
-def csv_rows(summaries: Sequence[Summary], axes: Sequence[str] = ()) -> tuple[list[str], list[dict[str, Any]]]:
+def csv_rows(summaries: Sequence[Summary], axes: Sequence[str] = ()) -> tuple[list[str], list[dict[str, JSONValue]]]:
     """index.csv's header and rows: name, status, error, seconds, the grid's parameters, the camera, every
     key figure any run has, the reconcile verdict and gaps, the output directory."""
     figures = figure_names(summaries)

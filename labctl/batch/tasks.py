@@ -19,9 +19,26 @@ import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypedDict, TypeVar
+from typing import TypedDict, TypeVar, cast
 
 from labctl.errors import LabctlError
+from labctl.jsondoc import JSONValue, to_json
+
+
+class CameraSummary(TypedDict):
+    """The camera of a run as ``camera`` of its keyfigures.json gives it (the fields of ``CameraDescription``,
+    labctl/evaluation/keyfigures.py, as a mapping)."""
+
+    model: str
+    serial: str
+    firmware: str
+    backend: str
+    width: int | None
+    height: int | None
+    fov_deg: list[float] | None
+    frame_rate_hz: float | None
+    wavelength_nm: float | None
+    simulated: bool
 
 
 class EvaluateSummary(TypedDict, total=False):
@@ -30,7 +47,7 @@ class EvaluateSummary(TypedDict, total=False):
 
     output: str
     report: str
-    camera: dict[str, Any]
+    camera: CameraSummary
     figures: dict[str, float | None]  # every key figure's value, in keyfigures.json's order
     error: str
 
@@ -70,7 +87,7 @@ class Summary(TypedDict, total=False):
     error: str | None
     seconds: float
     run_deleted: bool
-    parameters: dict[str, Any]
+    parameters: dict[str, JSONValue]  # grid axis -> its value at this point, as the sweep file gives it
     null: bool
     name: str
 
@@ -102,12 +119,11 @@ def evaluate_run(run: Path, outdir: Path) -> EvaluateSummary:
     """``labctl evaluate RUN -o OUTDIR``: keyfigures.json, report.html and plots; the figures' values."""
     from labctl.evaluation.evaluate import evaluate_runs
     from labctl.evaluation.keyfigures import read_keyfigures
-    from labctl.jsondoc import to_json
     from labctl.report.html import write_outputs
 
     json_path, report = write_outputs(evaluate_runs([run]), outdir)
     doc = read_keyfigures(json_path)
-    return {"output": str(outdir), "report": str(report), "camera": to_json(doc.camera),
+    return {"output": str(outdir), "report": str(report), "camera": cast(CameraSummary, to_json(doc.camera)),
             "figures": {name: figure.value for name, figure in doc.figures.items()}}
 
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
+from labctl.evaluation.sections import CaptureRow
 from labctl.run.store import StepRecord
 from metrics.capture import CaptureSummary, summarize_capture
 
@@ -32,9 +32,9 @@ def evaluate_captures(steps: Sequence[StepRecord], progress: Callable[[str], Non
     return results
 
 
-def capture_table(results: Sequence[CaptureResult]) -> list[dict[str, Any]]:
+def capture_table(results: Sequence[CaptureResult]) -> list[CaptureRow]:
     """One row per capture step (report table and ``capture`` of keyfigures.json)."""
-    rows = []
+    rows: list[CaptureRow] = []
     for r in results:
         s, plane = r.summary, r.summary.plane
         rows.append({

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.protocols import CameraInfo
+from labctl.evaluation.sections import DepthQualityRow
 from labctl.run.store import StepRecord
 from metrics.depth_quality import DQT_FRAMES, VendorFigures, centre_window, dqt_roi, vendor_figures
 
@@ -83,7 +84,7 @@ def figure_values(positions: Sequence[VendorPosition]) -> dict[str, tuple[float,
     return figures
 
 
-def vendor_table(positions: Sequence[VendorPosition]) -> list[dict[str, float | str]]:
+def vendor_table(positions: Sequence[VendorPosition]) -> list[DepthQualityRow]:
     """Per-position vendor figures as rows (report and ``keyfigures.json``)."""
     return [{"step": p.step_id, "reference_mm": p.figures.reference_mm, "fill_rate_pct": p.figures.fill_rate_pct,
              "z_accuracy_pct": p.figures.z_accuracy_pct, "plane_fit_rms_mm": p.figures.plane_fit_rms_mm,

@@ -25,6 +25,7 @@ from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flag
 from labctl.evaluation.remission import RemissionResult, evaluate_remission
 from labctl.evaluation.remission import figure_values as remission_figures
 from labctl.evaluation.scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
+from labctl.evaluation.sections import DepthSweepRow
 from labctl.evaluation.sharpness import SharpnessResult, evaluate_slanted_edge
 from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
@@ -291,9 +292,9 @@ def _noise(evaluation: Evaluation) -> dict[str, float]:
     return noise
 
 
-def depth_table(evaluation: Evaluation) -> list[dict[str, float | str]]:
+def depth_table(evaluation: Evaluation) -> list[DepthSweepRow]:
     """Per-position depth errors as rows (for the report and JSON consumers)."""
-    rows = []
+    rows: list[DepthSweepRow] = []
     for p in evaluation.depth:
         e = p.errors
         rows.append({

@@ -9,11 +9,29 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import types
+import typing
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
 from labctl.errors import InputError
+from labctl.evaluation.sections import (
+    AcceptancePositionRow,
+    AcceptanceVerdict,
+    AlignmentSection,
+    BoehlerStarRow,
+    CaptureRow,
+    CheckerboardRow,
+    DepthQualityRow,
+    DepthSweepRow,
+    FaceMaskSection,
+    Misalignment,
+    RemissionAngleRow,
+    SlantedEdgeRow,
+    XYNoiseRow,
+)
 from labctl.evaluation.suitability import CheckResult, StoryVerdict, Suitability
 from labctl.jsondoc import optional
 
@@ -143,10 +161,6 @@ def clean(value: float | None) -> float | None:
     return float(value)
 
 
-#: a table of keyfigures.json: one row per step (or per material and angle), column name to value
-Rows = list[dict[str, Any]]
-
-
 @dataclass(kw_only=True)
 class FigureEntry:
     """One figure of ``keyfigures.json``: its value (null where not measured), unit, the steps it comes from
@@ -181,27 +195,27 @@ class CameraDescription:
 @dataclass(kw_only=True)
 class KeyFiguresDocument:
     """``keyfigures.json`` (docs/keyfigures.md): the camera, every defined figure and the suitability verdicts,
-    then the evaluated runs, notes and the tables of the procedures the runs hold; a procedure's table is absent
-    when the runs lack it."""
+    then the evaluated runs, notes and the sections of the procedures the runs hold (their records:
+    labctl/evaluation/sections.py); a procedure's section is absent when the runs lack it."""
 
     camera: CameraDescription
     figures: dict[str, FigureEntry]
     suitability: Suitability
     runs: list[str] | None = optional()
     notes: list[str] | None = optional()
-    depth_sweep: Rows | None = optional()
-    slanted_edge: Rows | None = optional()
-    capture: Rows | None = optional()
-    alignment: dict[str, Any] | None = optional()
-    depth_quality: Rows | None = optional()
-    acceptance_test: dict[str, dict[str, Any]] | None = optional()
-    acceptance_positions: Rows | None = optional()
-    checkerboard: Rows | None = optional()
-    boehler_star: Rows | None = optional()
-    xy_noise: Rows | None = optional()
-    remission_angle: Rows | None = optional()
-    misalignment: dict[str, Any] | None = optional()
-    face_mask: dict[str, Any] | None = optional()
+    depth_sweep: list[DepthSweepRow] | None = optional()
+    slanted_edge: list[SlantedEdgeRow] | None = optional()
+    capture: list[CaptureRow] | None = optional()
+    alignment: AlignmentSection | None = optional()
+    depth_quality: list[DepthQualityRow] | None = optional()
+    acceptance_test: dict[str, AcceptanceVerdict] | None = optional()
+    acceptance_positions: list[AcceptancePositionRow] | None = optional()
+    checkerboard: list[CheckerboardRow] | None = optional()
+    boehler_star: list[BoehlerStarRow] | None = optional()
+    xy_noise: list[XYNoiseRow] | None = optional()
+    remission_angle: list[RemissionAngleRow] | None = optional()
+    misalignment: Misalignment | None = optional()
+    face_mask: FaceMaskSection | None = optional()
 
 
 def keyfigures_document(
@@ -225,8 +239,9 @@ Record = TypeVar("Record")
 
 
 def read_keyfigures(path: Path) -> KeyFiguresDocument:
-    """A ``keyfigures.json`` written by ``labctl evaluate``, read back (a figure's missing fields read as empty);
-    InputError naming the file when it is missing, not JSON, or has no ``camera`` / ``figures``."""
+    """A ``keyfigures.json`` written by ``labctl evaluate``, read back (a figure's missing fields read as empty,
+    the procedure sections into their records without the keys of other labctl versions); InputError naming the
+    file when it is missing, not JSON, or has no ``camera`` / ``figures``."""
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
@@ -238,16 +253,33 @@ def read_keyfigures(path: Path) -> KeyFiguresDocument:
     figures = {name: FigureEntry(value=f.get("value"), unit=f.get("unit", ""), source=f.get("source", ""),
                                  meaning=f.get("meaning", ""), flags=f.get("flags", []))
                for name, f in data["figures"].items()}
-    sections = {f.name: data.get(f.name) for f in dataclasses.fields(KeyFiguresDocument)
-                if f.name not in ("camera", "figures", "suitability")}
+    hints = typing.get_type_hints(KeyFiguresDocument)
     try:
+        sections = {f.name: _section(hints[f.name], data.get(f.name)) for f in dataclasses.fields(KeyFiguresDocument)
+                    if f.name not in ("camera", "figures", "suitability")}
         return KeyFiguresDocument(camera=_known_fields(CameraDescription, data["camera"]), figures=figures,
                                   suitability=_suitability(data.get("suitability", {})), **sections)
     except (TypeError, AttributeError) as exc:
         raise InputError(f"{path} is not a labctl keyfigures.json ({exc})") from None
 
 
-def _known_fields(record: type[Record], data: dict[str, Any]) -> Record:
+def _section(hint: object, value: object) -> object:
+    """``value`` (from JSON) as the type ``hint`` of a document field: a record (``TypedDict``) with only its
+    keys (those of other labctl versions left out), a list or dict item by item, anything else as it is."""
+    if isinstance(hint, types.UnionType):  # X | None: the section when it is present
+        hint = next(arg for arg in typing.get_args(hint) if arg is not type(None))
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if typing.is_typeddict(hint) and isinstance(value, dict):
+        keys = typing.get_type_hints(hint)
+        return {k: _section(keys[k], v) for k, v in value.items() if k in keys}
+    if origin is list and isinstance(value, list):
+        return [_section(args[0], item) for item in value]
+    if origin is dict and isinstance(value, dict):
+        return {k: _section(args[1], item) for k, item in value.items()}
+    return value
+
+
+def _known_fields(record: type[Record], data: Mapping[str, object]) -> Record:
     """``record`` from the keys of ``data`` that are its fields (those of other labctl versions left out)."""
     names = {f.name for f in dataclasses.fields(record)}  # type: ignore[arg-type]  # a dataclass
     return record(**{k: v for k, v in data.items() if k in names})

@@ -33,6 +33,7 @@ import numpy as np
 from drivers.protocols import CameraInfo
 from labctl.errors import InputError
 from labctl.evaluation.keyfigures import FigureValue
+from labctl.evaluation.sections import Misalignment, RemissionAngleRow
 from labctl.run.store import StepRecord
 from metrics.remission import (
     ROI_SIZE_PX,
@@ -202,7 +203,7 @@ def figure_values(result: RemissionResult) -> dict[str, FigureValue]:
     return figures
 
 
-def remission_table(result: RemissionResult) -> list[dict[str, float | str | bool]]:
+def remission_table(result: RemissionResult) -> list[RemissionAngleRow]:
     """Per step: material, angle, axis distance, repeatability, fractions and both trueness values."""
     return [
         {
@@ -225,7 +226,7 @@ def remission_table(result: RemissionResult) -> list[dict[str, float | str | boo
     ]
 
 
-def misalignment_summary(result: RemissionResult) -> dict[str, float | str] | None:
+def misalignment_summary(result: RemissionResult) -> Misalignment | None:
     """The fitted misalignment with standard errors and residual RMS (None without a fit)."""
     f = result.fit
     if f is None:

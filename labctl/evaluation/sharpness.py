@@ -16,10 +16,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from drivers.protocols import CameraInfo
+from labctl.evaluation.sections import SlantedEdgeRow
 from labctl.run.store import StepRecord
 from metrics.optics import sensor_angular_resolution_deg
 from metrics.plausibility import above_nyquist
@@ -195,22 +197,36 @@ def _summarize(result: SharpnessResult) -> None:
     )
 
 
-def resolution_table(result: SharpnessResult) -> list[dict[str, float | str]]:
+def resolution_table(result: SharpnessResult) -> list[SlantedEdgeRow]:
     """Per position: SFR figures, imagery resolution (angular and lateral) per orientation."""
-    rows = []
+    rows: list[SlantedEdgeRow] = []
     for p in result.positions:
-        row: dict[str, float | str] = {"distance_mm": p.distance_mm, "step": p.chart_step}
-        for name, m, sensor in (("h", p.horizontal, result.sensor_resolution_deg[0]),
-                                ("v", p.vertical, result.sensor_resolution_deg[1])):
-            angular = imagery_resolution_deg(sensor, m.sfr10) if m is not None else math.nan
-            row.update({
-                f"sfr10_{name}": m.sfr10 if m else math.nan,
-                f"sfr50_{name}": m.sfr50 if m else math.nan,
-                f"sfr_area_{name}": m.sfr_area if m else math.nan,
-                f"valid_{name}": bool(m and m.valid),
-                f"resolution_{name}_deg": angular,
-                f"resolution_{name}_mm": lateral_mm(angular, p.distance_mm) if math.isfinite(angular) else math.nan,
-                f"note_{name}": edge_note(m),
-            })
-        rows.append(row)
+        h = _edge_columns(p.horizontal, result.sensor_resolution_deg[0], p.distance_mm)
+        v = _edge_columns(p.vertical, result.sensor_resolution_deg[1], p.distance_mm)
+        rows.append({"distance_mm": p.distance_mm, "step": p.chart_step,
+                     "sfr10_h": h.sfr10, "sfr50_h": h.sfr50, "sfr_area_h": h.sfr_area, "valid_h": h.valid,
+                     "resolution_h_deg": h.resolution_deg, "resolution_h_mm": h.resolution_mm, "note_h": h.note,
+                     "sfr10_v": v.sfr10, "sfr50_v": v.sfr50, "sfr_area_v": v.sfr_area, "valid_v": v.valid,
+                     "resolution_v_deg": v.resolution_deg, "resolution_v_mm": v.resolution_mm, "note_v": v.note})
     return rows
+
+
+class _EdgeColumns(NamedTuple):
+    """One orientation's columns of the slanted-edge table (NaN where the edge was not found)."""
+
+    sfr10: float
+    sfr50: float
+    sfr_area: float
+    valid: bool
+    resolution_deg: float
+    resolution_mm: float
+    note: str
+
+
+def _edge_columns(m: EdgeMeasurement | None, sensor_deg: float, distance_mm: float) -> _EdgeColumns:
+    """The columns of one orientation's edge ``m`` at ``distance_mm``, for a sensor of ``sensor_deg`` per pixel."""
+    angular = imagery_resolution_deg(sensor_deg, m.sfr10) if m is not None else math.nan
+    return _EdgeColumns(sfr10=m.sfr10 if m else math.nan, sfr50=m.sfr50 if m else math.nan,
+                        sfr_area=m.sfr_area if m else math.nan, valid=bool(m and m.valid), resolution_deg=angular,
+                        resolution_mm=lateral_mm(angular, distance_mm) if math.isfinite(angular) else math.nan,
+                        note=edge_note(m))

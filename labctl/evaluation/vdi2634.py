@@ -25,6 +25,7 @@ import numpy as np
 
 from drivers.protocols import CameraInfo
 from labctl.evaluation.depth_quality import focal_length_px
+from labctl.evaluation.sections import AcceptancePositionRow, AcceptanceVerdict
 from labctl.run.store import StepRecord
 from metrics.vdi2634 import (
     fit_flat,
@@ -148,9 +149,9 @@ def figure_values(result: AcceptanceResult) -> dict[str, tuple[float, list[str]]
     return figures
 
 
-def verdicts(result: AcceptanceResult) -> dict[str, dict[str, Any]]:
+def verdicts(result: AcceptanceResult) -> dict[str, AcceptanceVerdict]:
     """Per quantity: the figure, its maximum permissible error and pass / fail (``no_mpe`` without one)."""
-    out = {}
+    out: dict[str, AcceptanceVerdict] = {}
     for name, (value, _) in figure_values(result).items():
         mpe = result.mpe_mm.get(name)
         verdict = "no_mpe" if mpe is None else ("pass" if abs(value) <= mpe else "fail")
@@ -158,15 +159,20 @@ def verdicts(result: AcceptanceResult) -> dict[str, dict[str, Any]]:
     return out
 
 
-def acceptance_table(result: AcceptanceResult) -> list[dict[str, float | str]]:
+def acceptance_table(result: AcceptanceResult) -> list[AcceptancePositionRow]:
     """Per step: the worst measurement of each quantity over its frames, NaN where not measured (report, JSON)."""
-    rows: list[dict[str, float | str]] = []
+    rows: list[AcceptancePositionRow] = []
     for step_id in dict.fromkeys(m.step_id for m in result.measurements):
         ms = [m for m in result.measurements if m.step_id == step_id]
-        row: dict[str, float | str] = {"step": step_id, "distance_mm": ms[0].distance_mm, "pose_deg": ms[0].pose_deg,
-                                       "frames": float(len(ms))}
-        for name in QUANTITIES:
-            values = [m.values[name] for m in ms if name in m.values]
-            row[name] = max(values, key=abs) if values else math.nan
-        rows.append(row)
+        rows.append({"step": step_id, "distance_mm": ms[0].distance_mm, "pose_deg": ms[0].pose_deg,
+                     "frames": float(len(ms)), "probing_error_form_mm": _worst(ms, "probing_error_form_mm"),
+                     "probing_error_size_mm": _worst(ms, "probing_error_size_mm"),
+                     "sphere_spacing_error_mm": _worst(ms, "sphere_spacing_error_mm"),
+                     "flatness_error_mm": _worst(ms, "flatness_error_mm")})
     return rows
+
+
+def _worst(measurements: Sequence[Measurement], name: str) -> float:
+    """The value of quantity ``name`` of largest magnitude over ``measurements`` (NaN where none measures it)."""
+    values = [m.values[name] for m in measurements if name in m.values]
+    return max(values, key=abs) if values else math.nan

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -52,10 +51,13 @@ from labctl.reconcile.results import (
     AxisSummary,
     Confounded,
     CurvePoint,
+    DepartureAtEnds,
+    DepartureFactor,
     FamilyDeparture,
     StatisticsAxis,
     StatisticsCurvePoint,
     Unexplained,
+    ValidityDeparture,
 )
 
 GROUPS = 24
@@ -296,24 +298,24 @@ def describe_statistics(family: str, observations: list[Observation], prediction
     else:
         region = np.ones(len(v), bool)
     mean = float(np.sum(weight[region] * v[region]) / np.sum(weight[region]))
-    departure: dict[str, Any]
+    departure: DepartureAtEnds | ValidityDeparture | DepartureFactor
     if carrying is not None and _changes_sign(carrying.curve):
         first, last = carrying.curve[0], carrying.curve[-1]
         scale, shown = (1000.0, "m") if carrying.unit == "mm" else (1.0, carrying.unit)
         ends = [_size(family, c.mean_mm) + f" at {c.x / scale:.1f} {shown}" for c in (first, last)]
         size, where = f"from {ends[0]} to {ends[1]}", f"following the {carrying.name}"
-        departure = {"at_ends": [round(first.mean_mm, 4), round(last.mean_mm, 4)]}
+        departure = DepartureAtEnds(at_ends=[round(first.mean_mm, 4), round(last.mean_mm, 4)])
     elif family == "validity":
         measured = _stack([o.valid_rate for o in observations], maps).astype(float)[region]
         predicted = _stack([p.valid_rate for p in predictions], maps).astype(float)[region]
         change = float(measured.sum() / predicted.sum() - 1.0) if predicted.sum() > 0 else mean
         size = f"{100 * abs(change):.0f} % {'below' if change < 0 else 'above'} the model's"
-        departure = {"relative_change": round(change, 4), "difference": round(mean, 4)}
+        departure = ValidityDeparture(relative_change=round(change, 4), difference=round(mean, 4))
     else:
         size = _size(family, mean)
-        departure = {"factor": round(math.exp(mean), 4)}
+        departure = DepartureFactor(factor=round(math.exp(mean), 4))
     return FamilyDeparture(
-        family=family, carrying_axis=carrying.name if carrying else None, where=where, **departure,
+        family=family, carrying_axis=carrying.name if carrying else None, where=where, departure=departure,
         axes=[StatisticsAxis(axis=f.name, unit=f.unit, eta2=round(float(f.eta2), 4)) for f in fits],
         curve=[StatisticsCurvePoint(x=c.x, mean=c.mean_mm, n=c.n) for c in carrying.curve] if carrying else [],
         description=f"{FAMILY_WORDS[family]} {size} {where}")

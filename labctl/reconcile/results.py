@@ -319,21 +319,43 @@ class StatisticsCurvePoint:
 
 
 @dataclass(kw_only=True)
+class DepartureAtEnds:
+    """A statistics family's departure that changes sign along the carrying axis: the residual's weighted mean
+    (the family's unit) at the first and the last group of the curve."""
+
+    at_ends: list[float]
+
+
+@dataclass(kw_only=True)
+class ValidityDeparture:
+    """The valid fraction's departure where it departs most: measured over predicted valid pixels, minus one
+    (``relative_change``), and the residual's weighted mean there (``difference``)."""
+
+    relative_change: float
+    difference: float
+
+
+@dataclass(kw_only=True)
+class DepartureFactor:
+    """The noise's or the correlation's departure where it departs most: the log ratio's weighted mean,
+    exponentiated (a factor on the model's)."""
+
+    factor: float
+
+
+@dataclass(kw_only=True)
 class FamilyDeparture:
     """How a statistics family (noise, validity, correlation) departs from the model
     (labctl/reconcile/characterize.py ``describe_statistics``): the axis carrying it and where along it, the
-    departure (at the curve's ends where it changes sign; else the valid fraction's relative change and
-    difference, or the noise's and correlation's factor), the axes tried, the carrying axis's curve, one
-    sentence, and the family's gap and floor. A family with no compared bins has only its name, the
-    sentence, gap and floor."""
+    departure (its keys in place: at the curve's ends where it changes sign; else the valid fraction's
+    relative change and difference, or the noise's and correlation's factor), the axes tried, the carrying
+    axis's curve, one sentence, and the family's gap and floor. A family with no compared bins has only its
+    name, the sentence, gap and floor."""
 
     family: str
     carrying_axis: str | None
     where: str | None = optional()
-    at_ends: list[float] | None = optional()
-    relative_change: float | None = optional()
-    difference: float | None = optional()
-    factor: float | None = optional()
+    departure: DepartureAtEnds | ValidityDeparture | DepartureFactor | None = inline(None)
     axes: list[StatisticsAxis] | None = optional()
     curve: list[StatisticsCurvePoint] | None = optional()
     description: str

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import html
 import math
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -45,6 +45,22 @@ TIMES_TEN = {"intensity_resolution_h_deg", "intensity_resolution_v_deg", "cloud_
              "cloud_resolution_v_deg"}
 
 
+@dataclass(kw_only=True)
+class CompareDocument:
+    """``compare.json``: the cameras' labels (their models, ``*`` for simulated, numbered where repeated), the
+    evaluation directories they come from, and by label: every defined figure's value (None where not
+    measured), each user story's verdict and its one-line reason; the user stories' names; and per figure the
+    plausibility checks it fails, for the cameras where it fails any (figures failing none left out)."""
+
+    cameras: list[str]
+    sources: list[str]
+    figures: dict[str, dict[str, float | None]]  # figure -> label -> value
+    suitability: dict[str, dict[str, str]]  # label -> story -> verdict
+    reasons: dict[str, dict[str, str]]  # label -> story -> reason
+    stories: dict[str, str]  # story -> its description
+    flags: dict[str, dict[str, list[str]]]  # figure -> label -> failed checks
+
+
 def load_evaluation(directory: Path) -> KeyFiguresDocument:
     """The ``keyfigures.json`` of an output directory of ``labctl evaluate`` (InputError when it has none)."""
     return read_keyfigures(Path(directory) / "keyfigures.json")
@@ -70,8 +86,9 @@ def compare(directories: list[Path], outdir: Path) -> Path:
     flags = {fig.name: {label: [f["check"] for f in _figure(doc, fig.name).flags]
                         for label, doc in zip(labels, docs) if _figure(doc, fig.name).flags}
              for fig in FIGURES}
-    result = {"cameras": labels, "sources": [str(d) for d in directories], "figures": table, "suitability": verdicts,
-              "reasons": reasons, "stories": _story_names(docs), "flags": {k: v for k, v in flags.items() if v}}
+    result = CompareDocument(cameras=labels, sources=[str(d) for d in directories], figures=table,
+                             suitability=verdicts, reasons=reasons, stories=_story_names(docs),
+                             flags={k: v for k, v in flags.items() if v})
     write_json(outdir / "compare.json", result, final_newline=True)
     chart = _chart(table, labels, plots / "comparison.png")
     ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")
@@ -184,7 +201,7 @@ def ied_figure(ied: dict[str, float | None], labels: list[str]) -> Figure:
     return fig
 
 
-def _fmt(value: Any) -> str:
+def _fmt(value: float | None) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return '<span class="null">n/a</span>'  # styled by the shared CSS
     if isinstance(value, float):
@@ -192,34 +209,34 @@ def _fmt(value: Any) -> str:
     return html.escape(str(value))
 
 
-def _flagged(value: Any, checks: list[str]) -> str:
+def _flagged(value: float | None, checks: list[str]) -> str:
     """A value with its plausibility flags (docs/keyfigures.md) after it, as the report shows them."""
     return _fmt(value) + "".join(f'<br><span class="note">&#9888; {html.escape(c.replace("_", " "))}</span>'
                                  for c in checks)
 
 
-def _page(result: dict[str, Any], chart: Path, ied: Path) -> str:
-    labels = result["cameras"]
+def _page(result: CompareDocument, chart: Path, ied: Path) -> str:
+    labels = result.cameras
     head = "".join(f"<th>{html.escape(label)}</th>" for label in labels)
     story_head = "".join(f'<th class="l">{html.escape(label)}</th>' for label in labels)  # over left-aligned verdicts
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_direction(name)}</td>'
-        + "".join(f"<td>{_flagged(values[label], result['flags'].get(name, {}).get(label, []))}</td>" for label in labels)
+        + "".join(f"<td>{_flagged(values[label], result.flags.get(name, {}).get(label, []))}</td>" for label in labels)
         + "</tr>"
-        for name, values in result["figures"].items()
+        for name, values in result.figures.items()
     )
     vendor_rows = "".join(
         f'<tr><td class="l">{wrappable(f.name)}</td><td class="l">{f.unit}</td>'
-        + "".join(f"<td>{_fmt(result['figures'][f.name][label])}</td>" for label in labels)
+        + "".join(f"<td>{_fmt(result.figures[f.name][label])}</td>" for label in labels)
         + f'<td class="l">{html.escape(f.section)}</td></tr>'
         for f in VENDOR_FIGURES
     )
     suit_rows = "".join(
         f'<tr><td class="l">{html.escape(name)}</td>'
-        + "".join(verdict_cell(result["suitability"][label].get(story, "not_evaluated"),
-                               result["reasons"].get(label, {}).get(story, "")) for label in labels) + "</tr>"
-        for story, name in result["stories"].items()
+        + "".join(verdict_cell(result.suitability[label].get(story, "not_evaluated"),
+                               result.reasons.get(label, {}).get(story, "")) for label in labels) + "</tr>"
+        for story, name in result.stories.items()
     )
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>labctl camera comparison</title>

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import html
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar, cast
 
 from labctl.evaluation.capture import capture_table
 from labctl.evaluation.depth_quality import vendor_table
@@ -21,6 +22,14 @@ from labctl.evaluation.keyfigures import (
 )
 from labctl.evaluation.remission import misalignment_summary, remission_table
 from labctl.evaluation.scenes import AlignmentRecord
+from labctl.evaluation.sections import (
+    AlignmentSection,
+    BoehlerStarRow,
+    CaptureRow,
+    CheckerboardRow,
+    SlantedEdgeRow,
+    XYNoiseRow,
+)
 from labctl.evaluation.sharpness import resolution_table
 from labctl.evaluation.suitability import Suitability, face_depth_values, suitability
 from labctl.evaluation.vdi2634 import acceptance_table, verdicts
@@ -150,7 +159,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     return json_path, report
 
 
-def alignment_document(a: AlignmentRecord) -> dict[str, Any]:
+def alignment_document(a: AlignmentRecord) -> AlignmentSection:
     """The ``alignment`` section of keyfigures.json: the accepted corner fields (x, y, z in mm) and residual tilt."""
     return {"step": a.step_id, "fields_mm": {name: [clean(float(v)) for v in xyz] for name, xyz in a.fields_mm.items()},
             "tilt_x_deg": clean(a.tilt_x_deg), "tilt_y_deg": clean(a.tilt_y_deg)}
@@ -177,7 +186,7 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: K
         img = plot_distortion(board.image, r, plots / "distortion.png", cloud=board.cloud_distortion,
                               title=f"Checkerboard placed at {board.placed_mm:.0f} mm, laser reference "
                                     f"{board.distance_mm:.0f} mm ({board.step_id})")
-        rows = [
+        rows: list[CheckerboardRow] = [
             {"image": "intensity", "raw_w_pct": r.raw_distortion_w_pct, "raw_h_pct": r.raw_distortion_h_pct,
              "radial_w_pct": r.radial_distortion_w_pct, "radial_h_pct": r.radial_distortion_h_pct,
              "median_w_pct": r.radial_median_w_pct, "median_h_pct": r.radial_median_h_pct,
@@ -197,22 +206,24 @@ def _geometry_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: K
     if geo.chosen_star is not None:
         star = geo.chosen_star
         img = plot_boehler(star.result, star.cloud, plots / "boehler.png")
-        rows = [{"star": f"{s.segments} segments ({s.step_id})", "placed_mm": s.placed_mm,
-                 "resolution_h_mm": s.result.resolution_h_mm, "resolution_v_mm": s.result.resolution_v_mm,
-                 "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg,
-                 "distance_mm": s.result.distance_mm} for s in geo.stars]
-        doc.boehler_star = _clean_rows(rows)
+        stars: list[BoehlerStarRow] = [
+            {"star": f"{s.segments} segments ({s.step_id})", "placed_mm": s.placed_mm,
+             "resolution_h_mm": s.result.resolution_h_mm, "resolution_v_mm": s.result.resolution_v_mm,
+             "angular_h_deg": s.result.angular_h_deg, "angular_v_deg": s.result.angular_v_deg,
+             "distance_mm": s.result.distance_mm} for s in geo.stars]
+        doc.boehler_star = _clean_rows(stars)
         sections.append(_section("Resolution of the point cloud: Boehler star (Thesis 2024, 5.1.3)", img, outdir,
-                                 _rows_table(rows, "star")))
+                                 _rows_table(stars, "star")))
     if geo.precision:
-        rows = [{"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
-                 "repeatability_center_y_mm": p.repeatability_center_y_mm,
-                 "repeatability_off_axis_x_mm": p.repeatability_off_axis_x_mm,
-                 "repeatability_off_axis_y_mm": p.repeatability_off_axis_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
-                 "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
-        doc.xy_noise = _clean_rows(rows)
+        noise: list[XYNoiseRow] = [
+            {"step": sid, "distance_mm": d, "repeatability_center_x_mm": p.repeatability_center_x_mm,
+             "repeatability_center_y_mm": p.repeatability_center_y_mm,
+             "repeatability_off_axis_x_mm": p.repeatability_off_axis_x_mm,
+             "repeatability_off_axis_y_mm": p.repeatability_off_axis_y_mm, "precision_q90_x_mm": p.precision_q90_x_mm,
+             "precision_q90_y_mm": p.precision_q90_y_mm} for sid, d, p in geo.precision]
+        doc.xy_noise = _clean_rows(noise)
         img = plot_xy_noise(geo.precision, plots / "xy_noise.png")
-        sections.append(_section("x/y noise on the wall (Thesis 2024, 5.3)", img, outdir, _rows_table(rows, "step")))
+        sections.append(_section("x/y noise on the wall (Thesis 2024, 5.3)", img, outdir, _rows_table(noise, "step")))
     return sections
 
 
@@ -234,7 +245,7 @@ def _remission_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
     sections = [_section("Remission and angle of incidence (Thesis 2024, 5.4, Fig. 6-11)", img, outdir, "".join(pivots))]
     summary = misalignment_summary(result)
     if summary is not None:
-        doc.misalignment = {k: clean(v) if isinstance(v, float) else v for k, v in summary.items()}
+        doc.misalignment = _clean(summary)
         img = plot_misalignment_fit(result, plots / "misalignment_fit.png")
         text = (f"<p>Fitted to {html.escape(str(summary['material']))} over {summary['angles']} angles: target "
                 f"offset delta = {_fmt(summary['target_offset_mm'])} &plusmn; {_fmt(summary['target_offset_se_mm'], 2)} mm, "
@@ -264,7 +275,7 @@ def _capture_sections(evaluation: Evaluation, outdir: Path, plots: Path, doc: Ke
     return sections
 
 
-def resolution_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def resolution_rows(rows: Sequence[SlantedEdgeRow]) -> list[dict[str, object]]:
     """The intensity-resolution table as the report shows it: the notes of both orientations in one column
     ("h, v: ..." when they agree, else "h: ...; v: ..."), so that its columns fit the page; keyfigures.json keeps
     ``note_h`` and ``note_v``."""
@@ -276,11 +287,20 @@ def resolution_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return shown
 
 
-def _clean_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    return [{k: clean(v) if isinstance(v, float) else v for k, v in row.items()} for row in rows]
+#: a section or row of keyfigures.json (labctl/evaluation/sections.py)
+Record = TypeVar("Record", bound=Mapping[str, object])
 
 
-def _rows_table(rows: list[dict[str, Any]], key: str) -> str:
+def _clean(record: Record) -> Record:
+    """``record`` with every float JSON-safe (:func:`clean`: None where missing or not finite), the rest as is."""
+    return cast(Record, {k: clean(v) if isinstance(v, float) else v for k, v in record.items()})
+
+
+def _clean_rows(rows: Sequence[Record]) -> list[Record]:
+    return [_clean(row) for row in rows]
+
+
+def _rows_table(rows: Sequence[Mapping[str, object]], key: str) -> str:
     if not rows:
         return ""
     cols = [c for c in rows[0] if c != key]
@@ -320,8 +340,7 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
     result = evaluation.acceptance
     assert result is not None
     judged = verdicts(result)
-    doc.acceptance_test = {name: {k: clean(v) if isinstance(v, float) else v for k, v in row.items()}
-                              for name, row in judged.items()}
+    doc.acceptance_test = {name: _clean(row) for name, row in judged.items()}
     rows = [{"quantity": name, "value_mm": row["value"], "mpe_mm": row["mpe_mm"] if row["mpe_mm"] is not None
              else math.nan, "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
     table = _rows_table(rows, "quantity")
@@ -427,10 +446,10 @@ def _summary_html(cam: CameraDescription, doc: KeyFiguresDocument) -> str:
                          f'<th class="l">better</th><th class="l">meaning</th></tr>{rows}</table>') + "</div>")
 
 
-def _capture_summary_html(cam: CameraDescription, rows: list[dict[str, Any]]) -> str:
+def _capture_summary_html(cam: CameraDescription, rows: Sequence[CaptureRow]) -> str:
     """The summary of a run of single captures (``labctl device camera``): what each stack shows, since without a
     reference distance no key figure and no suitability verdict can be computed."""
-    def line(r: dict[str, Any]) -> str:
+    def line(r: CaptureRow) -> str:
         plane = (f"planar, plane {_fmt(r['plane_distance_on_axis_mm'])} mm away on the axis, residual RMS "
                  f"{_fmt(r['plane_rms_mm'])} mm" if r["planar"] else "not planar")
         return (f"<li><b>{html.escape(r['step'])}</b>: {r['frames']} frame(s), {_fmt(100 * r['valid_fraction'])} % valid "

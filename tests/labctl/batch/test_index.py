@@ -1,5 +1,6 @@
 """index.json's keys as documented (docs/scale.md, Outputs): ``labctl_version``, ``created``, ``counts`` (``runs``,
-``ok``, ``failed``), ``kind`` with its settings, then every run's summary under ``runs``; and index.csv's rows."""
+``ok``, ``failed``), ``kind`` with its settings, then every run's summary under ``runs`` (its camera as keyfigures.json
+gives it); and index.csv's rows."""
 
 from __future__ import annotations
 
@@ -7,6 +8,9 @@ import csv
 import json
 
 from labctl.batch.index import BatchIndex, SweepSettings, write_index
+from labctl.batch.tasks import CameraSummary
+from labctl.evaluation.keyfigures import CameraDescription
+from labctl.jsondoc import to_json
 
 
 def _runs() -> list[dict]:
@@ -42,3 +46,9 @@ def test_a_sweep_records_its_settings_and_leaves_out_what_does_not_apply(tmp_pat
     assert doc["sweep"] == {"name": "s", "axes": ["seed"], "evaluate": True, "reconcile": False, "keep_runs": False,
                             "figures": ["z_precision_q90_mm"]}
     assert doc["counts"] == {"runs": 0, "ok": 0, "failed": 0}
+
+
+def test_a_runs_camera_has_the_keys_of_keyfigures_json_camera():
+    """The summary's camera (a mapping, as it travels from the workers) has the keys, in order, that ``camera`` of
+    keyfigures.json has."""
+    assert list(CameraSummary.__annotations__) == list(to_json(CameraDescription()))
