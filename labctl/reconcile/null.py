@@ -46,7 +46,7 @@ import tempfile
 import time
 import tomllib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -73,13 +73,15 @@ WORST = "worst_step_ratio"
 @dataclass(frozen=True)
 class Replica:
     """One null replica's first-round comparison: its goodness-of-fit steps, every candidate's dBIC, the whitened
-    residual sum of squares per (step, family) cell, and the seconds it took."""
+    residual sum of squares per (step, family) cell, the seconds it took, and per family its residual maps by step
+    id (``goodness.residual_maps``; the minimum detectable effect crosses them with a signature)."""
 
     seed: int
     steps: list[StepFit]
     delta_bic: dict[str, float]
     cell_rss: np.ndarray
     seconds: float
+    maps: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 def p_value(observed: float, null: Sequence[float]) -> float:
@@ -282,7 +284,8 @@ def seeds_for(campaign_toml: str, k: int) -> list[int]:
 
 
 #: the measured run's first-round comparison (``workflow.first_round``), which a replica goes through as well
-Compare = Callable[[list[Any], dict[str, Any], SimModel], tuple[Goodness, list[Fit], np.ndarray]]
+Compare = Callable[[list[Any], dict[str, Any], SimModel],
+                   tuple[Goodness, list[Fit], np.ndarray, dict[str, dict[str, np.ndarray]]]]
 
 
 def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[str], info: dict[str, Any],
@@ -309,8 +312,8 @@ def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[
         run.unlink(missing_ok=True)
     wanted = set(step_ids)
     observations = [o for o in observations if o.scene.step_id in wanted]
-    good, fits, cell_rss = compare(observations, info, parse_model(model_text, "null replica model"))
-    return Replica(seed, good.steps, {f.name: f.score for f in fits}, cell_rss, time.monotonic() - start)
+    good, fits, cell_rss, maps = compare(observations, info, parse_model(model_text, "null replica model"))
+    return Replica(seed, good.steps, {f.name: f.score for f in fits}, cell_rss, time.monotonic() - start, maps)
 
 
 def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any], step_ids: list[str], k: int,

@@ -121,6 +121,26 @@ class Layout:
         xw = self.z_nuisance * self.z_weight[:, None]
         return xw, np.linalg.pinv(self.z_nuisance.T @ xw)
 
+    def family_masks(self, family: str) -> list[np.ndarray]:
+        """The per-step masks of the bins ``family`` (``FAMILIES``) compares."""
+        if family == "depth":
+            return self.z_masks
+        if family == "intensity":
+            return self.i_masks
+        return self.s_masks.get(family, [])
+
+    @staticmethod
+    def unstack(rows: np.ndarray, masks: list[np.ndarray]) -> list[np.ndarray]:
+        """Stacked rows back into per-step maps over ``masks`` (NaN outside them)."""
+        maps, start = [], 0
+        for mask in masks:
+            m = np.full(mask.shape, np.nan)
+            n = int(mask.sum())
+            m[mask] = rows[start:start + n]
+            maps.append(m)
+            start += n
+        return maps
+
     def profile_z(self, v: np.ndarray) -> np.ndarray:
         """``v`` minus its weighted least-squares fit by the depth nuisance (Frisch-Waugh-Lovell)."""
         if not len(v):

@@ -64,7 +64,16 @@ from labctl.reconcile.corners import (
     observe_corner_run,
 )
 from labctl.reconcile.empirical import FIRST_FORM, FORMS
-from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, UNITS, Goodness, goodness, material, rounded
+from labctl.reconcile.goodness import (
+    FLOOR_FRACTION,
+    MATERIAL_FRACTION,
+    UNITS,
+    Goodness,
+    goodness,
+    material,
+    residual_maps,
+    rounded,
+)
 from labctl.reconcile.null import ALPHA, DEFAULT_NULL_RUNS, FixedThresholds, NullCalibration, simulate_null_runs
 from labctl.reconcile.observe import Observation, observe_run
 from labctl.reconcile.power import detectable, detectable_message
@@ -278,15 +287,7 @@ def competing(a: Fit, b: Fit) -> bool:
 
 def _residual_maps(lay: Layout, dz: list[np.ndarray]) -> list[np.ndarray]:
     """Per-step depth residual maps with the nuisance removed (NaN outside the compared bins)."""
-    flat = lay.profile_z(np.nan_to_num(lay.stack_z(dz)))
-    maps, start = [], 0
-    for d, mask in zip(dz, lay.z_masks, strict=True):
-        m = np.full(d.shape, np.nan)
-        n = int(mask.sum())
-        m[mask] = flat[start:start + n]
-        maps.append(m)
-        start += n
-    return maps
+    return lay.unstack(lay.profile_z(np.nan_to_num(lay.stack_z(dz))), lay.z_masks)
 
 
 def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout,
@@ -546,16 +547,18 @@ def _scored(state: _State, say: Callable[[str], None]) -> list[tuple[Fit, Candid
 
 
 def first_round(observations: list[Observation], info: dict[str, Any],
-                model: SimModel) -> tuple[Goodness, list[Fit], np.ndarray]:
-    """The first round's comparison of ``observations`` with ``model``: the goodness of fit, every candidate's fit
-    and the whitened residual sum of squares per (step, family) cell. What a null replica is judged by
-    (labctl/reconcile/null.py)."""
+                model: SimModel) -> tuple[Goodness, list[Fit], np.ndarray, dict[str, dict[str, np.ndarray]]]:
+    """The first round's comparison of ``observations`` with ``model``: the goodness of fit, every candidate's fit,
+    the whitened residual sum of squares per (step, family) cell and per family the residual maps by step
+    (``goodness.residual_maps``). What a null replica is judged by (labctl/reconcile/null.py)."""
     sim = Simulation(observations, info)
     lay = layout(observations, sim.predict(model), model.profile().technology)
     state = _State(sim, lay, model)
     r = state.whitened()
     cells = lay.row_cells()
-    return state.good, [f for f, _ in _scored(state, lambda _: None)], np.bincount(cells, r * r)
+    maps = {family: {o.scene.step_id: m.astype(np.float32) for o, m in zip(observations, by_step, strict=True)}
+            for family, by_step in residual_maps(lay, state.dz, state.di, state.stats).items()}
+    return state.good, [f for f, _ in _scored(state, lambda _: None)], np.bincount(cells, r * r), maps
 
 
 def _calibrate(null_runs: int, workers: int | None, info: dict[str, Any], model: SimModel, lay: Layout,

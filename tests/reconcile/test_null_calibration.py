@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from labctl.jsondoc import to_json
@@ -29,6 +30,7 @@ from labctl.reconcile.null import (
     standardized_max,
     step_statistics,
 )
+from labctl.reconcile.power import _Replicas, _Signal, phases
 from labctl.reconcile.workflow import json_document, reconcile
 from tests.conftest import REALTIME_GROUP
 from tests.reconcile.runs import CAMPAIGN, ROBOT, reconcile_cli, simulated_run
@@ -97,6 +99,26 @@ def test_consistency_and_significance_against_hand_made_null_runs():
     assert rule.significance(best, {"wiggling", "range_scale"}) == (True, pytest.approx(0.05))
     best = type("F", (), {"score": -3.0})()  # ties with every replica's range_scale
     assert rule.significance(best, {"wiggling", "range_scale"})[0] is False
+
+
+def test_the_power_model_crosses_the_signature_with_each_replicas_residual():
+    """A replica's step mean square with the effect is its own + A^2 mean(s_a s_b) a_a a_b + 2 A mean(r s_a) a_a:
+    the signature's power and its product with the replica's residual, on the bins both cover."""
+    nan = math.nan
+    residual = np.array([[0.2, -0.1, nan, 0.3]], np.float32)  # one step's depth residual map; one bin not compared
+    replicas = [Replica(i, [StepFit("s0", "depth", 0.1, 1.0)], {}, np.zeros(5), 0.0,
+                        {"depth": {"s0": residual * (i + 1)}}) for i in range(2)]
+    sine, cosine = np.array([[1.0, 0.0, -1.0, 0.0]]), np.array([[0.0, 1.0, 0.0, -1.0]])
+    signal = _Signal(np.ones(5), np.ones(5, int), {("s0", "depth"): [sine, cosine]})
+    power, cross = _Replicas(NullCalibration(replicas), "wiggling", 3, 1, 0.0).crossing(signal)
+    assert power[0] == pytest.approx(np.array([[2 / 4, 0.0], [0.0, 2 / 4]]))
+    # over the three bins the residual covers: (0.2 * 1 + 0 + 0) / 3 and (0 - 0.1 * 1 - 0.3 * 1) / 3, scaled by i + 1
+    assert cross[0, 0] == pytest.approx([0.2 / 3, -0.4 / 3], rel=1e-6)
+    assert cross[1, 0] == pytest.approx([0.4 / 3, -0.8 / 3], rel=1e-6)
+    two = phases(2)
+    assert len(two) == 8 and all(np.linalg.norm(a) == pytest.approx(1.0) for a in two)
+    assert np.mean([a[0] ** 2 for a in two]) == pytest.approx(0.5)  # each part carries half the power on average
+    assert [list(a) for a in phases(1)] == [[1.0], [-1.0]]
 
 
 def test_a_replica_runs_the_measured_campaign_with_another_seed_and_no_faults():
