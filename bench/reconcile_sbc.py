@@ -57,6 +57,11 @@ NEWER: dict[str, tuple[str, str, Draw]] = {
 }
 DRAWS: dict[str, tuple[str, str, Draw]] = {**CASES, **NEWER}
 NOT_COMPARED = {"temperature_drift": {"delta_mm"}}  # fitted at the run's first frame, hidden at the run's start
+#: parameters known modulo a period, by camera: a phase modulo a turn, a multipath's extra path modulo the ambiguity
+#: interval c / (2 f_mod)
+PERIODIC: dict[str, Callable[[str], float]] = {
+    "phase_rad": lambda _: 2 * math.pi,
+    "extra_path_mm": lambda camera: 299792458e3 / (2e6 * get_profile(camera).modulation_mhz)}
 
 
 def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: int) -> dict[str, Any]:
@@ -75,15 +80,13 @@ def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: i
                     or key not in intervals:
                 continue
             lo, hi = intervals[key]
-            if key.endswith("_rad"):  # an angle: the truth's turn inside or above the interval
-                value = lo + (value - lo) % (2 * math.pi)
-            elif key == "extra_path_mm":  # known modulo the ambiguity interval c / (2 f_mod)
-                value = lo + (value - lo) % (299792458e3 / (2e6 * get_profile(camera).modulation_mhz))
+            if key in PERIODIC:  # the truth's turn (or ambiguity interval) inside or above the interval
+                value = lo + (value - lo) % PERIODIC[key](camera)
             covered.append(lo <= value <= hi)
             estimate, stderr = effect.parameters[key], effect.evidence.stderr.get(key, 0.0)
             if isinstance(estimate, float) and stderr > 0:
-                if key.endswith("_rad"):
-                    estimate = value + math.remainder(estimate - value, 2 * math.pi)
+                if key in PERIODIC:  # the error to the nearest turn or ambiguity interval
+                    estimate = value + math.remainder(estimate - value, PERIODIC[key](camera))
                 errors.append((f"{name}.{key}", (estimate - value) / stderr))
     after = result.goodness_physical or result.goodness_after  # the named effects', before any empirical correction
     return {"label": label, "seed": seed, "hidden": sorted(hidden), "named": sorted(named),
