@@ -305,6 +305,8 @@ def _periodic_range(effect: Effect) -> Candidate:
 # candidate is the two-term form with its 4 parameters, otherwise the one-term form with 2.
 TWO_TERM_EVIDENCE = 10.0
 TWO_TERM_MIN_RATIO = 2.0  # the two time constants must differ by this factor
+#: the shortest warm-up time constant the grid searches (48 points in log up to the bound's upper end), set by
+#: hand: a faster drift has settled before the first steps of a campaign are captured
 SHORTEST_TAU_SEARCHED_S = 10.0
 
 

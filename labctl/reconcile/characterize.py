@@ -60,8 +60,8 @@ from labctl.reconcile.results import (
     ValidityDeparture,
 )
 
-GROUPS = 24
-CONFOUNDED = 0.8
+GROUPS = 24  # set by hand: more groups than the 19 distances of a 0.4-4 m sweep in 200 mm steps, so each has its own
+CONFOUNDED = 0.8  # set by hand: |rho| of two axes a run cannot tell apart (1 for distance and time in a one-way sweep)
 MIN_ETA2 = 0.1  # below this share no axis is said to carry the residual
 PIXEL_AXES = ("row", "column", "radius")
 SAME_AXIS = {"distance", "disparity"}

@@ -81,7 +81,7 @@ from sim.sensor import SensorOptics
 CORNER_FLOOR_PX = 0.1  # analytic projection against the detector, twice its null RMS (bench/reconcile_null.py)
 SLOPE_FLOOR = 5e-5  # the same in the cloud, as slope x/z (0.05 mm at 1 m)
 BOARD_GAP_MM = 0.2  # the board stands this far in front of the wall (sim/scenes/targets.py)
-MIN_FRAMES = 2
+MIN_FRAMES = 2  # the corners' scatter over the stack, part of their floor, needs two frames
 MIN_TILE_PX = 6.0  # below, cornerSubPix's window (0.4 tile) is 2 px and the grid's labels become unreliable
 FAMILIES = ("corner_image", "corner_cloud")
 FAMILY_UNIT = "mm in the board plane"

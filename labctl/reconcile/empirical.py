@@ -25,9 +25,9 @@ from labctl.reconcile.results import Parameters
 from sim.effects import empirical_pixel_map, empirical_range
 from sim.effects.empirical_pixel_map import node_coordinates
 
-RANGE_KNOTS = 13
-MAP_NODES = (13, 9)
-RIDGE = 1e-6
+RANGE_KNOTS = 13  # set by hand: 300 mm apart over a 0.4-4 m sweep, fewer knots than the sweep has steps
+MAP_NODES = (13, 9)  # set by hand: nodes 1/12 of the width and 1/8 of the height apart, near-square cells at 4:3
+RIDGE = 1e-6  # relative to the normal matrix's mean diagonal: numerical only, keeps the nuisance directions solvable
 
 
 def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:

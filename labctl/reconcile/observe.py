@@ -43,6 +43,9 @@ from labctl.run.store import RunReader, StepRecord, finite_or_none
 from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
 
+#: frames of each stack read (the first ones), set by hand: enough for the bin means and the noise statistics of
+#: the test campaigns (which capture 10), and a bound on reading and re-simulating a 100-frame stack; the null
+#: replicas capture no more (labctl/reconcile/null.py)
 MAX_FRAMES = 10
 
 
