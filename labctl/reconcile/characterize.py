@@ -1,7 +1,7 @@
 """What a residual that no library effect explains follows: its axes, their effect sizes, its map and curve.
 
 The residual is the per-step, per-bin depth residual of the final model with
-the lab's nuisance removed (``workflow._residual_maps``). Every axis a lab
+the lab's nuisance removed (``goodness.depth_residual_maps``). Every axis a lab
 varies or a sensor has is tried:
 
 * per bin: ``distance`` (the bin's range along its ray as simulated, mm;

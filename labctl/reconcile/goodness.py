@@ -236,13 +236,18 @@ def statistics_goodness(lay: Layout, obs: list[Observation], preds: list[Predict
     return steps, tuple(runs)
 
 
+def depth_residual_maps(lay: Layout, dz: list[np.ndarray]) -> list[np.ndarray]:
+    """Per-step depth residual maps (mm) with the lab's nuisance removed (NaN outside the compared bins)."""
+    return lay.unstack(lay.profile_z(np.nan_to_num(lay.stack_z(dz))), lay.z_masks)
+
+
 def residual_maps(lay: Layout, dz: list[np.ndarray], di: list[np.ndarray],
                   stats: dict[str, list[np.ndarray]]) -> dict[str, list[np.ndarray]]:
     """Per family, the per-step maps of the residual whose mean square beyond the noise is a step's
     ``StepFit.mean_square``, in the unit of its gaps (``UNITS``: depth profiled in mm, intensity profiled in %, the
     statistics families in % or percentage points); NaN outside the compared bins. What the minimum detectable
     effect crosses a signature with (labctl/reconcile/power.py)."""
-    out = {"depth": lay.unstack(lay.profile_z(np.nan_to_num(lay.stack_z(dz))), lay.z_masks),
+    out = {"depth": depth_residual_maps(lay, dz),
            "intensity": lay.unstack(100 * lay.profile_i(np.nan_to_num(lay.stack_i(di))), lay.i_masks)}
     for family in STATISTICS:
         masks = lay.family_masks(family)

@@ -200,7 +200,7 @@ class _Replicas:
             values = np.stack([m[seen] for m in maps])  # (P, bins)
             power[i] = values @ values.T / seen.sum()
             for j, residual in enumerate(self.maps[i]):
-                if residual is None or residual.shape != seen.shape:
+                if residual is None:
                     continue
                 r = residual[seen].astype(float)
                 both = np.isfinite(r)
@@ -212,20 +212,27 @@ class _Replicas:
         """The probability that a replica carrying the effect at ``amplitude``, over the directions of ``phases``
         (each equally likely), is judged outside the null and the effect's dBIC passes the threshold."""
         power, cross = crossed
-        q, use = signal.q, signal.q > 0
-        hits = 0.0
+        named = self.named(amplitude, signal)
         directions = phases(signal.parts)
+        hits = 0.0
         for a in directions:
             added = amplitude**2 * np.einsum("sab,a,b->s", power, a, a) + 2 * amplitude * cross @ a
-            outside = self.outside(self.statistics(self.square + added))
-            for j in np.flatnonzero(outside):
-                rss = np.maximum(np.resize(self.rss[j], len(q)), 1e-300)
-                gain = float(np.sum(np.log1p(amplitude**2 * q[use] / rss[use])))
-                var = float(np.sum(4 * amplitude**2 * q[use] / (np.maximum(signal.rows[use], 1) * rss[use])))
-                dbic = self.dbic0[j] + gain
-                hits += float(norm.cdf((dbic - self.threshold) / math.sqrt(var))) if var > 0 else float(
-                    dbic > self.threshold)
+            hits += float(np.sum(named[self.outside(self.statistics(self.square + added))]))
         return hits / (len(self.base) * len(directions))
+
+    def named(self, amplitude: float, signal: _Signal) -> np.ndarray:
+        """Per replica, the probability that the effect's dBIC at ``amplitude`` passes the threshold (the same in
+        every direction: the gain counts the parts' mean power)."""
+        q, use = signal.q, signal.q > 0
+        out = np.zeros(len(self.base))
+        for j in range(len(self.base)):
+            rss = np.maximum(np.resize(self.rss[j], len(q)), 1e-300)
+            gain = float(np.sum(np.log1p(amplitude**2 * q[use] / rss[use])))
+            var = float(np.sum(4 * amplitude**2 * q[use] / (np.maximum(signal.rows[use], 1) * rss[use])))
+            dbic = self.dbic0[j] + gain
+            out[j] = float(norm.cdf((dbic - self.threshold) / math.sqrt(var))) if var > 0 else float(
+                dbic > self.threshold)
+        return out
 
 
 def phases(parts: int) -> list[np.ndarray]:

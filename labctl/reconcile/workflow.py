@@ -69,6 +69,7 @@ from labctl.reconcile.goodness import (
     MATERIAL_FRACTION,
     UNITS,
     Goodness,
+    depth_residual_maps,
     goodness,
     material,
     residual_maps,
@@ -283,11 +284,6 @@ def competing(a: Fit, b: Fit) -> bool:
     """Whether two candidates explain the same part of the residual (their fitted changes correlate)."""
     norm = float(np.linalg.norm(a.signature) * np.linalg.norm(b.signature))
     return norm > 0 and abs(float(a.signature @ b.signature)) / norm >= COMPETING_CORRELATION
-
-
-def _residual_maps(lay: Layout, dz: list[np.ndarray]) -> list[np.ndarray]:
-    """Per-step depth residual maps with the nuisance removed (NaN outside the compared bins)."""
-    return lay.unstack(lay.profile_z(np.nan_to_num(lay.stack_z(dz))), lay.z_masks)
 
 
 def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout,
@@ -640,7 +636,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             say("minimum detectable amplitudes")
             minimum_detectable = detectable(state.context(), lay, rule)
         iteration = Iteration(sorted(state.model.effects), state.good.gap_mm, [f for f, _ in fits], "none significant",
-                              _residual_maps(lay, state.dz), state.good)
+                              depth_residual_maps(lay, state.dz), state.good)
         iterations.append(iteration)
         if not first_candidates:
             first_candidates = [CandidateScore(name=f.name, score=round(f.score, 2)) for f, _ in fits]
@@ -698,7 +694,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     for effect in named:
         effect.parameters = dict(state.model.effects[effect.name])
     good_physical = state.good
-    residual_physical = _residual_maps(lay, state.dz)
+    residual_physical = depth_residual_maps(lay, state.dz)
     unexplained, empirical = None, []
     physical_consistent = rule.consistent(good_physical)
     if not physical_consistent:
@@ -733,7 +729,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items() if name not in corner_names]
     excluded = info.get("skipped", []) + excluded_steps(observations, state.preds, lay)
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
-                           state.model, observations, iterations, _residual_maps(lay, state.dz), notes, ambiguity,
+                           state.model, observations, iterations, depth_residual_maps(lay, state.dz), notes, ambiguity,
                            good_before, state.good, good_physical, rule, minimum_detectable, unexplained, empirical,
                            corners=corners,
                            excluded=excluded)
