@@ -224,8 +224,12 @@ def statistics_goodness(lay: Layout, obs: list[Observation], preds: list[Predict
     for family in STATISTICS:
         v = lay.stack_family(family, stats[family])
         var = lay.stack_family(family, [x[family] for x in variances])
+        # the rows were chosen on the first model; a model fitted since may predict nothing in some of them (a
+        # stereo bin whose light slope now hides its texture): those rows are not compared
+        compared = np.isfinite(v) & np.isfinite(var)
+        v, var = v[compared], var[compared]
         floor_sq = var + STAT_FLOORS[family] ** 2
-        rows = lay.s_step.get(family, np.zeros(0, int))
+        rows = lay.s_step.get(family, np.zeros(0, int))[compared]
         for s, o in enumerate(obs):
             m = rows == s
             if m.sum() >= 2:
