@@ -119,10 +119,11 @@ class Context:
         zeros = [np.zeros_like(p.z) for p in self.predictions]
         dz, di = list(zeros), list(zeros)
         stats = {f: list(zeros) for f in STATISTICS if f in families}
+        shifts = predictor.wall_shifts(self.observations, self.t0_s)
         for s, (obs, base) in enumerate(zip(self.observations, self.predictions, strict=True)):
             if not step_filter(obs):
                 continue
-            p = predictor.predict(obs.scene, obs.times_s - self.t0_s)
+            p = predictor.predict(obs.scene, obs.times_s - self.t0_s, shifts.get(obs.scene.step_id, 0.0))
             with np.errstate(invalid="ignore", divide="ignore"):
                 if "depth" in families:
                     dz[s] = np.nan_to_num((p.z - base.z) / scale)

@@ -63,6 +63,10 @@ class StepScene:
     robot_radius_mm: float | None
     exposure_us: float | None
     projector: bool
+    #: laser-referenced steps: the camera-laser offset their reference was formed with (reference - laser reading)
+    applied_offset_mm: float | None = None
+    #: an offset calibration: the camera's own mean depth over its central region set ``applied_offset_mm``
+    sets_offset: bool = False
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,7 @@ def step_scene(step: StepRecord) -> StepScene | None:
     settings = json.loads(a.get("settings_json", "{}") or "{}")
     reference = finite_or_none(a.get("reference_distance_mm"))
     nominal = finite_or_none(a.get("distance_mm"))
+    laser = finite_or_none(a.get("laser_distance_mm"))
     if target in PLATE_MATERIALS:
         group, wall = "robot", None
     elif reference is not None and a.get("reference_source") == "laser":
@@ -116,6 +121,9 @@ def step_scene(step: StepRecord) -> StepScene | None:
         robot_radius_mm=finite_or_none(a.get("robot_radius_mm")) or finite_or_none(params.get("radius_mm")),
         exposure_us=finite_or_none(a.get("exposure_us")),
         projector=bool(settings.get("projector", settings.get("emitter", True))),
+        applied_offset_mm=reference - laser if group == "laser" and reference is not None and laser is not None
+        else None,
+        sets_offset=finite_or_none(a.get("camera_laser_offset_mm")) is not None,
     )
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -36,8 +37,9 @@ import numpy as np
 from scipy import ndimage
 
 from labctl.reconcile.noise_model import dot_window_stats, stereo_statistics, tof_statistics
-from labctl.reconcile.observe import StepScene, bin_mean
-from sim.effects import EFFECTS, EffectParams, frame_offset_mm, plate_placement_mm
+from labctl.reconcile.observe import Observation, StepScene, bin_mean
+from metrics.stack import central_roi
+from sim.effects import EFFECTS, EffectParams, acting, frame_offset_mm, plate_placement_mm
 from sim.geometry import Pose
 from sim.model import SimModel
 from sim.profiles import CameraProfile
@@ -46,6 +48,10 @@ from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
 from sim.sensor import SensorOptics, blur_diameter_px
 from sim.stereo import StereoSensor, dot_pattern
 from sim.tof import ToFSensor, surface_properties
+
+#: two steps carry the offset of the same calibration when their offsets (reference - laser, each formed from the
+#: same float) agree to far below the laser's 0.1 mm resolution
+OFFSET_MATCH_MM = 1e-6
 
 
 @dataclass(frozen=True)
@@ -114,7 +120,7 @@ class Predictor:
     """Binned noise-free simulation of measured steps under one model."""
 
     def __init__(self, model: SimModel, width: int, height: int, bin_px: int,
-                 render_cache: dict[tuple[str, str], Any] | None = None) -> None:
+                 render_cache: dict[tuple[str, ...], Any] | None = None) -> None:
         self.model = model
         full = model.profile().with_overrides({"width": width, "height": height})
         self.full = full
@@ -142,15 +148,28 @@ class Predictor:
                            if (EFFECTS[k].changes_render if plates else EFFECTS[k].changes_stage_render)},
                           sort_keys=True)
 
-    def _render(self, step: StepScene):
+    def _render(self, step: StepScene, shift_mm: float = 0.0):
+        """The step's render, its wall ``shift_mm`` nearer than recorded (``wall_shifts``). Each step keeps one
+        moved render besides the recorded one: the shift changes with every model a fit tries, and a wall's
+        render costs milliseconds at the bin grid."""
         key = (step.step_id, self.geometry_key(step))
+        if shift_mm:
+            moved = self.cache.get((*key, "moved"))
+            if moved is None or moved[0] != shift_mm:
+                assert step.wall_distance_mm is not None  # only walls are shifted
+                moved = (shift_mm, self._draw(dataclasses.replace(step, wall_distance_mm=step.wall_distance_mm - shift_mm)))
+                self.cache[(*key, "moved")] = moved
+            return moved[1]
         if key not in self.cache:
-            scene, pose = scene_and_pose(step, self.model, self.effects, self.profile.wavelength_nm)
-            if self.technology == "tof":
-                self.cache[key] = self.sensor.render_scene(scene, pose)
-            else:
-                self.cache[key] = render(scene, pose, self.sensor.geometry.optics, surface_properties(scene, {}))
+            self.cache[key] = self._draw(step)
         return self.cache[key]
+
+    def _draw(self, step: StepScene):
+        """Ray-cast one step's scene."""
+        scene, pose = scene_and_pose(step, self.model, self.effects, self.profile.wavelength_nm)
+        if self.technology == "tof":
+            return self.sensor.render_scene(scene, pose)
+        return render(scene, pose, self.sensor.geometry.optics, surface_properties(scene, {}))
 
     def _dot_stats(self, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """The full sensor's blurred dot pattern over the matching window, per bin (``dot_window_stats``;
@@ -161,6 +180,37 @@ class Predictor:
         if key not in self.cache:
             optics = SensorOptics(self.full, optical)
             self.cache[key] = dot_window_stats(optics, float(round(distance_mm)), self.bin_px)
+        return self.cache[key]
+
+    def shade(self, light: np.ndarray) -> np.ndarray:
+        """The bin means of ``light`` (the bins' unshaded light) times the measured camera's per-pixel shading
+        (``Effect.shading``: vignetting). A shading that curves within a bin has a bin mean S that differs from
+        its centre value to second order in the bin size, and light and shading that both fall across a bin
+        add their covariance: mean(L s) = L S + (b^2 - 1) / 12 (dL/du dS/du + dL/dv dS/dv), the pixel
+        positions of a bin having variance (b^2 - 1) / 12 px^2 along each axis, with per-pixel slopes from
+        neighbouring bins. With the centre's factor alone a cos^5 fitted 4.996 on an amt100 test run (bins of 4
+        pixels), 4.998 with S and no covariance."""
+        shading = self._shading()
+        if shading is None:
+            return light
+        mean, slope_v, slope_u = shading
+        dv, du = np.gradient(light, self.bin_px) if min(light.shape) > 1 else (np.zeros_like(light),) * 2
+        return light * mean + (self.bin_px**2 - 1) / 12.0 * (dv * slope_v + du * slope_u)
+
+    def _shading(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The measured camera's shading per bin: its bin mean over the pixels, and that mean's slopes per pixel
+        down and across (None without shading effects; cached with the renders, per setting of the effects
+        that set it)."""
+        acts = [k for k, e in ((k, EFFECTS[k]) for k in self.full_effects)
+                if e.shading is not None or e.true_fov_deg is not None or e.lens_distortion is not None]
+        if not any(EFFECTS[k].shading is not None for k in acts):
+            return None
+        key = ("shading", json.dumps({k: self.full_effects[k].model_dump(mode="json") for k in sorted(acts)}))
+        if key not in self.cache:
+            mean, _ = bin_mean(shading_factor(self.full_effects, SensorOptics(self.full, self.full_effects).cos_alpha),
+                               self.bin_px)
+            slopes = np.gradient(mean, self.bin_px) if min(mean.shape) > 1 else (np.zeros_like(mean),) * 2
+            self.cache[key] = (mean, *slopes)
         return self.cache[key]
 
     def blur_reach_bins(self, distance_mm: float) -> int:
@@ -176,36 +226,114 @@ class Predictor:
             return 0.0
         return float(np.mean([frame_offset_mm(self.effects, float(t)) for t in times_s]))
 
-    def predict(self, step: StepScene, times_s: np.ndarray) -> Prediction:
+    def wall_shifts(self, observations: Sequence[Observation], t0_s: float) -> dict[str, float]:
+        """How much nearer than recorded this model's camera puts each laser-referenced wall (step id -> mm).
+
+        A laser-referenced step's recorded distance is the laser reading plus the offset of an offset
+        calibration: the camera's own mean depth over the central 10 % x 10 % region of a wall at 2 m minus
+        the laser reading there (procedures/offset_calibration.py). The offset therefore holds the camera's
+        depth error at the calibration, and every recorded wall is the true one plus that error. The model's
+        camera makes its own error there: the walls it saw are each recorded distance minus the shift s at
+        which its central depth of the calibration wall, placed at the recorded distance minus s, equals the
+        recorded distance (two fixed-point steps from s = 0; the error changes by far less than the shift over
+        the shift). Without it an error that varies with distance (a disparity error growing as z^2) would be
+        evaluated at walls off by the error itself. Steps are tied to the calibration whose offset they carry.
+        """
+        shifts: dict[str, float] = {}
+        for calibration in observations:
+            scene = calibration.scene
+            if not scene.sets_offset or scene.applied_offset_mm is None or scene.wall_distance_mm is None:
+                continue
+            times = calibration.times_s - t0_s
+            shift = 0.0
+            for _ in range(2):
+                shift += self.central_depth(scene, times, shift) - scene.wall_distance_mm
+            if not math.isfinite(shift):
+                continue
+            for o in observations:
+                offset = o.scene.applied_offset_mm
+                if offset is not None and abs(offset - scene.applied_offset_mm) <= OFFSET_MATCH_MM:
+                    shifts.setdefault(o.scene.step_id, shift)
+        return shifts
+
+    def predict_run(self, observations: Sequence[Observation], t0_s: float) -> list[Prediction]:
+        """The prediction of every step, the laser-referenced walls where this model's camera saw them
+        (``wall_shifts``)."""
+        shifts = self.wall_shifts(observations, t0_s)
+        return [self.predict(o.scene, o.times_s - t0_s, shifts.get(o.scene.step_id, 0.0)) for o in observations]
+
+    def central_depth(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> float:
+        """The mean predicted depth over the central 10 % x 10 % region of the measured camera (metrics.stack
+        central_roi), each bin weighted by the region's pixels in it; NaN when none is reported there."""
+        rendered = self._render(step, shift_mm)
+        drift = self.drift_mm(times_s)
+        if isinstance(self.sensor, ToFSensor):
+            range_mm, _, _ = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
+            z = (range_mm + drift) * self.z_per_range
+        else:
+            z = self._stereo_depth(rendered, drift)
+        z = z + bin_curvature(z, self.bin_px)
+        rows, cols = central_roi(self.full.height, self.full.width)
+        weight = np.outer(_overlap(rows, z.shape[0], self.bin_px), _overlap(cols, z.shape[1], self.bin_px))
+        weight = np.where(np.isfinite(z), weight, 0.0)
+        total = weight.sum()
+        return float((weight * np.nan_to_num(z)).sum() / total) if total > 0 else math.nan
+
+    def predict(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> Prediction:
         """The step's binned noise-free prediction (``_predict``) with each bin's curvature term added to z."""
-        p = self._predict(step, times_s)
+        p = self._predict(step, times_s, shift_mm)
         return dataclasses.replace(p, z=p.z + bin_curvature(p.z, self.bin_px))
 
-    def _predict(self, step: StepScene, times_s: np.ndarray) -> Prediction:
-        """The step's binned noise-free z, intensity and the maps the candidate signatures need."""
-        rendered = self._render(step)
+    def _predict(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> Prediction:
+        """The step's binned noise-free z, intensity and the maps the candidate signatures need, its wall
+        ``shift_mm`` nearer than recorded. What only sets the comparison's bins and the dot pattern's blur
+        (the edge bins, the blur's reach) is taken at the recorded distance, so that it stays the same for
+        every shift a fit tries."""
+        recorded = self._render(step)
+        rendered = self._render(step, shift_mm) if shift_mm else recorded
         exposure = step.exposure_us or self.profile.exposure_us
         drift = self.drift_mm(times_s)
-        reach = self.blur_reach_bins(centre_distance_mm(rendered))
+        reach = self.blur_reach_bins(centre_distance_mm(recorded))
         edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
         if isinstance(self.sensor, ToFSensor):
             range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure)
             range_mm = range_mm + drift
             light = amplitude / self.sensor.shading()
+            amplitude = self.shade(light)
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = range_mm * self.z_per_range
             noise, valid = tof_statistics(self.sensor, amplitude, ambient, np.broadcast_to(self.z_per_range, z.shape))
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
                               np.zeros_like(z), _independent(noise))
-        z = self.sensor.depth(rendered) + drift
-        z = np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
-        ir = self.sensor.ir_image(rendered, exposure, step.projector)
+        z = self._stereo_depth(rendered, drift)
+        centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)
+        ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
-            self.sensor, rendered, z, exposure, step.projector, self._dot_stats(centre_distance_mm(rendered)),
+            self.sensor, rendered, z, exposure, step.projector, self._dot_stats(centre_distance_mm(recorded)),
             self.bin_px)
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
+
+
+    def _stereo_depth(self, rendered: Any, drift_mm: float) -> np.ndarray:
+        """A stereo render's binned noise-free z, NaN where nothing is hit or matched."""
+        z = self.sensor.depth(rendered) + drift_mm
+        return np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
+
+
+def shading_factor(effects: dict[str, EffectParams], cos_alpha: np.ndarray) -> np.ndarray:
+    """The product of the effects' ``shading`` factors at rays of the given cosines to the optical axis."""
+    factor = np.ones_like(cos_alpha, dtype=float)
+    for hook, params in acting(effects, "shading"):
+        factor = factor * hook(cos_alpha, params)
+    return factor
+
+
+def _overlap(region: slice, bins: int, bin_px: int) -> np.ndarray:
+    """Pixels of ``region`` (a slice of pixel indices) inside each of ``bins`` bins of ``bin_px`` pixels."""
+    edges = np.arange(bins + 1) * bin_px
+    return np.clip(np.minimum(edges[1:], region.stop) - np.maximum(edges[:-1], region.start), 0, None).astype(float)
 
 
 def _independent(noise: np.ndarray) -> np.ndarray:

@@ -269,15 +269,15 @@ class Simulation:
     def __init__(self, observations: list[Observation], info: dict[str, Any]) -> None:
         self.observations = observations
         self.info = info
-        self.cache: dict[tuple[str, str], Any] = {}
+        self.cache: dict[tuple[str, ...], Any] = {}
         self.t0_s = min((float(o.times_s[0]) for o in observations if len(o.times_s)), default=0.0)
 
     def predictor(self, model: SimModel) -> Predictor:
         return Predictor(model, self.info["width"], self.info["height"], self.info["bin_px"], self.cache)
 
     def predict(self, model: SimModel) -> list[Prediction]:
-        predictor = self.predictor(model)
-        return [predictor.predict(o.scene, o.times_s - self.t0_s) for o in self.observations]
+        """Every measured step as ``model`` predicts it (``Predictor.predict_run``)."""
+        return self.predictor(model).predict_run(self.observations, self.t0_s)
 
 
 def competing(a: Fit, b: Fit) -> bool:

@@ -1,0 +1,123 @@
+"""What the binned prediction puts back: the offset calibration's coupling and the shading's bin mean.
+
+Expected values are derived here from the geometry of a pinhole camera and the physics of the effect, not
+taken from the prediction:
+
+* A stereo camera whose disparity reads delta px too high reports z' = f b z / (f b + z delta) for a wall at z
+  (disparity d = f b / z, f the focal length in px of the camera's own sensor, b the baseline). The offset
+  calibration records the wall at 2 m where that camera saw it, z'(D) = R, so the wall stood at
+  D = R f b / (f b - R delta), and every step calibrated by it stood R - D nearer than recorded.
+* A bin's mean of a shaded light is the mean over its pixels of light times shading, each pixel on its own
+  ray through a pinhole with c = (W - 1) / 2 and f = (W / 2) / tan(FOV / 2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import tomli_w
+
+from labctl.reconcile.goodness import statistics_goodness
+from labctl.reconcile.observe import observe_run
+from labctl.reconcile.predict import Predictor
+from labctl.reconcile.residuals import STATISTICS, layout, raw_statistics
+from labctl.reconcile.workflow import Simulation, base_model, with_effect
+from sim.model import parse_model
+from sim.profiles import get_profile
+from tests.reconcile.runs import SIZES, simulated_run
+
+
+@pytest.fixture(scope="module")
+def d455_run(tmp_path_factory):
+    """A plain d455 run: offset calibration at 2 m and a 0.4-4 m sweep in 900 mm steps, robot plates."""
+    run = simulated_run(tmp_path_factory.mktemp("d455"), "d455", seed=41, sweep_step_mm=900)
+    observations, info, _ = observe_run(run)
+    return observations, info
+
+
+def test_calibrated_walls_move_by_the_models_own_error_at_the_calibration(d455_run):
+    observations, info = d455_run
+    sim = Simulation(observations, info)
+    base = base_model(info)
+    delta = 0.1
+    drifted = with_effect(base, "stereo_calibration_drift", {"disparity_offset_px": delta})
+    plain = sim.predictor(base).wall_shifts(observations, sim.t0_s)
+    shifts = sim.predictor(drifted).wall_shifts(observations, sim.t0_s)
+
+    profile = get_profile("d455")
+    width = SIZES["d455"][0]
+    fb = (width / 2) / math.tan(math.radians(profile.fov_h_deg) / 2) * profile.baseline_mm
+    calibration = next(o for o in observations if o.scene.procedure == "offset_calibration")
+    recorded = calibration.scene.wall_distance_mm
+    stood = recorded * fb / (fb - recorded * delta)
+    expected = recorded - stood  # about -50 mm: the drifted camera saw the wall nearer than it stood
+
+    laser = [o.scene.step_id for o in observations if o.scene.reference == "laser"]
+    assert len(laser) >= 5 and set(shifts) == set(laser)
+    assert {o.scene.step_id for o in observations if o.scene.reference == "robot"}.isdisjoint(shifts)
+    # the model without the drift has its own small error there; the drift adds R - D to it
+    assert shifts[laser[-1]] - plain[laser[-1]] == pytest.approx(expected, abs=0.3)
+    assert len({shifts[s] for s in laser}) == 1  # every step carries the one calibration's offset
+
+
+def test_a_step_without_the_calibrations_offset_is_not_moved(d455_run):
+    observations, info = d455_run
+    sim = Simulation(observations, info)
+    model = with_effect(base_model(info), "stereo_calibration_drift", {"disparity_offset_px": 0.1})
+    sweep = next(o for o in observations if o.scene.procedure == "depth_sweep")
+    other = dataclasses.replace(sweep, scene=dataclasses.replace(
+        sweep.scene, step_id="other", applied_offset_mm=sweep.scene.applied_offset_mm + 1.0))
+    shifts = sim.predictor(model).wall_shifts([*observations, other], sim.t0_s)
+    assert sweep.scene.step_id in shifts and "other" not in shifts
+
+
+def _pinhole_cosines(width: int, height: int, fov_h_deg: float, fov_v_deg: float) -> np.ndarray:
+    """cos of each pixel's ray to the optical axis."""
+    u = (np.arange(width) - (width - 1) / 2) / ((width / 2) / math.tan(math.radians(fov_h_deg) / 2))
+    v = (np.arange(height) - (height - 1) / 2) / ((height / 2) / math.tan(math.radians(fov_v_deg) / 2))
+    return 1.0 / np.sqrt(1.0 + u[None, :] ** 2 + v[:, None] ** 2)
+
+
+def test_shaded_light_is_the_bin_mean_of_the_pixels_light_times_their_vignetting():
+    width, height, b, exponent = 160, 120, 4, 5.0
+    model = parse_model(tomli_w.dumps({"camera": "amt100", "camera_overrides": {"width": width, "height": height},
+                                       "effects": {"vignetting": {"exponent": exponent}}}), "test model")
+    predictor = Predictor(model, width, height, b)
+    profile = get_profile("amt100")
+    cos_alpha = _pinhole_cosines(width, height, profile.fov_h_deg, profile.fov_v_deg)
+    # light falling across the image like a lit wall's, cos^4, with a tilt of 20 % across the width
+    tilt = np.linspace(0.9, 1.1, width)[None, :]
+    light = cos_alpha**4 * tilt
+
+    def bins(a: np.ndarray) -> np.ndarray:
+        return a.reshape(height // b, b, width // b, b).mean(axis=(1, 3))
+
+    truth = bins(light * cos_alpha**exponent)
+    shaded = predictor.shade(bins(light))
+    centre = bins(light) * _pinhole_cosines(width // b, height // b, profile.fov_h_deg, profile.fov_v_deg) ** exponent
+    inner = (slice(1, -1), slice(1, -1))  # one-sided slopes at the border
+    error = np.abs(np.log(shaded[inner] / truth[inner]))
+    error_centre = np.abs(np.log(centre[inner] / truth[inner]))
+    assert error_centre.max() > 3e-4  # the centre's factor alone: 0.05 %, a bias many standard errors wide
+    assert error.max() < error_centre.max() / 100  # what is left is third order in the bin size
+
+
+def test_statistics_rows_a_later_model_does_not_predict_are_left_out(d455_run):
+    observations, info = d455_run
+    sim = Simulation(observations, info)
+    preds = sim.predict(base_model(info))
+    lay = layout(observations, preds, "stereo")
+    # a model fitted later predicts no valid fraction in the first compared bins of every step
+    later = []
+    for pred, mask in zip(preds, lay.family_masks("validity"), strict=True):
+        valid = pred.valid_rate.copy()
+        rows, cols = np.nonzero(mask)
+        valid[rows[:3], cols[:3]] = np.nan
+        later.append(dataclasses.replace(pred, valid_rate=valid))
+    steps, families = statistics_goodness(lay, observations, later, raw_statistics(observations, later))
+    assert {f.family for f in families} == set(STATISTICS)
+    assert all(math.isfinite(f.floor) for f in families)
+    assert all(math.isfinite(s.floor) for s in steps)
