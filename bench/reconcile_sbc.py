@@ -1,6 +1,7 @@
 """Simulation-based calibration of reconcile: does it recover what the library itself hides?
 
-``python -m bench.reconcile_sbc [DRAWS] [--pairs N] [--seed S] [--scheduler ADDRESS] [--workers N]``
+``python -m bench.reconcile_sbc [DRAWS] [--pairs N] [--seed S] [--only LABEL ...] [--scheduler ADDRESS]
+[--workers N]``
 draws, for every library effect of the reconcile tests (the cases of
 tests/reconcile/test_reconcile_cli.py and tests/reconcile/test_library_effects.py,
 each on its camera at the test size), DRAWS parameter sets at random within
@@ -19,7 +20,8 @@ effects (before any empirical correction) is within the floor (target
 >= 90 %), then per fitted parameter the standardized errors (estimate - truth) /
 standard error: mean 0 and deviation 1 when the intervals are calibrated, a
 mean away from 0 for a bias, a deviation above 1 for intervals too narrow.
-Not a budget benchmark.
+``--only`` runs part of the plan (some effects, or the pairs) with the very
+draws and seeds the whole plan gives them. Not a budget benchmark.
 """
 
 from __future__ import annotations
@@ -146,8 +148,8 @@ def error_table(outcomes: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def main(draws: int, pairs: int, seed: int, cluster: Cluster) -> int:
-    tasks = plan(draws, pairs, seed)
+def main(draws: int, pairs: int, seed: int, cluster: Cluster, only: list[str] | None = None) -> int:
+    tasks = [t for t in plan(draws, pairs, seed) if not only or t[0] in only]
     start = time.monotonic()
     outcomes = []
     with open_client(cluster) as client:
@@ -170,7 +172,9 @@ if __name__ == "__main__":
     parser.add_argument("draws", nargs="?", type=int, default=40, help="draws per effect (default 40)")
     parser.add_argument("--pairs", type=int, default=40, help="draws of two effects together (default 40)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the draws (default 1)")
+    parser.add_argument("--only", nargs="+", choices=[*sorted(DRAWS), "pairs"], metavar="LABEL",
+                        help="run only these labels of the plan (effect-camera, or pairs), drawn as in the whole plan")
     parser.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a local cluster)")
     parser.add_argument("--workers", type=int, help="worker processes of the local cluster (default: one per core)")
     args = parser.parse_args()
-    sys.exit(main(args.draws, args.pairs, args.seed, Cluster(args.scheduler, args.workers)))
+    sys.exit(main(args.draws, args.pairs, args.seed, Cluster(args.scheduler, args.workers), args.only))
