@@ -71,6 +71,15 @@ img{break-inside:avoid}h2,h3{break-after:avoid}tr{break-inside:avoid}}
 """
 
 
+#: how the report and the comparison say which way a figure improves (keyfigures.json's ``better``)
+BETTER_TEXT = {"lower": "lower", "higher": "higher", "zero": "closer to 0", "none": "none"}
+
+
+def better_text(name: str) -> str:
+    """Which way figure ``name`` improves, in words (``zero``: a signed figure, closer to 0 is better)."""
+    return BETTER_TEXT[better_direction(name)]
+
+
 def wrap_table(table_html: str) -> str:
     """A table inside the sideways-scrolling container, so it never widens the page."""
     return f'<div class="tablewrap">{table_html}</div>'
@@ -434,7 +443,7 @@ def _summary_html(cam: CameraDescription, doc: KeyFiguresDocument) -> str:
                      for s in judged.values())
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc.figures[name].value)}</td>'
-        f'<td class="l">{doc.figures[name].unit}</td><td class="l">{better_direction(name)}</td>'
+        f'<td class="l">{doc.figures[name].unit}</td><td class="l">{better_text(name)}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}'
         + "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))} (see Key figures)</span>'
                   for f in doc.figures[name].flags) + "</td></tr>"
@@ -478,7 +487,7 @@ def _page(evaluation: Evaluation, doc: KeyFiguresDocument, sections: list[str]) 
     fig_rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(f.value)}</td><td class="l">{f.unit}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}{_flags_html(f.flags)}</td>'
-        f'<td class="l">{better_direction(name)}</td>'
+        f'<td class="l">{better_text(name)}</td>'
         f'<td class="l src">{_sources(f.source)}</td></tr>'
         for name, f in doc.figures.items()
     )
