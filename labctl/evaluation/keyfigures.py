@@ -104,7 +104,8 @@ def _vendor_figures(distance_mm: int) -> tuple[FigureDef, ...]:
     return (
         FigureDef(f"fill_rate_{distance_mm}mm_pct", "%", f"valid pixels in the centred 40 % ROI, {d}", DQT),
         FigureDef(f"z_accuracy_{distance_mm}mm_pct", "%",
-                  f"median signed error vs the reference plane, % of distance, 0.5 % trimmed each end, {d}", DQT),
+                  f"median signed error vs the distance from the camera's depth origin (laser minus "
+                  f"devices.camera.depth_origin_offset_mm), % of it, 0.5 % trimmed each end, {d}", DQT),
         FigureDef(f"plane_fit_rms_{distance_mm}mm_mm", "mm",
                   f"RMS of point-to-plane distances in the 40 % ROI, 0.5 % trimmed each end, {d}", DQT),
         FigureDef(f"subpixel_rms_{distance_mm}mm_px", "px",
