@@ -56,8 +56,10 @@ def campaign_text(
     faults: str = "",
     seed: int = 7,
     extra_devices: str = "",
+    camera: str = "",
 ) -> str:
-    """A small wall campaign: offset calibration + short depth sweep."""
+    """A small wall campaign: offset calibration + short depth sweep (``camera``: more lines of
+    ``[devices.camera]``)."""
     if procedures is None:
         procedures = """
         [[procedure]]
@@ -77,6 +79,7 @@ def campaign_text(
 
     [devices.camera]
     backend = "{backend}"
+    {camera}
 
     [devices.stage]
     protocol = "zaber"

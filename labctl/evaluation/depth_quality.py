@@ -7,16 +7,23 @@ evaluation reads anyway; of x and y only the first frame is read: a pixel's
 x/z and y/z are those of its ray, the same in every frame (x = z (u - c_x) / f
 for the stereo camera's deprojection, x = r d_x with z = r d_z for a ToF
 camera's), so each frame's window x, y follow from its z; the key figures take them at the distances the
-vendors quote (1000 mm and 2000 mm, the nearest step within 150 mm). The
+vendors quote (1000 mm and 2000 mm, the step whose reference distance is nearest, within 150 mm). The
 subpixel RMS needs the stereo baseline: it is taken from the camera model's
 datasheet (``STEREO_BASELINE_MM``) and is null for other cameras.
+
+Z accuracy is measured against the step's absolute reference (``absolute_reference_mm``: the laser
+reading moved to the camera's depth origin by the campaign's ``devices.camera.depth_origin_offset_mm``),
+never against the offset-calibrated ``reference_distance_mm``, which is the camera's own depth at the
+calibration distance and hides its range offset. Without an absolute reference it is NaN, and its key
+figure null with a ``no_absolute_reference`` flag saying why (docs/keyfigures.md).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -31,6 +38,8 @@ STEREO_BASELINE_MM = {"D415": 55.0, "D435": 50.0, "D455": 95.0, "D457": 95.0}
 VENDOR_DISTANCES_MM = (1000.0, 2000.0)
 TOLERANCE_MM = 150.0
 
+#: the key figures that need the absolute reference (null without it)
+ABSOLUTE_REFERENCE_FIGURES = ("z_accuracy_{d}mm_pct",)
 #: key-figure name pattern -> VendorFigures field
 FIELDS = {
     "fill_rate_{d}mm_pct": "fill_rate_pct",
@@ -54,12 +63,29 @@ def focal_length_px(camera: CameraInfo) -> float:
 
 @dataclass(frozen=True)
 class VendorPosition:
+    """The vendor figures of one wall step: ``reference_mm`` is the step's reference distance (where it stands,
+    offset-calibrated), ``figures.reference_mm`` the absolute reference Z accuracy is measured against (NaN
+    without one, ``missing_reference`` then saying why)."""
+
     step_id: str
+    reference_mm: float
     figures: VendorFigures
+    missing_reference: str
+
+
+def missing_absolute_reference(attrs: Mapping[str, Any]) -> str:
+    """Why a step has no absolute reference (``absolute_reference_mm``, docs/runfile.md); empty when it has one.
+    A run file written before the attribute existed reads as a campaign without the offset."""
+    if math.isfinite(float(attrs.get("absolute_reference_mm", math.nan))):
+        return ""
+    if not math.isfinite(float(attrs.get("depth_origin_offset_mm", math.nan))):
+        return "no devices.camera.depth_origin_offset_mm in the campaign"
+    return "no laser reading in the step"
 
 
 def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: str) -> VendorPosition:
-    """The vendor figures of one wall step whose (N, H, W) z stack is ``z``."""
+    """The vendor figures of one wall step whose (N, H, W) z stack is ``z``, Z accuracy against its absolute
+    reference."""
     rows, cols = dqt_roi(camera.height, camera.width)
     w_rows, w_cols = centre_window(camera.height, camera.width)
     x0, y0 = (step.group[c][0] for c in ("x", "y"))
@@ -67,26 +93,52 @@ def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: 
     wz = z[:, w_rows, w_cols]
     with np.errstate(divide="ignore", invalid="ignore"):
         slope_x, slope_y = x0[w_rows, w_cols] / wz[0], y0[w_rows, w_cols] / wz[0]
-    figures = vendor_figures(dqt, (slope_x * wz, slope_y * wz, wz), step.attrs["reference_distance_mm"],
-                             focal_length_px(camera), stereo_baseline_mm(model))  # type: ignore[arg-type]
-    return VendorPosition(step.step_id, figures)
+    absolute = float(step.attrs.get("absolute_reference_mm", math.nan))
+    figures = vendor_figures(dqt, (slope_x * wz, slope_y * wz, wz), absolute, focal_length_px(camera),
+                             stereo_baseline_mm(model))
+    return VendorPosition(step.step_id, float(step.attrs["reference_distance_mm"]), figures,
+                          missing_absolute_reference(step.attrs))
+
+
+def _nearest(positions: Sequence[VendorPosition]) -> dict[int, VendorPosition]:
+    """Per distance of ``VENDOR_DISTANCES_MM``, the position whose reference distance is nearest it (left out
+    where none is within ``TOLERANCE_MM``)."""
+    found = {}
+    for distance in VENDOR_DISTANCES_MM:
+        near = min(positions, key=lambda p: abs(p.reference_mm - distance), default=None)
+        if near is not None and abs(near.reference_mm - distance) <= TOLERANCE_MM:
+            found[int(distance)] = near
+    return found
 
 
 def figure_values(positions: Sequence[VendorPosition]) -> dict[str, tuple[float, list[str]]]:
     """Key figures at ``VENDOR_DISTANCES_MM`` with their source step (absent where no step is near)."""
     figures: dict[str, tuple[float, list[str]]] = {}
-    for distance in VENDOR_DISTANCES_MM:
-        near = min(positions, key=lambda p: abs(p.figures.reference_mm - distance), default=None)
-        if near is None or abs(near.figures.reference_mm - distance) > TOLERANCE_MM:
-            continue
+    for distance, near in _nearest(positions).items():
         for pattern, field in FIELDS.items():
-            figures[pattern.format(d=int(distance))] = (getattr(near.figures, field), [near.step_id])
+            figures[pattern.format(d=distance)] = (getattr(near.figures, field), [near.step_id])
     return figures
+
+
+def reference_flags(positions: Sequence[VendorPosition]) -> dict[str, dict[str, str]]:
+    """The ``no_absolute_reference`` flag (``{"check", "message"}``) of each key figure that is null because its
+    step has no absolute reference."""
+    flags = {}
+    for distance, near in _nearest(positions).items():
+        if not near.missing_reference:
+            continue
+        for pattern in ABSOLUTE_REFERENCE_FIGURES:
+            flags[pattern.format(d=distance)] = {"check": "no_absolute_reference", "message": (
+                f"{near.missing_reference} ({near.step_id}): this figure is measured from the camera's depth "
+                "origin (the laser reading minus devices.camera.depth_origin_offset_mm, docs/campaign.md), not "
+                "against the offset-calibrated reference, which is the camera's own depth and hides its range offset")}
+    return flags
 
 
 def vendor_table(positions: Sequence[VendorPosition]) -> list[DepthQualityRow]:
     """Per-position vendor figures as rows (report and ``keyfigures.json``)."""
-    return [{"step": p.step_id, "reference_mm": p.figures.reference_mm, "fill_rate_pct": p.figures.fill_rate_pct,
+    return [{"step": p.step_id, "reference_mm": p.reference_mm, "absolute_reference_mm": p.figures.reference_mm,
+             "fill_rate_pct": p.figures.fill_rate_pct,
              "z_accuracy_pct": p.figures.z_accuracy_pct, "plane_fit_rms_mm": p.figures.plane_fit_rms_mm,
              "plane_fit_rms_pct": p.figures.plane_fit_rms_pct, "subpixel_rms_px": p.figures.subpixel_rms_px,
              "spatial_precision_mm": p.figures.spatial_precision_mm,

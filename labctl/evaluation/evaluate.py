@@ -16,7 +16,7 @@ import numpy as np
 
 from labctl.errors import InputError
 from labctl.evaluation.capture import CaptureResult, evaluate_captures
-from labctl.evaluation.depth_quality import VendorPosition, vendor_position
+from labctl.evaluation.depth_quality import VendorPosition, reference_flags, vendor_position
 from labctl.evaluation.depth_quality import figure_values as vendor_figures
 from labctl.evaluation.geometry import GeometryResult, evaluate_geometry
 from labctl.evaluation.geometry import figure_values as geometry_figures
@@ -128,6 +128,11 @@ def evaluate_depth_sweep(
         evaluation.depth.append(DepthPosition(rec.step_id, errors))
         evaluation.vendor.append(vendor_position(rec, buffer, reader.camera, evaluation.camera.model))
     del buffer
+    missing = [p for p in evaluation.vendor if p.missing_reference]
+    if missing:
+        reasons = "; ".join(sorted({p.missing_reference for p in missing}))
+        evaluation.notes.append(f"{len(missing)} depth_sweep step(s) have no absolute reference ({reasons}): the "
+                                "Depth Quality Tool's Z accuracy is null there (docs/campaign.md, Reference distance)")
     for name, (value, source) in vendor_figures(evaluation.vendor).items():
         evaluation.figures[name] = FigureValue(value, source)
     if not evaluation.depth:
@@ -266,6 +271,8 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         inputs = PlausibilityInputs(evaluation.sharpness, evaluation.quantization_mm,
                                     evaluation.geometry.precision if evaluation.geometry else [], _noise(evaluation))
         evaluation.flags = plausibility_flags({n: f.value for n, f in evaluation.figures.items()}, inputs)
+        for name, flag in reference_flags(evaluation.vendor).items():
+            evaluation.flags.setdefault(name, []).append(flag)
         steps = {c: q for c, q in evaluation.quantization_mm.items() if math.isfinite(q)}
         if steps:
             evaluation.notes.append("the wall data are quantized (" + ", ".join(

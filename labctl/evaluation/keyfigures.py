@@ -104,7 +104,8 @@ def _vendor_figures(distance_mm: int) -> tuple[FigureDef, ...]:
     return (
         FigureDef(f"fill_rate_{distance_mm}mm_pct", "%", f"valid pixels in the centred 40 % ROI, {d}", DQT),
         FigureDef(f"z_accuracy_{distance_mm}mm_pct", "%",
-                  f"median signed error vs the reference plane, % of distance, 0.5 % trimmed each end, {d}", DQT),
+                  f"median signed error vs the distance from the camera's depth origin (laser minus "
+                  f"devices.camera.depth_origin_offset_mm), % of it, 0.5 % trimmed each end, {d}", DQT),
         FigureDef(f"plane_fit_rms_{distance_mm}mm_mm", "mm",
                   f"RMS of point-to-plane distances in the 40 % ROI, 0.5 % trimmed each end, {d}", DQT),
         FigureDef(f"subpixel_rms_{distance_mm}mm_px", "px",
@@ -139,12 +140,19 @@ HIGHER_IS_BETTER = frozenset({"ied_pixels_at_hyperfocal", "ied_pixels_at_hyperfo
                               | {f.name for f in VENDOR_FIGURES if f.name.startswith("fill_rate_")})
 #: figures that are neither better high nor low: the distance the camera is sharpest at
 NO_BETTER_DIRECTION = frozenset({"best_focus_distance_mm"})
+#: signed figures, errors of either sign: closer to 0 is better (the pixel aspect and radial distortions, Z accuracy,
+#: the VDI/VDE 2634-2 size and spacing errors P_S and SD)
+CLOSER_TO_ZERO_IS_BETTER = frozenset(
+    {"pixel_aspect_distortion_pct", "probing_error_size_mm", "sphere_spacing_error_mm"}
+    | {f.name for f in FIGURES if f.name.startswith(("radial_distortion_", "z_accuracy_")) and f.name.endswith("_pct")})
 
 
 def better_direction(name: str) -> str:
-    """How a figure improves: "higher", "none", or "lower" (of its magnitude, for signed figures)."""
+    """How a figure improves: "higher", "none", "zero" (a signed figure: closer to 0) or "lower"."""
     if name in HIGHER_IS_BETTER:
         return "higher"
+    if name in CLOSER_TO_ZERO_IS_BETTER:
+        return "zero"
     return "none" if name in NO_BETTER_DIRECTION else "lower"
 
 
@@ -164,13 +172,15 @@ def clean(value: float | None) -> float | None:
 @dataclass(kw_only=True)
 class FigureEntry:
     """One figure of ``keyfigures.json``: its value (null where not measured), unit, the steps it comes from
-    (comma separated), its meaning and its plausibility flags (``{"check", "message"}`` each)."""
+    (comma separated), its meaning, its flags (``{"check", "message"}`` each: the plausibility checks it fails,
+    or why it is null) and which way it improves (``better``: :func:`better_direction`)."""
 
     value: float | None
     unit: str
     source: str
     meaning: str
     flags: list[dict[str, str]]
+    better: str
 
 
 @dataclass(kw_only=True)
@@ -231,7 +241,8 @@ def keyfigures_document(
     for fig in FIGURES:
         v = values.get(fig.name, FigureValue(None, []))
         figures[fig.name] = FigureEntry(value=clean(v.value), unit=fig.unit, source=",".join(v.source),
-                                        meaning=fig.meaning, flags=list((flags or {}).get(fig.name, [])))
+                                        meaning=fig.meaning, flags=list((flags or {}).get(fig.name, [])),
+                                        better=better_direction(fig.name))
     return KeyFiguresDocument(camera=camera, figures=figures, suitability=suitability)
 
 
@@ -240,8 +251,9 @@ Record = TypeVar("Record")
 
 def read_keyfigures(path: Path) -> KeyFiguresDocument:
     """A ``keyfigures.json`` written by ``labctl evaluate``, read back (a figure's missing fields read as empty,
-    the procedure sections into their records without the keys of other labctl versions); InputError naming the
-    file when it is missing, not JSON, or has no ``camera`` / ``figures``."""
+    its missing ``better`` as this version defines it, the procedure sections into their records without the
+    keys of other labctl versions); InputError naming the file when it is missing, not JSON, or has no
+    ``camera`` / ``figures``."""
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
@@ -251,7 +263,8 @@ def read_keyfigures(path: Path) -> KeyFiguresDocument:
     if not isinstance(data, dict) or "figures" not in data or "camera" not in data:
         raise InputError(f"{path} is not a labctl keyfigures.json (no 'camera'/'figures')")
     figures = {name: FigureEntry(value=f.get("value"), unit=f.get("unit", ""), source=f.get("source", ""),
-                                 meaning=f.get("meaning", ""), flags=f.get("flags", []))
+                                 meaning=f.get("meaning", ""), flags=f.get("flags", []),
+                                 better=f.get("better", better_direction(name)))
                for name, f in data["figures"].items()}
     hints = typing.get_type_hints(KeyFiguresDocument)
     try:

@@ -84,10 +84,13 @@ class AlignmentSection(TypedDict):
 
 class DepthQualityRow(TypedDict):
     """A row of ``depth_quality``: one wall step's datasheet-comparable figures (``subpixel_rms_px`` None but
-    for stereo cameras)."""
+    for stereo cameras): ``reference_mm`` is the step's offset-calibrated reference distance,
+    ``absolute_reference_mm`` the distance from the camera's depth origin that ``z_accuracy_pct`` is measured
+    against (both None without it)."""
 
     step: str
     reference_mm: float | None
+    absolute_reference_mm: float | None
     fill_rate_pct: float | None
     z_accuracy_pct: float | None
     plane_fit_rms_mm: float | None

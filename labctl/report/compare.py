@@ -3,6 +3,7 @@
 Input: the output directories of ``labctl evaluate`` (their ``keyfigures.json``).
 Output: ``compare.json`` (every figure per camera, the suitability verdicts),
 ``compare.html`` with the Fig. 6-12 style chart (all figures, lower is better;
+the signed figures, where closer to 0 is better, as their magnitude |value|;
 angular resolutions x 10 as in Thesis 2024 so they share the axis; fill rates,
 where higher is better, are left out), the datasheet-comparable figures with
 where they are defined, the
@@ -31,7 +32,7 @@ from labctl.evaluation.keyfigures import (
 )
 from labctl.evaluation.suitability import IED_MIN_PX
 from labctl.jsondoc import write_json
-from labctl.report.html import CSS, references_html, verdict_cell, wrap_table, wrappable
+from labctl.report.html import CSS, better_text, references_html, verdict_cell, wrap_table, wrappable
 from labctl.report.plots.png import save_png
 from labctl.run.store import labctl_version, now_iso
 
@@ -107,7 +108,8 @@ def story_name(key: str) -> str:
 
 def _figure(doc: KeyFiguresDocument, name: str) -> FigureEntry:
     """A figure of an evaluation; one its version of labctl did not define reads as not measured."""
-    return doc.figures.get(name) or FigureEntry(value=None, unit="", source="", meaning="", flags=[])
+    return doc.figures.get(name) or FigureEntry(value=None, unit="", source="", meaning="", flags=[],
+                                                better=better_direction(name))
 
 
 def _story_names(docs: list[KeyFiguresDocument]) -> dict[str, str]:
@@ -145,16 +147,23 @@ def _chart(table: dict[str, dict[str, float | None]], labels: list[str], path: P
                 ax.text(pos, floor, "0" if v == 0 else "n/a", rotation=90, ha="center", va="bottom", fontsize=8,
                         fontweight="bold", color=colour)
     ax.set_xticks(x)
-    ax.set_xticklabels([n + (" x10" if n in TIMES_TEN else "") for n in names], rotation=70, ha="right", fontsize=8)
+    ax.set_xticklabels([chart_label(n) for n in names], rotation=70, ha="right", fontsize=8)
     ax.set_yscale("log")
     ax.set_ylim(bottom=floor)
-    ax.set_ylabel("value (mm, %, deg x10); lower is better")
+    ax.set_ylabel("value (mm, %, deg x10); lower is better,\n|value| of signed figures: closer to 0 is better")
     ax.set_title("Key figures of the cameras (Thesis 2024, Fig. 6-12); labels at the foot: 0 = value zero, "
                  "n/a = not measured", pad=28)
     ax.grid(axis="y", alpha=0.3, which="both")
     ax.legend(ncol=max(len(labels), 1), loc="lower center", bbox_to_anchor=(0.5, 1.0), fontsize=9, frameon=False)
     fig.tight_layout()
     return save_png(fig, path, dpi=100)
+
+
+def chart_label(name: str) -> str:
+    """A figure's label under its bars: ``|name|`` for a signed figure (its magnitude is charted), `` x10`` for the
+    angular resolutions."""
+    label = f"|{name}|" if better_direction(name) == "zero" else name
+    return label + (" x10" if name in TIMES_TEN else "")
 
 
 def _charted(name: str, value: float | None) -> float:
@@ -221,7 +230,7 @@ def _page(result: CompareDocument, chart: Path, ied: Path) -> str:
     story_head = "".join(f'<th class="l">{html.escape(label)}</th>' for label in labels)  # over left-aligned verdicts
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
-        f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_direction(name)}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_text(name)}</td>'
         + "".join(f"<td>{_flagged(values[label], result.flags.get(name, {}).get(label, []))}</td>" for label in labels)
         + "</tr>"
         for name, values in result.figures.items()

@@ -15,6 +15,7 @@ from labctl.evaluation.keyfigures import (
     FIGURE_BY_NAME,
     VENDOR_FIGURES,
     CameraDescription,
+    FigureEntry,
     KeyFiguresDocument,
     better_direction,
     clean,
@@ -69,6 +70,15 @@ img{max-width:100%;height:auto;border:1px solid #eee}td.src{font-size:.85em;colo
 table{font-size:7.5pt;width:100%}td,th{padding:.15em .3em;overflow-wrap:break-word}
 img{break-inside:avoid}h2,h3{break-after:avoid}tr{break-inside:avoid}}
 """
+
+
+#: how the report and the comparison say which way a figure improves (keyfigures.json's ``better``)
+BETTER_TEXT = {"lower": "lower", "higher": "higher", "zero": "closer to 0", "none": "none"}
+
+
+def better_text(name: str) -> str:
+    """Which way figure ``name`` improves, in words (``zero``: a signed figure, closer to 0 is better)."""
+    return BETTER_TEXT[better_direction(name)]
 
 
 def wrap_table(table_html: str) -> str:
@@ -323,16 +333,23 @@ def _vendor_html(evaluation: Evaluation, doc: KeyFiguresDocument) -> str:
     """The vendor key figures next to where they are defined, then the figures at every distance."""
     rows = "".join(
         f'<tr><td class="l">{wrappable(f.name)}</td><td>{_fmt(doc.figures[f.name].value)}</td>'
-        f'<td class="l">{f.unit}</td><td class="l">{html.escape(f.meaning)}</td>'
+        f'<td class="l">{f.unit}</td><td class="l">{html.escape(f.meaning)}{_null_reason(doc.figures[f.name])}</td>'
         f'<td class="l src">{html.escape(f.section)}</td></tr>'
         for f in VENDOR_FIGURES
     )
     return ("<p>The figures camera vendors quote in their datasheets, computed as their own tools define them "
             "(see docs/metrics.md for the choices where a definition is vague); subpixel RMS only for stereo "
-            "cameras.</p>"
+            "cameras. Z accuracy is measured from the camera's depth origin (<code>absolute_reference_mm</code>: "
+            "the laser reading minus the campaign's <code>devices.camera.depth_origin_offset_mm</code>), not "
+            "against the offset-calibrated reference of the depth-error section, and is n/a without it.</p>"
             + wrap_table('<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th>'
                          f'<th class="l">definition</th><th class="l">defined by</th></tr>{rows}</table>')
             + f"<h3>At every wall distance</h3>{_rows_table(vendor_table(evaluation.vendor), 'step')}")
+
+
+def _null_reason(entry: FigureEntry) -> str:
+    """Why a figure is n/a, where its flags say (its other flags are shown in the Key figures table)."""
+    return _flags_html(entry.flags) if entry.value is None else ""
 
 
 def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: KeyFiguresDocument) -> str:
@@ -434,7 +451,7 @@ def _summary_html(cam: CameraDescription, doc: KeyFiguresDocument) -> str:
                      for s in judged.values())
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc.figures[name].value)}</td>'
-        f'<td class="l">{doc.figures[name].unit}</td><td class="l">{better_direction(name)}</td>'
+        f'<td class="l">{doc.figures[name].unit}</td><td class="l">{better_text(name)}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}'
         + "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))} (see Key figures)</span>'
                   for f in doc.figures[name].flags) + "</td></tr>"
@@ -478,7 +495,7 @@ def _page(evaluation: Evaluation, doc: KeyFiguresDocument, sections: list[str]) 
     fig_rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(f.value)}</td><td class="l">{f.unit}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}{_flags_html(f.flags)}</td>'
-        f'<td class="l">{better_direction(name)}</td>'
+        f'<td class="l">{better_text(name)}</td>'
         f'<td class="l src">{_sources(f.source)}</td></tr>'
         for name, f in doc.figures.items()
     )

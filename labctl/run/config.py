@@ -69,6 +69,12 @@ class CameraConfig(StrictModel):
     producer: str | None = Field(None, description="GenTL producer .cti (blaze with sdk = harvesters, amt100)")
     sdk: Literal["pypylon", "harvesters"] = Field("pypylon", description="blaze: pypylon or harvesters")
     frame_timeout_s: float = Field(5.0, gt=0, le=120, description="longest wait for one frame")
+    depth_origin_offset_mm: float | None = Field(
+        None, ge=-1000.0, le=1000.0, allow_inf_nan=False,
+        description="mechanical distance from the laser's zero to the camera's depth origin, positive when the "
+                    "depth origin lies nearer the wall (docs/campaign.md, Reference distance); the absolute "
+                    "reference is the laser reading minus it",
+    )
 
     @model_validator(mode="after")
     def _real_options_fit_backend(self) -> CameraConfig:

@@ -80,6 +80,14 @@ def connect_lab(lab: Lab, report: Callable[[str], None], operator: Operator | No
         raise RunAborted(f"cannot connect devices: {exc}") from None
 
 
+def absolute_reference(laser_mm: float, depth_origin_offset_mm: float | None) -> dict[str, float]:
+    """The step attributes of the reference independent of the camera (docs/runfile.md): the campaign's
+    ``devices.camera.depth_origin_offset_mm`` and the laser reading moved to the camera's depth origin,
+    ``laser - depth_origin_offset_mm`` (NaN without the offset or without a laser reading)."""
+    offset = math.nan if depth_origin_offset_mm is None else float(depth_origin_offset_mm)
+    return {"depth_origin_offset_mm": offset, "absolute_reference_mm": laser_mm - offset}
+
+
 class Runner:
     """Executes a campaign's plan on a connected lab into an open run file."""
 
@@ -291,6 +299,7 @@ class Runner:
             attrs["laser_distance_mm"] = math.nan
             attrs["reference_distance_mm"] = step.distance_mm if step.distance_mm is not None else math.nan
             attrs["reference_source"] = "stage" if step.distance_mm is not None else "none"
+        attrs.update(absolute_reference(attrs["laser_distance_mm"], self.campaign.devices.camera.depth_origin_offset_mm))
         return attrs
 
     def _confirm(self, message: str) -> None:

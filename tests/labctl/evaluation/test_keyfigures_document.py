@@ -78,7 +78,8 @@ def _with_every_section() -> KeyFiguresDocument:
                     "plane_rms_mm": None}]
     doc.alignment = {"step": "00000_alignment", "fields_mm": {"top_left": [-1041.4, -745.5, 2005.9]},
                      "tilt_x_deg": -0.004, "tilt_y_deg": None}
-    doc.depth_quality = [{"step": "00002_depth_sweep", "reference_mm": 2005.0, "fill_rate_pct": 100.0,
+    doc.depth_quality = [{"step": "00002_depth_sweep", "reference_mm": 2005.0, "absolute_reference_mm": 2005.4,
+                          "fill_rate_pct": 100.0,
                           "z_accuracy_pct": 0.03, "plane_fit_rms_mm": 0.24, "plane_fit_rms_pct": 0.05,
                           "subpixel_rms_px": None, "spatial_precision_mm": 0.24, "temporal_precision_mm": 0.25}]
     doc.acceptance_test = {"probing_error_form_mm": {"value": 2.6, "mpe_mm": 5, "verdict": "pass"},

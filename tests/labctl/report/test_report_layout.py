@@ -280,7 +280,7 @@ def test_better_direction_is_the_one_docs_keyfigures_md_gives():
     for line in text.splitlines():
         cells = [c.strip() for c in line.split("|")[1:-1]]
         if len(cells) >= 4 and cells[0].startswith("`") and cells[0].strip("`") in FIGURE_BY_NAME:
-            direction = next((c for c in cells if c in ("lower", "higher", "none")), None)
+            direction = next((c for c in cells if c in ("lower", "higher", "zero", "none")), None)
             if direction is not None:  # the tables of definitions only have no "better" column
                 documented[cells[0].strip("`")] = direction
     assert {"ied_pixels_at_hyperfocal", "ied_pixels_at_hyperfocal_angular", "best_focus_distance_mm",

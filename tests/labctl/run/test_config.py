@@ -132,3 +132,12 @@ def test_stage_checksums_are_a_zaber_option():
     assert "checksums apply to Zaber stages only" in errors_of(text)
     zaber = parse_campaign(campaign_text().replace('protocol = "zaber"', 'protocol = "zaber"\nchecksums = true'))
     assert zaber.devices.stage.checksums is True
+
+
+def test_depth_origin_offset_is_optional_and_a_finite_distance():
+    assert parse_campaign(campaign_text()).devices.camera.depth_origin_offset_mm is None
+    assert parse_campaign(campaign_text(camera="depth_origin_offset_mm = -4.5")).devices.camera.depth_origin_offset_mm \
+        == -4.5
+    for bad in ('"front glass"', "nan", "inf", "1e6"):
+        message = errors_of(campaign_text(camera=f"depth_origin_offset_mm = {bad}"))
+        assert "devices.camera.depth_origin_offset_mm" in message, bad
