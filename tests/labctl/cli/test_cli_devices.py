@@ -109,12 +109,15 @@ def assert_valid_run_file(path: Path, frames: int, height: int, width: int) -> h
 
 
 def recorded_depth_mm() -> list[np.ndarray]:
-    """The recording's depth frames read directly through librealsense (z16, 1 mm units)."""
+    """The recording's depth frames read directly through librealsense (z16, 1 mm units). Real-time playback
+    is switched off on the device the config resolves, before the pipeline starts: switched off after the start,
+    a loaded machine had already dropped the first frame."""
     config = rs.config()
     config.enable_device_from_file(str(BAG), False)
     config.enable_stream(rs.stream.depth)
     pipeline = rs.pipeline()
-    pipeline.start(config).get_device().as_playback().set_real_time(False)
+    config.resolve(rs.pipeline_wrapper(pipeline)).get_device().as_playback().set_real_time(False)
+    pipeline.start(config)
     frames = []
     while (got := pipeline.try_wait_for_frames(500))[0]:
         frames.append(np.asanyarray(got[1].get_depth_frame().get_data()).astype(np.float32))
