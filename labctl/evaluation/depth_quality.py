@@ -28,9 +28,20 @@ from typing import Any
 import numpy as np
 
 from drivers.protocols import CameraInfo
+from labctl.evaluation.keyfigures import FigureValue
 from labctl.evaluation.sections import DepthQualityRow
+from labctl.evaluation.uncertainty import absolute_reference, scaled
 from labctl.run.store import StepRecord
-from metrics.depth_quality import DQT_FRAMES, VendorFigures, centre_window, dqt_roi, vendor_figures
+from metrics.depth_quality import (
+    DQT_FRAMES,
+    VendorFigures,
+    VendorUncertainties,
+    centre_window,
+    dqt_roi,
+    vendor_figures,
+    vendor_uncertainties,
+)
+from metrics.uncertainty import Component
 
 #: stereo baseline (mm) by product name (Intel RealSense D400 Series datasheet)
 STEREO_BASELINE_MM = {"D415": 55.0, "D435": 50.0, "D455": 95.0, "D457": 95.0}
@@ -71,6 +82,10 @@ class VendorPosition:
     reference_mm: float
     figures: VendorFigures
     missing_reference: str
+    #: the figures' Type A uncertainties (None at a step whose figures do not become key figures)
+    uncertainties: VendorUncertainties | None = None
+    #: the absolute reference's components in mm (empty without one)
+    reference_budget: tuple[Component, ...] = ()
 
 
 def missing_absolute_reference(attrs: Mapping[str, Any]) -> str:
@@ -83,9 +98,15 @@ def missing_absolute_reference(attrs: Mapping[str, Any]) -> str:
     return "no laser reading in the step"
 
 
+def near_vendor_distance(reference_mm: float) -> bool:
+    """Whether a step at ``reference_mm`` can be the one a vendor distance takes its key figures from."""
+    return any(abs(reference_mm - d) <= TOLERANCE_MM for d in VENDOR_DISTANCES_MM)
+
+
 def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: str) -> VendorPosition:
     """The vendor figures of one wall step whose (N, H, W) z stack is ``z``, Z accuracy against its absolute
-    reference."""
+    reference; near a vendor distance with their uncertainties (every frame of the ROI taken singly, with the
+    first frame's x and y as the figures take them)."""
     rows, cols = dqt_roi(camera.height, camera.width)
     w_rows, w_cols = centre_window(camera.height, camera.width)
     x0, y0 = (step.group[c][0] for c in ("x", "y"))
@@ -94,10 +115,17 @@ def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: 
     with np.errstate(divide="ignore", invalid="ignore"):
         slope_x, slope_y = x0[w_rows, w_cols] / wz[0], y0[w_rows, w_cols] / wz[0]
     absolute = float(step.attrs.get("absolute_reference_mm", math.nan))
-    figures = vendor_figures(dqt, (slope_x * wz, slope_y * wz, wz), absolute, focal_length_px(camera),
-                             stereo_baseline_mm(model))
-    return VendorPosition(step.step_id, float(step.attrs["reference_distance_mm"]), figures,
-                          missing_absolute_reference(step.attrs))
+    window = (slope_x * wz, slope_y * wz, wz)
+    focal, baseline = focal_length_px(camera), stereo_baseline_mm(model)
+    figures = vendor_figures(dqt, window, absolute, focal, baseline)
+    reference_mm = float(step.attrs["reference_distance_mm"])
+    uncertainties = None
+    if near_vendor_distance(reference_mm):
+        frames = np.broadcast_to(x0[None, rows, cols], z[:, rows, cols].shape)
+        uncertainties = vendor_uncertainties((frames, np.broadcast_to(y0[None, rows, cols], frames.shape),
+                                              z[:, rows, cols]), window, absolute, focal, baseline)
+    return VendorPosition(step.step_id, reference_mm, figures, missing_absolute_reference(step.attrs), uncertainties,
+                          absolute_reference(step.attrs))
 
 
 def _nearest(positions: Sequence[VendorPosition]) -> dict[int, VendorPosition]:
@@ -111,12 +139,28 @@ def _nearest(positions: Sequence[VendorPosition]) -> dict[int, VendorPosition]:
     return found
 
 
-def figure_values(positions: Sequence[VendorPosition]) -> dict[str, tuple[float, list[str]]]:
-    """Key figures at ``VENDOR_DISTANCES_MM`` with their source step (absent where no step is near)."""
-    figures: dict[str, tuple[float, list[str]]] = {}
+def _budget(position: VendorPosition, field: str) -> tuple[Component, ...]:
+    """The uncertainty budget of one vendor figure of ``position``: the frames' Type A component, and for Z
+    accuracy the absolute reference's components in % of it (sensitivity 100 / reference, GUM 5.1.3; empty,
+    not estimated, without them)."""
+    if position.uncertainties is None:
+        return ()
+    frames = Component("frames: spread over the stack (Type A)", getattr(position.uncertainties, field))
+    if field != "z_accuracy_pct":
+        return (frames,)
+    if not position.reference_budget:
+        return ()
+    return (frames, *scaled(position.reference_budget, 100.0 / position.figures.reference_mm))
+
+
+def figure_values(positions: Sequence[VendorPosition]) -> dict[str, FigureValue]:
+    """Key figures at ``VENDOR_DISTANCES_MM`` with their source step and uncertainty budget (absent where no step
+    is near)."""
+    figures: dict[str, FigureValue] = {}
     for distance, near in _nearest(positions).items():
         for pattern, field in FIELDS.items():
-            figures[pattern.format(d=distance)] = (getattr(near.figures, field), [near.step_id])
+            figures[pattern.format(d=distance)] = FigureValue(getattr(near.figures, field), [near.step_id],
+                                                              _budget(near, field))
     return figures
 
 

@@ -150,8 +150,7 @@ def evaluate_depth_sweep(
         reasons = "; ".join(sorted({p.missing_reference for p in missing}))
         evaluation.notes.append(f"{len(missing)} depth_sweep step(s) have no absolute reference ({reasons}): the "
                                 "Depth Quality Tool's Z accuracy is null there (docs/campaign.md, Reference distance)")
-    for name, (value, source) in vendor_figures(evaluation.vendor).items():
-        evaluation.figures[name] = FigureValue(value, source)
+    evaluation.figures.update(vendor_figures(evaluation.vendor))
     if not evaluation.depth:
         return
     figures = evaluation.figures
