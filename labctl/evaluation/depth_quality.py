@@ -20,6 +20,7 @@ figure null with a ``no_absolute_reference`` flag saying why (docs/keyfigures.md
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -34,6 +35,7 @@ from labctl.evaluation.uncertainty import absolute_reference, scaled
 from labctl.run.store import StepRecord
 from metrics.depth_quality import (
     DQT_FRAMES,
+    Cloud,
     VendorFigures,
     VendorUncertainties,
     centre_window,
@@ -82,7 +84,8 @@ class VendorPosition:
     reference_mm: float
     figures: VendorFigures
     missing_reference: str
-    #: the figures' Type A uncertainties (None at a step whose figures do not become key figures)
+    #: the figures' Type A uncertainties (None at a step whose figures do not become key figures:
+    #: :func:`with_uncertainties`)
     uncertainties: VendorUncertainties | None = None
     #: the absolute reference's components in mm (empty without one)
     reference_budget: tuple[Component, ...] = ()
@@ -98,34 +101,45 @@ def missing_absolute_reference(attrs: Mapping[str, Any]) -> str:
     return "no laser reading in the step"
 
 
-def near_vendor_distance(reference_mm: float) -> bool:
-    """Whether a step at ``reference_mm`` can be the one a vendor distance takes its key figures from."""
-    return any(abs(reference_mm - d) <= TOLERANCE_MM for d in VENDOR_DISTANCES_MM)
+def _clouds(step: StepRecord, z: np.ndarray, camera: CameraInfo) -> tuple[Cloud, Cloud]:
+    """x, y, z (N, h, w) of the Depth Quality Tool's ROI in every frame (the first frame's x and y, as the tool's
+    figures take them) and of Basler's centre window (each frame's x, y from its z along the pixel's ray)."""
+    rows, cols = dqt_roi(camera.height, camera.width)
+    w_rows, w_cols = centre_window(camera.height, camera.width)
+    x0, y0 = (step.group[c][0] for c in ("x", "y"))
+    roi_z = z[:, rows, cols]
+    dqt = (np.broadcast_to(x0[None, rows, cols], roi_z.shape), np.broadcast_to(y0[None, rows, cols], roi_z.shape),
+           roi_z)
+    wz = z[:, w_rows, w_cols]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope_x, slope_y = x0[w_rows, w_cols] / wz[0], y0[w_rows, w_cols] / wz[0]
+    return dqt, (slope_x * wz, slope_y * wz, wz)
 
 
 def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: str) -> VendorPosition:
     """The vendor figures of one wall step whose (N, H, W) z stack is ``z``, Z accuracy against its absolute
-    reference; near a vendor distance with their uncertainties (every frame of the ROI taken singly, with the
-    first frame's x and y as the figures take them)."""
-    rows, cols = dqt_roi(camera.height, camera.width)
-    w_rows, w_cols = centre_window(camera.height, camera.width)
-    x0, y0 = (step.group[c][0] for c in ("x", "y"))
-    dqt = (x0[None, rows, cols], y0[None, rows, cols], z[:DQT_FRAMES, rows, cols])
-    wz = z[:, w_rows, w_cols]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        slope_x, slope_y = x0[w_rows, w_cols] / wz[0], y0[w_rows, w_cols] / wz[0]
+    reference (the Depth Quality Tool's of the first ``DQT_FRAMES`` frames)."""
+    dqt, window = _clouds(step, z, camera)
     absolute = float(step.attrs.get("absolute_reference_mm", math.nan))
-    window = (slope_x * wz, slope_y * wz, wz)
-    focal, baseline = focal_length_px(camera), stereo_baseline_mm(model)
-    figures = vendor_figures(dqt, window, absolute, focal, baseline)
-    reference_mm = float(step.attrs["reference_distance_mm"])
-    uncertainties = None
-    if near_vendor_distance(reference_mm):
-        frames = np.broadcast_to(x0[None, rows, cols], z[:, rows, cols].shape)
-        uncertainties = vendor_uncertainties((frames, np.broadcast_to(y0[None, rows, cols], frames.shape),
-                                              z[:, rows, cols]), window, absolute, focal, baseline)
-    return VendorPosition(step.step_id, reference_mm, figures, missing_absolute_reference(step.attrs), uncertainties,
-                          absolute_reference(step.attrs))
+    figures = vendor_figures(tuple(c[:DQT_FRAMES] for c in dqt), window, absolute,  # type: ignore[arg-type]
+                             focal_length_px(camera), stereo_baseline_mm(model))
+    return VendorPosition(step.step_id, float(step.attrs["reference_distance_mm"]), figures,
+                          missing_absolute_reference(step.attrs))
+
+
+def with_uncertainties(position: VendorPosition, step: StepRecord, z: np.ndarray, camera: CameraInfo,
+                       model: str) -> VendorPosition:
+    """``position`` (of ``step``, whose z stack is ``z``) with the Type A uncertainties of its figures (every
+    frame taken singly) and the components of its absolute reference."""
+    dqt, window = _clouds(step, z, camera)
+    uncertainties = vendor_uncertainties(dqt, window, position.figures.reference_mm, focal_length_px(camera),
+                                         stereo_baseline_mm(model))
+    return dataclasses.replace(position, uncertainties=uncertainties, reference_budget=absolute_reference(step.attrs))
+
+
+def key_steps(positions: Sequence[VendorPosition]) -> set[str]:
+    """The steps the key figures are taken from (the nearest to each of ``VENDOR_DISTANCES_MM``)."""
+    return {p.step_id for p in _nearest(positions).values()}
 
 
 def _nearest(positions: Sequence[VendorPosition]) -> dict[int, VendorPosition]:

@@ -16,7 +16,13 @@ import numpy as np
 
 from labctl.errors import InputError
 from labctl.evaluation.capture import CaptureResult, evaluate_captures
-from labctl.evaluation.depth_quality import VendorPosition, reference_flags, vendor_position
+from labctl.evaluation.depth_quality import (
+    VendorPosition,
+    key_steps,
+    reference_flags,
+    vendor_position,
+    with_uncertainties,
+)
 from labctl.evaluation.depth_quality import figure_values as vendor_figures
 from labctl.evaluation.geometry import GeometryResult, evaluate_geometry
 from labctl.evaluation.geometry import figure_values as geometry_figures
@@ -144,6 +150,12 @@ def evaluate_depth_sweep(
             key_u = depth_error_uncertainties(buffer, stats, rec.attrs["reference_distance_mm"])
         evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
         evaluation.vendor.append(vendor_position(rec, buffer, reader.camera, evaluation.camera.model))
+    chosen = key_steps(evaluation.vendor)
+    for i, rec in enumerate(usable):  # the steps the vendor key figures come from, read again for their uncertainty
+        if rec.step_id in chosen:
+            buffer = rec.read("z", out=buffer)
+            evaluation.vendor[i] = with_uncertainties(evaluation.vendor[i], rec, buffer, reader.camera,
+                                                      evaluation.camera.model)
     del buffer
     missing = [p for p in evaluation.vendor if p.missing_reference]
     if missing:
