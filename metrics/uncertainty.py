@@ -1,7 +1,7 @@
 """Measurement uncertainty of a figure, following the GUM (JCGM 100:2008).
 
 A figure's uncertainty budget is a list of components, each a standard uncertainty in the figure's unit: an
-input's standard uncertainty times the figure's sensitivity to it (GUM 5.1.3, eq. 11b; evaluated numerically
+input's standard uncertainty times the figure's sensitivity to it (GUM 5.1.3; evaluated numerically
 where the figure is no closed formula of the input, :func:`sensitivity`). The components are taken as
 uncorrelated and combined by the root sum of squares (GUM 5.1.2, eq. 10); the expanded uncertainty is
 U = k u_c with the coverage factor k = 2 (GUM 6.2.1, 6.3.3: about 95 % for a near-normal distribution).
@@ -43,7 +43,7 @@ class Component:
 
 def combined_standard_uncertainty(budget: Sequence[Component]) -> float:
     """Root sum of squares of uncorrelated components, each already times its sensitivity coefficient (GUM
-    5.1.2, eq. 10 and 5.1.3, eq. 11b); NaN when the budget is empty or a component is not finite.
+    5.1.2, eq. 10 and 5.1.3); NaN when the budget is empty or a component is not finite.
 
     Examples
     --------
@@ -94,7 +94,7 @@ def from_multiple(stated: float, k: float) -> float:
 def sensitivity(f: Callable[[float], float], x: float, step: float) -> float:
     """Sensitivity coefficient df/dx at ``x``, evaluated numerically by the central difference
     (f(x + step) - f(x - step)) / (2 step) (GUM 5.1.3, Note 2); a component u(x) then contributes |c| u(x) (GUM
-    5.1.3, eq. 11b).
+    5.1.3).
 
     Examples
     --------
