@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from metrics.stack import StackStats
+from metrics.uncertainty import jackknife_standard_errors, sensitivity, standard_error_of_std
 
 
 def quantile_abs(values: np.ndarray, q: float) -> float:
@@ -110,4 +111,101 @@ def depth_errors(stats: StackStats, first_frame: np.ndarray, reference_mm: float
         precision_q90_mm=p90,
         repeatability_center_mm=float(stats.std[r, c]) if valid[r, c] else float("nan"),
         invalid_fraction=float(1.0 - valid.mean()),
+    )
+
+
+def center_repeatability_uncertainty(stats: StackStats) -> float:
+    """Type A standard uncertainty of the centre pixel's repeatability, a sample standard deviation s of n frames:
+    s / sqrt(2 (n - 1)) (GUM E.4.3, Table E.1); NaN where the centre pixel is invalid.
+
+    Examples
+    --------
+    The centre pixel seen as 1, 2, 3 over three frames: s = 1, uncertainty 1 / sqrt(4) = 0.5.
+
+    >>> from metrics.stack import stack_stats
+    >>> center_repeatability_uncertainty(stack_stats(np.arange(1.0, 4.0)[:, None, None] * np.ones((3, 1, 1))))
+    0.5
+    """
+    r, c = center_pixel(stats.valid.shape)
+    if not stats.valid[r, c]:
+        return float("nan")
+    return standard_error_of_std(float(stats.std[r, c]), int(stats.count[r, c]))
+
+
+@dataclass(frozen=True)
+class DepthErrorUncertainties:
+    """Type A standard uncertainties (GUM 4.2) of the Q90 figures of one stack: what the frames' noise leaves
+    in them; and the sensitivity coefficients of trueness and accuracy Q90 to the reference distance (GUM
+    5.1.3), which scale the reference's components (the caller's)."""
+
+    trueness_q90_mm: float
+    accuracy_q90_mm: float
+    precision_q90_mm: float
+    trueness_reference_sensitivity: float
+    accuracy_reference_sensitivity: float
+
+
+#: step (mm) of the reference distance for the numerical sensitivity coefficients: about the reference's
+#: standard uncertainty (a laser meter's mean reading and offset)
+REFERENCE_STEP_MM = 0.1
+
+
+def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm: float) -> DepthErrorUncertainties:
+    """Type A uncertainties of the Q90 figures of :func:`depth_errors` of the (N, H, W) ``stack`` whose
+    statistics are ``stats``.
+
+    * trueness and precision Q90 (quantiles over pixels of per-pixel stack statistics): the jackknife standard
+      error over the frames (Efron & Tibshirani 1993, eq. 11.5), each frame left out in turn, on the pixels
+      valid in the stack;
+    * accuracy Q90 (one frame): the experimental standard deviation of the figure over the frames, each taken
+      as the single frame (GUM 4.2.2);
+    * the sensitivity of trueness and accuracy Q90 to the reference: by central differences of
+      ``REFERENCE_STEP_MM`` (GUM 5.1.3). A quantile of |error| moves by less than the reference where the
+      errors lie on both sides of 0 (near 0 for errors centred on it, up to 1 for errors of one sign).
+
+    Examples
+    --------
+    Four frames, each the wall at 1000 mm plus -1.5, -0.5, 0.5, 1.5 mm at every pixel: every single frame's
+    accuracy Q90 is one of 1.5, 0.5, 0.5, 1.5 (sample std 0.577).
+
+    >>> from metrics.stack import stack_stats
+    >>> stack = 1000.0 + np.array([-1.5, -0.5, 0.5, 1.5])[:, None, None] * np.ones((4, 3, 3))
+    >>> round(depth_error_uncertainties(stack, stack_stats(stack), 1000.0).accuracy_q90_mm, 3)
+    0.577
+    """
+    valid = stats.valid
+    n = stack.shape[0]
+    mean = stats.mean[valid]
+    deviation = (stack[:, valid] - mean).astype(np.float32)
+    seen = np.isfinite(deviation).astype(np.float32)
+    deviation = np.nan_to_num(deviation, nan=0.0)
+    squared = deviation * deviation
+
+    def moments(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-pixel mean and sample std of the frames where ``kept`` is true."""
+        w = kept.astype(np.float32)
+        c, s, ss = w @ seen, w @ deviation, w @ squared
+        with np.errstate(divide="ignore", invalid="ignore"):
+            shift = s / c
+            var = (ss - s * shift) / (c - 1)
+        ok = c >= 2
+        return np.where(ok, mean + shift, np.nan), np.where(ok, np.sqrt(np.maximum(var, 0.0)), np.nan)
+
+    def q90s(kept: np.ndarray) -> tuple[float, float]:
+        """Trueness and precision Q90 of the frames where ``kept`` is true."""
+        mean_k, std_k = moments(kept)
+        return quantile_abs(mean_k - reference_mm, 0.9), quantile_abs(std_k, 0.9)
+
+    trueness, precision = jackknife_standard_errors(q90s, n) if n >= 2 else (float("nan"), float("nan"))
+    per_frame = np.array([quantile_abs(stack[k][valid] - reference_mm, 0.9) for k in range(n)])
+    per_frame = per_frame[np.isfinite(per_frame)]
+    first = stack[0][valid]
+    return DepthErrorUncertainties(
+        trueness_q90_mm=trueness,
+        accuracy_q90_mm=float(np.std(per_frame, ddof=1)) if per_frame.size >= 2 else float("nan"),
+        precision_q90_mm=precision,
+        trueness_reference_sensitivity=sensitivity(lambda r: quantile_abs(mean - r, 0.9), reference_mm,
+                                                   REFERENCE_STEP_MM),
+        accuracy_reference_sensitivity=sensitivity(lambda r: quantile_abs(first - r, 0.9), reference_mm,
+                                                   REFERENCE_STEP_MM),
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
+from drivers.laser.dimetix import ACCURACY_MM, REPEATABILITY_2SIGMA_MM
 from procedures.steps import StrictModel
 
 
@@ -21,8 +22,8 @@ class LabGeometry(StrictModel):
 
     camera_mount_error_mm: float = Field(6.0, ge=-200.0, le=200.0)
     laser_offset_mm: float = Field(42.0, ge=-1000.0, le=1000.0)
-    laser_bias_mm: float = Field(0.4, ge=-1.0, le=1.0)
-    laser_noise_mm: float = Field(0.15, ge=0.0, le=10.0)
+    laser_bias_mm: float = Field(0.4, ge=-ACCURACY_MM, le=ACCURACY_MM)
+    laser_noise_mm: float = Field(REPEATABILITY_2SIGMA_MM / 2, ge=0.0, le=10.0)
     laser_resolution_mm: float = Field(0.1, gt=0.0, le=10.0)
     tilt_x_deg: float = Field(0.0, ge=-10, le=10)
     tilt_y_deg: float = Field(0.0, ge=-10, le=10)

@@ -23,6 +23,11 @@ from drivers.protocols import DeviceIdentity
 
 log = logging.getLogger(__name__)
 
+#: the DAN-10-150's stated accuracy (+-1 mm), a bound on its error at any distance
+ACCURACY_MM = 1.0
+#: the DAN-10-150's stated repeatability (0.3 mm), at 2 sigma
+REPEATABILITY_2SIGMA_MM = 0.3
+
 _START_SEQUENCE = re.compile(r"g\d\?")
 _ANY_SENSOR = re.compile(r"g\d")
 

@@ -20,6 +20,7 @@ figure null with a ``no_absolute_reference`` flag saying why (docs/keyfigures.md
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -28,9 +29,21 @@ from typing import Any
 import numpy as np
 
 from drivers.protocols import CameraInfo
+from labctl.evaluation.keyfigures import FigureValue
 from labctl.evaluation.sections import DepthQualityRow
+from labctl.evaluation.uncertainty import absolute_reference, scaled
 from labctl.run.store import StepRecord
-from metrics.depth_quality import DQT_FRAMES, VendorFigures, centre_window, dqt_roi, vendor_figures
+from metrics.depth_quality import (
+    DQT_FRAMES,
+    Cloud,
+    VendorFigures,
+    VendorUncertainties,
+    centre_window,
+    dqt_roi,
+    vendor_figures,
+    vendor_uncertainties,
+)
+from metrics.uncertainty import Component
 
 #: stereo baseline (mm) by product name (Intel RealSense D400 Series datasheet)
 STEREO_BASELINE_MM = {"D415": 55.0, "D435": 50.0, "D455": 95.0, "D457": 95.0}
@@ -71,6 +84,11 @@ class VendorPosition:
     reference_mm: float
     figures: VendorFigures
     missing_reference: str
+    #: the figures' Type A uncertainties (None at a step whose figures do not become key figures:
+    #: :func:`with_uncertainties`)
+    uncertainties: VendorUncertainties | None = None
+    #: the absolute reference's components in mm (empty without one)
+    reference_budget: tuple[Component, ...] = ()
 
 
 def missing_absolute_reference(attrs: Mapping[str, Any]) -> str:
@@ -83,21 +101,45 @@ def missing_absolute_reference(attrs: Mapping[str, Any]) -> str:
     return "no laser reading in the step"
 
 
-def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: str) -> VendorPosition:
-    """The vendor figures of one wall step whose (N, H, W) z stack is ``z``, Z accuracy against its absolute
-    reference."""
+def _clouds(step: StepRecord, z: np.ndarray, camera: CameraInfo) -> tuple[Cloud, Cloud]:
+    """x, y, z (N, h, w) of the Depth Quality Tool's ROI in every frame (the first frame's x and y, as the tool's
+    figures take them) and of Basler's centre window (each frame's x, y from its z along the pixel's ray)."""
     rows, cols = dqt_roi(camera.height, camera.width)
     w_rows, w_cols = centre_window(camera.height, camera.width)
     x0, y0 = (step.group[c][0] for c in ("x", "y"))
-    dqt = (x0[None, rows, cols], y0[None, rows, cols], z[:DQT_FRAMES, rows, cols])
+    roi_z = z[:, rows, cols]
+    dqt = (np.broadcast_to(x0[None, rows, cols], roi_z.shape), np.broadcast_to(y0[None, rows, cols], roi_z.shape),
+           roi_z)
     wz = z[:, w_rows, w_cols]
     with np.errstate(divide="ignore", invalid="ignore"):
         slope_x, slope_y = x0[w_rows, w_cols] / wz[0], y0[w_rows, w_cols] / wz[0]
+    return dqt, (slope_x * wz, slope_y * wz, wz)
+
+
+def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: str) -> VendorPosition:
+    """The vendor figures of one wall step whose (N, H, W) z stack is ``z``, Z accuracy against its absolute
+    reference (the Depth Quality Tool's of the first ``DQT_FRAMES`` frames)."""
+    dqt, window = _clouds(step, z, camera)
     absolute = float(step.attrs.get("absolute_reference_mm", math.nan))
-    figures = vendor_figures(dqt, (slope_x * wz, slope_y * wz, wz), absolute, focal_length_px(camera),
-                             stereo_baseline_mm(model))
+    figures = vendor_figures(tuple(c[:DQT_FRAMES] for c in dqt), window, absolute,  # type: ignore[arg-type]
+                             focal_length_px(camera), stereo_baseline_mm(model))
     return VendorPosition(step.step_id, float(step.attrs["reference_distance_mm"]), figures,
                           missing_absolute_reference(step.attrs))
+
+
+def with_uncertainties(position: VendorPosition, step: StepRecord, z: np.ndarray, camera: CameraInfo,
+                       model: str) -> VendorPosition:
+    """``position`` (of ``step``, whose z stack is ``z``) with the Type A uncertainties of its figures (every
+    frame taken singly) and the components of its absolute reference."""
+    dqt, window = _clouds(step, z, camera)
+    uncertainties = vendor_uncertainties(dqt, window, position.figures.reference_mm, focal_length_px(camera),
+                                         stereo_baseline_mm(model))
+    return dataclasses.replace(position, uncertainties=uncertainties, reference_budget=absolute_reference(step.attrs))
+
+
+def key_steps(positions: Sequence[VendorPosition]) -> set[str]:
+    """The steps the key figures are taken from (the nearest to each of ``VENDOR_DISTANCES_MM``)."""
+    return {p.step_id for p in _nearest(positions).values()}
 
 
 def _nearest(positions: Sequence[VendorPosition]) -> dict[int, VendorPosition]:
@@ -111,12 +153,28 @@ def _nearest(positions: Sequence[VendorPosition]) -> dict[int, VendorPosition]:
     return found
 
 
-def figure_values(positions: Sequence[VendorPosition]) -> dict[str, tuple[float, list[str]]]:
-    """Key figures at ``VENDOR_DISTANCES_MM`` with their source step (absent where no step is near)."""
-    figures: dict[str, tuple[float, list[str]]] = {}
+def _budget(position: VendorPosition, field: str) -> tuple[Component, ...]:
+    """The uncertainty budget of one vendor figure of ``position``: the frames' Type A component, and for Z
+    accuracy the absolute reference's components in % of it (sensitivity 100 / reference, GUM 5.1.3; empty,
+    not estimated, without them)."""
+    if position.uncertainties is None:
+        return ()
+    frames = Component("frames: spread over the stack (Type A)", getattr(position.uncertainties, field))
+    if field != "z_accuracy_pct":
+        return (frames,)
+    if not position.reference_budget:
+        return ()
+    return (frames, *scaled(position.reference_budget, 100.0 / position.figures.reference_mm))
+
+
+def figure_values(positions: Sequence[VendorPosition]) -> dict[str, FigureValue]:
+    """Key figures at ``VENDOR_DISTANCES_MM`` with their source step and uncertainty budget (absent where no step
+    is near)."""
+    figures: dict[str, FigureValue] = {}
     for distance, near in _nearest(positions).items():
         for pattern, field in FIELDS.items():
-            figures[pattern.format(d=distance)] = (getattr(near.figures, field), [near.step_id])
+            figures[pattern.format(d=distance)] = FigureValue(getattr(near.figures, field), [near.step_id],
+                                                              _budget(near, field))
     return figures
 
 

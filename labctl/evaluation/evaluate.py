@@ -16,7 +16,13 @@ import numpy as np
 
 from labctl.errors import InputError
 from labctl.evaluation.capture import CaptureResult, evaluate_captures
-from labctl.evaluation.depth_quality import VendorPosition, reference_flags, vendor_position
+from labctl.evaluation.depth_quality import (
+    VendorPosition,
+    key_steps,
+    reference_flags,
+    vendor_position,
+    with_uncertainties,
+)
 from labctl.evaluation.depth_quality import figure_values as vendor_figures
 from labctl.evaluation.geometry import GeometryResult, evaluate_geometry
 from labctl.evaluation.geometry import figure_values as geometry_figures
@@ -27,14 +33,22 @@ from labctl.evaluation.remission import figure_values as remission_figures
 from labctl.evaluation.scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
 from labctl.evaluation.sections import DepthSweepRow
 from labctl.evaluation.sharpness import SharpnessResult, evaluate_slanted_edge
+from labctl.evaluation.uncertainty import calibrated_reference, offset_calibration, scaled
 from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
 from labctl.run.store import RunReader, StepRecord
-from metrics.depth import DepthErrors, depth_errors
+from metrics.depth import (
+    DepthErrors,
+    DepthErrorUncertainties,
+    center_repeatability_uncertainty,
+    depth_error_uncertainties,
+    depth_errors,
+)
 from metrics.optics import pixel_aspect_distortion_pct
 from metrics.plausibility import quantization_step
 from metrics.stack import stack_stats
 from metrics.surface import SurfaceTexture, surface_texture
+from metrics.uncertainty import Component
 
 #: distance at which the single-position key figures are taken (docs/keyfigures.md)
 KEY_DISTANCE_MM = 2000.0
@@ -44,8 +58,11 @@ KEY_DISTANCE_TOLERANCE_MM = 150.0
 
 @dataclass(frozen=True)
 class DepthPosition:
+    """One wall step's depth errors and the Type A standard uncertainty of its centre repeatability."""
+
     step_id: str
     errors: DepthErrors
+    repeatability_center_u_mm: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -109,15 +126,19 @@ def _detect_quantization(found: dict[str, float], rec: StepRecord, z: np.ndarray
 
 
 def evaluate_depth_sweep(
-    steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None]
+    steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None],
+    calibration: StepRecord | None = None,
 ) -> None:
-    """Thesis 2024, 4.2 on the wall steps: curves over distance, key figures, surface at 2000 mm; the vendors'
-    depth-quality figures at every distance."""
+    """Thesis 2024, 4.2 on the wall steps: curves over distance, key figures with their uncertainty budgets
+    (``calibration``: the offset calibration the references rest on, None without one), surface at 2000 mm;
+    the vendors' depth-quality figures at every distance."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
         evaluation.notes.append(
             f"{len(steps) - len(usable)} depth_sweep step(s) have no reference distance and were skipped"
         )
+    key = _key_step(usable)
+    key_u: DepthErrorUncertainties | None = None
     buffer = None
     for rec in usable:
         progress(rec.step_id)
@@ -125,36 +146,49 @@ def evaluate_depth_sweep(
         _detect_quantization(evaluation.quantization_mm, rec, buffer)
         stats = stack_stats(buffer)
         errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
-        evaluation.depth.append(DepthPosition(rec.step_id, errors))
+        if rec is key:
+            key_u = depth_error_uncertainties(buffer, stats, rec.attrs["reference_distance_mm"])
+        evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
         evaluation.vendor.append(vendor_position(rec, buffer, reader.camera, evaluation.camera.model))
+    chosen = key_steps(evaluation.vendor)
+    for i, rec in enumerate(usable):  # the steps the vendor key figures come from, read again for their uncertainty
+        if rec.step_id in chosen:
+            buffer = rec.read("z", out=buffer)
+            evaluation.vendor[i] = with_uncertainties(evaluation.vendor[i], rec, buffer, reader.camera,
+                                                      evaluation.camera.model)
     del buffer
     missing = [p for p in evaluation.vendor if p.missing_reference]
     if missing:
         reasons = "; ".join(sorted({p.missing_reference for p in missing}))
         evaluation.notes.append(f"{len(missing)} depth_sweep step(s) have no absolute reference ({reasons}): the "
                                 "Depth Quality Tool's Z accuracy is null there (docs/campaign.md, Reference distance)")
-    for name, (value, source) in vendor_figures(evaluation.vendor).items():
-        evaluation.figures[name] = FigureValue(value, source)
+    evaluation.figures.update(vendor_figures(evaluation.vendor))
     if not evaluation.depth:
         return
-    key = _key_step(usable)
     figures = evaluation.figures
     repeat = [p for p in evaluation.depth if math.isfinite(p.errors.repeatability_center_mm)]
     if repeat:
         worst = max(repeat, key=lambda p: p.errors.repeatability_center_mm)
         figures["z_repeatability_center_mm"] = FigureValue(
-            worst.errors.repeatability_center_mm, [p.step_id for p in evaluation.depth]
+            worst.errors.repeatability_center_mm, [p.step_id for p in evaluation.depth],
+            (Component(f"frames at {worst.step_id}: centre pixel's sample std (Type A)", worst.repeatability_center_u_mm),)
         )
-    if key is None:
+    if key is None or key_u is None:
         evaluation.notes.append("no depth_sweep step within 150 mm of 2000 mm: single-position figures are null")
         return
     at_key = next(p for p in evaluation.depth if p.step_id == key.step_id).errors
-    for name, value in (
-        ("z_trueness_q90_mm", at_key.trueness_q90_mm),
-        ("z_accuracy_q90_mm", at_key.accuracy_q90_mm),
-        ("z_precision_q90_mm", at_key.precision_q90_mm),
+    reference = calibrated_reference(key.attrs, offset_calibration(calibration) if calibration else ())
+    for name, value, budget in (
+        ("z_trueness_q90_mm", at_key.trueness_q90_mm,
+         _with_reference(Component("frames: jackknife of the stack (Type A)", key_u.trueness_q90_mm),
+                         scaled(reference, abs(key_u.trueness_reference_sensitivity)))),
+        ("z_accuracy_q90_mm", at_key.accuracy_q90_mm,
+         _with_reference(Component("frames: spread of the single frame (Type A)", key_u.accuracy_q90_mm),
+                         scaled(reference, abs(key_u.accuracy_reference_sensitivity)))),
+        ("z_precision_q90_mm", at_key.precision_q90_mm,
+         (Component("frames: jackknife of the stack (Type A)", key_u.precision_q90_mm),)),
     ):
-        figures[name] = FigureValue(value, [key.step_id])
+        figures[name] = FigureValue(value, [key.step_id], budget)
     progress(f"{key.step_id} surface")
     means = {c: stack_stats(key.read(c)) for c in ("x", "y", "z")}
     valid = means["z"].valid & means["x"].valid & means["y"].valid
@@ -170,6 +204,12 @@ def evaluate_depth_sweep(
         ("surface_roughness_sq_mm", texture.sq_roughness_mm),
     ):
         figures[name] = FigureValue(value, [key.step_id])
+
+
+def _with_reference(frames: Component, reference: tuple[Component, ...]) -> tuple[Component, ...]:
+    """The budget of a figure measured against the reference: the frames' component and the reference's; empty
+    (not estimated) where the reference's uncertainty is not known."""
+    return (frames, *reference) if reference else ()
 
 
 def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation,
@@ -230,7 +270,8 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
             evaluation.captures = evaluate_captures(captures, progress)
         sweep = [s for r in readers for s in r.steps("depth_sweep")]
         if sweep:
-            evaluate_depth_sweep(sweep, readers[0], evaluation, progress)
+            calibrations = [s for r in readers for s in r.steps("offset_calibration")]
+            evaluate_depth_sweep(sweep, readers[0], evaluation, progress, calibrations[-1] if calibrations else None)
         elif captures:
             evaluation.notes.append("capture steps only (no reference distance): the key figures are null; see "
                                     "the capture section for depth, noise, validity and the plane fit")

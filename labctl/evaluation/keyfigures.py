@@ -14,7 +14,7 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypedDict, TypeVar
 
 from labctl.errors import InputError
 from labctl.evaluation.sections import (
@@ -34,6 +34,7 @@ from labctl.evaluation.sections import (
 )
 from labctl.evaluation.suitability import CheckResult, StoryVerdict, Suitability
 from labctl.jsondoc import optional
+from metrics.uncertainty import Component, combined_standard_uncertainty, expanded_uncertainty
 
 
 @dataclass(frozen=True)
@@ -158,8 +159,19 @@ def better_direction(name: str) -> str:
 
 @dataclass(frozen=True)
 class FigureValue:
+    """A figure as the evaluation found it: its value, the steps it comes from and its uncertainty budget
+    (standard components in the figure's unit; empty where the uncertainty is not estimated)."""
+
     value: float | None
     source: list[str]
+    budget: tuple[Component, ...] = ()
+
+
+class BudgetLine(TypedDict):
+    """One component of a figure's ``uncertainty_budget``: its name and standard uncertainty (figure's unit)."""
+
+    component: str
+    value: float | None
 
 
 def clean(value: float | None) -> float | None:
@@ -173,7 +185,9 @@ def clean(value: float | None) -> float | None:
 class FigureEntry:
     """One figure of ``keyfigures.json``: its value (null where not measured), unit, the steps it comes from
     (comma separated), its meaning, its flags (``{"check", "message"}`` each: the plausibility checks it fails,
-    or why it is null) and which way it improves (``better``: :func:`better_direction`)."""
+    or why it is null), which way it improves (``better``: :func:`better_direction`), its standard uncertainty
+    (same unit), the expanded uncertainty (k = 2) and the budget they combine (docs/keyfigures.md; null and
+    empty where the uncertainty is not estimated)."""
 
     value: float | None
     unit: str
@@ -181,6 +195,21 @@ class FigureEntry:
     meaning: str
     flags: list[dict[str, str]]
     better: str
+    uncertainty: float | None = None
+    expanded_uncertainty: float | None = None
+    uncertainty_budget: list[BudgetLine] = dataclasses.field(default_factory=list)
+
+
+def figure_entry(fig: FigureDef, value: FigureValue, flags: list[dict[str, str]]) -> FigureEntry:
+    """The entry of one figure: its uncertainty combined from its budget (metrics/uncertainty.py) where the value
+    and every component are finite, else null with an empty budget."""
+    number = clean(value.value)
+    u = clean(combined_standard_uncertainty(value.budget)) if number is not None else None
+    return FigureEntry(value=number, unit=fig.unit, source=",".join(value.source), meaning=fig.meaning,
+                       flags=flags, better=better_direction(fig.name), uncertainty=u,
+                       expanded_uncertainty=None if u is None else expanded_uncertainty(u),
+                       uncertainty_budget=[] if u is None else [{"component": c.name, "value": c.value}
+                                                                for c in value.budget])
 
 
 @dataclass(kw_only=True)
@@ -239,10 +268,8 @@ def keyfigures_document(
         raise KeyError(f"undefined key figures: {sorted(unknown)}")
     figures = {}
     for fig in FIGURES:
-        v = values.get(fig.name, FigureValue(None, []))
-        figures[fig.name] = FigureEntry(value=clean(v.value), unit=fig.unit, source=",".join(v.source),
-                                        meaning=fig.meaning, flags=list((flags or {}).get(fig.name, [])),
-                                        better=better_direction(fig.name))
+        figures[fig.name] = figure_entry(fig, values.get(fig.name, FigureValue(None, [])),
+                                         list((flags or {}).get(fig.name, [])))
     return KeyFiguresDocument(camera=camera, figures=figures, suitability=suitability)
 
 
@@ -251,9 +278,9 @@ Record = TypeVar("Record")
 
 def read_keyfigures(path: Path) -> KeyFiguresDocument:
     """A ``keyfigures.json`` written by ``labctl evaluate``, read back (a figure's missing fields read as empty,
-    its missing ``better`` as this version defines it, the procedure sections into their records without the
-    keys of other labctl versions); InputError naming the file when it is missing, not JSON, or has no
-    ``camera`` / ``figures``."""
+    its missing uncertainties as None and budget as empty, its missing ``better`` as this version defines it,
+    the procedure sections into their records without the keys of other labctl versions); InputError naming
+    the file when it is missing, not JSON, or has no ``camera`` / ``figures``."""
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
@@ -264,7 +291,9 @@ def read_keyfigures(path: Path) -> KeyFiguresDocument:
         raise InputError(f"{path} is not a labctl keyfigures.json (no 'camera'/'figures')")
     figures = {name: FigureEntry(value=f.get("value"), unit=f.get("unit", ""), source=f.get("source", ""),
                                  meaning=f.get("meaning", ""), flags=f.get("flags", []),
-                                 better=f.get("better", better_direction(name)))
+                                 better=f.get("better", better_direction(name)), uncertainty=f.get("uncertainty"),
+                                 expanded_uncertainty=f.get("expanded_uncertainty"),
+                                 uncertainty_budget=f.get("uncertainty_budget", []))
                for name, f in data["figures"].items()}
     hints = typing.get_type_hints(KeyFiguresDocument)
     try:

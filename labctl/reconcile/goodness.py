@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.laser.dimetix import REPEATABILITY_2SIGMA_MM
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction
 from labctl.reconcile.residuals import (
@@ -68,7 +69,7 @@ from labctl.reconcile.residuals import (
 from labctl.reconcile.results import FamilyGoodness, GoodnessSummary, StepAboveFloor
 
 # The fixed thresholds (``--null-runs 0``; with null runs, labctl/reconcile/null.py, the replicas' distributions decide)
-REFERENCE_NOISE_MM = 0.15  # one distance reading per stage step (the laser meter's repeatability), set on the test campaign
+REFERENCE_NOISE_MM = REPEATABILITY_2SIGMA_MM / 2  # one distance reading per stage step (the laser meter's 1 sigma)
 STEP_FACTOR = 3.0  # twice the largest step ratio of 200 null runs of the test campaign (1.50, docs/reconcile.md)
 MATERIAL_FRACTION = 0.2  # an effect must remove at least this share of a family's gap (set by hand) ...
 FLOOR_FRACTION = 0.5  # ... and at least this multiple of that family's noise floor (set by hand: half a floor)

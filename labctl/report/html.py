@@ -332,7 +332,7 @@ def _section(title: str, image: Path, outdir: Path, table: str) -> str:
 def _vendor_html(evaluation: Evaluation, doc: KeyFiguresDocument) -> str:
     """The vendor key figures next to where they are defined, then the figures at every distance."""
     rows = "".join(
-        f'<tr><td class="l">{wrappable(f.name)}</td><td>{_fmt(doc.figures[f.name].value)}</td>'
+        f'<tr><td class="l">{wrappable(f.name)}</td><td>{_value_html(doc.figures[f.name])}</td>'
         f'<td class="l">{f.unit}</td><td class="l">{html.escape(f.meaning)}{_null_reason(doc.figures[f.name])}</td>'
         f'<td class="l src">{html.escape(f.section)}</td></tr>'
         for f in VENDOR_FIGURES
@@ -345,6 +345,13 @@ def _vendor_html(evaluation: Evaluation, doc: KeyFiguresDocument) -> str:
             + wrap_table('<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th>'
                          f'<th class="l">definition</th><th class="l">defined by</th></tr>{rows}</table>')
             + f"<h3>At every wall distance</h3>{_rows_table(vendor_table(evaluation.vendor), 'step')}")
+
+
+def _value_html(entry: FigureEntry) -> str:
+    """A figure's value, with ``± U`` (the expanded uncertainty, k = 2) where it has one."""
+    if entry.value is None or entry.expanded_uncertainty is None:
+        return _fmt(entry.value)
+    return f"{_fmt(entry.value)} &plusmn; {_fmt(entry.expanded_uncertainty, 2)}"
 
 
 def _null_reason(entry: FigureEntry) -> str:
@@ -450,7 +457,7 @@ def _summary_html(cam: CameraDescription, doc: KeyFiguresDocument) -> str:
                      f'{html.escape(s.verdict.replace("_", " "))}</b></span> {html.escape(s.description)}</li>'
                      for s in judged.values())
     rows = "".join(
-        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(doc.figures[name].value)}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td>{_value_html(doc.figures[name])}</td>'
         f'<td class="l">{doc.figures[name].unit}</td><td class="l">{better_text(name)}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}'
         + "".join(f'<br><span class="note">&#9888; {html.escape(f["check"].replace("_", " "))} (see Key figures)</span>'
@@ -493,7 +500,7 @@ def _flags_html(flags: list[dict[str, str]]) -> str:
 def _page(evaluation: Evaluation, doc: KeyFiguresDocument, sections: list[str]) -> str:
     cam = evaluation.camera
     fig_rows = "".join(
-        f'<tr><td class="l">{wrappable(name)}</td><td>{_fmt(f.value)}</td><td class="l">{f.unit}</td>'
+        f'<tr><td class="l">{wrappable(name)}</td><td>{_value_html(f)}</td><td class="l">{f.unit}</td>'
         f'<td class="l">{html.escape(FIGURE_BY_NAME[name].meaning)}{_flags_html(f.flags)}</td>'
         f'<td class="l">{better_text(name)}</td>'
         f'<td class="l src">{_sources(f.source)}</td></tr>'
@@ -515,6 +522,8 @@ FOV {cam.fov_deg[0]:g}&times;{cam.fov_deg[1]:g}&deg;. Report by labctl {labctl_v
 {f'<ul>{notes}</ul>' if notes else ''}
 {''.join(sections) if capture_only else ''}
 <h2>Key figures</h2>
+<p class="note">value &plusmn; U: the expanded uncertainty (k = 2, about 95 %) where it is estimated; its budget
+is in keyfigures.json (docs/keyfigures.md, Uncertainty).</p>
 {wrap_table(f'''<table><tr><th class="l">name</th><th>value</th><th class="l">unit</th><th class="l">meaning</th>
 <th class="l">better</th><th class="l">source steps</th></tr>{fig_rows}</table>''')}
 <h2>Suitability (Thesis 2024, Ch. 3, 6.6)</h2>{suit_html}

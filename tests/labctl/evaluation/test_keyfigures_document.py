@@ -8,6 +8,8 @@ import dataclasses
 import json
 import math
 
+import pytest
+
 from labctl.evaluation.keyfigures import (
     CameraDescription,
     FigureValue,
@@ -17,6 +19,7 @@ from labctl.evaluation.keyfigures import (
 )
 from labctl.evaluation.suitability import CheckResult, StoryVerdict, Suitability
 from labctl.jsondoc import to_json, write_json
+from metrics.uncertainty import Component
 
 #: name -> unit, as the documentation's table lists them
 DOCUMENTED = {
@@ -49,7 +52,7 @@ def test_every_documented_figure_is_in_the_file_with_value_unit_and_source(tmp_p
 
 def test_the_file_reads_back_as_written(tmp_path):
     written = keyfigures_document(CameraDescription(model="cam", serial="1", width=8, fov_deg=[60.0, 45.0]),
-                                  {"z_precision_q90_mm": FigureValue(0.5, ["s"])},
+                                  {"z_precision_q90_mm": FigureValue(0.5, ["s"], (Component("frames", 0.01),))},
                                   Suitability(standard="std", stories={"a": StoryVerdict(verdict="pass", checks=[
                                       CheckResult(requirement="r", status="pass", limit=1.0, values={"z": 0.5},
                                                   source="s", judgement=True)])}),
@@ -126,3 +129,28 @@ def test_keys_of_another_labctl_version_are_left_out_of_the_sections(tmp_path):
     path = tmp_path / "keyfigures.json"
     path.write_text(json.dumps(data))
     assert read_keyfigures(path) == written
+
+
+def test_a_figure_with_a_budget_has_its_combined_and_expanded_uncertainty(tmp_path):
+    """u = root sum of squares of the components (0.3 and 0.4 mm: 0.5 mm, JCGM 100:2008, 5.1.2), U = 2 u (6.2);
+    a figure without a budget, or without a value, has none."""
+    budget = (Component("a", 0.3), Component("b", 0.4))
+    doc = to_json(keyfigures_document(CameraDescription(), {
+        "z_precision_q90_mm": FigureValue(1.25, ["s"], budget), "z_trueness_q90_mm": FigureValue(0.5, ["s"]),
+        "z_accuracy_q90_mm": FigureValue(math.nan, ["s"], budget)}, Suitability()))
+    figure = doc["figures"]["z_precision_q90_mm"]
+    assert figure["value"] == 1.25
+    assert figure["uncertainty"] == pytest.approx(0.5) and figure["expanded_uncertainty"] == pytest.approx(1.0)
+    assert figure["uncertainty_budget"] == [{"component": "a", "value": 0.3}, {"component": "b", "value": 0.4}]
+    for name in ("z_trueness_q90_mm", "z_accuracy_q90_mm", "hyperfocal_distance_mm"):
+        assert doc["figures"][name]["uncertainty"] is None and doc["figures"][name]["expanded_uncertainty"] is None
+        assert doc["figures"][name]["uncertainty_budget"] == []
+
+
+def test_a_file_without_uncertainties_reads_back_with_none_and_an_empty_budget(tmp_path):
+    path = tmp_path / "keyfigures.json"
+    path.write_text(json.dumps({"camera": {"model": "cam"}, "figures": {"z_precision_q90_mm": {
+        "value": 1.25, "unit": "mm", "source": "s", "meaning": "m", "flags": [], "better": "lower"}}}))
+    figure = read_keyfigures(path).figures["z_precision_q90_mm"]
+    assert figure.value == 1.25
+    assert (figure.uncertainty, figure.expanded_uncertainty, figure.uncertainty_budget) == (None, None, [])

@@ -371,3 +371,16 @@ def test_depth_section_says_when_the_depth_is_quantized():
     assert "steps of 1 mm" in text and "precision and repeatability 0" in text
     assert depth_quantization_html({"x": math.nan, "y": math.nan, "z": math.nan}) == ""
     assert depth_quantization_html({}) == ""
+
+
+def test_key_figures_with_an_uncertainty_show_value_plus_minus_U(report):
+    """value +- U (k = 2) where keyfigures.json has an expanded uncertainty, the value alone where it has none."""
+    page, doc, _ = report
+    assert doc["figures"]["z_precision_q90_mm"]["expanded_uncertainty"] == pytest.approx(
+        2 * doc["figures"]["z_precision_q90_mm"]["uncertainty"])
+    table = page[page.index("<h2>Key figures</h2>"):].split("</table>")[0]
+    rows = {row.split("</td>")[0]: row for row in table.split('<tr><td class="l">')[1:]}
+    for name, figure in doc["figures"].items():
+        cell = rows[name.replace("_", "_<wbr>")].split("</td>")[1]
+        assert ("&plusmn;" in cell) == (figure["expanded_uncertainty"] is not None), name
+    assert sum(f["expanded_uncertainty"] is not None for f in doc["figures"].values()) >= 4

@@ -1,0 +1,92 @@
+"""The reference chain's share of the key figures' uncertainty budgets (docs/keyfigures.md, Uncertainty).
+
+Type B components (GUM 4.3) from what the lab's instruments state, in mm of the reference:
+
+* the offset calibration (``offset = camera - laser`` at 2000 mm): the laser's repeatability on its readings and
+  the camera's mean depth over the central 10 % x 10 %, whose Type A uncertainty (GUM 4.2.3) is s / sqrt(N) of
+  that region's mean over the N frames;
+* the laser meter's repeatability (``REPEATABILITY_2SIGMA_MM`` at 2 sigma, GUM 4.3.3) on the mean of a step's
+  n readings: sigma / sqrt(n);
+* the laser meter's accuracy (+-``ACCURACY_MM``, a bound: rectangular, GUM 4.3.7), only where the reference is
+  absolute: against the offset-calibrated reference (``laser + offset``, docs/campaign.md) a bias the meter has
+  at the step and at the offset calibration alike cancels;
+* the tolerance of ``devices.camera.depth_origin_offset_mm`` (``DEPTH_ORIGIN_TOLERANCE_MM``, rectangular), for the
+  figures measured against the absolute reference.
+
+The reference's uncertainty is not estimated (the budget is empty, the figure's uncertainty null) where the
+reference is the stage's nominal distance or the offset was given in the campaign instead of calibrated.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from drivers.laser.dimetix import ACCURACY_MM, REPEATABILITY_2SIGMA_MM
+from labctl.run.store import StepRecord
+from metrics.stack import central_roi
+from metrics.uncertainty import Component, from_multiple, rectangular, standard_error_of_mean
+
+#: assumed tolerance (+-, mm) of the campaign's depth_origin_offset_mm: the vendors state the depth origin to
+#: about a millimetre and the campaign gives no tolerance of its own
+DEPTH_ORIGIN_TOLERANCE_MM = 1.0
+
+
+def laser_readings(attrs: Mapping[str, Any]) -> int:
+    """How many laser readings a step's ``laser_distance_mm`` is the mean of (0 without a laser reading)."""
+    if attrs.get("reference_source") != "laser":
+        return 0
+    return len(attrs.get("laser_readings_mm", ()))
+
+
+def _repeatability(n: int) -> float:
+    """Standard uncertainty (mm) of the mean of ``n`` laser readings from the meter's repeatability."""
+    return from_multiple(REPEATABILITY_2SIGMA_MM, 2.0) / math.sqrt(n)
+
+
+def offset_calibration(step: StepRecord) -> tuple[Component, ...]:
+    """The components (mm) of the camera-laser offset an ``offset_calibration`` step measured: the laser
+    repeatability of its readings and the camera's mean depth over the central 10 % x 10 % (s / sqrt(N) of the
+    region's per-frame means); empty (not estimated) without laser readings."""
+    n = laser_readings(step.attrs)
+    if n == 0:
+        return ()
+    z = step.group["z"]
+    rows, cols = central_roi(*z.shape[1:])
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a frame without valid depth in the region: NaN
+        means = np.nanmean(np.asarray(z[:, rows, cols], dtype=np.float64), axis=(1, 2))
+    return (Component(f"offset calibration: laser repeatability, mean of {n} readings", _repeatability(n)),
+            Component(f"offset calibration: camera's mean depth over {len(means)} frames (Type A)",
+                      standard_error_of_mean(means)))
+
+
+def calibrated_reference(step: Mapping[str, Any], calibration: tuple[Component, ...]) -> tuple[Component, ...]:
+    """The components (mm) of a step's offset-calibrated reference ``laser + offset``: the laser repeatability of
+    the step's readings and the ``calibration``'s components (:func:`offset_calibration`); empty (not
+    estimated) without a laser reading at the step or without an offset calibration."""
+    n = laser_readings(step)
+    if n == 0 or not calibration:
+        return ()
+    return (Component(f"reference: laser repeatability, mean of {n} readings", _repeatability(n)), *calibration)
+
+
+def absolute_reference(step: Mapping[str, Any]) -> tuple[Component, ...]:
+    """The components (mm) of a step's absolute reference ``laser - depth_origin_offset_mm``: the laser's
+    accuracy and repeatability and the depth origin's tolerance; empty without an absolute reference."""
+    n = laser_readings(step)
+    if n == 0 or not math.isfinite(float(step.get("absolute_reference_mm", math.nan))):
+        return ()
+    return (Component("reference: laser accuracy (rectangular)", rectangular(ACCURACY_MM)),
+            Component(f"reference: laser repeatability, mean of {n} readings", _repeatability(n)),
+            Component("depth origin offset tolerance (assumed, rectangular)", rectangular(DEPTH_ORIGIN_TOLERANCE_MM)))
+
+
+def scaled(components: tuple[Component, ...], factor: float) -> tuple[Component, ...]:
+    """The components each times ``factor``: a sensitivity coefficient (GUM 5.1.3), or a change of unit (mm to
+    % of a distance: 100 / distance)."""
+    return tuple(Component(c.name, c.value * factor) for c in components)
