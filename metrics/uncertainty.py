@@ -67,6 +67,21 @@ def expanded_uncertainty(standard: float, k: float = COVERAGE_FACTOR) -> float:
     return k * standard
 
 
+def distinguishable(a: float, expanded_a: float, b: float, expanded_b: float) -> bool:
+    """Whether two measured values differ by more than the expanded uncertainty of their difference,
+    sqrt(U_a^2 + U_b^2): the values' errors independent (GUM 5.1.2: u_c(a - b)^2 = u(a)^2 + u(b)^2) and both
+    expanded with the same coverage factor (GUM 6.2.1).
+
+    Examples
+    --------
+    >>> distinguishable(1.00, 0.10, 1.12, 0.10)  # 0.12 against 0.141
+    False
+    >>> distinguishable(1.00, 0.10, 1.50, 0.10)
+    True
+    """
+    return abs(a - b) > math.hypot(expanded_a, expanded_b)
+
+
 def rectangular(half_width: float) -> float:
     """Standard uncertainty of a quantity known only to lie within +-``half_width`` (GUM 4.3.7: a / sqrt(3)).
 

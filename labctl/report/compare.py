@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import html
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +35,7 @@ from labctl.jsondoc import write_json
 from labctl.report.html import CSS, better_text, references_html, verdict_cell, wrap_table, wrappable
 from labctl.report.plots.png import save_png
 from labctl.run.store import labctl_version, now_iso
+from metrics.uncertainty import distinguishable
 
 #: figures left out of the chart (different scale or "higher is better")
 NOT_CHARTED = {"hyperfocal_distance_mm", "best_focus_distance_mm", "ied_pixels_at_hyperfocal",
@@ -51,7 +52,10 @@ class CompareDocument:
     """``compare.json``: the cameras' labels (their models, ``*`` for simulated, numbered where repeated), the
     evaluation directories they come from, and by label: every defined figure's value (None where not
     measured), each user story's verdict and its one-line reason; the user stories' names; and per figure the
-    plausibility checks it fails, for the cameras where it fails any (figures failing none left out)."""
+    plausibility checks it fails, for the cameras where it fails any (figures failing none left out); per figure
+    the expanded uncertainties (k = 2) the evaluations state, and the pairs of cameras whose values (their
+    magnitudes, for figures better closer to 0) differ by no more than the expanded uncertainty of the
+    difference: not distinguishable, so not ranked (figures with none left out)."""
 
     cameras: list[str]
     sources: list[str]
@@ -60,6 +64,8 @@ class CompareDocument:
     reasons: dict[str, dict[str, str]]  # label -> story -> reason
     stories: dict[str, str]  # story -> its description
     flags: dict[str, dict[str, list[str]]]  # figure -> label -> failed checks
+    expanded_uncertainty: dict[str, dict[str, float]] = field(default_factory=dict)  # figure -> label -> U
+    not_distinguishable: dict[str, list[list[str]]] = field(default_factory=dict)  # figure -> [label, label] pairs
 
 
 def load_evaluation(directory: Path) -> KeyFiguresDocument:
@@ -87,15 +93,36 @@ def compare(directories: list[Path], outdir: Path) -> Path:
     flags = {fig.name: {label: [f["check"] for f in _figure(doc, fig.name).flags]
                         for label, doc in zip(labels, docs) if _figure(doc, fig.name).flags}
              for fig in FIGURES}
+    uncertainty = {fig.name: {label: u for label, doc in zip(labels, docs)
+                              if (u := _figure(doc, fig.name).expanded_uncertainty) is not None and math.isfinite(u)}
+                   for fig in FIGURES}
+    uncertainty = {k: v for k, v in uncertainty.items() if v}
     result = CompareDocument(cameras=labels, sources=[str(d) for d in directories], figures=table,
                              suitability=verdicts, reasons=reasons, stories=_story_names(docs),
-                             flags={k: v for k, v in flags.items() if v})
+                             flags={k: v for k, v in flags.items() if v}, expanded_uncertainty=uncertainty,
+                             not_distinguishable=_not_distinguishable(table, uncertainty, labels))
     write_json(outdir / "compare.json", result, final_newline=True)
     chart = _chart(table, labels, plots / "comparison.png")
     ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")
     page = outdir / "compare.html"
     page.write_text(_page(result, chart.relative_to(outdir), ied.relative_to(outdir)))
     return page
+
+
+def _not_distinguishable(table: dict[str, dict[str, float | None]], uncertainty: dict[str, dict[str, float]],
+                         labels: list[str]) -> dict[str, list[list[str]]]:
+    """Per figure, the pairs of cameras whose values differ by no more than the expanded uncertainty of their
+    difference (``metrics.uncertainty.distinguishable``), compared as the ranking compares them: by magnitude
+    for figures better closer to 0. Pairs where either has no stated uncertainty are not judged."""
+    pairs: dict[str, list[list[str]]] = {}
+    for name, stated in uncertainty.items():
+        ranked = {label: abs(v) if better_direction(name) == "zero" else v for label in labels
+                  if (v := table[name].get(label)) is not None and math.isfinite(v) and label in stated}
+        close = [[a, b] for i, a in enumerate(labels) for b in labels[i + 1:] if a in ranked and b in ranked
+                 and not distinguishable(ranked[a], stated[a], ranked[b], stated[b])]
+        if close:
+            pairs[name] = close
+    return pairs
 
 
 def story_name(key: str) -> str:
@@ -218,10 +245,19 @@ def _fmt(value: float | None) -> str:
     return html.escape(str(value))
 
 
-def _flagged(value: float | None, checks: list[str]) -> str:
-    """A value with its plausibility flags (docs/keyfigures.md) after it, as the report shows them."""
-    return _fmt(value) + "".join(f'<br><span class="note">&#9888; {html.escape(c.replace("_", " "))}</span>'
-                                 for c in checks)
+def _with_uncertainty(result: CompareDocument, name: str, label: str) -> str:
+    """A key-figure cell: the value, its expanded uncertainty where stated, the cameras it is not distinguishable
+    from, and its plausibility flags."""
+    cell = _fmt(result.figures[name][label])
+    u = result.expanded_uncertainty.get(name, {}).get(label)
+    if u is not None:
+        cell += f" &plusmn; {_fmt(u)}"
+    twins = [b if a == label else a for a, b in result.not_distinguishable.get(name, []) if label in (a, b)]
+    if twins:
+        cell += ('<br><span class="note">not distinguishable from '
+                 + ", ".join(html.escape(t) for t in twins) + "</span>")
+    return cell + "".join(f'<br><span class="note">&#9888; {html.escape(c.replace("_", " "))}</span>'
+                          for c in result.flags.get(name, {}).get(label, []))
 
 
 def _page(result: CompareDocument, chart: Path, ied: Path) -> str:
@@ -231,9 +267,9 @@ def _page(result: CompareDocument, chart: Path, ied: Path) -> str:
     units = {f.name: f.unit for f in FIGURES}
     rows = "".join(
         f'<tr><td class="l">{wrappable(name)}</td><td class="l">{units[name]}</td><td class="l">{better_text(name)}</td>'
-        + "".join(f"<td>{_flagged(values[label], result.flags.get(name, {}).get(label, []))}</td>" for label in labels)
+        + "".join(f"<td>{_with_uncertainty(result, name, label)}</td>" for label in labels)
         + "</tr>"
-        for name, values in result.figures.items()
+        for name in result.figures
     )
     vendor_rows = "".join(
         f'<tr><td class="l">{wrappable(f.name)}</td><td class="l">{f.unit}</td>'
@@ -264,6 +300,9 @@ model (<code>ied_pixels_at_hyperfocal</code>); the mean angular pixel size of Th
 {wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th>{head}<th class="l">defined by</th></tr>'
              f'{vendor_rows}</table>')}
 <h2>Key figures</h2>
+<p>value &plusmn; U: the expanded uncertainty (k = 2) where the evaluation states it. Two cameras whose values
+(magnitudes, for figures better closer to 0) differ by no more than sqrt(U<sub>1</sub><sup>2</sup> +
+U<sub>2</sub><sup>2</sup>) are marked not distinguishable: neither ranks above the other in that figure.</p>
 {wrap_table(f'<table><tr><th class="l">figure</th><th class="l">unit</th><th class="l">better</th>{head}</tr>{rows}</table>')}
 {references_html()}
 </body></html>

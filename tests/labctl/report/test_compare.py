@@ -57,3 +57,33 @@ def test_compare_refuses_non_evaluations(tmp_path, capsys):
     bad.mkdir()
     (bad / "keyfigures.json").write_text("{not json")
     assert invoke("compare", bad, "-o", tmp_path / "cmp") == 2
+
+
+def _with_uncertainty(tmp_path, name, model, figures):
+    """An evaluation with the given figures, each (value, expanded uncertainty or None)."""
+    d = tmp_path / name
+    d.mkdir()
+    doc = {"camera": {"model": model},
+           "figures": {k: {"value": v, "unit": "mm", **({"expanded_uncertainty": u} if u is not None else {})}
+                       for k, (v, u) in figures.items()}}
+    (d / "keyfigures.json").write_text(json.dumps(doc))
+    return d
+
+
+def test_differences_within_the_combined_uncertainty_are_not_distinguishable(tmp_path):
+    # trueness: 1.00 +- 0.10 and 1.12 +- 0.10 differ by 0.12 < sqrt(0.1^2 + 0.1^2) = 0.141; 1.50 by 0.38 and 0.50
+    # sphere spacing (closer to 0 is better): -0.30 and +0.32 differ by 0.62 but their magnitudes by 0.02 < 0.05
+    a = _with_uncertainty(tmp_path, "a", "Basler blaze-101", {"z_trueness_q90_mm": (1.00, 0.10),
+                                                               "sphere_spacing_error_mm": (-0.30, 0.03)})
+    b = _with_uncertainty(tmp_path, "b", "pmd flexx2 VGA", {"z_trueness_q90_mm": (1.12, 0.10),
+                                                             "sphere_spacing_error_mm": (0.32, 0.04)})
+    c = _with_uncertainty(tmp_path, "c", "Intel RealSense D455", {"z_trueness_q90_mm": (1.50, 0.10),
+                                                                   "sphere_spacing_error_mm": (0.31, None)})
+    assert invoke("compare", a, b, c, "-o", tmp_path / "cmp") == 0
+    result = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert result["not_distinguishable"] == {"z_trueness_q90_mm": [["Basler blaze-101", "pmd flexx2 VGA"]],
+                                             "sphere_spacing_error_mm": [["Basler blaze-101", "pmd flexx2 VGA"]]}
+    assert result["expanded_uncertainty"]["sphere_spacing_error_mm"] == {"Basler blaze-101": 0.03,
+                                                                          "pmd flexx2 VGA": 0.04}
+    page = (tmp_path / "cmp" / "compare.html").read_text()
+    assert "1.12 &plusmn; 0.1" in page and page.count("not distinguishable from") == 4
