@@ -32,7 +32,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from sim.effects import EffectParams, RangeStage, acting, background_level, frame_offset_mm, output_step_mm
+from sim.effects import (
+    EffectParams,
+    RangeStage,
+    acting,
+    background_level,
+    frame_offset_mm,
+    output_step_mm,
+    shading_factor,
+)
 from sim.geometry import Pose
 from sim.kernels import stereo_frame
 from sim.noise import NoiseBank, make_bank
@@ -121,9 +129,8 @@ class StereoSensor:
     def ir_image(self, left: Rendered, exposure_us: float, projector: bool = True) -> np.ndarray:
         """Noise-free left IR image: lamps plus (with ``projector``) the dots, blurred, plus the background
         light (``background``), times ``vignetting``."""
-        ir = self._light(left, exposure_us, projector) + self.background(exposure_us)
-        for hook, params in acting(self.effects, "shading"):
-            ir = ir * hook(self.geometry.cos_alpha, params)
+        ir = (self._light(left, exposure_us, projector) + self.background(exposure_us)) \
+            * shading_factor(self.effects, self.geometry.cos_alpha)
         return np.maximum(ir, 0.0)
 
     def _light(self, left: Rendered, exposure_us: float, projector: bool) -> np.ndarray:

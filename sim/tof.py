@@ -41,6 +41,7 @@ from sim.effects import (
     background_level,
     frame_offset_mm,
     output_step_mm,
+    shading_factor,
 )
 from sim.geometry import Pose
 from sim.kernels import tof_frame
@@ -124,10 +125,7 @@ class ToFSensor:
 
     def shading(self) -> np.ndarray | float:
         """The factor the effects' ``shading`` puts on the light after the blur (1 without)."""
-        shading: np.ndarray | float = 1.0
-        for hook, params in acting(self.effects, "shading"):
-            shading = shading * hook(self.geometry.cos_alpha, params)
-        return shading
+        return shading_factor(self.effects, self.geometry.cos_alpha)
 
     def expected(self, r: Rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float]:
         """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render."""

@@ -39,7 +39,7 @@ from scipy import ndimage
 from labctl.reconcile.noise_model import dot_window_stats, stereo_statistics, tof_statistics
 from labctl.reconcile.observe import Observation, StepScene, bin_mean
 from metrics.stack import central_roi
-from sim.effects import EFFECTS, EffectParams, acting, frame_offset_mm, plate_placement_mm
+from sim.effects import EFFECTS, EffectParams, frame_offset_mm, plate_placement_mm, shading_factor
 from sim.geometry import Pose
 from sim.model import SimModel
 from sim.profiles import CameraProfile
@@ -201,8 +201,8 @@ class Predictor:
         """The measured camera's shading per bin: its bin mean over the pixels, and that mean's slopes per pixel
         down and across (None without shading effects; cached with the renders, per setting of the effects
         that set it)."""
-        acts = [k for k, e in ((k, EFFECTS[k]) for k in self.full_effects)
-                if e.shading is not None or e.true_fov_deg is not None or e.lens_distortion is not None]
+        acts = [k for k in self.full_effects if EFFECTS[k].shading is not None
+                or EFFECTS[k].true_fov_deg is not None or EFFECTS[k].lens_distortion is not None]
         if not any(EFFECTS[k].shading is not None for k in acts):
             return None
         key = ("shading", json.dumps({k: self.full_effects[k].model_dump(mode="json") for k in sorted(acts)}))
@@ -295,10 +295,11 @@ class Predictor:
         drift = self.drift_mm(times_s)
         reach = self.blur_reach_bins(centre_distance_mm(recorded))
         edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
+        centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
             range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure)
             range_mm = range_mm + drift
-            light = amplitude / self.sensor.shading()
+            light = amplitude / centre
             amplitude = self.shade(light)
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = range_mm * self.z_per_range
@@ -307,7 +308,6 @@ class Predictor:
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
                               np.zeros_like(z), _independent(noise))
         z = self._stereo_depth(rendered, drift)
-        centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)
         ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
             self.sensor, rendered, z, exposure, step.projector, self._dot_stats(centre_distance_mm(recorded)),
@@ -315,19 +315,10 @@ class Predictor:
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
 
-
     def _stereo_depth(self, rendered: Any, drift_mm: float) -> np.ndarray:
         """A stereo render's binned noise-free z, NaN where nothing is hit or matched."""
         z = self.sensor.depth(rendered) + drift_mm
         return np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
-
-
-def shading_factor(effects: dict[str, EffectParams], cos_alpha: np.ndarray) -> np.ndarray:
-    """The product of the effects' ``shading`` factors at rays of the given cosines to the optical axis."""
-    factor = np.ones_like(cos_alpha, dtype=float)
-    for hook, params in acting(effects, "shading"):
-        factor = factor * hook(cos_alpha, params)
-    return factor
 
 
 def _overlap(region: slice, bins: int, bin_px: int) -> np.ndarray:

@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import numpy as np
 from pydantic import ValidationError
 
 from sim.effects.base import Corners, Effect, EffectParams, Observed, RangeStage, valid_range
@@ -51,6 +52,15 @@ def acting(effects: dict[str, EffectParams], hook: str) -> list[tuple[Callable[.
     """(hook, parameters) of the effects present in ``effects`` that act through ``hook``, by ``order``."""
     present = sorted((EFFECTS[name] for name in effects), key=lambda e: e.order)
     return [(getattr(e, hook), effects[e.name]) for e in present if getattr(e, hook) is not None]
+
+
+def shading_factor(effects: dict[str, EffectParams], cos_alpha: np.ndarray) -> np.ndarray | float:
+    """The factor the effects' ``shading`` puts on the light at rays of the given cosines to the optical axis (1
+    without)."""
+    factor: np.ndarray | float = 1.0
+    for hook, params in acting(effects, "shading"):
+        factor = factor * hook(cos_alpha, params)
+    return factor
 
 
 def frame_offset_mm(effects: dict[str, EffectParams], t_s: float) -> float:
