@@ -29,7 +29,7 @@ import pytest
 from labctl.cli import main
 from labctl.evaluation.evaluate import evaluate_runs
 from metrics.uncertainty import combined_standard_uncertainty
-from tests.conftest import campaign_text
+from tests.conftest import SMALL_MODEL, campaign_text
 
 SEEDS = 16
 MIN_COVERED = 14
@@ -59,7 +59,7 @@ def figures(tmp_path_factory) -> dict[str, np.ndarray]:
     """Per figure, (value, u of the components that vary between seeds) of every seed."""
     tmp = tmp_path_factory.mktemp("seeds")
     model = tmp / "model.toml"
-    model.write_text('camera = "blaze101"\n[camera_overrides]\nwidth = 64\nheight = 48\n')
+    model.write_text(SMALL_MODEL.format(camera="blaze101", width=64, height=48))
     rows: dict[str, list[tuple[float, float]]] = {name: [] for name in FIGURES}
     for seed in range(SEEDS):
         campaign = tmp / f"c{seed}.toml"
