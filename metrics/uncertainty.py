@@ -82,6 +82,29 @@ def distinguishable(a: float, expanded_a: float, b: float, expanded_b: float) ->
     return abs(a - b) > math.hypot(expanded_a, expanded_b)
 
 
+def conformity(value: float, limit: float, expanded: float | None, kind: str = "max_abs") -> str:
+    """The decision on a value against a limit with guard bands of its expanded uncertainty U (JCGM 106:2012,
+    clause 8: guarded acceptance and guarded rejection, w = U; ISO 14253-1:2017: conformity is proven inside the
+    specification reduced by U, non-conformity outside it widened by U): ``pass`` where the value lies inside the
+    limit by more than U, ``fail`` where it lies outside by more than U, else ``marginal``. ``kind``:
+    ``max_abs`` (|value| <= limit) or ``min`` (value >= limit). Without U (None), on the value alone.
+
+    Examples
+    --------
+    >>> conformity(-4.9, 5.0, 0.3), conformity(4.5, 5.0, 0.3), conformity(5.4, 5.0, 0.3), conformity(5.0, 5.0, None)
+    ('marginal', 'pass', 'fail', 'pass')
+    >>> conformity(91.0, 90.0, 2.0, "min"), conformity(91.0, 90.0, None, "min"), conformity(87.0, 90.0, 2.0, "min")
+    ('marginal', 'pass', 'fail')
+    """
+    u = expanded if expanded is not None and math.isfinite(expanded) else 0.0
+    margin = limit - abs(value) if kind == "max_abs" else value - limit  # > 0 inside the limit
+    if margin > u or (u == 0.0 and margin == 0.0):
+        return "pass"
+    if margin < -u:
+        return "fail"
+    return "marginal"
+
+
 def rectangular(half_width: float) -> float:
     """Standard uncertainty of a quantity known only to lie within +-``half_width`` (GUM 4.3.7: a / sqrt(3)).
 

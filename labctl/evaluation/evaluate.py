@@ -26,13 +26,22 @@ from labctl.evaluation.depth_quality import (
 from labctl.evaluation.depth_quality import figure_values as vendor_figures
 from labctl.evaluation.geometry import GeometryResult, evaluate_geometry
 from labctl.evaluation.geometry import figure_values as geometry_figures
-from labctl.evaluation.keyfigures import CameraDescription, FigureValue
+from labctl.evaluation.keyfigures import CameraDescription, FigureValue, clean, standard_uncertainty
 from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flags
 from labctl.evaluation.remission import RemissionResult, evaluate_remission
 from labctl.evaluation.remission import figure_values as remission_figures
 from labctl.evaluation.scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
 from labctl.evaluation.sections import DepthSweepRow
 from labctl.evaluation.sharpness import SharpnessResult, evaluate_slanted_edge
+from labctl.evaluation.suitability import (
+    FACE_DISTANCE,
+    FACE_PRECISION,
+    FACE_TRUENESS,
+    FACE_WALL_STEP,
+    Suitability,
+    face_wall_row,
+    suitability,
+)
 from labctl.evaluation.uncertainty import calibrated_reference, offset_calibration, scaled
 from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
@@ -48,7 +57,7 @@ from metrics.optics import pixel_aspect_distortion_pct
 from metrics.plausibility import quantization_step
 from metrics.stack import stack_stats
 from metrics.surface import SurfaceTexture, surface_texture
-from metrics.uncertainty import Component
+from metrics.uncertainty import Component, expanded_uncertainty, rectangular
 
 #: distance at which the single-position key figures are taken (docs/keyfigures.md)
 KEY_DISTANCE_MM = 2000.0
@@ -87,6 +96,9 @@ class Evaluation:
     alignment: AlignmentRecord | None = None
     captures: list[CaptureResult] = field(default_factory=list)
     figures: dict[str, FigureValue] = field(default_factory=dict)
+    #: the suitability checks' inputs beyond the key figures (labctl/evaluation/suitability.py: the depth figures
+    #: on the face, with the face's and the wall's distance), with their uncertainty budgets
+    face_depth: dict[str, FigureValue] = field(default_factory=dict)
     #: quantization step (mm) of the x, y and z output on the wall, NaN where continuous
     quantization_mm: dict[str, float] = field(default_factory=dict)
     #: plausibility flags per figure name (labctl/evaluation/plausibility.py)
@@ -223,15 +235,64 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
     evaluation.notes.extend(result.notes)
     ids = [p.chart_step for p in result.positions] + [p.white_step for p in result.positions]
     best = [p.chart_step for p in result.positions if p.distance_mm == result.best_focus_mm]
-    for name, value, source in (
-        ("hyperfocal_distance_mm", result.hyperfocal_mm, ids),
-        ("best_focus_distance_mm", result.best_focus_mm, ids),
-        ("intensity_resolution_h_deg", result.resolution_deg[0], best),
-        ("intensity_resolution_v_deg", result.resolution_deg[1], best),
-        ("ied_pixels_at_hyperfocal", result.ied_px, ids),
-        ("ied_pixels_at_hyperfocal_angular", result.ied_px_angular, ids),
+    hyperfocal = _hyperfocal_budget(result)
+    for name, value, source, budget in (
+        ("hyperfocal_distance_mm", result.hyperfocal_mm, ids, hyperfocal),
+        ("best_focus_distance_mm", result.best_focus_mm, ids, ()),
+        ("intensity_resolution_h_deg", result.resolution_deg[0], best, ()),
+        ("intensity_resolution_v_deg", result.resolution_deg[1], best, ()),
+        ("ied_pixels_at_hyperfocal", result.ied_px, ids, scaled(hyperfocal, result.ied_px / result.hyperfocal_mm)),
+        ("ied_pixels_at_hyperfocal_angular", result.ied_px_angular, ids,
+         scaled(hyperfocal, result.ied_px_angular / result.hyperfocal_mm)),
     ):
-        evaluation.figures[name] = FigureValue(value, source)
+        evaluation.figures[name] = FigureValue(value, source, budget)
+
+
+def _hyperfocal_budget(result: SharpnessResult) -> tuple[Component, ...]:
+    """The hyperfocal distance's budget: the sweep's spacing at it as the resolution of the figure (rectangular
+    over one spacing, GUM F.2.2.1); empty (not estimated) with fewer than two valid positions. The IED counts
+    (62.5 mm f / d) take it with the sensitivity |dIED/dd| = IED / d (GUM 5.1.3)."""
+    if not math.isfinite(result.hyperfocal_spacing_mm):
+        return ()
+    return (Component("sweep spacing at the plateau's edge: resolution of the position (Type B)",
+                      rectangular(result.hyperfocal_spacing_mm / 2)),)
+
+
+def evaluate_face_depth(steps: Sequence[StepRecord], evaluation: Evaluation, progress: Callable[[str], None],
+                        calibration: StepRecord | None = None) -> None:
+    """The depth precision and trueness the suitability checks read on the face (the wall step
+    :func:`~labctl.evaluation.suitability.face_wall_row` chooses), with the budgets of the key figures of the same
+    name: the jackknife over the stack's frames, and for trueness the reference's components through its
+    sensitivity (``calibration``: the offset calibration the references rest on)."""
+    values = {name: f.value for name, f in evaluation.figures.items()}
+    row = face_wall_row(values, depth_table(evaluation))
+    if row is None:
+        return
+    step = next(s for s in steps if s.step_id == row["step"])
+    progress(f"{step.step_id} depth on the face")
+    z = step.read("z")
+    reference_mm = step.attrs["reference_distance_mm"]
+    u = depth_error_uncertainties(z, stack_stats(z), reference_mm)
+    reference = calibrated_reference(step.attrs, offset_calibration(calibration) if calibration else ())
+    source = [step.step_id]
+    evaluation.face_depth = {
+        FACE_DISTANCE: FigureValue(values["hyperfocal_distance_mm"], evaluation.figures["hyperfocal_distance_mm"].source),
+        FACE_WALL_STEP: FigureValue(reference_mm, source),
+        FACE_PRECISION: FigureValue(row["precision_q90_mm"], source,
+                                    (Component("frames: jackknife of the stack (Type A)", u.precision_q90_mm),)),
+        FACE_TRUENESS: FigureValue(row["trueness_q90_mm"], source,
+                                   _with_reference(Component("frames: jackknife of the stack (Type A)", u.trueness_q90_mm),
+                                                   scaled(reference, abs(u.trueness_reference_sensitivity)))),
+    }
+
+
+def judged_suitability(evaluation: Evaluation) -> Suitability:
+    """The suitability verdicts (labctl/evaluation/suitability.py) on the key figures and the face's depth
+    figures, each check decided with the expanded uncertainties (k = 2) of the figures that state one."""
+    inputs = {**evaluation.figures, **evaluation.face_depth}
+    values = {name: clean(f.value) for name, f in inputs.items()}
+    standard = {name: standard_uncertainty(f) for name, f in inputs.items()}
+    return suitability(values, {name: None if u is None else expanded_uncertainty(u) for name, u in standard.items()})
 
 
 def count_complete_steps(paths: Sequence[str | Path]) -> int:
@@ -269,9 +330,10 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         if captures:
             evaluation.captures = evaluate_captures(captures, progress)
         sweep = [s for r in readers for s in r.steps("depth_sweep")]
+        calibrations = [s for r in readers for s in r.steps("offset_calibration")]
+        calibration = calibrations[-1] if calibrations else None
         if sweep:
-            calibrations = [s for r in readers for s in r.steps("offset_calibration")]
-            evaluate_depth_sweep(sweep, readers[0], evaluation, progress, calibrations[-1] if calibrations else None)
+            evaluate_depth_sweep(sweep, readers[0], evaluation, progress, calibration)
         elif captures:
             evaluation.notes.append("capture steps only (no reference distance): the key figures are null; see "
                                     "the capture section for depth, noise, validity and the plane fit")
@@ -280,6 +342,8 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         edges = [s for r in readers for s in r.steps("slanted_edge")]
         if edges:
             evaluate_sharpness(edges, readers[0], evaluation, progress)
+        if sweep:
+            evaluate_face_depth(sweep, evaluation, progress, calibration)
         geometric = [s for r in readers for s in r.steps()
                      if s.attrs.get("procedure") in ("checkerboard", "boehler_star", "xy_sweep", "depth_sweep")]
         if geometric:

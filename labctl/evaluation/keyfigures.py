@@ -200,12 +200,17 @@ class FigureEntry:
     uncertainty_budget: list[BudgetLine] = dataclasses.field(default_factory=list)
 
 
+def standard_uncertainty(value: FigureValue) -> float | None:
+    """A figure's standard uncertainty combined from its budget (metrics/uncertainty.py) where the value and every
+    component are finite, else None (not estimated)."""
+    return clean(combined_standard_uncertainty(value.budget)) if clean(value.value) is not None else None
+
+
 def figure_entry(fig: FigureDef, value: FigureValue, flags: list[dict[str, str]]) -> FigureEntry:
-    """The entry of one figure: its uncertainty combined from its budget (metrics/uncertainty.py) where the value
-    and every component are finite, else null with an empty budget."""
-    number = clean(value.value)
-    u = clean(combined_standard_uncertainty(value.budget)) if number is not None else None
-    return FigureEntry(value=number, unit=fig.unit, source=",".join(value.source), meaning=fig.meaning,
+    """The entry of one figure, with its :func:`standard_uncertainty`, the expanded uncertainty (k = 2) and the
+    budget they combine; null and empty where the uncertainty is not estimated."""
+    u = standard_uncertainty(value)
+    return FigureEntry(value=clean(value.value), unit=fig.unit, source=",".join(value.source), meaning=fig.meaning,
                        flags=flags, better=better_direction(fig.name), uncertainty=u,
                        expanded_uncertainty=None if u is None else expanded_uncertainty(u),
                        uncertainty_budget=[] if u is None else [{"component": c.name, "value": c.value}

@@ -21,9 +21,13 @@ metrics/sharpness.py) at the hyperfocal distance; depth precision and
 trueness come from the first wall step at or beyond that distance (noise
 grows with distance, so a pass there holds for the face).
 
-A check is ``pass``, ``fail`` or ``not_evaluated`` (a figure is missing); a
-story's verdict is ``fail`` if any check fails, ``pass`` if all pass, else
-``not_evaluated``, and its ``summary`` says why in one line.
+A check is decided with the figures' expanded uncertainties U (k = 2) where they state one, by the guarded
+decision rule of JCGM 106:2012, clause 8 (guard bands of width U) and ISO 14253-1:2017 (docs/suitability.md):
+``pass`` where the value lies inside the limit by more than U, ``fail`` where it lies outside by more than U,
+``marginal`` where the limit is within U of it (neither conformity nor non-conformity is shown); a figure
+without an uncertainty is decided on its value alone. ``not_evaluated`` where a figure is missing. A story's
+verdict is ``fail`` if any check fails, else ``not_evaluated`` if one is, else ``marginal`` if one is, else
+``pass``; its ``summary`` says why in one line.
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+from metrics.uncertainty import conformity
 
 IED_MIN_PX = 90.0
 DISTORTION_1_TO_N_PCT = 5.0
@@ -108,8 +114,9 @@ STORIES: dict[str, tuple[str, list[Check], tuple[str, ...]]] = {
 
 @dataclass(kw_only=True)
 class CheckResult:
-    """One requirement of a user story checked: its text, ``pass`` / ``fail`` / ``not_evaluated``, the limit, the
-    figures' values (None where not measured), its source and whether the limit is a judgement."""
+    """One requirement of a user story checked: its text, ``pass`` / ``fail`` / ``marginal`` / ``not_evaluated``,
+    the limit, the figures' values (None where not measured), its source, whether the limit is a judgement and the
+    figures' expanded uncertainties (read back from an older file: empty)."""
 
     requirement: str
     status: str
@@ -117,11 +124,13 @@ class CheckResult:
     values: dict[str, float | None]
     source: str
     judgement: bool
+    #: the figures' expanded uncertainties (k = 2) the decision used; None where a figure states none
+    uncertainties: dict[str, float | None] = field(default_factory=dict)
 
 
 @dataclass(kw_only=True)
 class StoryVerdict:
-    """A user story's verdict (``pass``, ``fail``, ``not_evaluated``, ``no_numeric_requirement``), its one-line
+    """A user story's verdict (``pass``, ``fail``, ``marginal``, ``not_evaluated``, ``no_numeric_requirement``), its one-line
     reason, its checks and the figures it relies on. Read back from a file, what the file lacks reads as empty."""
 
     description: str = ""
@@ -140,41 +149,52 @@ class Suitability:
     stories: dict[str, StoryVerdict] = field(default_factory=dict)
 
 
-def face_depth_values(values: Mapping[str, float | None], depth_rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
-    """Depth precision and trueness on the face: from the first wall step at or beyond the face distance
-    (the hyperfocal distance, where the IED is counted) that has valid pixels. Empty when there is none."""
+def face_wall_row(values: Mapping[str, float | None], depth_rows: Sequence[Mapping[str, Any]]) -> Mapping[str, Any] | None:
+    """The depth row the face's depth checks read: the first wall step at or beyond the face distance (the
+    hyperfocal distance, where the IED is counted) that has valid pixels; None when there is none."""
     face = values.get("hyperfocal_distance_mm")
     if face is None or not math.isfinite(face):
+        return None
+    beyond = [r for r in depth_rows if _finite(r["reference_mm"]) and r["reference_mm"] >= face
+              and _finite(r["precision_q90_mm"])]  # a wall step with no valid pixel says nothing
+    return min(beyond, key=lambda r: r["reference_mm"]) if beyond else None
+
+
+def face_depth_values(values: Mapping[str, float | None], depth_rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """Depth precision and trueness on the face, from :func:`face_wall_row`, with the face's and the wall's
+    distance. Empty when there is no such row."""
+    row = face_wall_row(values, depth_rows)
+    if row is None:
         return {}
-    beyond = [r for r in depth_rows if r["reference_mm"] is not None and r["reference_mm"] >= face
-              and r["precision_q90_mm"] is not None]  # a wall step with no valid pixel says nothing
-    if not beyond:
-        return {}
-    row = min(beyond, key=lambda r: r["reference_mm"])
-    return {FACE_DISTANCE: float(face), FACE_WALL_STEP: float(row["reference_mm"]),
+    return {FACE_DISTANCE: float(values["hyperfocal_distance_mm"]), FACE_WALL_STEP: float(row["reference_mm"]),
             FACE_PRECISION: row["precision_q90_mm"], FACE_TRUENESS: row["trueness_q90_mm"]}
 
 
-def _evaluate(check: Check, values: Mapping[str, float | None]) -> CheckResult:
+def _finite(value: float | None) -> bool:
+    return value is not None and math.isfinite(value)
+
+
+def _evaluate(check: Check, values: Mapping[str, float | None], expanded: Mapping[str, float | None]) -> CheckResult:
     numbers = {name: values.get(name) for name in check.figures}
-    present = [v for v in numbers.values() if v is not None and math.isfinite(v)]
-    if len(present) < len(numbers):
+    uncertainties = {name: expanded.get(name) if _finite(expanded.get(name)) else None for name in check.figures}
+    if not all(_finite(v) for v in numbers.values()):
         status = "not_evaluated"
-    elif check.kind == "max_abs":
-        status = "pass" if all(abs(v) <= check.limit for v in present) else "fail"
     else:
-        status = "pass" if all(v >= check.limit for v in present) else "fail"
+        statuses = {conformity(numbers[n], check.limit, uncertainties[n], check.kind) for n in check.figures}
+        status = next(s for s in ("fail", "marginal", "pass") if s in statuses)
     requirement = check.requirement
     if FACE_PRECISION in check.figures or FACE_TRUENESS in check.figures:
         wall, face = values.get(FACE_WALL_STEP), values.get(FACE_DISTANCE)
         if wall is not None and face is not None:
             requirement += f" (wall at {wall:.0f} mm, face at {face:.0f} mm)"
     return CheckResult(requirement=requirement, status=status, limit=check.limit, values=numbers, source=check.source,
-                       judgement=check.judgement)
+                       judgement=check.judgement, uncertainties=uncertainties)
 
 
-def _number(value: float | None) -> str:
-    return "n/a" if value is None else f"{value:.3g}"
+def _number(value: float | None, expanded: float | None = None) -> str:
+    if value is None:
+        return "n/a"
+    return f"{value:.3g}" if expanded is None else f"{value:.3g} +- {expanded:.2g}"
 
 
 def _summary(verdict: str, results: list[CheckResult], informative: dict[str, float | None]) -> str:
@@ -183,32 +203,32 @@ def _summary(verdict: str, results: list[CheckResult], informative: dict[str, fl
         return "no numeric requirement; relies on " + ", ".join(informative)
     if verdict == "pass":
         return "meets its requirement" if len(results) == 1 else f"meets all {len(results)} requirements"
-    wanted = "fail" if verdict == "fail" else "not_evaluated"
     parts = []
     for r in results:
-        if r.status != wanted:
+        if r.status != verdict:
             continue
-        shown = ", ".join(_number(v) for v in r.values.values())
-        parts.append(f"{re.sub(r' [(][^)]*[)]', '', r.requirement)}: {shown}" if wanted == "fail"
-                     else ", ".join(name for name, v in r.values.items() if v is None))
-    return ("fails " if wanted == "fail" else "not measured: ") + "; ".join(parts)
+        if verdict == "not_evaluated":
+            parts.append(", ".join(name for name, v in r.values.items() if v is None))
+            continue
+        shown = ", ".join(_number(v, r.uncertainties.get(name)) for name, v in r.values.items())
+        parts.append(f"{re.sub(r' [(][^)]*[)]', '', r.requirement)}: {shown}")
+    lead = {"fail": "fails ", "not_evaluated": "not measured: ",
+            "marginal": "marginal (the limit lies within the expanded uncertainty): "}[verdict]
+    return lead + "; ".join(parts)
 
 
-def suitability(values: Mapping[str, float | None]) -> Suitability:
-    """Per user story: its checks with their numbers and sources, a verdict and its one-line reason
-    (``suitability`` of keyfigures.json). ``values``: the key figures plus :func:`face_depth_values`."""
+def suitability(values: Mapping[str, float | None], expanded: Mapping[str, float | None] | None = None) -> Suitability:
+    """Per user story: its checks with their numbers, uncertainties and sources, a verdict and its one-line reason
+    (``suitability`` of keyfigures.json). ``values``: the key figures plus :func:`face_depth_values`;
+    ``expanded``: their expanded uncertainties (k = 2), where they state one."""
     stories: dict[str, StoryVerdict] = {}
     for key, (description, checks, informative) in STORIES.items():
-        results = [_evaluate(c, values) for c in checks]
+        results = [_evaluate(c, values, expanded or {}) for c in checks]
         statuses = {r.status for r in results}
         if not checks:
             verdict = "no_numeric_requirement"
-        elif "fail" in statuses:
-            verdict = "fail"
-        elif statuses == {"pass"}:
-            verdict = "pass"
         else:
-            verdict = "not_evaluated"
+            verdict = next(s for s in ("fail", "not_evaluated", "marginal", "pass") if s in statuses)
         figures = {name: values.get(name) for name in informative}
         stories[key] = StoryVerdict(description=description, verdict=verdict, summary=_summary(verdict, results, figures),
                                     checks=results, figures=figures)

@@ -10,7 +10,7 @@ from typing import Any, TypeVar, cast
 
 from labctl.evaluation.capture import capture_table
 from labctl.evaluation.depth_quality import vendor_table
-from labctl.evaluation.evaluate import Evaluation, depth_table
+from labctl.evaluation.evaluate import Evaluation, depth_table, judged_suitability
 from labctl.evaluation.keyfigures import (
     FIGURE_BY_NAME,
     VENDOR_FIGURES,
@@ -32,7 +32,7 @@ from labctl.evaluation.sections import (
     XYNoiseRow,
 )
 from labctl.evaluation.sharpness import resolution_table
-from labctl.evaluation.suitability import Suitability, face_depth_values, suitability
+from labctl.evaluation.suitability import Suitability
 from labctl.evaluation.vdi2634 import acceptance_table, verdicts
 from labctl.jsondoc import write_json
 from labctl.report.plots.acceptance import plot_acceptance
@@ -63,7 +63,7 @@ th{background:#f4f4f4;font-weight:600;vertical-align:bottom}td.l,th.l{text-align
 .null{color:#999}.note{color:#a15c00}
 img{max-width:100%;height:auto;border:1px solid #eee}td.src{font-size:.85em;color:#555}
 .verdict-pass{color:#1a7f37;background:#dafbe1}.verdict-fail{color:#cf222e;background:#ffebe9}
-.verdict-not_evaluated{color:#9a6700;background:#fff8c5}.verdict-no_numeric_requirement{color:#57606a}
+.verdict-not_evaluated{color:#9a6700;background:#fff8c5}.verdict-marginal{color:#953800;background:#fff1e5}.verdict-no_numeric_requirement{color:#57606a}
 .summary{border:1px solid #ccc;border-radius:6px;padding:.2em 1em 1em;background:#fafafa}
 .summary h2{margin-top:.6em}
 @media print{body{max-width:none;margin:0;padding:0;font-size:9pt}.tablewrap{overflow:visible}
@@ -120,9 +120,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     outdir.mkdir(parents=True, exist_ok=True)
     plots = outdir / "plots"
     plots.mkdir(exist_ok=True)
-    values = {name: clean(f.value) for name, f in evaluation.figures.items()}
-    face = face_depth_values(values, _clean_rows(depth_table(evaluation)))
-    doc = keyfigures_document(evaluation.camera, evaluation.figures, suitability({**values, **face}), evaluation.flags)
+    doc = keyfigures_document(evaluation.camera, evaluation.figures, judged_suitability(evaluation), evaluation.flags)
     doc.runs = evaluation.runs
     doc.notes = evaluation.notes
     doc.depth_sweep = _clean_rows(depth_table(evaluation))
@@ -408,7 +406,8 @@ def _suitability_html(suit: Suitability) -> str:
     for story in suit.stories.values():
         checks = "<br>".join(
             f'{html.escape(c.requirement)}: <b>{c.status.replace("_", " ")}</b> ('
-            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in c.values.items())
+            + ", ".join(f"{html.escape(k)} = {_fmt(v)}" + (f" &plusmn; {_fmt(c.uncertainties[k], 2)}"
+                        if c.uncertainties.get(k) is not None else "") for k, v in c.values.items())
             + f')<br><small>{html.escape(c.source)}</small>'
             for c in story.checks
         ) or "; ".join(f"{html.escape(k)} = {_fmt(v)}" for k, v in story.figures.items())

@@ -28,14 +28,16 @@ from scipy.stats import norm
 
 from labctl.cli import main
 from labctl.evaluation.depth_quality import focal_length_px
-from labctl.evaluation.evaluate import evaluate_runs
+from labctl.evaluation.evaluate import evaluate_runs, judged_suitability
 from labctl.evaluation.keyfigures import FIGURES, STEREO_ONLY
+from labctl.evaluation.suitability import FACE_PRECISION, FACE_TRUENESS
 from labctl.report.html import write_outputs
 from labctl.report.pointcloud_io import read_pcd
 from labctl.run.store import RunReader
 from metrics.depth_quality import centre_window, dqt_roi
 from metrics.optics import pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 from metrics.sharpness import ied_pixels
+from metrics.uncertainty import combined_standard_uncertainty
 from procedures.remission_angle import SKIN_LIKE
 from sim.effects import default_effects
 from sim.materials import angle_factor, remission
@@ -128,6 +130,41 @@ def test_sharpness_figures_follow_the_lens(complete):
         ied_pixels(sensor_resolution(model)[0], hyperfocal))
     assert value(evaluation, "pixel_aspect_distortion_pct") == pytest.approx(
         pixel_aspect_distortion_pct(p.fov_h_deg, p.fov_v_deg, p.width, p.height))
+
+
+def test_hyperfocal_and_face_depth_uncertainties(complete):
+    """The hyperfocal distance's uncertainty is the sweep's resolution, one step_mm of the campaign's slanted-edge
+    sweep as a rectangular distribution, step / sqrt(12) (GUM F.2.2.1), and the IED counts carry it with their
+    sensitivity IED / d. The face's depth precision comes from the first wall step at or beyond the hyperfocal
+    distance, with the jackknife standard error over its frames, here recomputed by brute force (each frame left
+    out, the per-pixel std and its 90 % quantile again; Efron & Tibshirani 1993, eq. 11.5); the suitability
+    checks decide with U = 2 u of it."""
+    camera, _, run, evaluation = complete
+    step_mm = next(p["step_mm"] for p in tomllib.loads((EXAMPLES / f"{camera}.toml").read_text())["procedure"]
+                   if p["kind"] == "slanted_edge")
+    hyperfocal = evaluation.figures["hyperfocal_distance_mm"]
+    u_h = combined_standard_uncertainty(hyperfocal.budget)
+    assert u_h == pytest.approx(step_mm / math.sqrt(12.0))
+    for name in ("ied_pixels_at_hyperfocal", "ied_pixels_at_hyperfocal_angular"):
+        figure = evaluation.figures[name]
+        assert combined_standard_uncertainty(figure.budget) == pytest.approx(figure.value * u_h / hyperfocal.value)
+
+    with RunReader(run) as reader:
+        walls = [s for s in reader.steps("depth_sweep") if s.attrs["reference_distance_mm"] >= hyperfocal.value]
+        precision = evaluation.face_depth[FACE_PRECISION]
+        face = min((s for s in walls if np.isfinite(s.read("z")).any()), key=lambda s: s.attrs["reference_distance_mm"])
+        assert precision.source == [face.step_id]
+        z = face.read("z").astype(float)
+    n = z.shape[0]
+    used = (np.isfinite(z).sum(axis=0) >= max(2, math.ceil(n / 2)))
+    left_out = np.array([np.quantile(np.nanstd(np.delete(z, i, axis=0)[:, used], axis=0, ddof=1), 0.9)
+                         for i in range(n)])
+    jackknife = math.sqrt((n - 1) / n * np.sum((left_out - left_out.mean()) ** 2))
+    assert combined_standard_uncertainty(precision.budget) == pytest.approx(jackknife, rel=1e-3)
+    checks = [c for story in judged_suitability(evaluation).stories.values() for c in story.checks
+              if FACE_PRECISION in c.values]
+    assert checks and all(c.uncertainties[FACE_PRECISION] == pytest.approx(2 * jackknife, rel=1e-3) for c in checks)
+    assert evaluation.face_depth[FACE_TRUENESS].budget[0].name.startswith("frames: jackknife")
 
 
 def test_geometry_figures_of_an_undistorted_camera(complete):

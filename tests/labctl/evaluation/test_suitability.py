@@ -101,3 +101,38 @@ def test_face_depth_comes_from_the_first_wall_step_at_or_beyond_the_face():
     assert face_depth_values({"hyperfocal_distance_mm": None}, rows) == {}
     requirement = next(c.requirement for c in suitability({**GOOD, **face}).stories["pad_light"].checks)
     assert requirement.endswith("(wall at 500 mm, face at 400 mm)")
+
+
+def test_a_limit_within_the_expanded_uncertainty_is_marginal():
+    """Guard bands of width U (JCGM 106:2012, clause 8; ISO 14253-1:2017): 4.9 +- 0.3 % against the 5 % limit
+    neither passes nor fails; 4.5 +- 0.3 passes, 5.4 +- 0.3 fails; an IED of 88 +- 4 px against 90 px, below the
+    limit but by less than U, is marginal too, not a fail."""
+    near = dict(GOOD, radial_distortion_cloud_w_pct=-4.9)
+    story = suitability(near, {"radial_distortion_cloud_w_pct": 0.3}).stories["3d_face_recognition_1_to_n"]
+    assert story.verdict == "marginal"
+    check = next(c for c in story.checks if c.requirement.startswith("radial distortion"))
+    assert check.status == "marginal" and check.uncertainties["radial_distortion_cloud_w_pct"] == 0.3
+    assert check.uncertainties["radial_distortion_cloud_h_pct"] is None
+    assert story.summary == ("marginal (the limit lies within the expanded uncertainty): radial distortion <= 5 %: "
+                             "-4.9 +- 0.3, 2.5")
+    assert suitability(near, {"radial_distortion_cloud_w_pct": 0.3}).stories["3d_face_recognition_1_to_1"].verdict == "pass"
+    assert verdicts(dict(GOOD, radial_distortion_cloud_w_pct=4.5)) == {
+        k: v.verdict for k, v in suitability(dict(GOOD, radial_distortion_cloud_w_pct=4.5),
+                                             {"radial_distortion_cloud_w_pct": 0.3}).stories.items()}
+    beyond = suitability(dict(GOOD, radial_distortion_cloud_w_pct=5.4), {"radial_distortion_cloud_w_pct": 0.3})
+    assert beyond.stories["3d_face_recognition_1_to_n"].verdict == "fail"
+    ied = suitability(dict(GOOD, ied_pixels_at_hyperfocal=88.0), {"ied_pixels_at_hyperfocal": 4.0}).stories
+    assert ied["3d_face_recognition_1_to_n"].verdict == ied["pad_makeup_nir"].verdict == "marginal"
+    assert verdicts(dict(GOOD, ied_pixels_at_hyperfocal=88.0))["3d_face_recognition_1_to_n"] == "fail"  # no U
+
+
+def test_fail_and_missing_figures_outrank_marginal():
+    """A story with a failing check fails, one with a missing figure is not evaluated, even where another check
+    is marginal."""
+    u = {FACE_PRECISION: 0.2}
+    assert suitability(dict(GOOD, **{FACE_PRECISION: 0.95, FACE_TRUENESS: 2.5}), u).stories[
+        "3d_face_recognition_1_to_1"].verdict == "fail"
+    missing = {k: v for k, v in GOOD.items() if k != "ied_pixels_at_hyperfocal"}
+    assert suitability(dict(missing, **{FACE_PRECISION: 0.95}), u).stories[
+        "3d_face_recognition_1_to_1"].verdict == "not_evaluated"
+    assert suitability(dict(GOOD, **{FACE_PRECISION: 0.95}), u).stories["3d_face_recognition_1_to_1"].verdict == "marginal"
