@@ -47,6 +47,7 @@ from metrics.remission import (
     trueness_vs_zero,
     with_ring,
 )
+from metrics.uncertainty import Component
 from procedures.remission_angle import MATERIALS, SKIN_LIKE
 
 #: material whose distance curve gives the misalignment (Thesis 2024, 5.4.1: the best-case target)
@@ -193,13 +194,19 @@ def evaluate_remission(steps: Sequence[StepRecord], camera: CameraInfo, progress
 
 
 def figure_values(result: RemissionResult) -> dict[str, FigureValue]:
-    """``repeatability_skin_40deg_mm`` and ``repeatability_skin_70deg_mm``: max over skin-like materials, both signs."""
+    """``repeatability_skin_40deg_mm`` and ``repeatability_skin_70deg_mm``: max over skin-like materials, both signs,
+    with the Type A uncertainty of the step that gives the maximum (jackknife over its frames)."""
     figures = {}
     for name, key_angle in KEY_ANGLES_DEG.items():
         rows = [r for r in result.rows
                 if r.material in SKIN_LIKE and abs(abs(r.angle_deg) - key_angle) <= ANGLE_TOLERANCE_DEG]
-        values = [r.roi.repeatability_mm for r in rows if r.roi.on_target]
-        figures[name] = FigureValue(max(values) if values else math.nan, [r.step_id for r in rows])
+        measured = [r for r in rows if r.roi.on_target]
+        if not measured:
+            figures[name] = FigureValue(math.nan, [r.step_id for r in rows])
+            continue
+        worst = max(measured, key=lambda r: r.roi.repeatability_mm)
+        figures[name] = FigureValue(worst.roi.repeatability_mm, [r.step_id for r in rows], (Component(
+            f"frames at {worst.step_id}: jackknife of the ROI stack (Type A)", worst.roi.repeatability_u_mm),))
     return figures
 
 

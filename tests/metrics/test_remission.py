@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from metrics.remission import (
+    pooled_std_jackknife,
     axis_roi,
     fit_misalignment,
     geometric_reference,
@@ -209,3 +210,32 @@ def test_trueness_vs_zero():
     assert list(t) == [5.0, 0.0, -2.0]
     assert np.isnan(trueness_vs_zero([-10.0, 10.0], [905.0, 898.0])).all()
     assert np.isnan(trueness_vs_zero([-10.0, 0.0], [905.0, np.nan])).all()
+
+
+@pytest.mark.parametrize("block", [1, 4])
+def test_pooled_repeatability_uncertainty_covers_its_spread_over_repetitions(block):
+    """The jackknife over the frames states the spread the pooled std shows over 300 independent repetitions
+    (within 20 %). With independent pixels that is also sigma / sqrt(2 nu), nu = P (N - 1) (GUM E.4.3); with
+    the noise shared by blocks of 4 pixels (as a matching window correlates neighbours) the pixels carry a
+    quarter of the degrees of freedom, the spread doubles, and the jackknife follows it where the
+    per-pixel formula would not."""
+    rng = np.random.default_rng(20261126)
+    frames, pixels, sigma = 20, 240, 1.5
+    pooled, stated = [], []
+    for _ in range(300):
+        noise = np.repeat(rng.normal(0.0, sigma, size=(frames, pixels // block)), block, axis=1)
+        stack = 800.0 + rng.normal(0.0, 3.0, size=pixels) + noise  # a fixed surface plus the frames' noise
+        pooled.append(math.sqrt(np.mean(np.var(stack, axis=0, ddof=1))))
+        stated.append(pooled_std_jackknife(stack))
+    spread = float(np.std(pooled, ddof=1))
+    assert np.mean(stated) == pytest.approx(spread, rel=0.2)
+    independent = sigma / math.sqrt(2 * pixels * (frames - 1))
+    assert spread == pytest.approx(independent * math.sqrt(block), rel=0.2)
+
+
+def test_pooled_repeatability_uncertainty_skips_missing_values_and_needs_three_frames():
+    stack = np.random.default_rng(3).normal(size=(12, 50))
+    holed = stack.copy()
+    holed[0, :25] = np.nan
+    assert math.isfinite(pooled_std_jackknife(holed)) and pooled_std_jackknife(holed) > 0
+    assert math.isnan(pooled_std_jackknife(stack[:2]))

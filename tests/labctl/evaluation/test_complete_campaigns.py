@@ -282,6 +282,8 @@ def test_skin_repeatability_is_the_noise_model_on_the_axis(complete):
         figure = value(evaluation, name)
         row = next(r for r in rows if r.material in SKIN_LIKE and abs(abs(r.angle_deg) - angle) < 0.5
                    and r.roi.on_target and r.roi.repeatability_mm == figure)
+        u = combined_standard_uncertainty(evaluation.figures[name].budget)  # jackknife over 4 frames of that step
+        assert u == pytest.approx(row.roi.repeatability_u_mm) and 0 < u < 0.5 * figure, (camera, name, u)
         if p.technology != "tof":
             continue
         a_ref = reference_amplitude(p)
