@@ -73,26 +73,28 @@ def hyperfocal_distance(distances: Sequence[float], sfr_area: Sequence[float], v
     return nearest
 
 
-def hyperfocal_spacing(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool],
-                       hyperfocal_mm: float) -> float:
-    """The sweep's resolution at the hyperfocal distance: the spacing between it and the next nearer valid
-    position (the next farther one where it is the nearest), NaN with fewer than two valid positions or no
-    hyperfocal distance. The plateau's edge lies somewhere within one spacing of the reported position, so
-    the spacing is the resolution of the figure, as the step of an indicating device (GUM F.2.2.1).
+def position_spacing(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool],
+                     position_mm: float) -> float:
+    """The sweep's resolution at a position it reports (the hyperfocal distance, best focus): the spacing
+    between that position and the next nearer valid one; NaN where it is the nearest valid position (the
+    condition may start to hold anywhere nearer: the figure is a bound) or there is no position. Both figures
+    are the nearest position at which a condition holds, so where it starts to hold lies somewhere within one
+    spacing of the reported position: the spacing is the figure's resolution, as the step of an indicating
+    device (GUM F.2.2.1).
 
     Examples
     --------
     >>> d, area = [400, 600, 800, 1000, 1200, 1400], [0.2, 0.5, 0.8, 0.9, 1.0, 0.95]
-    >>> hyperfocal_spacing(d, area, [True] * 6, 1000.0), hyperfocal_spacing(d, area, [True] * 6, 400.0)
-    (200.0, 200.0)
-    >>> hyperfocal_spacing(d, area, [True, True, False, True, True, True], 1000.0)
+    >>> position_spacing(d, area, [True] * 6, 1000.0), position_spacing(d, area, [True] * 6, 400.0)
+    (200.0, nan)
+    >>> position_spacing(d, area, [True, True, False, True, True, True], 1000.0)
     400.0
     """
     d, _ = _sorted_valid(distances, sfr_area, valid)
-    if d.size < 2 or not math.isfinite(hyperfocal_mm):
+    if not math.isfinite(position_mm):
         return math.nan
-    k = int(np.argmin(np.abs(d - hyperfocal_mm)))
-    return float(d[k] - d[k - 1] if k > 0 else d[1] - d[0])
+    k = int(np.argmin(np.abs(d - position_mm)))
+    return float(d[k] - d[k - 1]) if k > 0 else math.nan
 
 
 def _smoothed(distances: Sequence[float], sfr_area: Sequence[float], valid: Sequence[bool]) -> tuple[np.ndarray, np.ndarray]:

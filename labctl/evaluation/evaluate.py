@@ -235,10 +235,11 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
     evaluation.notes.extend(result.notes)
     ids = [p.chart_step for p in result.positions] + [p.white_step for p in result.positions]
     best = [p.chart_step for p in result.positions if p.distance_mm == result.best_focus_mm]
-    hyperfocal = _hyperfocal_budget(result)
+    hyperfocal = _position_budget(result.hyperfocal_spacing_mm)
     for name, value, source, budget in (
         ("hyperfocal_distance_mm", result.hyperfocal_mm, ids, hyperfocal),
-        ("best_focus_distance_mm", result.best_focus_mm, ids, ()),
+        ("best_focus_distance_mm", result.best_focus_mm, ids,
+         _position_budget(result.best_focus_spacing_mm) if result.focus_warning is None else ()),
         ("intensity_resolution_h_deg", result.resolution_deg[0], best, ()),
         ("intensity_resolution_v_deg", result.resolution_deg[1], best, ()),
         ("ied_pixels_at_hyperfocal", result.ied_px, ids, scaled(hyperfocal, result.ied_px / result.hyperfocal_mm)),
@@ -248,14 +249,14 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
         evaluation.figures[name] = FigureValue(value, source, budget)
 
 
-def _hyperfocal_budget(result: SharpnessResult) -> tuple[Component, ...]:
-    """The hyperfocal distance's budget: the sweep's spacing at it as the resolution of the figure (rectangular
-    over one spacing, GUM F.2.2.1); empty (not estimated) with fewer than two valid positions. The IED counts
-    (62.5 mm f / d) take it with the sensitivity |dIED/dd| = IED / d (GUM 5.1.3)."""
-    if not math.isfinite(result.hyperfocal_spacing_mm):
+def _position_budget(spacing_mm: float) -> tuple[Component, ...]:
+    """The budget of a distance the slanted-edge sweep reports (hyperfocal, best focus): the sweep's spacing at
+    it as the resolution of the figure (rectangular over one spacing, GUM F.2.2.1); empty (not estimated) where
+    the figure is a bound (the sweep's nearest valid position; best focus at an end of the sweep). The IED
+    counts (62.5 mm f / d) take the hyperfocal distance's with the sensitivity |dIED/dd| = IED / d (GUM 5.1.3)."""
+    if not math.isfinite(spacing_mm):
         return ()
-    return (Component("sweep spacing at the plateau's edge: resolution of the position (Type B)",
-                      rectangular(result.hyperfocal_spacing_mm / 2)),)
+    return (Component("sweep spacing at the position: resolution of the figure (Type B)", rectangular(spacing_mm / 2)),)
 
 
 def evaluate_face_depth(steps: Sequence[StepRecord], evaluation: Evaluation, progress: Callable[[str], None],

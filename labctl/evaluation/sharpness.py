@@ -29,11 +29,11 @@ from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white
 from metrics.sharpness import (
     best_focus_distance,
     hyperfocal_distance,
-    hyperfocal_spacing,
     ied_pixels,
     ied_pixels_at_centre,
     imagery_resolution_deg,
     lateral_mm,
+    position_spacing,
     sharpness_peak_at_sweep_end,
 )
 from metrics.stack import stack_stats
@@ -71,8 +71,10 @@ class SharpnessResult:
     positions: list[SharpnessPosition]
     sensor_resolution_deg: tuple[float, float]
     hyperfocal_mm: float = math.nan
-    #: the sweep's spacing at the hyperfocal distance (its resolution: metrics.sharpness.hyperfocal_spacing)
+    #: the sweep's spacing at the hyperfocal distance and at best focus (their resolution:
+    #: metrics.sharpness.position_spacing)
     hyperfocal_spacing_mm: float = math.nan
+    best_focus_spacing_mm: float = math.nan
     best_focus_mm: float = math.nan
     resolution_deg: tuple[float, float] = (math.nan, math.nan)
     ied_px: float = math.nan  # a face at the image centre (pinhole model)
@@ -188,8 +190,9 @@ def _summarize(result: SharpnessResult) -> None:
         result.notes.append("no position with both edges valid: sharpness figures are null")
         return
     result.hyperfocal_mm = hyperfocal_distance(d, area, both)
-    result.hyperfocal_spacing_mm = hyperfocal_spacing(d, area, both, result.hyperfocal_mm)
     result.best_focus_mm = best_focus_distance(d, area, both)
+    result.hyperfocal_spacing_mm = position_spacing(d, area, both, result.hyperfocal_mm)
+    result.best_focus_spacing_mm = position_spacing(d, area, both, result.best_focus_mm)
     end = sharpness_peak_at_sweep_end(d, area, both)
     if end is not None:
         result.focus_warning = _sweep_end_warning(end, d[both])

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from metrics.remission import (
-    pooled_std_jackknife,
     axis_roi,
     fit_misalignment,
     geometric_reference,
     measure_roi,
+    pooled_std_jackknife,
     target_window,
     trueness_vs_zero,
     with_ring,

@@ -133,18 +133,21 @@ def test_sharpness_figures_follow_the_lens(complete):
 
 
 def test_hyperfocal_and_face_depth_uncertainties(complete):
-    """The hyperfocal distance's uncertainty is the sweep's resolution, one step_mm of the campaign's slanted-edge
-    sweep as a rectangular distribution, step / sqrt(12) (GUM F.2.2.1), and the IED counts carry it with their
-    sensitivity IED / d. The face's depth precision comes from the first wall step at or beyond the hyperfocal
-    distance, with the jackknife standard error over its frames, here recomputed by brute force (each frame left
-    out, the per-pixel std and its 90 % quantile again; Efron & Tibshirani 1993, eq. 11.5); the suitability
-    checks decide with U = 2 u of it."""
+    """The hyperfocal distance's and best focus's uncertainty is the sweep's resolution, one step_mm of the campaign's
+    slanted-edge sweep as a rectangular distribution, step / sqrt(12) (GUM F.2.2.1), and the IED counts carry it
+    with their sensitivity IED / d. The face's depth precision comes from the first wall step at or beyond the
+    hyperfocal distance, with the jackknife standard error over its frames, here recomputed by brute force (each
+    frame left out, the per-pixel std and its 90 % quantile again; Efron & Tibshirani 1993, eq. 11.5); the
+    suitability checks decide with U = 2 u of it."""
     camera, _, run, evaluation = complete
     step_mm = next(p["step_mm"] for p in tomllib.loads((EXAMPLES / f"{camera}.toml").read_text())["procedure"]
                    if p["kind"] == "slanted_edge")
     hyperfocal = evaluation.figures["hyperfocal_distance_mm"]
     u_h = combined_standard_uncertainty(hyperfocal.budget)
     assert u_h == pytest.approx(step_mm / math.sqrt(12.0))
+    best = evaluation.figures["best_focus_distance_mm"].budget  # a bound where the peak is at the sweep's end
+    assert (combined_standard_uncertainty(best) == pytest.approx(step_mm / math.sqrt(12.0))
+            if evaluation.sharpness.focus_warning is None else best == ())
     for name in ("ied_pixels_at_hyperfocal", "ied_pixels_at_hyperfocal_angular"):
         figure = evaluation.figures[name]
         assert combined_standard_uncertainty(figure.budget) == pytest.approx(figure.value * u_h / hyperfocal.value)
