@@ -137,20 +137,22 @@ def with_uncertainties(position: VendorPosition, step: StepRecord, z: np.ndarray
     return dataclasses.replace(position, uncertainties=uncertainties, reference_budget=absolute_reference(step.attrs))
 
 
-def key_steps(positions: Sequence[VendorPosition]) -> set[str]:
-    """The steps the key figures are taken from (the nearest to each of ``VENDOR_DISTANCES_MM``)."""
-    return {p.step_id for p in _nearest(positions).values()}
+def key_steps(references: Mapping[str, float]) -> dict[int, str]:
+    """The steps the key figures are taken from: per distance of ``VENDOR_DISTANCES_MM``, the step (of
+    ``references``: step id -> reference distance, in the run's order) whose reference distance is nearest it,
+    the first of equals; left out where none is within ``TOLERANCE_MM``."""
+    found = {}
+    for distance in VENDOR_DISTANCES_MM:
+        near = min(references, key=lambda step: abs(references[step] - distance), default=None)
+        if near is not None and abs(references[near] - distance) <= TOLERANCE_MM:
+            found[int(distance)] = near
+    return found
 
 
 def _nearest(positions: Sequence[VendorPosition]) -> dict[int, VendorPosition]:
-    """Per distance of ``VENDOR_DISTANCES_MM``, the position whose reference distance is nearest it (left out
-    where none is within ``TOLERANCE_MM``)."""
-    found = {}
-    for distance in VENDOR_DISTANCES_MM:
-        near = min(positions, key=lambda p: abs(p.reference_mm - distance), default=None)
-        if near is not None and abs(near.reference_mm - distance) <= TOLERANCE_MM:
-            found[int(distance)] = near
-    return found
+    """The positions :func:`key_steps` chooses, per distance."""
+    by_id = {p.step_id: p for p in positions}
+    return {d: by_id[step] for d, step in key_steps({p.step_id: p.reference_mm for p in positions}).items()}
 
 
 def _budget(position: VendorPosition, field: str) -> tuple[Component, ...]:

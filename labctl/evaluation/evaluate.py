@@ -151,6 +151,7 @@ def evaluate_depth_sweep(
         )
     key = _key_step(usable)
     key_u: DepthErrorUncertainties | None = None
+    vendor_keys = set(key_steps({s.step_id: s.attrs["reference_distance_mm"] for s in usable}).values())
     buffer = None
     for rec in usable:
         progress(rec.step_id)
@@ -161,13 +162,10 @@ def evaluate_depth_sweep(
         if rec is key:
             key_u = depth_error_uncertainties(buffer, stats, rec.attrs["reference_distance_mm"])
         evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
-        evaluation.vendor.append(vendor_position(rec, buffer, reader.camera, evaluation.camera.model))
-    chosen = key_steps(evaluation.vendor)
-    for i, rec in enumerate(usable):  # the steps the vendor key figures come from, read again for their uncertainty
-        if rec.step_id in chosen:
-            buffer = rec.read("z", out=buffer)
-            evaluation.vendor[i] = with_uncertainties(evaluation.vendor[i], rec, buffer, reader.camera,
-                                                      evaluation.camera.model)
+        position = vendor_position(rec, buffer, reader.camera, evaluation.camera.model)
+        if rec.step_id in vendor_keys:  # the steps the vendor key figures come from: their uncertainties too
+            position = with_uncertainties(position, rec, buffer, reader.camera, evaluation.camera.model)
+        evaluation.vendor.append(position)
     del buffer
     missing = [p for p in evaluation.vendor if p.missing_reference]
     if missing:
