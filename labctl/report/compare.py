@@ -55,7 +55,8 @@ class CompareDocument:
     plausibility checks it fails, for the cameras where it fails any (figures failing none left out); per figure
     the expanded uncertainties (k = 2) the evaluations state, and the pairs of cameras whose values (their
     magnitudes, for figures better closer to 0) differ by no more than the expanded uncertainty of the
-    difference: not distinguishable, so not ranked (figures with none left out)."""
+    difference: not distinguishable, so not ranked (figures with none left out); and per figure which way it
+    improves (``better``: lower, higher, zero or none, as in keyfigures.json)."""
 
     cameras: list[str]
     sources: list[str]
@@ -66,6 +67,7 @@ class CompareDocument:
     flags: dict[str, dict[str, list[str]]]  # figure -> label -> failed checks
     expanded_uncertainty: dict[str, dict[str, float]] = field(default_factory=dict)  # figure -> label -> U
     not_distinguishable: dict[str, list[list[str]]] = field(default_factory=dict)  # figure -> [label, label] pairs
+    better: dict[str, str] = field(default_factory=dict)  # figure -> lower / higher / zero / none
 
 
 def load_evaluation(directory: Path) -> KeyFiguresDocument:
@@ -100,7 +102,8 @@ def compare(directories: list[Path], outdir: Path) -> Path:
     result = CompareDocument(cameras=labels, sources=[str(d) for d in directories], figures=table,
                              suitability=verdicts, reasons=reasons, stories=_story_names(docs),
                              flags={k: v for k, v in flags.items() if v}, expanded_uncertainty=uncertainty,
-                             not_distinguishable=_not_distinguishable(table, uncertainty, labels))
+                             not_distinguishable=_not_distinguishable(table, uncertainty, labels),
+                             better={fig.name: better_direction(fig.name) for fig in FIGURES})
     write_json(outdir / "compare.json", result, final_newline=True)
     chart = _chart(table, labels, plots / "comparison.png")
     ied = _ied_chart(table["ied_pixels_at_hyperfocal"], labels, plots / "ied_coverage.png")

@@ -35,6 +35,8 @@ def test_compare_two_cameras(tmp_path):
     assert result["cameras"] == ["Basler blaze-101", "pmd flexx2 VGA"]
     assert result["figures"]["ied_pixels_at_hyperfocal"] == {"Basler blaze-101": 88.0, "pmd flexx2 VGA": 72.0}
     assert result["figures"]["z_trueness_q90_mm"] == {"Basler blaze-101": None, "pmd flexx2 VGA": None}
+    assert result["better"]["ied_pixels_at_hyperfocal"] == "higher"  # ISO/IEC 39794-5: at least 90 px
+    assert result["better"]["z_accuracy_2000mm_pct"] == "zero" and result["better"]["z_trueness_q90_mm"] == "lower"
     page = (tmp_path / "cmp" / "compare.html").read_text()
     assert "plots/comparison.png" in page and "plots/ied_coverage.png" in page and "fail" in page
     assert (tmp_path / "cmp" / "plots" / "comparison.png").stat().st_size > 5000
