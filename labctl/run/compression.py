@@ -20,6 +20,12 @@ import hdf5plugin
 COMPRESSIONS = ("blosc-lz4", "none")
 DEFAULT = "blosc-lz4"
 ESTIMATED_RATIO = {"blosc-lz4": 1.7, "none": 1.0}
+# hdf5plugin registers its filters at import only where HDF5 has none of that id yet. With HDF5_PLUGIN_PATH at
+# hdf5plugin's own plugin folder (as its documentation advises for other HDF5 tools), HDF5 finds the Blosc
+# plugin there and loads it by itself, and that copy fails in its callback on every dataset it would compress
+# ("error during user callback"). Registering hdf5plugin's Blosc filter in place of whatever HDF5 found makes
+# labctl work with any plugin path.
+hdf5plugin.register("blosc", force=True)
 """Raw bytes / stored bytes assumed for planning (measured 1.72 on the blaze-101 demo run;
 real noise compresses somewhat worse, so free-space checks never rely on it)."""
 
@@ -31,6 +37,18 @@ def dataset_options(compression: str) -> dict[str, Any]:
     if compression == "none":
         return {}
     raise ValueError(f"unknown compression {compression!r}; one of {', '.join(COMPRESSIONS)}")
+
+
+def how_to_read(compression: str) -> str:
+    """The run file's root attribute ``how_to_read``: what a program needs to read the frames (docs/runfile.md),
+    readable by any HDF5 reader since attributes pass through no filter."""
+    if compression == "none":
+        return "frames are stored uncompressed: any HDF5 reader opens them"
+    return ("frames are compressed with the Blosc filter (HDF5 registered filter 32001, LZ4 + byte shuffle). "
+            "Python: `import hdf5plugin` (pip install hdf5plugin) before reading them with h5py; without it h5py "
+            "fails with \"can't open directory\" or \"required filter is not registered\". Other HDF5 programs "
+            "(h5dump, HDFView, MATLAB): the Blosc plugin on HDF5_PLUGIN_PATH, e.g. the folder "
+            "`python -c \"import hdf5plugin; print(hdf5plugin.PLUGIN_PATH)\"` prints. labctl's docs/runfile.md")
 
 
 def describe(dataset: h5py.Dataset) -> str:

@@ -308,6 +308,7 @@ class RunWriter:
                 status_reason="",
                 simulated=bool(simulated),
                 compression=compression,
+                how_to_read=codecs.how_to_read(compression),
             )
             for role, (ident, settings) in devices.items():
                 g = f.create_group(f"devices/{role}")

@@ -2,6 +2,9 @@
 
 import json
 import math
+import os
+import subprocess
+import sys
 
 import h5py
 import numpy as np
@@ -11,6 +14,7 @@ from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.errors import InputError
 from labctl.run.store import CHANNELS, FrameError, RunReader, RunWriter
 from procedures.steps import Step
+from tests.conftest import campaign_text
 
 BLOSC_FILTER_ID = 32001
 CAMERA = CameraInfo(width=8, height=6, fov_deg=(67.0, 51.0), pixel_pitch_um=10.0, frame_rate_hz=30.0,
@@ -167,3 +171,58 @@ def test_reader_refuses_foreign_and_future_files(tmp_path):
 
 def test_channels_constant_matches_contract():
     assert CHANNELS == ("x", "y", "z", "intensity", "confidence")
+
+
+def test_a_run_works_with_hdf5_plugin_path_at_hdf5plugins_own_filters(tmp_path):
+    """hdf5plugin's documentation advises HDF5_PLUGIN_PATH=hdf5plugin.PLUGIN_PATH for other HDF5 tools (HDFView);
+    with it set, HDF5 loads the Blosc plugin by itself, which failed every compressed dataset at the first step.
+    A simulated run in a fresh process with that environment completes, and its frames read back."""
+    import hdf5plugin
+
+    campaign = tmp_path / "c.toml"
+    campaign.write_text(campaign_text())
+    run = tmp_path / "r.h5"
+    env = {**os.environ, "HDF5_PLUGIN_PATH": hdf5plugin.PLUGIN_PATH}
+    done = subprocess.run([sys.executable, "-m", "labctl", "run", str(campaign), "--sim", "-o", str(run), "--quiet"],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    with RunReader(run) as reader:
+        steps = reader.steps()
+        assert reader.attrs["compression"] == "blosc-lz4" and steps
+        assert np.isfinite(steps[-1].frame("z", 0)).any()
+
+
+READ_PLAIN = """
+import sys, h5py
+with h5py.File(sys.argv[1], "r") as f:
+    print(f.attrs["how_to_read"])
+    z = f["steps"][next(iter(f["steps"]))]["z"]
+    try:
+        z[0]
+        print("READ WITHOUT THE FILTER")
+    except OSError as error:
+        print("ERROR", error)
+    import hdf5plugin
+    print("READ", float(z[0][0, 0]))
+"""
+
+
+def test_the_file_says_how_to_read_it_and_the_advice_works(tmp_path):
+    """A compressed run file opened by plain h5py in a fresh process: its root attribute ``how_to_read`` (an
+    attribute passes through no filter) names ``import hdf5plugin``; a frame fails to read without it, and reads
+    after following the advice."""
+    path = tmp_path / "r.h5"
+    run = make_run(path)
+    writer = run.begin_step(Step(index=0, procedure="depth_sweep", target="wall", frames=1, distance_mm=1000.0), 1000.0)
+    writer.write(0, frame(1234.0))
+    writer.commit({"reference_distance_mm": 1000.0})
+    run.close()
+    env = {k: v for k, v in os.environ.items() if k != "HDF5_PLUGIN_PATH"}
+    env["HDF5_PLUGIN_PATH"] = str(tmp_path / "no-plugins")  # no system plugin folder either
+    done = subprocess.run([sys.executable, "-c", READ_PLAIN, str(path)], capture_output=True, text=True, env=env,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    advice, attempt, after = done.stdout.strip().split("\n")
+    assert "import hdf5plugin" in advice and "HDF5_PLUGIN_PATH" in advice
+    assert attempt.startswith("ERROR")
+    assert after == "READ 1234.0"
