@@ -236,15 +236,22 @@ class CameraDescription:
     simulated: bool = False
 
 
+#: the version of keyfigures.json's layout (docs/keyfigures.schema.json): the minor number grows with keys added,
+#: the major number with a change that breaks a reader of the previous layout
+SCHEMA_VERSION = "1.0"
+
+
 @dataclass(kw_only=True)
 class KeyFiguresDocument:
-    """``keyfigures.json`` (docs/keyfigures.md): the camera, every defined figure and the suitability verdicts,
-    then the evaluated runs, notes and the sections of the procedures the runs hold (their records:
-    labctl/evaluation/sections.py); a procedure's section is absent when the runs lack it."""
+    """``keyfigures.json`` (docs/keyfigures.md): the camera, every defined figure, the suitability verdicts and
+    the version of the file's layout, then the evaluated runs, notes and the sections of the procedures the runs hold
+    (their records: labctl/evaluation/sections.py); a procedure's section is absent when the runs lack it. Read
+    back from a file written before the layout had a version, ``schema_version`` reads as ``"0"``."""
 
     camera: CameraDescription
     figures: dict[str, FigureEntry]
     suitability: Suitability
+    schema_version: str = SCHEMA_VERSION
     runs: list[str] | None = optional()
     notes: list[str] | None = optional()
     depth_sweep: list[DepthSweepRow] | None = optional()
@@ -303,8 +310,9 @@ def read_keyfigures(path: Path) -> KeyFiguresDocument:
     hints = typing.get_type_hints(KeyFiguresDocument)
     try:
         sections = {f.name: _section(hints[f.name], data.get(f.name)) for f in dataclasses.fields(KeyFiguresDocument)
-                    if f.name not in ("camera", "figures", "suitability")}
-        return KeyFiguresDocument(camera=_known_fields(CameraDescription, data["camera"]), figures=figures,
+                    if f.name not in ("schema_version", "camera", "figures", "suitability")}
+        return KeyFiguresDocument(schema_version=str(data.get("schema_version", "0")),
+                                  camera=_known_fields(CameraDescription, data["camera"]), figures=figures,
                                   suitability=_suitability(data.get("suitability", {})), **sections)
     except (TypeError, AttributeError) as exc:
         raise InputError(f"{path} is not a labctl keyfigures.json ({exc})") from None

@@ -7,9 +7,10 @@ import json
 import math
 from dataclasses import dataclass, field
 
+import jsonschema
 import numpy as np
 
-from labctl.jsondoc import dumps, inline, optional, to_json, write_json
+from labctl.jsondoc import dumps, inline, json_schema, optional, to_json, write_json
 
 
 @dataclass(kw_only=True)
@@ -66,3 +67,17 @@ def test_written_text_is_indented_json(tmp_path):
     path = write_json(tmp_path / "d.json", Inner(b=1.0, a=3), final_newline=True)
     assert path.read_text() == '{\n  "b": 1.0,\n  "a": 3\n}\n'
     assert write_json(tmp_path / "e.json", Inner(b=1.0, a=3)).read_text().endswith("}")
+
+
+def test_the_schema_accepts_what_to_json_writes_and_nothing_else():
+    """json_schema and to_json read the same type hints: optional fields may be absent, inline fields' keys sit in
+    place, non-finite floats are null; a wrong type, a missing required key or an unknown key fails."""
+    outer = jsonschema.Draft202012Validator(json_schema(Outer))
+    assert outer.is_valid(to_json(Outer(zeta="z")))
+    assert outer.is_valid(to_json(Outer(zeta="z", maybe=True, alpha=[Inner(b=math.nan, a=1)], later="l")))
+    assert not outer.is_valid({"alpha": [], "table": {}})  # zeta is required
+    assert not outer.is_valid({**to_json(Outer(zeta="z")), "extra": 1})
+    assert not outer.is_valid(to_json(Outer(zeta="z", alpha=[Inner(b=1.0, a=1.5)])))  # an int field
+    flat = jsonschema.Draft202012Validator(json_schema(Flattened))
+    assert flat.is_valid(to_json(Flattened(first="f", inner=Inner(b=0.5, a=1), last=2)))
+    assert flat.is_valid(to_json(Flattened(first="f", inner=None, last=2)))

@@ -14,11 +14,13 @@ worker (``--dist loadgroup``), so each campaign is simulated once.
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from html.parser import HTMLParser
 from pathlib import Path
 
+import jsonschema
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
@@ -30,6 +32,7 @@ from labctl.cli import main
 from labctl.evaluation.depth_quality import focal_length_px
 from labctl.evaluation.evaluate import evaluate_runs, judged_suitability
 from labctl.evaluation.keyfigures import FIGURES, STEREO_ONLY
+from labctl.evaluation.schema import SCHEMA_FILE
 from labctl.evaluation.suitability import FACE_PRECISION, FACE_TRUENESS
 from labctl.report.html import write_outputs
 from labctl.report.pointcloud_io import read_pcd
@@ -335,7 +338,9 @@ def test_report_has_every_section_and_its_files(complete, tmp_path):
     """The complete report: well-formed HTML, a section per procedure, every figure a readable PNG, the
     face mask's cloud a readable PCD."""
     _, _, _, evaluation = complete
-    _, report = write_outputs(evaluation, tmp_path)
+    json_path, report = write_outputs(evaluation, tmp_path)
+    schema = json.loads(SCHEMA_FILE.read_text())  # every procedure's section against docs/keyfigures.schema.json
+    jsonschema.Draft202012Validator(schema).validate(json.loads(json_path.read_text()))
     page = _Page()
     page.feed(report.read_text())
     assert page.open == []

@@ -1,0 +1,70 @@
+"""keyfigures.json against its JSON Schema (docs/keyfigures.schema.json), checked with the ``jsonschema`` library.
+
+The committed schema is the one the dataclasses that write keyfigures.json give (so it cannot drift from them); a
+simulated campaign's evaluation validates against it; a document that breaks it does not. The complete campaigns
+of every camera (every procedure section) are validated in test_complete_campaigns.py.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import jsonschema
+import pytest
+
+from labctl.cli import main
+from labctl.evaluation.keyfigures import SCHEMA_VERSION, read_keyfigures
+from labctl.evaluation.schema import SCHEMA_FILE, schema_text
+from tests.conftest import campaign_text
+
+
+def validator() -> jsonschema.Draft202012Validator:
+    schema = json.loads(SCHEMA_FILE.read_text())
+    jsonschema.Draft202012Validator.check_schema(schema)
+    return jsonschema.Draft202012Validator(schema)
+
+
+def test_the_committed_schema_is_the_one_the_document_classes_give():
+    assert SCHEMA_FILE.read_text() == schema_text(), "regenerate it: python -m labctl.evaluation.schema"
+
+
+@pytest.fixture(scope="module")
+def evaluated(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("schema")
+    campaign = tmp / "c.toml"
+    campaign.write_text(campaign_text(camera="depth_origin_offset_mm = 42.0"))
+    for command in (["run", str(campaign), "--sim", "-o", str(tmp / "r.h5"), "--quiet"],
+                    ["evaluate", str(tmp / "r.h5"), "-o", str(tmp / "out"), "--quiet"]):
+        with pytest.raises(SystemExit) as info:
+            main(command)
+        assert info.value.code == 0
+    return tmp / "out" / "keyfigures.json"
+
+
+def test_an_evaluation_validates_and_states_its_schema_version(evaluated):
+    document = json.loads(evaluated.read_text())
+    validator().validate(document)
+    assert document["schema_version"] == SCHEMA_VERSION
+    assert list(document)[:4] == ["camera", "figures", "suitability", "schema_version"]
+    assert read_keyfigures(evaluated).schema_version == SCHEMA_VERSION
+
+
+@pytest.mark.parametrize("break_it", [
+    lambda d: d.pop("camera"),
+    lambda d: d["figures"]["z_trueness_q90_mm"].update(value="0.7 mm"),
+    lambda d: d["figures"]["z_trueness_q90_mm"].update(colour="red"),
+    lambda d: d.update(schema_version="0.9"),
+    lambda d: d["suitability"]["stories"]["pad_light"]["checks"][0].update(status=1),
+])
+def test_a_document_that_breaks_the_layout_does_not_validate(evaluated, break_it):
+    document = copy.deepcopy(json.loads(evaluated.read_text()))
+    break_it(document)
+    assert not validator().is_valid(document)
+
+
+def test_a_file_from_before_the_version_reads_as_version_0(evaluated, tmp_path):
+    document = json.loads(evaluated.read_text())
+    del document["schema_version"]
+    (tmp_path / "keyfigures.json").write_text(json.dumps(document))
+    assert read_keyfigures(tmp_path / "keyfigures.json").schema_version == "0"
