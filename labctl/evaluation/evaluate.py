@@ -7,6 +7,7 @@ the steps it came from.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -16,6 +17,7 @@ import numpy as np
 
 from labctl.errors import InputError
 from labctl.evaluation.capture import CaptureResult, evaluate_captures
+from labctl.evaluation.conditions import BackgroundHashes, RunConditions, run_conditions
 from labctl.evaluation.depth_quality import (
     VendorPosition,
     key_steps,
@@ -99,6 +101,8 @@ class Evaluation:
     #: the suitability checks' inputs beyond the key figures (labctl/evaluation/suitability.py: the depth figures
     #: on the face, with the face's and the wall's distance), with their uncertainty budgets
     face_depth: dict[str, FigureValue] = field(default_factory=dict)
+    #: per run file, the conditions it records (labctl/evaluation/conditions.py)
+    conditions: list[RunConditions] = field(default_factory=list)
     #: quantization step (mm) of the x, y and z output on the wall, NaN where continuous
     quantization_mm: dict[str, float] = field(default_factory=dict)
     #: plausibility flags per figure name (labctl/evaluation/plausibility.py)
@@ -308,7 +312,9 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
     if not paths:
         raise InputError("no run file given")
     readers = [RunReader(p) for p in paths]
-    try:
+    with contextlib.ExitStack() as stack:
+        for reader in readers:
+            stack.callback(reader.close)
         camera = camera_description(readers[0])
         for reader in readers[1:]:
             other = camera_description(reader)
@@ -318,6 +324,7 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
                     f"{readers[0].path} from {camera.model} {camera.serial}: evaluate one camera at a time"
                 )
         evaluation = Evaluation(runs=[str(r.path) for r in readers], camera=camera)
+        hashes = stack.enter_context(BackgroundHashes([r.path for r in readers]))
         cam = readers[0].camera
         evaluation.figures["pixel_aspect_distortion_pct"] = FigureValue(
             pixel_aspect_distortion_pct(cam.fov_deg[0], cam.fov_deg[1], cam.width, cam.height), []
@@ -382,10 +389,8 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
             evaluation.notes.append("the wall data are quantized (" + ", ".join(
                 f"{c} in steps of {q:g} mm" for c, q in sorted(steps.items())) + "): spreads and errors below a "
                 "step are largely rounding (see the flags)")
+        evaluation.conditions = [run_conditions(r, h) for r, h in zip(readers, hashes.results())]
         return evaluation
-    finally:
-        for reader in readers:
-            reader.close()
 
 
 def _noise(evaluation: Evaluation) -> dict[str, float]:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, TypedDict, TypeVar
 
 from labctl.errors import InputError
+from labctl.evaluation.conditions import RunConditions
 from labctl.evaluation.sections import (
     AcceptancePositionRow,
     AcceptanceVerdict,
@@ -253,6 +254,7 @@ class KeyFiguresDocument:
     suitability: Suitability
     schema_version: str = SCHEMA_VERSION
     runs: list[str] | None = optional()
+    conditions: list[RunConditions] | None = optional()
     notes: list[str] | None = optional()
     depth_sweep: list[DepthSweepRow] | None = optional()
     slanted_edge: list[SlantedEdgeRow] | None = optional()

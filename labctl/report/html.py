@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, TypeVar, cast
 
 from labctl.evaluation.capture import capture_table
+from labctl.evaluation.conditions import RunConditions
 from labctl.evaluation.depth_quality import vendor_table
 from labctl.evaluation.evaluate import Evaluation, depth_table, judged_suitability
 from labctl.evaluation.keyfigures import (
@@ -122,6 +123,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
     plots.mkdir(exist_ok=True)
     doc = keyfigures_document(evaluation.camera, evaluation.figures, judged_suitability(evaluation), evaluation.flags)
     doc.runs = evaluation.runs
+    doc.conditions = evaluation.conditions
     doc.notes = evaluation.notes
     doc.depth_sweep = _clean_rows(depth_table(evaluation))
     if evaluation.sharpness is not None:
@@ -401,6 +403,30 @@ def verdict_cell(verdict: str, note: str = "") -> str:
     return f'<td class="l verdict-{html.escape(verdict)}"><b>{html.escape(verdict.replace("_", " "))}</b>{line}</td>'
 
 
+def _conditions_html(conditions: list[RunConditions]) -> str:
+    """What the figures rest on: per run file its SHA-256, the labctl that recorded it, when, its status and
+    exposure times; the devices (camera and reference instruments) with model, serial and firmware."""
+    if not conditions:
+        return ""
+    runs = "".join(
+        f'<tr><td class="l">{html.escape(c["path"])}</td><td class="l"><code>{html.escape(c["sha256"])}</code></td>'
+        f'<td class="l">labctl {html.escape(c["recorded_by"])}, {html.escape(c["created"])}</td>'
+        f'<td class="l">{html.escape(c["status"])}{" (simulated)" if c["simulated"] else ""}</td>'
+        f'<td class="l">{", ".join(f"{e:g}" for e in c["exposures_us"]) or "not stated"}</td></tr>'
+        for c in conditions)
+    seen: dict[tuple[str, ...], None] = {}
+    for c in conditions:
+        for d in c["devices"]:
+            seen[(d["role"], d["model"], d["serial"], d["firmware"], d["backend"])] = None
+    devices = "".join("<tr>" + "".join(f'<td class="l">{html.escape(v)}</td>' for v in key) + "</tr>" for key in seen)
+    return ("<h2>Conditions</h2>"
+            + wrap_table('<table><tr><th class="l">run file</th><th class="l">SHA-256</th><th class="l">recorded by</th>'
+                         f'<th class="l">status</th><th class="l">exposure (&micro;s)</th></tr>{runs}</table>')
+            + wrap_table('<table><tr><th class="l">device</th><th class="l">model</th><th class="l">serial</th>'
+                         f'<th class="l">firmware</th><th class="l">backend</th></tr>{devices}</table>')
+            + '<p class="note">Camera temperature: not recorded (no camera driver of labctl reads one).</p>')
+
+
 def _suitability_html(suit: Suitability) -> str:
     rows = []
     for story in suit.stories.values():
@@ -517,7 +543,7 @@ def _page(evaluation: Evaluation, doc: KeyFiguresDocument, sections: list[str]) 
 <p>Serial {html.escape(str(cam.serial))}, {cam.width}&times;{cam.height} px,
 FOV {cam.fov_deg[0]:g}&times;{cam.fov_deg[1]:g}&deg;. Report by labctl {labctl_version()} on {now_iso()}.</p>
 {_capture_summary_html(cam, doc.capture or []) if capture_only else _summary_html(cam, doc)}
-<ul>{runs}</ul>
+{_conditions_html(evaluation.conditions) or f'<ul>{runs}</ul>'}
 {f'<ul>{notes}</ul>' if notes else ''}
 {''.join(sections) if capture_only else ''}
 <h2>Key figures</h2>

@@ -8,12 +8,16 @@ of every camera (every procedure section) are validated in test_complete_campaig
 from __future__ import annotations
 
 import copy
+import hashlib
 import json
+import threading
 
+import h5py
 import jsonschema
 import pytest
 
 from labctl.cli import main
+from labctl.evaluation.conditions import sha256_of
 from labctl.evaluation.keyfigures import SCHEMA_VERSION, read_keyfigures
 from labctl.evaluation.schema import SCHEMA_FILE, schema_text
 from tests.conftest import campaign_text
@@ -68,3 +72,27 @@ def test_a_file_from_before_the_version_reads_as_version_0(evaluated, tmp_path):
     del document["schema_version"]
     (tmp_path / "keyfigures.json").write_text(json.dumps(document))
     assert read_keyfigures(tmp_path / "keyfigures.json").schema_version == "0"
+
+
+def test_the_conditions_name_the_file_by_its_hash_and_its_devices(evaluated):
+    """The run file's SHA-256 as hashlib computes it over the file's bytes, the labctl that recorded it and the
+    devices the run file records (camera, stage, laser meter), with the report's Conditions section showing it."""
+    document = json.loads(evaluated.read_text())
+    (conditions,) = document["conditions"]
+    run = evaluated.parents[1] / "r.h5"
+    assert conditions["path"] == str(run)
+    assert conditions["sha256"] == hashlib.sha256(run.read_bytes()).hexdigest()
+    with h5py.File(run, "r") as f:
+        assert conditions["recorded_by"] == f.attrs["labctl_version"]
+        recorded = {role: g.attrs["serial"] for role, g in f["devices"].items()}
+    assert {d["role"]: d["serial"] for d in conditions["devices"]} == recorded and {"camera", "laser"} <= set(recorded)
+    assert conditions["status"] == "complete" and conditions["simulated"] is True
+    page = (evaluated.parent / "report.html").read_text()
+    assert "<h2>Conditions</h2>" in page and conditions["sha256"] in page
+
+
+def test_a_hash_stops_when_asked():
+    stop = threading.Event()
+    stop.set()
+    assert sha256_of(SCHEMA_FILE, stop) == ""
+    assert sha256_of(SCHEMA_FILE) == hashlib.sha256(SCHEMA_FILE.read_bytes()).hexdigest()

@@ -1,0 +1,93 @@
+"""The conditions behind an evaluation's figures, as the run files record them: which file (its SHA-256), recorded
+by which labctl, when, with which devices (the camera and the reference instruments: stage, laser meter, robot;
+model, serial, firmware) and which exposure times.
+
+The camera's temperature is not among them: no camera driver of labctl reads one, so the report says so instead
+of leaving it out silently.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import threading
+from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import TypedDict
+
+from labctl.run.store import RunReader
+
+#: the bytes :func:`sha256_of` reads at a time (large reads let hashlib work without the GIL)
+CHUNK_BYTES = 8 * 1024 * 1024
+
+
+class DeviceRecord(TypedDict):
+    """A device as the run file records it."""
+
+    role: str
+    backend: str
+    model: str
+    serial: str
+    firmware: str
+
+
+class RunConditions(TypedDict):
+    """One run file's conditions: its path and SHA-256, the labctl version that recorded it, when it was created,
+    its status, whether it was simulated, its devices and the exposure times (µs) its steps used (empty where no
+    step states one)."""
+
+    path: str
+    sha256: str
+    recorded_by: str
+    created: str
+    status: str
+    simulated: bool
+    devices: list[DeviceRecord]
+    exposures_us: list[float]
+
+
+def sha256_of(path: Path, stop: threading.Event | None = None) -> str:
+    """The SHA-256 (FIPS 180-4) of a file's bytes, in hexadecimal; "" when ``stop`` is set before the end."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(CHUNK_BYTES):
+            if stop is not None and stop.is_set():
+                return ""
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+class BackgroundHashes:
+    """The SHA-256 of files, computed on a thread of its own beside the evaluation (the hash reads the whole file,
+    the evaluation mostly computes). A context manager: leaving it stops a hash still running."""
+
+    def __init__(self, paths: Sequence[Path]) -> None:
+        self._stop = threading.Event()
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sha256")
+        self._futures: list[Future[str]] = [self._pool.submit(sha256_of, Path(p), self._stop) for p in paths]
+
+    def results(self) -> list[str]:
+        """Every file's hash, waiting for those still running."""
+        return [f.result() for f in self._futures]
+
+    def __enter__(self) -> BackgroundHashes:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def run_conditions(reader: RunReader, sha256: str) -> RunConditions:
+    """The conditions ``reader``'s run file records (``sha256``: the file's hash)."""
+    devices: list[DeviceRecord] = [
+        {"role": role, **{key: str(attrs.get(key, "unknown")) for key in ("backend", "model", "serial", "firmware")}}
+        for role, attrs in reader.devices.items()  # type: ignore[misc]  # the four keys above
+    ]
+    exposures = {float(s.attrs["exposure_us"]) for s in reader.steps()
+                 if isinstance(s.attrs.get("exposure_us"), (int, float)) and math.isfinite(s.attrs["exposure_us"])}
+    return {"path": str(reader.path), "sha256": sha256, "recorded_by": str(reader.attrs.get("labctl_version", "unknown")),
+            "created": str(reader.attrs.get("created", "unknown")), "status": str(reader.attrs.get("status", "unknown")),
+            "simulated": bool(reader.attrs.get("simulated", False)), "devices": devices,
+            "exposures_us": sorted(exposures)}
