@@ -12,6 +12,7 @@ camera hiding bad pixels does not look better.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -150,6 +151,54 @@ class DepthErrorUncertainties:
 REFERENCE_STEP_MM = 0.1
 
 
+def _moments_without(stack: np.ndarray, stats: StackStats) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Per-pixel mean and sample std, over the pixels valid in the stack, of the frames where a boolean mask over
+    the frames is true (the jackknife's replicates: one matrix product each, no copy of the stack)."""
+    valid = stats.valid
+    mean = stats.mean[valid]
+    deviation = (stack[:, valid] - mean).astype(np.float32)
+    seen = np.isfinite(deviation).astype(np.float32)
+    deviation = np.nan_to_num(deviation, nan=0.0)
+    squared = deviation * deviation
+
+    def moments(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = kept.astype(np.float32)
+        c, s, ss = w @ seen, w @ deviation, w @ squared
+        with np.errstate(divide="ignore", invalid="ignore"):
+            shift = s / c
+            var = (ss - s * shift) / (c - 1)
+        ok = c >= 2
+        return np.where(ok, mean + shift, np.nan), np.where(ok, np.sqrt(np.maximum(var, 0.0)), np.nan)
+
+    return moments
+
+
+def precision_q90_uncertainty(stack: np.ndarray, stats: StackStats) -> float:
+    """Type A standard uncertainty of the Q90 of the per-pixel standard deviation of the (N, H, W) ``stack``
+    (statistics ``stats``) over its valid pixels: the jackknife over the frames (Efron & Tibshirani 1993,
+    eq. 11.5), as for depth precision in :func:`depth_error_uncertainties`; NaN with fewer than two frames.
+
+    The jackknife of a quantile over pixels is conservative where the pixels' noise is independent and alike:
+    each frame left out moves some pixels across the quantile, which adds to the replicates' spread.
+
+    Examples
+    --------
+    Gaussian noise of sigma 1 on 2000 pixels over 20 frames: the Q90 of the per-pixel std (1.2) scatters by
+    0.0062 between repetitions (a sample quantile's sqrt(q (1 - q) / P) / f(Q), f = 1.08 the density of the
+    std of 20 frames at its 90 % point); the jackknife states about twice that.
+
+    >>> from metrics.stack import stack_stats
+    >>> stack = np.random.default_rng(5).normal(size=(20, 40, 50))
+    >>> round(precision_q90_uncertainty(stack, stack_stats(stack)), 3)
+    0.012
+    """
+    n = stack.shape[0]
+    if n < 2:
+        return float("nan")
+    moments = _moments_without(stack, stats)
+    return jackknife_standard_errors(lambda kept: (quantile_abs(moments(kept)[1], 0.9),), n)[0]
+
+
 def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm: float) -> DepthErrorUncertainties:
     """Type A uncertainties of the Q90 figures of :func:`depth_errors` of the (N, H, W) ``stack`` whose
     statistics are ``stats``.
@@ -176,20 +225,7 @@ def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm
     valid = stats.valid
     n = stack.shape[0]
     mean = stats.mean[valid]
-    deviation = (stack[:, valid] - mean).astype(np.float32)
-    seen = np.isfinite(deviation).astype(np.float32)
-    deviation = np.nan_to_num(deviation, nan=0.0)
-    squared = deviation * deviation
-
-    def moments(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per-pixel mean and sample std of the frames where ``kept`` is true."""
-        w = kept.astype(np.float32)
-        c, s, ss = w @ seen, w @ deviation, w @ squared
-        with np.errstate(divide="ignore", invalid="ignore"):
-            shift = s / c
-            var = (ss - s * shift) / (c - 1)
-        ok = c >= 2
-        return np.where(ok, mean + shift, np.nan), np.where(ok, np.sqrt(np.maximum(var, 0.0)), np.nan)
+    moments = _moments_without(stack, stats)
 
     def q90s(kept: np.ndarray) -> tuple[float, float]:
         """Trueness and precision Q90 of the frames where ``kept`` is true."""

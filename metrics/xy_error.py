@@ -29,13 +29,15 @@ noise sigma_z adds about sigma_z |x| / z to the std of x.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from metrics.depth import center_pixel, median_q90_abs
 from metrics.distortion import Corners, sample_cloud
-from metrics.stack import stack_stats
+from metrics.stack import StackStats, stack_stats
+from metrics.uncertainty import standard_error_of_std
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,10 @@ class XYPrecision:
     precision_q90_x_mm: float
     precision_q90_y_mm: float
     invalid_fraction: float
+    #: Type A standard uncertainties (x, y) of the repeatabilities: s / sqrt(2 (n - 1)) of a pixel's sample std
+    #: over its n valid frames (GUM E.4.3)
+    repeatability_center_u_mm: tuple[float, float] = (float("nan"), float("nan"))
+    repeatability_off_axis_u_mm: tuple[float, float] = (float("nan"), float("nan"))
 
 
 def _summary(errors: np.ndarray) -> tuple[float, float]:
@@ -157,6 +163,8 @@ def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray) -> XYPrecision:
     >>> p = xy_precision(x + k, y + 2.0 * k)
     >>> p.precision_median_x_mm, p.precision_median_y_mm, p.repeatability_center_x_mm, p.invalid_fraction
     (1.0, 2.0, 1.0, 0.0)
+    >>> [round(u, 3) for u in p.repeatability_center_u_mm]  # s / sqrt(2 (3 - 1)): 1 / 2 and 2 / 2
+    [0.5, 1.0]
     """
     sx, sy = stack_stats(np.asarray(x_stack)), stack_stats(np.asarray(y_stack))
     centre = center_pixel(sx.std.shape)
@@ -164,6 +172,9 @@ def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray) -> XYPrecision:
     mx, qx = median_q90_abs(sx.std)
     my, qy = median_q90_abs(sy.std)
     invalid = float(np.mean(~(sx.valid & sy.valid)))
+    def u(stats: StackStats, pixel: tuple[int, int]) -> float:
+        return standard_error_of_std(float(stats.std[pixel]), int(stats.count[pixel])) if stats.valid[pixel] else math.nan
+
     return XYPrecision(float(sx.std[centre]), float(sy.std[centre]), float(sx.std[at_x]), float(sy.std[at_y]),
                        (float(sx.mean[centre]), float(sy.mean[centre])), (float(sx.mean[at_x]), float(sy.mean[at_y])),
-                       mx, my, qx, qy, invalid)
+                       mx, my, qx, qy, invalid, (u(sx, centre), u(sy, centre)), (u(sx, at_x), u(sy, at_y)))
