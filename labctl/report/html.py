@@ -36,6 +36,7 @@ from labctl.evaluation.sharpness import resolution_table
 from labctl.evaluation.suitability import Suitability
 from labctl.evaluation.vdi2634 import acceptance_table, verdicts
 from labctl.jsondoc import write_json
+from labctl.report.curves import write_curves
 from labctl.report.plots.acceptance import plot_acceptance
 from labctl.report.plots.boehler import plot_boehler
 from labctl.report.plots.capture import plot_capture
@@ -117,7 +118,8 @@ def _sources(source: str) -> str:
 
 
 def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
-    """Write keyfigures.json, the plots and report.html into ``outdir``."""
+    """Write keyfigures.json, the curves as NeXus (curves.h5, where the runs have wall steps), the plots and
+    report.html into ``outdir``."""
     outdir.mkdir(parents=True, exist_ok=True)
     plots = outdir / "plots"
     plots.mkdir(exist_ok=True)
@@ -164,6 +166,7 @@ def write_outputs(evaluation: Evaluation, outdir: Path) -> tuple[Path, Path]:
         sections.append(_section("Face mask (Thesis 2024, 6.7)", img, outdir, link))
         doc.face_mask = {"step": face.step_id, "pcd": pcd.name, "invalid_fraction": face.invalid_fraction}
     json_path = write_json(outdir / "keyfigures.json", doc, final_newline=True)
+    write_curves(evaluation, outdir / "curves.h5")
     report = outdir / "report.html"
     report.write_text(_page(evaluation, doc, sections))
     return json_path, report
