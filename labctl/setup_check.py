@@ -9,7 +9,8 @@ check names it; a known Debian package is installed with apt-get when running as
 (``--install``), otherwise the exact command is printed and the exit status is 1.
 
 Optional test tools (``TEST_TOOLS``) are installed the same way when missing (as root, ``--install``);
-without root the check names the command and still succeeds: the tests that use them run without them.
+without root the check names the command and still succeeds: the tests that use them run without them or
+say why they cannot.
 
 Usage: ``python -m labctl.setup_check [--install] [--system-only]``
 (``--system-only``: do not fall back to the wheel's libusb, check the system's libraries).
@@ -37,9 +38,10 @@ MODULES = (
 """Modules with native code that labctl or its tests import (pmd's roypy is optional: not on PyPI)."""
 DEBIAN_PACKAGES = {SONAME: DEBIAN_PACKAGE}
 """Shared libraries the check knows the Debian/Ubuntu package of."""
-TEST_TOOLS = {"strace": "strace"}
-"""Optional programs the tests use when present, with their Debian/Ubuntu package: strace lets
-tests/labctl/run/test_crash_points.py kill a run at a chosen write (without it, at random times only)."""
+TEST_TOOLS = {"strace": "strace", "chromium": "chromium"}
+"""Programs the tests use, with their Debian/Ubuntu package: strace lets tests/labctl/run/test_crash_points.py
+kill a run at a chosen write (without it, at random times only); Chromium prints the report to report.pdf
+(``labctl evaluate``; tests/labctl/report/test_report_layout.py checks the PDF)."""
 _MISSING_LIBRARY = re.compile(r"([\w.+-]+\.so(?:\.[\w.]+)?): cannot open shared object file")
 
 

@@ -204,10 +204,13 @@ def resume(
 @click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", required=True, type=OutputDirectory(), help="output directory")
 @click.option("--quiet", is_flag=True, help="no progress output")
-def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
-    """Compute every metric RUNS allow: OUTPUT/keyfigures.json and OUTPUT/report.html."""
+@click.option("--pdf/--no-pdf", default=True, show_default=True,
+              help="also print the report to OUTPUT/report.pdf (A4, headless Chromium)")
+def evaluate(runs: Sequence[Path], output: Path, quiet: bool, pdf: bool) -> None:
+    """Compute every metric RUNS allow: OUTPUT/keyfigures.json, OUTPUT/report.html and OUTPUT/report.pdf."""
     from labctl.evaluation.evaluate import count_complete_steps, evaluate_runs
     from labctl.report.html import write_outputs
+    from labctl.report.pdf import print_pdf
 
     runs = distinct(runs, "run file")
     steps = count_complete_steps(runs)
@@ -216,8 +219,14 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool) -> None:
         with EvaluationProgress(steps, quiet=quiet) as progress:
             evaluation = evaluate_runs(runs, progress=progress)
         json_path, report = write_outputs(evaluation, output)
+        why_not = print_pdf(report, output / "report.pdf") if pdf else None
     reporter.message(f"key figures: {json_path}")
     click.echo(f"report: {report}")
+    if pdf:
+        if why_not is None:
+            click.echo(f"report: {output / 'report.pdf'}")
+        else:
+            warn(f"report.pdf not written: {why_not}; the HTML report is complete")
 
 
 @cli.command()

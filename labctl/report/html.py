@@ -68,6 +68,7 @@ img{max-width:100%;height:auto;border:1px solid #eee}td.src{font-size:.85em;colo
 .verdict-not_evaluated{color:#9a6700;background:#fff8c5}.verdict-marginal{color:#953800;background:#fff1e5}.verdict-no_numeric_requirement{color:#57606a}
 .summary{border:1px solid #ccc;border-radius:6px;padding:.2em 1em 1em;background:#fafafa}
 .summary h2{margin-top:.6em}
+@page{size:A4;margin:14mm 12mm}
 @media print{body{max-width:none;margin:0;padding:0;font-size:9pt}.tablewrap{overflow:visible}
 table{font-size:7.5pt;width:100%}td,th{padding:.15em .3em;overflow-wrap:break-word}
 img{break-inside:avoid}h2,h3{break-after:avoid}tr{break-inside:avoid}}

@@ -109,7 +109,7 @@ def test_an_unforeseen_os_error_names_the_file(capsys, tmp_path: Path, blank_mas
         raise PermissionError(13, "Permission denied", str(outdir / "keyfigures.json"))
 
     monkeypatch.setattr(report, "write_outputs", refuse)
-    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", tmp_path / "out", "--quiet")
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", tmp_path / "out", "--quiet", "--no-pdf")
     assert code == 1 and err.strip() == f"labctl: error: {tmp_path / 'out' / 'keyfigures.json'}: Permission denied"
 
 
@@ -148,7 +148,7 @@ def test_resume_of_a_simulated_run_without_its_model(capsys, tmp_path: Path) -> 
 def test_evaluate_writes_what_it_can_when_the_face_mask_has_no_valid_point(
     capsys, tmp_path: Path, blank_mask_run: Path
 ) -> None:
-    code, _, _ = labctl(capsys, "evaluate", blank_mask_run, "-o", tmp_path / "out", "--quiet")
+    code, _, _ = labctl(capsys, "evaluate", blank_mask_run, "-o", tmp_path / "out", "--quiet", "--no-pdf")
     assert code == 0
     doc = json.loads((tmp_path / "out" / "keyfigures.json").read_text())
     assert "face mask 00002_face_mask has no valid point: no point cloud or rendering" in doc["notes"]
@@ -277,7 +277,7 @@ def test_outputs_where_no_file_can_be_created_say_so(capsys, tmp_path: Path, bla
     code, _, err = labctl(capsys, "export", blank_mask_run, "--step", "00001_depth_sweep", "--format", "ply",
                           "-o", "/proc/a.ply")
     assert code == 2 and "-o /proc/a.ply: no file can be created in /proc" in err
-    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", "/proc/evaluation", "--quiet")
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", "/proc/evaluation", "--quiet", "--no-pdf")
     assert code == 2 and "cannot create the directory /proc/evaluation for -o" in err and "(/proc accepts no new" in err
 
 
@@ -311,7 +311,7 @@ def test_export_format_and_file_extension_must_agree(capsys, tmp_path: Path, bla
 def test_evaluate_counts_a_run_given_twice_once(capsys, tmp_path: Path, blank_mask_run: Path, monkeypatch) -> None:
     monkeypatch.chdir(blank_mask_run.parent)
     code, _, err = labctl(capsys, "evaluate", blank_mask_run.name, f"./{blank_mask_run.name}", blank_mask_run,
-                          "-o", tmp_path / "out", "--quiet")
+                          "-o", tmp_path / "out", "--quiet", "--no-pdf")
     assert code == 0
     assert err.count(f"warning: run file {blank_mask_run.name} given twice") == 2
     assert f"(also as {blank_mask_run}): used once" in err
@@ -325,7 +325,7 @@ def evaluation(tmp_path_factory: pytest.TempPathFactory, blank_mask_run: Path) -
     """``labctl evaluate`` of the face-mask run: no slanted edge, so no inter-eye distance to chart."""
     out = tmp_path_factory.mktemp("evaluation") / "ev"
     with pytest.raises(SystemExit) as done:
-        main(["evaluate", str(blank_mask_run), "-o", str(out), "--quiet"])
+        main(["evaluate", str(blank_mask_run), "-o", str(out), "--quiet", "--no-pdf"])
     assert done.value.code == 0
     return out
 
@@ -455,11 +455,11 @@ def test_a_failed_evaluate_removes_the_output_folder_it_made(capsys, tmp_path: P
     other = tmp_path / "flexx2.h5"
     assert labctl(capsys, "run", tmp_path / "flexx2.toml", "--sim", "--model", tmp_path / "model.toml", "-o", other,
                   "--quiet")[0] == 0
-    code, _, err = labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "new" / "out", "--quiet")
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "new" / "out", "--quiet", "--no-pdf")
     assert code == 2 and "evaluate one camera at a time" in err
     assert not (tmp_path / "new").exists()
     (tmp_path / "kept").mkdir()
-    assert labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "kept", "--quiet")[0] == 2
+    assert labctl(capsys, "evaluate", blank_mask_run, other, "-o", tmp_path / "kept", "--quiet", "--no-pdf")[0] == 2
     assert (tmp_path / "kept").is_dir()
 
 
@@ -494,7 +494,7 @@ def test_outputs_on_a_read_only_disk_say_so(capsys, tmp_path: Path, read_only_di
     campaign.write_text(campaign_text())
     code, _, err = labctl(capsys, "run", campaign, "--sim", "-o", read_only_disk / "run.h5")
     assert code == 2 and f"-o {read_only_disk / 'run.h5'}: no file can be created in {read_only_disk} (Read-only" in err
-    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", read_only_disk / "ev", "--quiet")
+    code, _, err = labctl(capsys, "evaluate", blank_mask_run, "-o", read_only_disk / "ev", "--quiet", "--no-pdf")
     assert code == 2
     assert f"cannot create the directory {read_only_disk / 'ev'} for -o: Read-only file system ({read_only_disk} " \
            "accepts no new entries)" in err

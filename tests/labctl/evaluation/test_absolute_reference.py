@@ -127,7 +127,7 @@ def test_without_the_depth_origin_z_accuracy_is_null_with_the_reason(run, tmp_pa
     with RunReader(path) as reader:
         assert all(math.isnan(s.attrs["absolute_reference_mm"]) and math.isnan(s.attrs["depth_origin_offset_mm"])
                    for s in reader.steps())
-    assert invoke("evaluate", path, "-o", tmp_path / "out", "--quiet") == 0
+    assert invoke("evaluate", path, "-o", tmp_path / "out", "--quiet", "--no-pdf") == 0
     doc = json.loads((tmp_path / "out" / "keyfigures.json").read_text())
     for d in (1000, 2000):
         figure = doc["figures"][f"z_accuracy_{d}mm_pct"]
@@ -162,7 +162,7 @@ def test_the_reason_names_what_is_missing():
 
 def test_signed_figures_are_better_closer_to_zero_everywhere(run, tmp_path):
     out = tmp_path / "out"
-    assert invoke("evaluate", run(), "-o", out, "--quiet") == 0
+    assert invoke("evaluate", run(), "-o", out, "--quiet", "--no-pdf") == 0
     figures = json.loads((out / "keyfigures.json").read_text())["figures"]
     signed = {"z_accuracy_1000mm_pct", "z_accuracy_2000mm_pct", "probing_error_size_mm", "sphere_spacing_error_mm",
               "pixel_aspect_distortion_pct", "radial_distortion_intensity_w_pct", "radial_distortion_intensity_h_pct",

@@ -53,7 +53,7 @@ def evaluated(tmp_path_factory):
     model.write_text(SMALL_MODEL.format(camera="blaze101", width=320, height=240))
     run = directory / "run.h5"
     assert invoke("run", campaign, "--sim", "--model", model, "-o", run, "--quiet") == 0
-    assert invoke("evaluate", run, "-o", directory / "out", "--quiet") == 0
+    assert invoke("evaluate", run, "-o", directory / "out", "--quiet", "--no-pdf") == 0
     return directory / "out"
 
 

@@ -21,7 +21,7 @@ def test_capture_of_a_realsense_recording_is_summarized_not_a_page_of_na(labctl_
     code, _, err = labctl_main("device", "camera", "--backend", "realsense", "--playback", BAG, "--frames", "2",
                                "-o", run)
     assert code == 0, err
-    code, _, err = labctl_main("evaluate", run, "-o", tmp_path / "out", "--quiet")
+    code, _, err = labctl_main("evaluate", run, "-o", tmp_path / "out", "--quiet", "--no-pdf")
     assert code == 0, err
     doc = json.loads((tmp_path / "out" / "keyfigures.json").read_text())
     [row] = doc["capture"]
@@ -52,7 +52,7 @@ def test_capture_of_a_simulated_wall_finds_the_plane(labctl_main, tmp_path):
     truth = lab.camera.world.camera_distance_mm()
     run = tmp_path / "wall.h5"
     _capture_file(lab.camera, run, 6, None, {}, "[campaign]\nname = \"capture\"\n")
-    code, _, err = labctl_main("evaluate", run, "-o", tmp_path / "out", "--quiet")
+    code, _, err = labctl_main("evaluate", run, "-o", tmp_path / "out", "--quiet", "--no-pdf")
     assert code == 0, err
     [row] = json.loads((tmp_path / "out" / "keyfigures.json").read_text())["capture"]
     assert row["planar"] is True and row["plane_inlier_fraction"] > 0.95

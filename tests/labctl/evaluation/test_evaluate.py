@@ -55,7 +55,7 @@ def test_every_contract_figure_is_defined():
 
 def test_depth_run_gives_depth_figures_and_nulls_elsewhere(sim_run, tmp_path):
     run = sim_run()
-    assert invoke("evaluate", run, "-o", tmp_path / "out", "--quiet") == 0
+    assert invoke("evaluate", run, "-o", tmp_path / "out", "--quiet", "--no-pdf") == 0
     doc = json.loads((tmp_path / "out" / "keyfigures.json").read_text())
     figures = doc["figures"]
     assert CONTRACT_NAMES <= set(figures)

@@ -39,7 +39,7 @@ def evaluated(tmp_path_factory):
     campaign = tmp / "c.toml"
     campaign.write_text(campaign_text(camera="depth_origin_offset_mm = 42.0"))
     for command in (["run", str(campaign), "--sim", "-o", str(tmp / "r.h5"), "--quiet"],
-                    ["evaluate", str(tmp / "r.h5"), "-o", str(tmp / "out"), "--quiet"]):
+                    ["evaluate", str(tmp / "r.h5"), "-o", str(tmp / "out"), "--quiet", "--no-pdf"]):
         with pytest.raises(SystemExit) as info:
             main(command)
         assert info.value.code == 0

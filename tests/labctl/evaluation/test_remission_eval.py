@@ -253,7 +253,7 @@ def test_evaluate_writes_figures_tables_and_plots(small_run, tmp_path):
     keyfigures.json holds the per-step table and the misalignment fit, the report both plots."""
     out = tmp_path / "out"
     with pytest.raises(SystemExit) as info:
-        main(["evaluate", str(small_run), "-o", str(out)])
+        main(["evaluate", str(small_run), "-o", str(out), "--no-pdf"])
     assert info.value.code == 0
     doc = json.loads((out / "keyfigures.json").read_text())
     expected = evaluate(small_run)

@@ -90,7 +90,7 @@ def test_evaluate_writes_sharpness_report(tmp_path, write_campaign, small_model)
     campaign = write_campaign(procedures=slanted(EXPOSURES["blaze101"], start=200, stop=1200, step=200, frames=4))
     out = tmp_path / "r.h5"
     assert invoke("run", campaign, "--sim", "--model", small_model(width=160, height=120), "-o", out, "--quiet") == 0
-    assert invoke("evaluate", out, "-o", tmp_path / "ev", "--quiet") == 0
+    assert invoke("evaluate", out, "-o", tmp_path / "ev", "--quiet", "--no-pdf") == 0
     doc = json.loads((tmp_path / "ev" / "keyfigures.json").read_text())
     assert len(doc["slanted_edge"]) == 6
     assert {"sfr10_h", "sfr50_v", "sfr_area_h", "resolution_v_mm", "valid_h"} <= set(doc["slanted_edge"][0])

@@ -18,12 +18,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from pypdf import PdfReader
 
 from labctl.cli import main
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME, better_direction
 from labctl.evaluation.scenes import face_mask
 from labctl.report.compare import IED_TITLE, _chart_floor, ied_figure, story_name
 from labctl.report.html import SUMMARY_FIGURES, depth_quantization_html, resolution_rows
+from labctl.report.pdf import find_browser
 from labctl.report.plots.figures import face_mask_title, percent_axis_limits, sharpness_figure
 from labctl.report.plots.remission import misalignment_label
 from labctl.run.store import RunReader
@@ -384,3 +386,29 @@ def test_key_figures_with_an_uncertainty_show_value_plus_minus_U(report):
         cell = rows[name.replace("_", "_<wbr>")].split("</td>")[1]
         assert ("&plusmn;" in cell) == (figure["expanded_uncertainty"] is not None), name
     assert sum(f["expanded_uncertainty"] is not None for f in doc["figures"].values()) >= 4
+
+
+def test_the_report_prints_to_an_a4_pdf_with_its_text(report):
+    """report.pdf beside report.html (headless Chromium): A4 pages (210 x 297 mm = 595 x 842 pt), more than one,
+    whose text extracts (pypdf) and holds the camera, the key figures' names and the conditions."""
+    if find_browser() is None:
+        pytest.skip("no Chromium on PATH: make's set-up installs it as root (apt-get install chromium)")
+    _, doc, run = report
+    pdf = PdfReader(run.parent / "out" / "report.pdf")
+    assert len(pdf.pages) > 1
+    box = pdf.pages[0].mediabox
+    assert float(box.width) == pytest.approx(595.3, abs=1.0) and float(box.height) == pytest.approx(841.9, abs=1.0)
+    text = " ".join(page.extract_text() for page in pdf.pages)
+    flat = text.replace("\n", "").replace(" ", "")
+    assert doc["camera"]["model"].replace(" ", "") in flat and "Conditions" in text
+    for name in ("z_trueness_q90_mm", "z_precision_q90_mm", "ied_pixels_at_hyperfocal"):
+        assert name in flat, name
+
+
+def test_without_chromium_the_evaluation_says_why_there_is_no_pdf(report, tmp_path, monkeypatch, capsys):
+    *_, run = report
+    monkeypatch.setenv("PATH", str(tmp_path))  # no browser on it
+    assert invoke("evaluate", run, "-o", tmp_path / "out", "--quiet") == 0
+    err = capsys.readouterr().err
+    assert "report.pdf not written: no Chromium on PATH (Debian: apt-get install chromium)" in err
+    assert (tmp_path / "out" / "report.html").is_file() and not (tmp_path / "out" / "report.pdf").exists()

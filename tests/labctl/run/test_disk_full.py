@@ -57,7 +57,7 @@ def sweep(tmp_path_factory):
 
 
 def figures(run, out) -> dict:
-    result = run_labctl("evaluate", run, "-o", out)
+    result = run_labctl("evaluate", run, "-o", out, "--no-pdf")
     assert result.returncode == 0, result.stderr
     doc = json.loads((out / "keyfigures.json").read_text())
     return {name: f["value"] for name, f in doc["figures"].items()}

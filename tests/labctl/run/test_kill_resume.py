@@ -67,7 +67,7 @@ def test_kill_9_then_resume_gives_identical_key_figures(tmp_path, write_campaign
     assert ids == [f"{i:05d}_{'offset_calibration' if i == 0 else 'depth_sweep'}" for i in range(10)]
 
     for run, out in ((killed, tmp_path / "k"), (reference, tmp_path / "r")):
-        result = run_labctl("evaluate", run, "-o", out)
+        result = run_labctl("evaluate", run, "-o", out, "--no-pdf")
         assert result.returncode == 0, result.stderr
     assert figures(tmp_path / "k") == figures(tmp_path / "r")
     assert figures(tmp_path / "k")["z_precision_q90_mm"] is not None

@@ -206,7 +206,7 @@ def test_few_percent_faults_give_identical_key_figures(tmp_path, write_campaign,
     faulty = write_campaign("faulty.toml", procedures=long_sweep, faults=f"[sim.faults]\n{rates}\n")
     for campaign, name in ((clean, "clean"), (faulty, "faulty")):
         assert invoke("run", campaign, "--sim", "--model", model, "-o", tmp_path / f"{name}.h5", "--quiet") == 0
-        assert invoke("evaluate", tmp_path / f"{name}.h5", "-o", tmp_path / name, "--quiet") == 0
+        assert invoke("evaluate", tmp_path / f"{name}.h5", "-o", tmp_path / name, "--quiet", "--no-pdf") == 0
     docs = {name: json.loads((tmp_path / name / "keyfigures.json").read_text()) for name in ("clean", "faulty")}
     assert docs["clean"]["figures"] == docs["faulty"]["figures"]
     assert docs["clean"]["figures"]["z_precision_q90_mm"]["value"] is not None
