@@ -1,5 +1,5 @@
 """Evaluation budget: a full 0-4 m depth sweep (37 positions, 640 x 480 x 100 frames)
-evaluates within 2x the time it takes just to read those arrays (docs/benchmarks.md).
+evaluates within 1.2x the time it takes just to read those arrays (docs/benchmarks.md).
 
 The run file holds synthetic wall stacks (x, y and z written: depth figures
 read z, surface texture x, y, z at 2000 mm, x/y repeatability and precision
@@ -22,6 +22,8 @@ from labctl.run.store import RunWriter
 from procedures.steps import Step
 
 WIDTH, HEIGHT, FRAMES = 640, 480, 100
+#: evaluation time / reading time: every figure, the vendor figures included, within 1.2x of reading the arrays
+BUDGET = 1.2
 DISTANCES = [400 + 100 * i for i in range(37)]
 
 
@@ -76,6 +78,6 @@ def run() -> Result:
         measured=f"evaluate {evaluate_s:.1f} s",
         floor=f"reading the same arrays {read_s:.1f} s",
         ratio=ratio,
-        budget="<= 2.0",
-        ok=ratio <= 2.0,
+        budget=f"<= {BUDGET}",
+        ok=ratio <= BUDGET,
     )
