@@ -153,17 +153,25 @@ REFERENCE_STEP_MM = 0.1
 
 def _moments_without(stack: np.ndarray, stats: StackStats) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """Per-pixel mean and sample std, over the pixels valid in the stack, of the frames where a boolean mask over
-    the frames is true (the jackknife's replicates: one matrix product each, no copy of the stack)."""
+    the frames is true (the jackknife's replicates). With one frame left out, the replicate is the stack's sums
+    less that frame's values (no pass over the stack); any other mask takes one matrix product."""
     valid = stats.valid
     mean = stats.mean[valid]
     deviation = (stack[:, valid] - mean).astype(np.float32)
     seen = np.isfinite(deviation).astype(np.float32)
     deviation = np.nan_to_num(deviation, nan=0.0)
     squared = deviation * deviation
+    totals = (seen.sum(axis=0, dtype=np.float64), deviation.sum(axis=0, dtype=np.float64),
+              squared.sum(axis=0, dtype=np.float64))
 
     def moments(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        w = kept.astype(np.float32)
-        c, s, ss = w @ seen, w @ deviation, w @ squared
+        left_out = np.flatnonzero(~kept)
+        if left_out.size == 1:
+            i = int(left_out[0])
+            c, s, ss = totals[0] - seen[i], totals[1] - deviation[i], totals[2] - squared[i]
+        else:
+            w = kept.astype(np.float32)
+            c, s, ss = w @ seen, w @ deviation, w @ squared
         with np.errstate(divide="ignore", invalid="ignore"):
             shift = s / c
             var = (ss - s * shift) / (c - 1)

@@ -28,6 +28,27 @@ MIN_QUANTIZATION_MM = 0.01
 NEAR_AXIS_RATIO = 0.01
 
 
+#: elements per block when :func:`_finite_sample` locates finite values (a block's positions are cheap to list)
+BLOCK = 1 << 16
+
+
+def _finite_sample(finite: np.ndarray, sample: int) -> np.ndarray:
+    """Positions of ``sample`` finite values evenly spread over the finite ones (all of them if fewer): the k-th
+    finite value for k = linspace(0, count - 1, sample), located block by block, so that a whole stack's
+    positions are never listed."""
+    pad = -finite.size % BLOCK
+    per_block = np.concatenate([finite, np.zeros(pad, bool)]).reshape(-1, BLOCK).sum(axis=1)
+    before = np.concatenate([[0], np.cumsum(per_block)])
+    total = int(before[-1])
+    wanted = np.linspace(0, total - 1, sample).astype(int) if total > sample else np.arange(total)
+    block = np.searchsorted(before, wanted, side="right") - 1
+    where = np.empty(wanted.size, dtype=np.int64)
+    for b in np.unique(block):
+        chosen = block == b
+        where[chosen] = b * BLOCK + np.flatnonzero(finite[b * BLOCK:(b + 1) * BLOCK])[wanted[chosen] - before[b]]
+    return where
+
+
 def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
     """The common step of the finite ``values`` (e.g. 1.0 for integer-millimetre output), NaN if continuous.
 
@@ -42,11 +63,8 @@ def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
     >>> quantization_step(np.array([1.0, 1.5, 2.2]))  # 2.2 is no whole number of 0.5 steps from 1.0
     nan
     """
-    finite = np.asarray(values, dtype=float)
-    finite = finite[np.isfinite(finite)]
-    if finite.size > sample:
-        finite = finite[np.linspace(0, finite.size - 1, sample).astype(int)]
-    distinct = np.unique(finite)
+    flat = np.asarray(values).reshape(-1)
+    distinct = np.unique(flat[_finite_sample(np.isfinite(flat), sample)].astype(float))
     if distinct.size < 2:
         return math.nan
     step = float(np.min(np.diff(distinct)))
