@@ -3,8 +3,10 @@
 Default ``blosc-lz4``: the Blosc filter (HDF5 registered filter 32001) with LZ4 at level 5
 after byte shuffle (each value's bytes grouped, so the slowly varying exponent and high
 mantissa bytes of float depth sit together). On the blaze-101 demo run it stores 1.72x less
-than raw (bench/recording.py; gzip + shuffle stores 1.9x less but writes 7 frames/s; zstd
-1.7-1.8x at under 60 frames/s; Blosc2 and bit shuffle were slower at the same ratio).
+than raw, and the store writes it about as fast as plain writes of the raw bytes
+(bench/recording.py, docs/benchmarks.md; gzip + shuffle stores 1.9x less but writes 7
+frames/s; zstd 1.7-1.8x at under 60 frames/s; Blosc2 and bit shuffle were slower at the
+same ratio).
 Importing ``hdf5plugin`` registers the filter with h5py, for writing and reading; elsewhere
 the file reads with any HDF5 that has the Blosc plugin (``HDF5_PLUGIN_PATH``, docs/runfile.md).
 
