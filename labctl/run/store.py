@@ -205,7 +205,7 @@ class StepWriter:
         """The (N, H, W) stack of ``channel`` as written so far (every frame given to :meth:`write` included)."""
         with self.run.guarded(f"the frames of step {self.step.step_id}"):
             self._write_queued()
-            return self.group[channel][()]
+        return self.group[channel][()]
 
     def _write_queued(self) -> None:
         if self._chunks is not None:
