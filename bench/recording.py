@@ -8,15 +8,21 @@ the run store (one step, commit with fsync) with the default compression and
 with none, and compares the compressed frame rate with twice the camera's. It
 reports the compression ratio (raw bytes / file size). The floor is the same
 raw bytes written with plain ``os.write`` and one fsync, measured in the same
-run: it shows how close the store comes to what the disk allows.
+run: it shows how close the store comes to what the disk allows, and is a
+budget of its own: compression runs beside the writes, so the compressed store
+keeps up with writing the raw bytes (a second result line, ratio >= 1.0). The
+three ways are timed in turn, three rounds, the best of each: a change in the
+machine's load meets all three alike.
 """
 
 from __future__ import annotations
 
+import math
 import os
+import time
 from pathlib import Path
 
-from bench.common import Result, best_of, scratch_dir
+from bench.common import Result, scratch_dir
 from bench.sim_capture import CAMPAIGN
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.run.compression import DEFAULT
@@ -81,24 +87,43 @@ def _raw(directory: Path, frames: list[Frame], tag: int) -> None:
     os.remove(path)
 
 
-def run() -> Result:
+def run() -> list[Result]:
     frames, camera = _frames()
     sizes: list[int] = []
     with scratch_dir() as tmp:
         directory = Path(tmp)
         counter = iter(range(1000))
-        compressed_s = best_of(3, lambda: sizes.append(_store(directory, frames, camera, DEFAULT, next(counter))))
-        plain_s = best_of(3, lambda: _store(directory, frames, camera, "none", next(counter)))
-        raw_s = best_of(3, lambda: _raw(directory, frames, next(counter)))
+        ways = {
+            "compressed": lambda: sizes.append(_store(directory, frames, camera, DEFAULT, next(counter))),
+            "plain": lambda: _store(directory, frames, camera, "none", next(counter)),
+            "raw": lambda: _raw(directory, frames, next(counter)),
+        }
+        seconds = {name: math.inf for name in ways}
+        for _ in range(3):
+            for name, action in ways.items():
+                start = time.perf_counter()
+                action()
+                seconds[name] = min(seconds[name], time.perf_counter() - start)
+    compressed_s, plain_s, raw_s = seconds["compressed"], seconds["plain"], seconds["raw"]
     fps = FRAMES / compressed_s
     raw_bytes = FRAMES * _frame_bytes(frames[0])
     required = 2 * FPS
-    return Result(
-        name=f"recording (simulated blaze-101 640x480 x/y/z/intensity/confidence, {DEFAULT})",
-        measured=f"{fps:.0f} frames/s = {fps / FPS:.1f}x the AM-T100's 60 fps, compression ratio "
-                 f"{raw_bytes / min(sizes):.2f} (raw / file); uncompressed store {FRAMES / plain_s:.0f} frames/s",
-        floor=f"raw os.write {FRAMES / raw_s:.0f} frames/s (compressed store at {raw_s / compressed_s:.2f} of it)",
-        ratio=fps / required,
-        budget=">= 1.0 x (2 x 60 fps)",
-        ok=fps >= required,
-    )
+    return [
+        Result(
+            name=f"recording (simulated blaze-101 640x480 x/y/z/intensity/confidence, {DEFAULT})",
+            measured=f"{fps:.0f} frames/s = {fps / FPS:.1f}x the AM-T100's 60 fps, compression ratio "
+                     f"{raw_bytes / min(sizes):.2f} (raw / file); uncompressed store {FRAMES / plain_s:.0f} frames/s",
+            floor=f"raw os.write {FRAMES / raw_s:.0f} frames/s",
+            ratio=fps / required,
+            budget=">= 1.0 x (2 x 60 fps)",
+            ok=fps >= required,
+        ),
+        Result(
+            name="recording, compressed vs raw floor",
+            measured=f"compressed store ({DEFAULT}) {fps:.0f} frames/s",
+            floor=f"raw os.write + fsync of the same frames {FRAMES / raw_s:.0f} frames/s",
+            ratio=raw_s / compressed_s,
+            budget=">= 1.0",
+            ok=raw_s / compressed_s >= 1.0,
+        ),
+    ]

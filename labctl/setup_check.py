@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from drivers.libusb import DEBIAN_PACKAGE, SONAME, ensure_libusb
 
 MODULES = (
-    "numpy", "scipy", "cv2", "h5py", "hdf5plugin", "numba", "matplotlib", "serial",
+    "numpy", "scipy", "cv2", "h5py", "hdf5plugin", "blosc", "numba", "matplotlib", "serial",
     "rtde_control", "rtde_receive", "pyrealsense2", "harvesters.core", "genicam.genapi", "pypylon.pylon",
 )
 """Modules with native code that labctl or its tests import (pmd's roypy is optional: not on PyPI)."""

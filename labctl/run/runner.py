@@ -248,7 +248,7 @@ class Runner:
         from metrics.alignment import alignment_fields
         from metrics.stack import stack_stats
 
-        x, y, z = (stack_stats(writer.group[c][()]).mean for c in ("x", "y", "z"))
+        x, y, z = (stack_stats(writer.stack(c)).mean for c in ("x", "y", "z"))
         try:
             fields = alignment_fields(x, y, z, int(step.target_params.get("field_px", 10)),
                                       step.target_params.get("margin_px"))

@@ -8,18 +8,20 @@ The writer therefore
 * creates the file under a temporary name and renames it into place, so the
   path either does not exist or holds a valid file;
 * creates a step's group and datasets, then flushes, before the first frame;
-* stores one frame per chunk, compressed losslessly by default (labctl.run.compression;
-  ``compression = "none"``: allocated at creation, ``ALLOC_TIME_EARLY``, and written
-  as raw chunks); the metadata cache never evicts while the file is open, so HDF5
-  metadata reaches the disk only at the flushes below, and a crash between them
-  leaves the file as it was at the last one;
+* stores one frame per chunk, written whole with HDF5's direct chunk write: compressed
+  losslessly by default, in worker threads beside the capture and written in order
+  (labctl.run.compression, labctl.run.chunks; ``compression = "none"``: allocated at
+  creation, ``ALLOC_TIME_EARLY``, and written as raw chunks); the metadata cache never
+  evicts while the file is open, so HDF5 metadata reaches the disk only at the flushes
+  below, and a crash between them leaves the file as it was at the last one;
 * checks before each step that the disk has room for it (labctl.run.diskspace), and
   then reserves the step's worst-case size in the file (fallocate, the file's length
   unchanged), so no write inside the step can meet a full disk even when another
   process takes the free space meanwhile: the disk filling becomes DiskSpaceLow
   before the step writes anything, and the file stays as its last flush left it;
-* writes the step's attributes at the end, ``complete = True`` last, then records
-  the step's group in the step index (``/step_index``), then flushes and fsyncs.
+* writes the step's attributes at the end, after every frame's chunk, ``complete = True``
+  last, then records the step's group in the step index (``/step_index``), then flushes
+  and fsyncs.
 
 Why a step index. HDF5 keeps ``/steps``'s links in an old-style symbol table (local
 heap, B-tree, symbol-table nodes) and rewrites it in place when a step is added,
@@ -77,6 +79,7 @@ import numpy as np
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.errors import InputError
 from labctl.run import compression as codecs
+from labctl.run.chunks import ChunkWriter, CompressionFailed
 from labctl.run.diskspace import DiskSpaceLow, ensure_free, frame_bytes, mount_point, release, reserve
 from labctl.run.filekind import describe, is_binary_data, not_a_run_file
 from procedures.steps import Step
@@ -173,11 +176,12 @@ class StepWriter:
         self.confidence_dtype = np.dtype(camera.confidence_dtype)
         self._datasets = {name: group[name] for name in CHANNELS}
         self._timestamps = group["timestamp"]
-        self._raw_chunks = run.compression == "none"
-        self._frame_space = h5py.h5s.create_simple((1, *self.shape))
+        self._chunks = run.chunk_writer()
 
     def write(self, k: int, frame: Frame) -> None:
-        """Store frame ``k`` of the stack; FrameError if its arrays do not fit, RunFileError if the write fails."""
+        """Store frame ``k`` of the stack; FrameError if its arrays do not fit, RunFileError if the write fails,
+        CompressionFailed if compressing this or an earlier frame failed. Compressed frames are written in the
+        background: their arrays must stay unchanged until the step is committed."""
         if not 0 <= k < self.step.frames:
             raise FrameError(f"frame index {k} outside 0..{self.step.frames - 1}")
         with self.run.guarded(f"frame {k} of step {self.step.step_id}"):
@@ -191,18 +195,28 @@ class StepWriter:
             dtype = self.confidence_dtype if name == "confidence" else np.float32
             data = np.ascontiguousarray(array, dtype=dtype)
             dataset = self._datasets[name].id
-            if self._raw_chunks:  # one frame is exactly one uncompressed chunk: no selection or filter machinery
+            if self._chunks is None:  # one frame is exactly one uncompressed chunk: no selection or filter machinery
                 dataset.write_direct_chunk((k, 0, 0), data)
-            else:  # one chunk through the filter pipeline
-                space = dataset.get_space()
-                space.select_hyperslab((k, 0, 0), (1, *self.shape))
-                dataset.write(self._frame_space, space, data.reshape(1, *self.shape))
+            else:
+                self._chunks.put(dataset, (k, 0, 0), data, f"frame {k}'s {name} of step {self.step.step_id}")
         self._timestamps[k] = float(frame.timestamp)
 
+    def stack(self, channel: str) -> np.ndarray:
+        """The (N, H, W) stack of ``channel`` as written so far (every frame given to :meth:`write` included)."""
+        with self.run.guarded(f"the frames of step {self.step.step_id}"):
+            self._write_queued()
+        return self.group[channel][()]
+
+    def _write_queued(self) -> None:
+        if self._chunks is not None:
+            self._chunks.drain()
+
     def commit(self, attrs: Mapping[str, Any]) -> None:
-        """Write the step's attributes, ``complete = True`` last, and make it durable; then give back the
+        """Write the frames still queued, then the step's attributes, ``complete = True`` last, and make it
+        durable (CompressionFailed, nothing committed, if a frame could not be compressed); then give back the
         space reserved for the step that it did not take."""
         with self.run.guarded(f"committing step {self.step.step_id}"):
+            self._write_queued()
             for key, value in attrs.items():
                 self.group.attrs[key] = value
             self.group.attrs["finished"] = now_iso()
@@ -236,6 +250,19 @@ class RunWriter:
             raise
         _keep_metadata_until_flush(self.file)
         self.failure: str | None = None
+        self._chunks: ChunkWriter | None = None
+
+    def chunk_writer(self) -> ChunkWriter | None:
+        """The compression threads of this file's frames (started on first use), None for ``compression = "none"``."""
+        if self.compression == "none":
+            return None
+        if self._chunks is None:
+            self._chunks = ChunkWriter(self.compression)
+        return self._chunks
+
+    def _drop_queued_chunks(self) -> None:
+        if self._chunks is not None:
+            self._chunks.discard()
 
     def index_step(self, index: int, group: h5py.Group) -> None:
         """Record ``group`` as step ``index`` in the step index (files written before it existed have none):
@@ -253,9 +280,10 @@ class RunWriter:
             raise RunFileError(f"{self.path} is detached after an earlier write error ({self.failure})")
         try:
             yield
-        except DiskSpaceLow:
+        except (DiskSpaceLow, CompressionFailed):
             raise
         except (OSError, RuntimeError) as exc:  # h5py raises RuntimeError for some failed flushes
+            self._drop_queued_chunks()
             self.failure = str(getattr(exc, "strerror", None) or exc).splitlines()[0]
             cause = _errno_text(exc)
             _detach(self.file)
@@ -273,6 +301,7 @@ class RunWriter:
 
     def _reopen(self) -> None:
         """After a write error: open the file again as the disk holds it (its last flushed state)."""
+        self._drop_queued_chunks()
         self.file = h5py.File(self.path, "r+")
         _keep_metadata_until_flush(self.file)
         self.failure = None
@@ -403,6 +432,7 @@ class RunWriter:
         camera = self.camera_info()
         what = f"step {step.step_id} ({step.frames} frames)"
         raw = step.frames * frame_bytes(camera.width, camera.height, camera.confidence_dtype)
+        self._drop_queued_chunks()  # of a step begun before and abandoned
         ensure_free(self.path, raw, what)
         chunks = step.frames * (len(CHANNELS) + 1)
         self._reserve(raw + 8 * step.frames + chunks * CHUNK_OVERHEAD + METADATA_ALLOWANCE, what)
@@ -444,10 +474,16 @@ class RunWriter:
         return StepWriter(self, g, step, camera)
 
     def close(self) -> None:
-        """Close the file; after a write error (the handle is detached) this writes nothing."""
-        if self.file.id.valid:
-            with self.guarded("closing"):
-                self.file.close()
+        """Stop the compression threads (chunks still queued are dropped: their step is not committed) and
+        close the file; after a write error (the handle is detached) this writes nothing."""
+        try:
+            if self._chunks is not None:
+                self._chunks.close()
+                self._chunks = None
+        finally:
+            if self.file.id.valid:
+                with self.guarded("closing"):
+                    self.file.close()
 
 
 def create_step_index(f: h5py.File, steps: int) -> None:

@@ -40,7 +40,7 @@ from labctl.evaluation.evaluate import evaluate_runs
 from labctl.evaluation.keyfigures import clean
 
 INSTANTS = 50
-PWRITES = 359  # pwrite64 calls of one run of the default test campaign (strace -c); targets are drawn up to it
+PWRITES = 373  # pwrite64 calls of one run of the default test campaign (strace -c); targets are drawn up to it
 LAST_WRITES = 9  # with strace, a kill at each of the last 9 of them too (the last commit and status flushes)
 
 
