@@ -221,9 +221,35 @@ class StepWriter:
                 self.group.attrs[key] = value
             self.group.attrs["finished"] = now_iso()
             self.group.attrs["complete"] = True
+            steps, default = self.group.parent, self.group.parent.attrs.get("default")
+            if not (isinstance(default, str) and default in steps):  # a NeXus viewer shows the first complete step
+                steps.attrs["default"] = self.step.step_id
             self.run.index_step(self.step.index, self.group)
             _fsync(self.run.file)
             release(self.run.file.id.get_vfd_handle())
+
+
+#: NeXus description of a step's datasets (NXdata base class): (units, long_name)
+NEXUS_FIELDS = {
+    "z": ("mm", "z, depth along the optical axis (mm)"),
+    "x": ("mm", "x, right in the camera frame (mm)"),
+    "y": ("mm", "y, down in the camera frame (mm)"),
+    "intensity": ("counts", "intensity (amplitude or IR image, camera units)"),
+    "confidence": ("counts", "confidence (camera units)"),
+    "timestamp": ("s", "frame time (s, the camera's clock)"),
+}
+
+
+def _nexus_step(group: h5py.Group) -> None:
+    """Mark a step as a NeXus NXdata group, so that NeXus viewers (silx view, h5web) show it by itself: its z
+    stack as the signal (an image per frame, frames along ``timestamp``), the other channels as auxiliary
+    signals, ``units`` and ``long_name`` on every dataset."""
+    group.attrs.update(NX_class="NXdata", signal="z", auxiliary_signals=["intensity", "x", "y", "confidence"],
+                       axes=["timestamp", ".", "."])
+    for name, (units, long_name) in NEXUS_FIELDS.items():
+        group[name].attrs.update(units=units, long_name=long_name)
+        if name != "timestamp":
+            group[name].attrs["interpretation"] = "image"
 
 
 class RunWriter:
@@ -351,7 +377,8 @@ class RunWriter:
                 pixel_pitch_um=camera.pixel_pitch_um, frame_rate_hz=camera.frame_rate_hz,
                 wavelength_nm=camera.wavelength_nm, confidence_dtype=camera.confidence_dtype,
             )
-            f.create_group("steps")
+            f.attrs.update(NX_class="NXroot", default="steps")  # NeXus: viewers follow @default to a step
+            f.create_group("steps").attrs["NX_class"] = "NXentry"
             create_step_index(f, steps)
             if sim is not None:
                 g = f.create_group("sim")
@@ -470,6 +497,7 @@ class RunWriter:
                 g.create_dataset(name, shape=(n, h, w), dtype=dtype, chunks=(1, h, w),
                                  **codecs.dataset_options(compression))
         g.create_dataset("timestamp", shape=(n,), dtype="float64", dcpl=_early_alloc_dcpl(), fill_time="never")
+        _nexus_step(g)
         _fsync(self.file)
         return StepWriter(self, g, step, camera)
 

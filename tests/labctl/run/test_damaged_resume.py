@@ -116,20 +116,29 @@ def test_a_destroyed_header_is_refused_with_a_message(aborted_run, tmp_path, cap
 def point_list_of_steps_past_the_end(path) -> None:
     """What a kill -9 in the middle of a flush that adds a step can leave: the /steps group's symbol table
     message (HDF5 object header v1, message type 0x11: B-tree address, local heap address) pointing its local
-    heap past the end of the file, the block it was moved to never written."""
+    heap past the end of the file, the block it was moved to never written. The header's messages are read
+    from its first block and from the blocks its continuation messages (type 0x10: address, length) lead to."""
     with h5py.File(path, "r") as f:
         header = h5py.h5o.get_info(f["steps"].id).addr
     with open(path, "rb") as f:
         f.seek(header)
-        data = f.read(512)
-    position, messages = 16, int.from_bytes(data[2:4], "little")  # after the 16-byte prefix of a v1 header
-    for _ in range(messages):
-        kind = int.from_bytes(data[position:position + 2], "little")
-        size = int.from_bytes(data[position + 2:position + 4], "little")
-        if kind == 0x11:
-            overwrite(path, header + position + 8 + 8, (os.path.getsize(path) + 2**20).to_bytes(8, "little"))
-            return
-        position += 8 + size
+        prefix = f.read(16)
+        blocks = [(header + 16, int.from_bytes(prefix[8:12], "little"))]  # after the 16-byte prefix of a v1 header
+        while blocks:
+            start, length = blocks.pop(0)
+            f.seek(start)
+            data = f.read(length)
+            position = 0
+            while position + 8 <= length:
+                kind = int.from_bytes(data[position:position + 2], "little")
+                size = int.from_bytes(data[position + 2:position + 4], "little")
+                if kind == 0x11:
+                    overwrite(path, start + position + 8 + 8, (os.path.getsize(path) + 2**20).to_bytes(8, "little"))
+                    return
+                if kind == 0x10:
+                    body = data[position + 8:position + 8 + size]
+                    blocks.append((int.from_bytes(body[:8], "little"), int.from_bytes(body[8:16], "little")))
+                position += 8 + size
     raise AssertionError("no symbol table message in the header of /steps")
 
 
