@@ -620,8 +620,7 @@ def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
     >>> sample_cloud(cloud, np.array([[1.25, 0.5], [2.5, 2.5]])).tolist()
     [[1.25, 0.5, 1000.0], [nan, nan, nan]]
     """
-    cloud = np.asarray(cloud, dtype=float)
-    cloud = np.where(np.isfinite(cloud).all(axis=2, keepdims=True), cloud, np.nan)
+    cloud = np.asarray(cloud)
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
     h, w = cloud.shape[:2]
     u0, v0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
@@ -629,9 +628,12 @@ def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
     ok = (u0 >= 0) & (v0 >= 0) & (u0 + 1 <= w - 1) & (v0 + 1 <= h - 1) & np.isfinite(uv).all(axis=1)
     ok &= (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     u0, v0 = np.where(ok, u0, 0), np.where(ok, v0, 0)
+    # only the four neighbours of each sample are read (not the whole cloud converted and masked)
+    p00, p01, p10, p11 = (np.asarray(cloud[v, u], dtype=float)
+                          for v, u in ((v0, u0), (v0, u0 + 1), (v0 + 1, u0), (v0 + 1, u0 + 1)))
+    ok &= np.isfinite(np.stack([p00, p01, p10, p11])).all(axis=(0, 2))
     fu, fv = (uv[:, 0] - u0)[:, None], (uv[:, 1] - v0)[:, None]
-    out = ((1 - fu) * (1 - fv) * cloud[v0, u0] + fu * (1 - fv) * cloud[v0, u0 + 1]
-           + (1 - fu) * fv * cloud[v0 + 1, u0] + fu * fv * cloud[v0 + 1, u0 + 1])
+    out = (1 - fu) * (1 - fv) * p00 + fu * (1 - fv) * p01 + (1 - fu) * fv * p10 + fu * fv * p11
     out[~ok] = np.nan
     return out
 
