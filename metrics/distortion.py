@@ -64,10 +64,12 @@ from metrics.optics import Pinhole, pixel_aspect_distortion_pct, sensor_angular_
 
 __all__ = [
     "CloudDistortion", "Corners", "DistortionResult", "cloud_distortion", "detect_corners", "distortion",
-    "pixel_aspect_distortion_pct", "pixel_aspect_ratio", "refine_corners", "sample_cloud",
+    "pixel_aspect_distortion_pct", "pixel_aspect_ratio", "refine_corners", "refined_distortion", "sample_cloud",
 ]
 
-_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+#: ``cornerSubPix`` stops when a corner moves by less than this (px) or after _SUBPIX_ITERATIONS iterations
+SUBPIX_TOLERANCE_PX = 1e-4
+_SUBPIX_ITERATIONS = 100
 _SB_FLAGS = (cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
              | cv2.CALIB_CB_LARGER)
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
@@ -173,9 +175,10 @@ def _inside(uv: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray
     return (u >= margin) & (v >= margin) & (u <= shape[1] - 1 - margin) & (v <= shape[0] - 1 - margin)
 
 
-def _refine(image: np.ndarray, uv: np.ndarray, half: int) -> np.ndarray:
+def _refine(image: np.ndarray, uv: np.ndarray, half: int, tolerance_px: float = SUBPIX_TOLERANCE_PX) -> np.ndarray:
     pts = np.ascontiguousarray(uv, dtype=np.float32).reshape(-1, 1, 2)
-    return cv2.cornerSubPix(image, pts, (half, half), (-1, -1), _SUBPIX_CRITERIA).reshape(-1, 2).astype(float)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, _SUBPIX_ITERATIONS, tolerance_px)
+    return cv2.cornerSubPix(image, pts, (half, half), (-1, -1), criteria).reshape(-1, 2).astype(float)
 
 
 def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -396,11 +399,12 @@ def detect_corners(image: np.ndarray, pattern: tuple[int, int] | None = None) ->
     return Corners(uv, ij, (image.shape[0], image.shape[1]), detector, _median_spacing(uv, ij))
 
 
-def refine_corners(image: np.ndarray, corners: Corners) -> np.ndarray:
+def refine_corners(image: np.ndarray, corners: Corners, tolerance_px: float = SUBPIX_TOLERANCE_PX) -> np.ndarray:
     """The given corners refined again on another image of the same board (e.g. one frame of the stack whose
     mean they were found in): ``cornerSubPix`` from their positions, with the detector's normalization and
-    half-window (below half a tile). Returns (N, 2) positions; NaN where a corner moved by more than a quarter
-    tile (refined onto another feature) or the image has no finite pixels.
+    half-window (below half a tile), until a corner moves by less than ``tolerance_px`` (the detector's by
+    default). Returns (N, 2) positions; NaN where a corner moved by more than a quarter tile (refined onto
+    another feature) or the image has no finite pixels.
 
     Examples
     --------
@@ -422,7 +426,7 @@ def refine_corners(image: np.ndarray, corners: Corners) -> np.ndarray:
     half = _half_window(tile)
     inside = _inside(corners.uv, image.shape, half + 1)
     if inside.any():
-        out[inside] = _refine(work, corners.uv[inside], half)
+        out[inside] = _refine(work, corners.uv[inside], half, tolerance_px)
     moved = ~(np.linalg.norm(out - corners.uv, axis=1) <= 0.25 * tile)
     out[moved] = np.nan
     return out
@@ -575,6 +579,32 @@ def distortion(corners: Corners, tile_mm: float, distance_mm: float,
     )
 
 
+def refined_distortion(image: np.ndarray, corners: Corners, tile_mm: float, distance_mm: float,
+                       fov_deg: tuple[float, float], tolerance_px: float = SUBPIX_TOLERANCE_PX) -> DistortionResult:
+    """:func:`distortion` of ``corners`` refined again on ``image``, another image of the same board (e.g. the
+    stack mean without some of its frames, a jackknife replicate of the mean the corners were found in):
+    :func:`refine_corners` (``tolerance_px``), the corners that do not refine (NaN) left out. Raises ValueError
+    when the centre corner is among them or fewer than ``MIN_CORNERS`` remain.
+
+    Examples
+    --------
+    The board of :func:`detect_corners`'s example moved by 2 px right: every corner follows, no distortion.
+
+    >>> v, u = np.mgrid[0:160, 0:200]
+    >>> corners = detect_corners(((u // 20 + v // 20) % 2) * 200.0 + 20.0)
+    >>> moved = refined_distortion((((u - 2) // 20 + v // 20) % 2) * 200.0 + 20.0, corners, 50.0, 1000.0, (90.0, 90.0))
+    >>> moved.n_corners, np.round(moved.found - corners.uv, 3).max(axis=0).tolist(), abs(moved.radial_distortion_w_pct) < 1e-4
+    (63, [2.0, 0.0], True)
+    """
+    uv = refine_corners(image, corners, tolerance_px)
+    ok = np.isfinite(uv).all(axis=1)
+    if not ok[(corners.ij == 0).all(axis=1)].all() or np.count_nonzero(ok) < MIN_CORNERS:
+        raise ValueError(f"{np.count_nonzero(~ok)} of {len(ok)} corners do not refine on the image, the centre "
+                         "corner among them or too many")
+    return distortion(Corners(uv[ok], corners.ij[ok], corners.image_shape, corners.detector, corners.tile_px),
+                      tile_mm, distance_mm, fov_deg)
+
+
 # -------------------------------------------------------------------------------------- point cloud
 def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear (N, 3) samples of an organized (H, W, 3) cloud at sub-pixel (u, v) (not rounded, cf.
@@ -590,8 +620,7 @@ def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
     >>> sample_cloud(cloud, np.array([[1.25, 0.5], [2.5, 2.5]])).tolist()
     [[1.25, 0.5, 1000.0], [nan, nan, nan]]
     """
-    cloud = np.asarray(cloud, dtype=float)
-    cloud = np.where(np.isfinite(cloud).all(axis=2, keepdims=True), cloud, np.nan)
+    cloud = np.asarray(cloud)
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
     h, w = cloud.shape[:2]
     u0, v0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
@@ -599,9 +628,12 @@ def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
     ok = (u0 >= 0) & (v0 >= 0) & (u0 + 1 <= w - 1) & (v0 + 1 <= h - 1) & np.isfinite(uv).all(axis=1)
     ok &= (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     u0, v0 = np.where(ok, u0, 0), np.where(ok, v0, 0)
+    # only the four neighbours of each sample are read (not the whole cloud converted and masked)
+    p00, p01, p10, p11 = (np.asarray(cloud[v, u], dtype=float)
+                          for v, u in ((v0, u0), (v0, u0 + 1), (v0 + 1, u0), (v0 + 1, u0 + 1)))
+    ok &= np.isfinite(np.stack([p00, p01, p10, p11])).all(axis=(0, 2))
     fu, fv = (uv[:, 0] - u0)[:, None], (uv[:, 1] - v0)[:, None]
-    out = ((1 - fu) * (1 - fv) * cloud[v0, u0] + fu * (1 - fv) * cloud[v0, u0 + 1]
-           + (1 - fu) * fv * cloud[v0 + 1, u0] + fu * fv * cloud[v0 + 1, u0 + 1])
+    out = (1 - fu) * (1 - fv) * p00 + fu * (1 - fv) * p01 + (1 - fu) * fv * p10 + fu * fv * p11
     out[~ok] = np.nan
     return out
 

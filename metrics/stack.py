@@ -12,6 +12,7 @@ from the run file (see bench/evaluation.py).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,6 +101,60 @@ def stack_stats(stack: np.ndarray) -> StackStats:
     mean[bad] = np.nan
     std[bad] = np.nan
     return stats
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _leave_group_out(stack: np.ndarray, bounds: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Per row: the groups' sums and valid counts (float64), then the mean of all frames but each group's."""
+    n, h, w = stack.shape
+    groups = bounds.size - 1
+    out = np.empty((groups, h, w))
+    for i in prange(h):
+        s = np.zeros((groups, w))
+        c = np.zeros((groups, w))
+        for g in range(groups):
+            for k in range(bounds[g], bounds[g + 1]):
+                for j in range(w):
+                    v = np.float64(stack[k, i, j])
+                    if v == v:
+                        s[g, j] += v
+                        c[g, j] += 1.0
+        total_s = s.sum(axis=0)
+        total_c = c.sum(axis=0)
+        for g in range(groups):
+            kept = n - (bounds[g + 1] - bounds[g])
+            for j in range(w):
+                count = total_c[j] - c[g, j]
+                if 2.0 * count >= kept and count >= min(2, kept) and count > 0:
+                    out[g, i, j] = (total_s[j] - s[g, j]) / count
+                else:
+                    out[g, i, j] = np.nan
+    return out
+
+
+def leave_group_out_means(stack: np.ndarray, groups: Sequence[range]) -> np.ndarray:
+    """(G, H, W) per-pixel means of an (N, H, W) stack (NaN = invalid) without each of the G groups of frames
+    ``groups`` (contiguous, in order, covering the stack: ``metrics.uncertainty.contiguous_groups``), the
+    replicates of a delete-a-group jackknife of the stack mean. One pass over the stack: per group the sum and
+    the valid count of every pixel; a replicate's pixel is NaN where it fails the rule of :func:`stack_stats`
+    over the frames kept (valid in at least half of them and in two).
+
+    Examples
+    --------
+    Four frames in two groups: one pixel seen as 1, 2, 3, 6 and one valid in the last frame only.
+
+    >>> stack = np.array([[[1.0, np.nan]], [[2.0, np.nan]], [[3.0, np.nan]], [[6.0, 5.0]]])
+    >>> leave_group_out_means(stack, [range(0, 2), range(2, 4)]).tolist()
+    [[[4.5, nan]], [[1.5, nan]]]
+    """
+    if stack.ndim != 3:
+        raise ValueError(f"stack must be (N, H, W), got shape {stack.shape}")
+    if [k for g in groups for k in g] != list(range(stack.shape[0])):
+        raise ValueError(f"groups {list(groups)} are not contiguous groups of the stack's {stack.shape[0]} frames")
+    bounds = np.array([g[0] for g in groups] + [stack.shape[0]], dtype=np.int64)
+    if stack.dtype not in (np.float32, np.float64):
+        stack = stack.astype(np.float32)
+    return _leave_group_out(np.ascontiguousarray(stack), bounds)
 
 
 def central_roi(height: int, width: int, fraction: float = 0.1) -> tuple[slice, slice]:

@@ -187,9 +187,48 @@ def jackknife_standard_errors(statistics: Callable[[np.ndarray], Sequence[float]
     """
     if n < 2:
         raise ValueError(f"a jackknife needs at least two observations, got {n}")
-    values = np.array([statistics(np.arange(n) != i) for i in range(n)], dtype=float)
+    return delete_a_group_jackknife(np.array([statistics(np.arange(n) != i) for i in range(n)], dtype=float))
+
+
+def contiguous_groups(n: int, groups: int) -> list[range]:
+    """The ``n`` observations 0 .. n - 1 in ``groups`` contiguous groups whose sizes differ by one at most (the
+    larger first): the groups of :func:`delete_a_group_jackknife`.
+
+    Examples
+    --------
+    >>> contiguous_groups(7, 3)
+    [range(0, 3), range(3, 5), range(5, 7)]
+    """
+    if not 1 <= groups <= n:
+        raise ValueError(f"{groups} groups of {n} observations")
+    bounds = np.cumsum([0] + [n // groups + (g < n % groups) for g in range(groups)])
+    return [range(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def delete_a_group_jackknife(replicates: np.ndarray) -> tuple[float, ...]:
+    """Delete-a-group jackknife standard errors of K statistics from their (G, K) ``replicates``, row g the
+    statistics with group g of the observations left out (Quenouille 1956, Tukey 1958; Efron & Tibshirani 1993,
+    11.2 and eq. 11.5 for groups of one; Busing, Meijer & van der Leeden 1999 for groups of several):
+    sqrt((G - 1) / G sum_g (theta_(g) - theta_(.))^2). The formula is that of groups of equal size; groups of
+    :func:`contiguous_groups` differ by one observation at most. Replicates that are not finite (the statistic
+    failed without the group) are left out, G then counting those that remain; NaN where fewer than two remain.
+
+    Examples
+    --------
+    Six observations in three groups of two: the replicates of the mean are the means of the other four, and for
+    groups of equal size the delete-a-group jackknife of the mean is the standard error of the mean of the
+    group means, s_g / sqrt(G).
+
+    >>> x = np.array([1.0, 2.0, 4.0, 8.0, 3.0, 5.0])
+    >>> groups = contiguous_groups(x.size, 3)
+    >>> replicates = np.array([[np.delete(x, list(g)).mean()] for g in groups])
+    >>> (se,) = delete_a_group_jackknife(replicates)
+    >>> group_means = np.array([x[list(g)].mean() for g in groups])
+    >>> round(se, 9) == round(standard_error_of_mean(group_means), 9)
+    True
+    """
     out = []
-    for v in values.T:
+    for v in np.asarray(replicates, dtype=float).reshape(len(replicates), -1).T:
         v = v[np.isfinite(v)]
         out.append(float(np.sqrt((v.size - 1) / v.size * np.sum((v - v.mean()) ** 2))) if v.size >= 2 else math.nan)
     return tuple(out)

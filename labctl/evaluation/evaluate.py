@@ -355,8 +355,7 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         if geometric:
             evaluation.geometry = evaluate_geometry(geometric, readers[0].camera, progress)
             evaluation.notes.extend(evaluation.geometry.notes)
-            for name, (value, source) in geometry_figures(evaluation.geometry).items():
-                evaluation.figures[name] = FigureValue(value, source)
+            evaluation.figures.update(geometry_figures(evaluation.geometry))
         plates = [s for r in readers for s in r.steps("remission_angle")]
         if plates:
             evaluation.remission = evaluate_remission(plates, readers[0].camera, progress)

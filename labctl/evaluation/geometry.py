@@ -4,7 +4,11 @@
   the intensity image and of the point cloud (the key figures use labctl's
   radial part, what remains after the effective FOV is fitted; the raw EBU
   max deviation and the medians are reported alongside); x/y trueness (stack
-  mean) and accuracy (first frame) from neighbouring corner spacings.
+  mean) and accuracy (first frame) from neighbouring corner spacings. The
+  radial distortion figures' Type A uncertainty is a delete-a-group jackknife
+  of the stack: the frames in ``JACKKNIFE_GROUPS`` contiguous groups, each
+  left out in turn, the corners refined again on the mean of the others and
+  the four figures evaluated again (docs/keyfigures.md, Uncertainty).
 * ``boehler_star``: the automated Boehler-star resolution of the stack-mean
   cloud, rings binned by the point spacing on the star (``auto_binning``);
   the 72-segment star where it is resolved, else the 24-segment one (Thesis 2024, 6.3.2).
@@ -23,14 +27,31 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.protocols import CameraInfo
+from labctl.evaluation.keyfigures import FigureValue
 from labctl.run.store import StepRecord
 from metrics.boehler import BoehlerResult, analyze_boehler
-from metrics.distortion import CloudDistortion, Corners, DistortionResult, cloud_distortion, detect_corners, distortion
-from metrics.stack import stack_stats
+from metrics.distortion import (
+    CloudDistortion,
+    Corners,
+    DistortionResult,
+    cloud_distortion,
+    detect_corners,
+    distortion,
+    refined_distortion,
+)
+from metrics.stack import leave_group_out_means, stack_stats
+from metrics.uncertainty import Component, contiguous_groups, delete_a_group_jackknife
 from metrics.xy_error import XYErrors, XYPrecision, xy_errors, xy_precision
 
 KEY_DISTANCE_MM = 2000.0
 KEY_TOLERANCE_MM = 150.0
+#: contiguous groups of frames of the radial distortion's jackknife (a stack of fewer frames: one group per frame)
+JACKKNIFE_GROUPS = 10
+#: the budget component of the radial distortion figures
+JACKKNIFE_COMPONENT = "frames: delete-a-group jackknife of the stack (Type A)"
+#: the replicates' corners are refined until they move by less than this (px): the detector's 1e-4 px is about
+#: what a replicate's corners differ from the full stack's by, and stopping there would understate their spread
+JACKKNIFE_TOLERANCE_PX = 1e-6
 
 
 def _mean_cloud(step: StepRecord) -> np.ndarray:
@@ -60,6 +81,19 @@ class CheckerboardResult:
     intensity: DistortionResult
     cloud_distortion: CloudDistortion | None
     xy: XYErrors | None
+    radial_uncertainty: RadialUncertainty | None = None
+
+
+@dataclass(frozen=True)
+class RadialUncertainty:
+    """Type A standard uncertainties (%) of the four radial distortion figures: the delete-a-group jackknife of
+    the stack over ``groups`` groups of frames (NaN where fewer than two of its replicates could be evaluated)."""
+
+    intensity_w_pct: float
+    intensity_h_pct: float
+    cloud_w_pct: float
+    cloud_h_pct: float
+    groups: int
 
 
 @dataclass(frozen=True)
@@ -80,18 +114,75 @@ class GeometryResult:
     notes: list[str] = field(default_factory=list)
 
 
+@dataclass(frozen=True)
+class _Channel:
+    """One channel of a stack, read once: its mean, its first frame and its means without each group of frames."""
+
+    mean: np.ndarray
+    first: np.ndarray
+    left_out: np.ndarray | None
+
+
+def _read_channel(step: StepRecord, channel: str, groups: list[range] | None,
+                  buffer: np.ndarray | None) -> tuple[_Channel, np.ndarray]:
+    """The channel's :class:`_Channel` (``left_out`` None without ``groups``) and the buffer it was read into."""
+    buffer = step.read(channel, out=buffer)
+    left_out = leave_group_out_means(buffer, groups) if groups else None
+    return _Channel(stack_stats(buffer).mean, buffer[0].copy(), left_out), buffer
+
+
 def evaluate_checkerboard(step: StepRecord, camera: CameraInfo) -> CheckerboardResult:
-    """Distortion of the intensity image and of the cloud, and x/y errors, of one checkerboard step."""
+    """Distortion of the intensity image and of the cloud, x/y errors, and the radial distortion's Type A
+    uncertainty (the delete-a-group jackknife of the stack), of one checkerboard step. Each channel is read
+    once: its mean, its first frame and its means without each group of frames come from the same read."""
     tile = float(json.loads(step.attrs.get("target_json", "{}") or "{}").get("tile_mm", 19.0))
-    image = stack_stats(step.read("intensity")).mean
-    cloud = _mean_cloud(step)
+    frames = int(step.group["intensity"].shape[0])
+    groups = contiguous_groups(frames, min(JACKKNIFE_GROUPS, frames)) if frames >= 2 else None
+    intensity_channel, buffer = _read_channel(step, "intensity", groups, None)
+    image = intensity_channel.mean
     corners = detect_corners(np.nan_to_num(image, nan=0.0))
     distance = _distance(step)
     intensity = distortion(corners, tile, distance, camera.fov_deg)
+    replicas = [] if intensity_channel.left_out is None else [
+        _replica(np.nan_to_num(left_out, nan=0.0), corners, tile, distance, camera.fov_deg)
+        for left_out in intensity_channel.left_out]
+    del intensity_channel
+    xyz = []
+    for c in ("x", "y", "z"):
+        channel, buffer = _read_channel(step, c, groups, buffer)
+        xyz.append(channel)
+    del buffer
+    cloud = np.stack([c.mean for c in xyz], axis=-1)
     cloud_result = cloud_distortion(cloud, intensity.corners, tile, camera.fov_deg)
-    first = np.stack([step.frame(c, 0) for c in ("x", "y", "z")], axis=-1)
+    first = np.stack([c.first for c in xyz], axis=-1)
+    uncertainty = None
+    if groups is not None:
+        rows = [_replicate_figures(replica, xyz, g, tile, camera.fov_deg) for g, replica in enumerate(replicas)]
+        uncertainty = RadialUncertainty(*delete_a_group_jackknife(np.array(rows)), groups=len(groups))
     return CheckerboardResult(step.step_id, distance, _placed(step), tile, image, cloud, intensity.corners, intensity,
-                              cloud_result, xy_errors(cloud, first, intensity.corners, tile))
+                              cloud_result, xy_errors(cloud, first, intensity.corners, tile), uncertainty)
+
+
+def _replica(image: np.ndarray, corners: Corners, tile_mm: float, distance_mm: float,
+             fov_deg: tuple[float, float]) -> DistortionResult | None:
+    """The intensity image's distortion of one jackknife replicate (None where its corners do not refine)."""
+    try:
+        return refined_distortion(image, corners, tile_mm, distance_mm, fov_deg, JACKKNIFE_TOLERANCE_PX)
+    except ValueError:
+        return None
+
+
+def _replicate_figures(replica: DistortionResult | None, xyz: list[_Channel], g: int, tile_mm: float,
+                       fov_deg: tuple[float, float]) -> tuple[float, float, float, float]:
+    """The four radial distortion figures of jackknife replicate ``g`` (NaN where they cannot be evaluated)."""
+    if replica is None:
+        return (math.nan,) * 4
+    try:
+        cloud = cloud_distortion(np.stack([c.left_out[g] for c in xyz], axis=-1), replica.corners, tile_mm, fov_deg)
+    except ValueError:
+        return replica.radial_distortion_w_pct, replica.radial_distortion_h_pct, math.nan, math.nan
+    return (replica.radial_distortion_w_pct, replica.radial_distortion_h_pct, cloud.distortion_w_pct,
+            cloud.distortion_h_pct)
 
 
 def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
@@ -131,34 +222,41 @@ def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
     return out
 
 
-def figure_values(result: GeometryResult) -> dict[str, tuple[float, list[str]]]:
-    """Key figures (docs/keyfigures.md) with their source steps."""
-    figures: dict[str, tuple[float, list[str]]] = {}
+def figure_values(result: GeometryResult) -> dict[str, FigureValue]:
+    """Key figures (docs/keyfigures.md) with their source steps and uncertainty budgets (the radial distortion
+    figures': the jackknife of the stack; empty for the others)."""
+    figures: dict[str, FigureValue] = {}
     board = result.checkerboard
     if board is not None:
         src = [board.step_id]
-        figures["radial_distortion_intensity_w_pct"] = (board.intensity.radial_distortion_w_pct, src)
-        figures["radial_distortion_intensity_h_pct"] = (board.intensity.radial_distortion_h_pct, src)
+        u = board.radial_uncertainty
+
+        def radial(value: float, part: str) -> FigureValue:
+            budget = () if u is None else (Component(JACKKNIFE_COMPONENT, getattr(u, part)),)
+            return FigureValue(value, src, budget)
+
+        figures["radial_distortion_intensity_w_pct"] = radial(board.intensity.radial_distortion_w_pct, "intensity_w_pct")
+        figures["radial_distortion_intensity_h_pct"] = radial(board.intensity.radial_distortion_h_pct, "intensity_h_pct")
         if board.cloud_distortion is not None:
-            figures["radial_distortion_cloud_w_pct"] = (board.cloud_distortion.distortion_w_pct, src)
-            figures["radial_distortion_cloud_h_pct"] = (board.cloud_distortion.distortion_h_pct, src)
+            figures["radial_distortion_cloud_w_pct"] = radial(board.cloud_distortion.distortion_w_pct, "cloud_w_pct")
+            figures["radial_distortion_cloud_h_pct"] = radial(board.cloud_distortion.distortion_h_pct, "cloud_h_pct")
         if board.xy is not None:
-            figures["x_trueness_q90_mm"] = (board.xy.trueness.x_q90_mm, src)
-            figures["y_trueness_q90_mm"] = (board.xy.trueness.y_q90_mm, src)
-            figures["x_accuracy_q90_mm"] = (board.xy.accuracy.x_q90_mm, src)
-            figures["y_accuracy_q90_mm"] = (board.xy.accuracy.y_q90_mm, src)
+            figures["x_trueness_q90_mm"] = FigureValue(board.xy.trueness.x_q90_mm, src)
+            figures["y_trueness_q90_mm"] = FigureValue(board.xy.trueness.y_q90_mm, src)
+            figures["x_accuracy_q90_mm"] = FigureValue(board.xy.accuracy.x_q90_mm, src)
+            figures["y_accuracy_q90_mm"] = FigureValue(board.xy.accuracy.y_q90_mm, src)
     if result.chosen_star is not None:
         star = result.chosen_star
-        figures["cloud_resolution_h_deg"] = (star.result.angular_h_deg, [star.step_id])
-        figures["cloud_resolution_v_deg"] = (star.result.angular_v_deg, [star.step_id])
+        figures["cloud_resolution_h_deg"] = FigureValue(star.result.angular_h_deg, [star.step_id])
+        figures["cloud_resolution_v_deg"] = FigureValue(star.result.angular_v_deg, [star.step_id])
     if result.precision:
         ids = [sid for sid, _, _ in result.precision]
         for axis in "xy":
             for where in ("center", "off_axis"):
                 worst = np.nanmax([getattr(p, f"repeatability_{where}_{axis}_mm") for _, _, p in result.precision])
-                figures[f"{axis}_repeatability_{where}_mm"] = (float(worst), ids)
+                figures[f"{axis}_repeatability_{where}_mm"] = FigureValue(float(worst), ids)
         near = min(result.precision, key=lambda item: abs(item[1] - KEY_DISTANCE_MM))
         if abs(near[1] - KEY_DISTANCE_MM) <= KEY_TOLERANCE_MM:
-            figures["x_precision_q90_mm"] = (near[2].precision_q90_x_mm, [near[0]])
-            figures["y_precision_q90_mm"] = (near[2].precision_q90_y_mm, [near[0]])
+            figures["x_precision_q90_mm"] = FigureValue(near[2].precision_q90_x_mm, [near[0]])
+            figures["y_precision_q90_mm"] = FigureValue(near[2].precision_q90_y_mm, [near[0]])
     return figures

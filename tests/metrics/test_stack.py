@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from metrics.stack import RoiMean, central_roi, stack_stats
+from metrics.stack import RoiMean, central_roi, leave_group_out_means, stack_stats
+from metrics.uncertainty import contiguous_groups
 
 
 def test_mean_and_std_match_numpy_on_complete_stack():
@@ -81,3 +82,23 @@ def test_tiny_noise_far_away_does_not_cancel():
 def test_integer_stacks_are_accepted():
     stats = stack_stats(np.arange(24, dtype=np.uint16).reshape(4, 2, 3))
     np.testing.assert_allclose(stats.mean, np.arange(24).reshape(4, 2, 3).mean(0))
+
+
+def test_leave_group_out_means_are_the_means_of_the_frames_kept():
+    """Each replicate equals stack_stats of the stack without that group, invalid pixels included."""
+    rng = np.random.default_rng(5)
+    stack = rng.normal(1000.0, 3.0, (23, 6, 7)).astype(np.float32)
+    stack[rng.random(stack.shape) < 0.3] = np.nan
+    stack[:, 0, 0] = np.nan
+    stack[:12, 1, 1] = np.nan  # valid only in the last 11 frames
+    groups = contiguous_groups(23, 10)
+    left_out = leave_group_out_means(stack, groups)
+    assert left_out.shape == (10, 6, 7)
+    for g, group in enumerate(groups):
+        expected = stack_stats(np.delete(stack, list(group), axis=0)).mean
+        np.testing.assert_allclose(left_out[g], expected, rtol=0, atol=1e-9, equal_nan=True)
+
+
+def test_leave_group_out_means_reject_groups_that_do_not_cover_the_stack():
+    with pytest.raises(ValueError, match="contiguous"):
+        leave_group_out_means(np.zeros((4, 1, 1)), [range(0, 2), range(3, 4)])

@@ -1,0 +1,71 @@
+"""The radial distortion figures' stated uncertainty covers their spread over independent repetitions.
+
+Known answer (GUM 6.2, 6.3: U = 2 u covers about 95 % of the values a figure takes), as in
+test_uncertainty_coverage.py: the same simulated checkerboard step is run with ``SEEDS`` different seeds, a seed
+drawing new camera noise (the board, its placement and the camera are the same in every seed, so the figures
+scatter only as repeated stacks would). For each of the four radial distortion figures each seed's value must
+lie within its own U (k = 2, the delete-a-group jackknife of the stack) of the mean over the seeds in at least
+``MIN_COVERED`` of ``SEEDS`` seeds (87.5 %), and the mean u must be within a factor ``RATIO`` of the standard
+deviation over the seeds.
+
+Why 48 seeds and not 16: the jackknife over G = 10 groups estimates u with G - 1 = 9 degrees of freedom, so a
+correct U covers a seed with probability P(|t_9| < 2) = 0.92, not 0.95; 14 of 16 would then fail one of the four
+figures in four seed sets of ten. With 48 seeds and 42 needed a correct U passes each figure with probability
+0.93; a u understated by a third covers 78 % of the seeds and passes with probability 0.08.
+
+The smallest set-up where the corners are found in every seed: 80 x 60 px, 60 mm tiles at 600 mm (about 6 px a
+tile, 117 corners), 20 frames (ten groups of two).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from labctl.cli import main
+from labctl.evaluation.evaluate import evaluate_runs
+from metrics.uncertainty import combined_standard_uncertainty
+from tests.conftest import SMALL_MODEL, campaign_text
+
+SEEDS = 48
+MIN_COVERED = 42
+RATIO = 2.0
+BOARD = """
+[[procedure]]
+kind = "checkerboard"
+distance_mm = 600
+tile_mm = 60
+frames = 20
+"""
+FIGURES = tuple(f"radial_distortion_{image}_{axis}_pct" for image in ("intensity", "cloud") for axis in "wh")
+
+
+@pytest.fixture(scope="module")
+def figures(tmp_path_factory) -> dict[str, np.ndarray]:
+    """Per figure, (value, u) of every seed."""
+    tmp = tmp_path_factory.mktemp("seeds")
+    model = tmp / "model.toml"
+    model.write_text(SMALL_MODEL.format(camera="blaze101", width=80, height=60))
+    rows: dict[str, list[tuple[float, float]]] = {name: [] for name in FIGURES}
+    for seed in range(SEEDS):
+        campaign = tmp / f"c{seed}.toml"
+        campaign.write_text(campaign_text(procedures=BOARD, seed=seed))
+        out = tmp / f"r{seed}.h5"
+        with pytest.raises(SystemExit) as info:
+            main(["run", str(campaign), "--sim", "--model", str(model), "-o", str(out), "--quiet"])
+        assert info.value.code == 0
+        found = evaluate_runs([out]).figures
+        for name in FIGURES:
+            rows[name].append((found[name].value, combined_standard_uncertainty(found[name].budget)))
+        out.unlink()
+    return {name: np.array(values) for name, values in rows.items()}
+
+
+@pytest.mark.parametrize("name", FIGURES)
+def test_expanded_uncertainty_covers_the_spread_over_seeds(figures, name):
+    value, u = figures[name].T
+    assert np.isfinite(value).all() and np.isfinite(u).all() and (u > 0).all()
+    covered = int(np.sum(np.abs(value - value.mean()) <= 2.0 * u))
+    spread = float(np.std(value, ddof=1))
+    assert covered >= MIN_COVERED, f"{name}: U covers {covered} of {SEEDS} seeds (spread {spread:.4g}, u {u.mean():.4g})"
+    assert 1 / RATIO <= u.mean() / spread <= RATIO, f"{name}: mean u {u.mean():.4g}, spread over seeds {spread:.4g}"
