@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from metrics.depth import center_pixel, median_q90_abs
+from metrics.depth import center_pixel, median_q90_abs, precision_q90_uncertainty
 from metrics.distortion import Corners, sample_cloud
 from metrics.stack import StackStats, stack_stats
 from metrics.uncertainty import standard_error_of_std
@@ -80,6 +80,9 @@ class XYPrecision:
     #: over its n valid frames (GUM E.4.3)
     repeatability_center_u_mm: tuple[float, float] = (float("nan"), float("nan"))
     repeatability_off_axis_u_mm: tuple[float, float] = (float("nan"), float("nan"))
+    #: Type A standard uncertainties (x, y) of the precision Q90s (metrics.depth.precision_q90_uncertainty), NaN
+    #: where not evaluated (the caller asks for them where they become key figures)
+    precision_q90_u_mm: tuple[float, float] = (float("nan"), float("nan"))
 
 
 def _summary(errors: np.ndarray) -> tuple[float, float]:
@@ -150,9 +153,10 @@ def off_axis_pixels(shape: tuple[int, int]) -> tuple[tuple[int, int], tuple[int,
     return (row, col + shape[1] // 4), (row + shape[0] // 4, col)
 
 
-def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray) -> XYPrecision:
+def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray, q90_uncertainty: bool = False) -> XYPrecision:
     """Repeatability (centre and off-axis pixels) and precision (median, Q90) of x and y over an (N, H, W)
-    wall stack.
+    wall stack, with the repeatabilities' uncertainties; with ``q90_uncertainty`` the precision Q90s' too (a
+    jackknife over the frames: time enough only for the steps whose figures become key figures).
 
     Examples
     --------
@@ -177,4 +181,6 @@ def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray) -> XYPrecision:
 
     return XYPrecision(float(sx.std[centre]), float(sy.std[centre]), float(sx.std[at_x]), float(sy.std[at_y]),
                        (float(sx.mean[centre]), float(sy.mean[centre])), (float(sx.mean[at_x]), float(sy.mean[at_y])),
-                       mx, my, qx, qy, invalid, (u(sx, centre), u(sy, centre)), (u(sx, at_x), u(sy, at_y)))
+                       mx, my, qx, qy, invalid, (u(sx, centre), u(sy, centre)), (u(sx, at_x), u(sy, at_y)),
+                       (precision_q90_uncertainty(np.asarray(x_stack), sx), precision_q90_uncertainty(np.asarray(y_stack), sy))
+                       if q90_uncertainty else (math.nan, math.nan))

@@ -216,9 +216,11 @@ def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
         out.notes.append("no Boehler star resolved anywhere: cloud resolution figures are null")
     walls = [s for s in steps if s.attrs.get("procedure") == "xy_sweep"] or [
         s for s in steps if s.attrs.get("procedure") == "depth_sweep"]
+    key = min(walls, key=lambda s: abs(_distance(s) - KEY_DISTANCE_MM), default=None)  # the precision figures'
     for step in walls:
         progress(f"{step.step_id} x/y noise")
-        out.precision.append((step.step_id, _distance(step), xy_precision(step.read("x"), step.read("y"))))
+        out.precision.append((step.step_id, _distance(step),
+                              xy_precision(step.read("x"), step.read("y"), q90_uncertainty=step is key)))
     return out
 
 
@@ -251,12 +253,17 @@ def figure_values(result: GeometryResult) -> dict[str, FigureValue]:
         figures["cloud_resolution_v_deg"] = FigureValue(star.result.angular_v_deg, [star.step_id])
     if result.precision:
         ids = [sid for sid, _, _ in result.precision]
-        for axis in "xy":
+        for i, axis in enumerate("xy"):
             for where in ("center", "off_axis"):
-                worst = np.nanmax([getattr(p, f"repeatability_{where}_{axis}_mm") for _, _, p in result.precision])
-                figures[f"{axis}_repeatability_{where}_mm"] = FigureValue(float(worst), ids)
+                values = [getattr(p, f"repeatability_{where}_{axis}_mm") for _, _, p in result.precision]
+                worst = int(np.nanargmax(values)) if np.isfinite(values).any() else 0
+                sid, _, at = result.precision[worst]
+                figures[f"{axis}_repeatability_{where}_mm"] = FigureValue(float(np.nanmax(values)), ids, (Component(
+                    f"frames at {sid}: the pixel's sample std (Type A)", getattr(at, f"repeatability_{where}_u_mm")[i]),))
         near = min(result.precision, key=lambda item: abs(item[1] - KEY_DISTANCE_MM))
         if abs(near[1] - KEY_DISTANCE_MM) <= KEY_TOLERANCE_MM:
-            figures["x_precision_q90_mm"] = FigureValue(near[2].precision_q90_x_mm, [near[0]])
-            figures["y_precision_q90_mm"] = FigureValue(near[2].precision_q90_y_mm, [near[0]])
+            for i, axis in enumerate("xy"):
+                figures[f"{axis}_precision_q90_mm"] = FigureValue(
+                    getattr(near[2], f"precision_q90_{axis}_mm"), [near[0]],
+                    (Component("frames: jackknife of the stack (Type A)", near[2].precision_q90_u_mm[i]),))
     return figures

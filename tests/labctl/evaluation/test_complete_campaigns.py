@@ -173,6 +173,23 @@ def test_hyperfocal_and_face_depth_uncertainties(complete):
     assert evaluation.face_depth[FACE_TRUENESS].budget[0].name.startswith("frames: jackknife")
 
 
+def test_xy_noise_figures_state_their_uncertainty(complete):
+    """x/y repeatabilities: the worst pixel's sample std over its frames, with s / sqrt(2 (n - 1)) (GUM E.4.3;
+    n = the 10 frames of a wall step); x/y precision Q90 at 2 m: a jackknife over the frames, well below the
+    figure."""
+    _, _, run, evaluation = complete
+    with RunReader(run) as reader:
+        frames = {s.step_id: s.attrs["frames"] for s in reader.steps()}
+    for name in ("x_repeatability_center_mm", "y_repeatability_off_axis_mm"):
+        figure = evaluation.figures[name]
+        assert {frames[s] for s in figure.source} == {DEPTH_FRAMES}
+        u = combined_standard_uncertainty(figure.budget)
+        assert u == pytest.approx(figure.value / math.sqrt(2 * (DEPTH_FRAMES - 1))), name
+    for name in ("x_precision_q90_mm", "y_precision_q90_mm"):
+        figure = evaluation.figures[name]
+        assert 0 < combined_standard_uncertainty(figure.budget) < 0.2 * figure.value, name
+
+
 def test_geometry_figures_of_an_undistorted_camera(complete):
     """No distortion in the model: within the method's 0.3 % in image and cloud. The Böhler star is
     resolved no finer than the sensor and within 3 sensor resolutions (the star's sampling limit is
