@@ -12,9 +12,11 @@
 * ``flatness``: a flat plate of ``plate_mm`` placed ``gap_mm`` in front of the
   wall at each distance, tilted about the vertical axis by each of ``tilts_deg``.
 
-Each frame of a step is one measurement. The maximum permissible errors
-(``mpe_*_mm``, optional) travel with the steps' target parameters; the
-evaluation gives pass / fail per quantity.
+A measurement is the mean of ``frames_per_measurement`` frames (default: all
+of the step's ``frames``, one measurement per placement), so each placement
+gives ``frames // frames_per_measurement`` measurements. The maximum
+permissible errors (``mpe_*_mm``, optional) travel with the steps' target
+parameters; the evaluation gives pass / fail per quantity.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import ClassVar, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from procedures.steps import Step, StrictModel
 
@@ -38,13 +40,27 @@ class _Artefact(StrictModel):
     exposure_us: float | None = Field(None, gt=0)
     camera_settings: dict[str, object] = Field(default_factory=dict)
     distances_mm: list[float]
+    frames_per_measurement: int | None = Field(None, ge=1, le=10000,
+                                               description="frames averaged into one measurement (default: all)")
+
+    @model_validator(mode="after")
+    def _measurements_divide_frames(self) -> _Artefact:
+        if self.frames_per_measurement is not None and self.frames % self.frames_per_measurement:
+            raise ValueError(f"frames_per_measurement = {self.frames_per_measurement} must divide frames = "
+                             f"{self.frames} (each measurement averages that many frames)")
+        return self
+
+    def averaged_frames(self) -> int:
+        """Frames averaged into one measurement: ``frames_per_measurement``, else all of a step's frames."""
+        return self.frames if self.frames_per_measurement is None else self.frames_per_measurement
 
     def stage_distances_mm(self) -> list[float]:
         """The stage sets the camera-wall distance: artefact distance plus gap."""
         return [d + self.gap_mm for d in self.distances_mm]
 
     def _step(self, index: int, distance: float, target: str, params: dict[str, object], prompt: str) -> Step:
-        return Step(index=index, procedure=self.kind, target=target, target_params={"gap_mm": self.gap_mm, **params},
+        return Step(index=index, procedure=self.kind, target=target, target_params={"gap_mm": self.gap_mm,
+                    "frames_per_measurement": self.averaged_frames(), **params},
                     frames=self.frames, distance_mm=distance + self.gap_mm, exposure_us=self.exposure_us,
                     camera_settings=self.camera_settings, prompt=prompt)
 

@@ -102,22 +102,27 @@ class DepthQualityRow(TypedDict):
 
 class AcceptanceVerdict(TypedDict):
     """A quantity of ``acceptance_test`` (VDI/VDE 2634-2): its figure (mm), the campaign's maximum permissible
-    error (None when it gives none) and ``pass``, ``fail`` or ``no_mpe``."""
+    error (None when it gives none), ``pass``, ``fail`` or ``no_mpe``, and the frames averaged into each
+    measurement (None when its positions average different numbers)."""
 
     value: float | None
     mpe_mm: float | None
     verdict: str
+    frames_per_measurement: int | None
 
 
 class AcceptancePositionRow(TypedDict):
-    """A row of ``acceptance_positions``: one sphere-bar or flat-plate step, its number of frames and, per
-    VDI/VDE 2634-2 quantity, the measurement of largest magnitude over its frames (None where the step does not
-    measure it); ``pose_deg`` is the bar's orientation or the plate's tilt."""
+    """A row of ``acceptance_positions``: one sphere-bar or flat-plate step, its frames evaluated, its
+    measurements, the frames averaged into each and, per VDI/VDE 2634-2 quantity, the measurement of largest
+    magnitude (None where the step does not measure it); ``pose_deg`` is the bar's orientation or the plate's
+    tilt."""
 
     step: str
     distance_mm: float
     pose_deg: float
     frames: float
+    measurements: float
+    frames_per_measurement: float
     probing_error_form_mm: float | None
     probing_error_size_mm: float | None
     sphere_spacing_error_mm: float | None

@@ -1,13 +1,16 @@
 """Evaluation of the VDI/VDE 2634-2 procedures (``sphere_bar``, ``flatness``) with ``metrics.vdi2634``.
 
-Every frame of a step is one measurement. The artefact's points are those
-nearer than the wall minus half the artefact's gap (the wall: the step's
-reference distance, else the stage's nominal distance); a ball bar's points are
+A measurement is the mean of the step's ``frames_per_measurement`` consecutive
+frames (all of them when the run does not say): per frame the artefact's points
+are those nearer than the wall minus half the artefact's gap (the wall: the
+step's reference distance, else the stage's nominal distance), and per pixel
+the measurement is the mean of the frames in which the pixel saw the artefact
+(frames left over after the last whole measurement are not evaluated). A ball bar's points are
 split between its two spheres by the side of their centroid they lie on along
 the bar's nominal direction, and each sphere is fitted with the rim rule of
 ``metrics.vdi2634`` (``max_incidence_deg``, ``rim_margin_px`` of the step,
 the margin turned into an angle with the camera's focal length). Per quantity the key figure is the measurement of
-largest magnitude over all frames and positions (what the guideline compares
+largest magnitude over all measurements and positions (what the guideline compares
 with the maximum permissible error): P_F and F their maximum, P_S and SD
 signed. With a maximum permissible error in the campaign, the verdict is pass
 when that magnitude does not exceed it.
@@ -36,7 +39,7 @@ from metrics.vdi2634 import (
     sphere_spacing_error,
 )
 
-#: fewer artefact points than this in a frame (or on a sphere inside its rim): the frame is not evaluated
+#: fewer artefact points than this in a measurement (or on a sphere inside its rim): the frame is not evaluated
 MIN_POINTS = 10
 #: rim rule of the sphere fit when the step does not give one (metrics.vdi2634)
 MAX_INCIDENCE_DEG, RIM_MARGIN_PX = 60.0, 1.0
@@ -52,7 +55,7 @@ QUANTITIES = {
 @dataclass(frozen=True)
 class Measurement:
     step_id: str
-    frame: int
+    frames: range  # the step's frames averaged into this measurement
     distance_mm: float
     pose_deg: float  # the bar's orientation or the plate's tilt
     values: dict[str, float]  # figure name -> value of this measurement
@@ -74,14 +77,19 @@ def _wall_mm(step: StepRecord) -> float:
     return reference if math.isfinite(reference) else float(step.attrs.get("distance_mm", math.nan))
 
 
-def _artefact_points(step: StepRecord, k: int, gap_mm: float) -> np.ndarray:
-    cloud = np.stack([step.frame(c, k) for c in ("x", "y", "z")], axis=-1).reshape(-1, 3).astype(np.float64)
-    cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
-    return cloud[cloud[:, 2] < _wall_mm(step) - gap_mm / 2]
+def _artefact_points(step: StepRecord, frames: range, gap_mm: float) -> np.ndarray:
+    """The measurement of ``frames``: per pixel the mean of the frames in which it saw the artefact, (n, 3)."""
+    total, count = 0.0, 0
+    for k in frames:
+        cloud = np.stack([step.frame(c, k) for c in ("x", "y", "z")], axis=-1).reshape(-1, 3).astype(np.float64)
+        artefact = np.all(np.isfinite(cloud), axis=1) & (cloud[:, 2] < _wall_mm(step) - gap_mm / 2)
+        total = total + np.where(artefact[:, None], cloud, 0.0)
+        count = count + artefact
+    seen = np.asarray(count) > 0
+    return np.asarray(total)[seen] / np.asarray(count)[seen, None]
 
 
-def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any], focal_px: float) -> dict[str, float] | str:
-    points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
+def _sphere_bar(points: np.ndarray, params: dict[str, Any], focal_px: float) -> dict[str, float] | str:
     if len(points) < 2 * MIN_POINTS:
         return f"{len(points)} points on the ball bar"
     phi = math.radians(float(params.get("orientation_deg", 0.0)))
@@ -105,8 +113,7 @@ def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any], focal_px: floa
     }
 
 
-def _flatness(step: StepRecord, k: int, params: dict[str, Any], _: float) -> dict[str, float] | str:
-    points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
+def _flatness(points: np.ndarray, params: dict[str, Any], _: float) -> dict[str, float] | str:
     if len(points) < MIN_POINTS:
         return f"{len(points)} points on the plate"
     return {"flatness_error_mm": flatness_error(fit_flat(points))}
@@ -127,12 +134,18 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
         evaluate = _sphere_bar if kind == "sphere_bar" else _flatness
         pose = float(params.get("orientation_deg" if kind == "sphere_bar" else "tilt_deg", 0.0))
         distance = _wall_mm(step) - float(params.get("gap_mm", 500.0))
-        for k in range(step.group["z"].shape[0]):
-            values = evaluate(step, k, params, focal_px)
+        recorded = step.group["z"].shape[0]
+        per = min(int(params.get("frames_per_measurement", recorded)), recorded)
+        if recorded % per:
+            result.notes.append(f"{step.step_id}: the last {recorded % per} of {recorded} frames make no whole "
+                                f"measurement of {per} frames, not evaluated")
+        for first in range(0, recorded - per + 1, per):
+            frames = range(first, first + per)
+            values = evaluate(_artefact_points(step, frames, float(params.get("gap_mm", 500.0))), params, focal_px)
             if isinstance(values, str):
-                result.notes.append(f"{step.step_id} frame {k}: {values}, not evaluated")
+                result.notes.append(f"{step.step_id} frames {first}-{first + per - 1}: {values}, not evaluated")
                 continue
-            result.measurements.append(Measurement(step.step_id, k, distance, pose, values))
+            result.measurements.append(Measurement(step.step_id, frames, distance, pose, values))
     return result
 
 
@@ -150,22 +163,28 @@ def figure_values(result: AcceptanceResult) -> dict[str, tuple[float, list[str]]
 
 
 def verdicts(result: AcceptanceResult) -> dict[str, AcceptanceVerdict]:
-    """Per quantity: the figure, its maximum permissible error and pass / fail (``no_mpe`` without one)."""
+    """Per quantity: the figure, its maximum permissible error, pass / fail (``no_mpe`` without one) and the
+    frames averaged per measurement (None when its positions differ: ``acceptance_table`` has them)."""
     out: dict[str, AcceptanceVerdict] = {}
     for name, (value, _) in figure_values(result).items():
         mpe = result.mpe_mm.get(name)
         verdict = "no_mpe" if mpe is None else ("pass" if abs(value) <= mpe else "fail")
-        out[name] = {"value": value, "mpe_mm": mpe, "verdict": verdict}
+        averaged = {len(m.frames) for m in result.measurements if name in m.values}
+        out[name] = {"value": value, "mpe_mm": mpe, "verdict": verdict,
+                     "frames_per_measurement": averaged.pop() if len(averaged) == 1 else None}
     return out
 
 
 def acceptance_table(result: AcceptanceResult) -> list[AcceptancePositionRow]:
-    """Per step: the worst measurement of each quantity over its frames, NaN where not measured (report, JSON)."""
+    """Per step: its frames evaluated, measurements and frames averaged per measurement, and the worst measurement
+    of each quantity, NaN where not measured (report, JSON)."""
     rows: list[AcceptancePositionRow] = []
     for step_id in dict.fromkeys(m.step_id for m in result.measurements):
         ms = [m for m in result.measurements if m.step_id == step_id]
         rows.append({"step": step_id, "distance_mm": ms[0].distance_mm, "pose_deg": ms[0].pose_deg,
-                     "frames": float(len(ms)), "probing_error_form_mm": _worst(ms, "probing_error_form_mm"),
+                     "frames": float(sum(len(m.frames) for m in ms)), "measurements": float(len(ms)),
+                     "frames_per_measurement": float(len(ms[0].frames)),
+                     "probing_error_form_mm": _worst(ms, "probing_error_form_mm"),
                      "probing_error_size_mm": _worst(ms, "probing_error_size_mm"),
                      "sphere_spacing_error_mm": _worst(ms, "sphere_spacing_error_mm"),
                      "flatness_error_mm": _worst(ms, "flatness_error_mm")})

@@ -368,12 +368,14 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
     table = _rows_table(rows, "quantity")
     doc.acceptance_positions = per_step = _clean_rows(acceptance_table(result))
     img = plot_acceptance(result, plots / "acceptance.png")
-    text = ("<p>Each frame is one measurement; a quantity's figure is the measurement of largest magnitude, "
+    averaged = sorted({len(m.frames) for m in result.measurements})
+    text = (f"<p>A measurement is the per-pixel mean of {' or '.join(str(n) for n in averaged)} frames "
+            "(<code>frames_per_measurement</code>); a quantity's figure is the measurement of largest magnitude, "
             "compared with the campaign's maximum permissible error (MPE). Each sphere is fitted to its points whose "
             "line of sight meets it at an incidence of at most <code>max_incidence_deg</code> and passes at least "
             "<code>rim_margin_px</code> inside its silhouette (the rim rule; 60 deg and 1 px unless the campaign "
             "says otherwise), besides the guideline's 0.3 % outlier rule.</p>" + table
-            + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(per_step, 'step')}")
+            + f"<h3>Per position (largest magnitude over the measurements)</h3>{_rows_table(per_step, 'step')}")
     return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
 
 

@@ -22,6 +22,7 @@ sphere_spacing_mm = 300.0
 distances_mm = [1000.0, 1500.0]
 orientations_deg = [0.0, 90.0]
 frames = 3
+frames_per_measurement = 1
 mpe_form_mm = {mpe_form}
 mpe_size_mm = 5.0
 mpe_spacing_mm = 5.0
@@ -31,6 +32,7 @@ kind = "flatness"
 distances_mm = [1000.0]
 tilts_deg = [0.0, 30.0]
 frames = 3
+frames_per_measurement = 1
 mpe_flatness_mm = 20.0
 """
 
@@ -43,7 +45,8 @@ def invoke(*args) -> int:
 
 @pytest.fixture(scope="module")
 def evaluated(tmp_path_factory):
-    """The blaze-101 at 320 x 240 with a tight form MPE (0.01 mm: fails) and loose others (pass)."""
+    """The blaze-101 at 320 x 240 with a tight form MPE (0.01 mm: fails) and loose others (pass), every frame one
+    measurement (what the per-frame predictions below compare with)."""
     from tests.conftest import SMALL_MODEL, campaign_text
 
     directory = tmp_path_factory.mktemp("acceptance")
@@ -67,8 +70,10 @@ def test_every_acceptance_quantity_with_its_verdict(evaluated):
                                                   "verdict": "fail"}
     for name in ("probing_error_size_mm", "sphere_spacing_error_mm", "flatness_error_mm"):
         assert verdicts[name]["verdict"] == "pass", (name, verdicts[name])
-    # 4 bar positions and 2 plate positions, each evaluated on all 3 frames
-    assert [row["frames"] for row in doc["acceptance_positions"]] == [3] * 6
+    # 4 bar positions and 2 plate positions, each evaluated on all 3 frames, each frame one measurement
+    assert [(row["frames"], row["measurements"], row["frames_per_measurement"])
+            for row in doc["acceptance_positions"]] == [(3, 3, 1)] * 6
+    assert {v["frames_per_measurement"] for v in verdicts.values()} == {1}
     report = (evaluated / "report.html").read_text()
     assert "Acceptance test (VDI/VDE 2634 Part 2)" in report and "plots/acceptance.png" in report
 
@@ -134,6 +139,56 @@ def test_rim_rule_removes_the_size_bias(evaluated):
             assert np.mean(free_sizes) - predicted.mean() > 3 * standard_error, (np.mean(free_sizes), standard_error)
 
 
+AVERAGED = """
+[[procedure]]
+kind = "sphere_bar"
+distances_mm = [1000.0]
+orientations_deg = [0.0]
+frames = {frames}
+
+[[procedure]]
+kind = "flatness"
+distances_mm = [1000.0]
+tilts_deg = [0.0]
+frames = {frames}
+"""
+
+
+def test_averaged_measurement_does_not_grow_with_frames(tmp_path):
+    """One bar and one plate position, recorded with 4 and with 16 frames, each averaged into one measurement
+    (the default). Against tests/artefact_model (100 draws): each measurement's P_F and F lie in the 1..99 %
+    band of the model's per-pixel mean of that many frames (widened by 5 % plus 0.05 mm: the renderer's
+    sub-pixel sampling and blur, which the model leaves out and averaging does not remove), so they shrink
+    as the noise averages down; the extreme of 16 independent single frames (the figure before averaging)
+    would lie above the 16-frame measurement in 99 % of the model's draws."""
+    from tests.conftest import SMALL_MODEL, campaign_text
+
+    model_path = tmp_path / "model.toml"
+    model_path.write_text(SMALL_MODEL.format(camera="blaze101", width=320, height=240))
+    model = parse_model(model_path.read_text())
+    rng = np.random.default_rng(4)
+    measured = {}
+    for frames in (4, 16):
+        campaign, run = tmp_path / f"campaign{frames}.toml", tmp_path / f"run{frames}.h5"
+        campaign.write_text(campaign_text(procedures=AVERAGED.format(frames=frames)))
+        assert invoke("run", campaign, "--sim", "--model", model_path, "-o", run, "--quiet") == 0
+        result = evaluate_runs([run]).acceptance
+        assert [len(m.frames) for m in result.measurements] == [frames, frames]
+        measured[frames] = {n: v for m in result.measurements for n, v in m.values.items()}
+        with RunReader(run) as reader:
+            averaged = predicted_acceptance(model, reader, rng, 100)
+            single = predicted_acceptance(model, reader, rng, 100, frames_per_measurement=1) if frames == 16 else []
+        for name in ("probing_error_form_mm", "flatness_error_mm"):
+            low, high = np.quantile([d[name][0] for d in averaged], [0.01, 0.99])
+            value = measured[frames][name]
+            assert 0.95 * low - 0.05 <= value <= 1.05 * high + 0.05, (frames, name, value, low, high)
+            if single:
+                extreme = np.quantile([max(d[name]) for d in single], 0.01)
+                assert value < extreme, (name, value, extreme)
+    for name in ("probing_error_form_mm", "flatness_error_mm"):
+        assert measured[16][name] < measured[4][name], (name, measured)
+
+
 def test_procedures_validate_their_parameters():
     from tests.conftest import campaign_text
 
@@ -142,3 +197,6 @@ def test_procedures_validate_their_parameters():
                            "c.toml")
     with pytest.raises(InputError, match="mpe_flatnes"):
         parse_campaign(campaign_text(procedures='[[procedure]]\nkind = "flatness"\nmpe_flatnes = 1\n'), "c.toml")
+    with pytest.raises(InputError, match="frames_per_measurement = 3 must divide frames = 10"):
+        parse_campaign(campaign_text(procedures='[[procedure]]\nkind = "sphere_bar"\nframes_per_measurement = 3\n'),
+                       "c.toml")
