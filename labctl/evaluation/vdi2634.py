@@ -31,6 +31,7 @@ from labctl.evaluation.depth_quality import focal_length_px
 from labctl.evaluation.sections import AcceptancePositionRow, AcceptanceVerdict
 from labctl.run.store import StepRecord
 from metrics.vdi2634 import (
+    MAX_EXCLUDED_SHARE,
     fit_flat,
     fit_sphere_cap,
     flatness_error,
@@ -59,6 +60,7 @@ class Measurement:
     distance_mm: float
     pose_deg: float  # the bar's orientation or the plate's tilt
     values: dict[str, float]  # figure name -> value of this measurement
+    points_used: tuple[float, ...] = ()  # per sphere: share of its points the fit used (rim and 0.3 % rules)
 
 
 @dataclass
@@ -89,7 +91,12 @@ def _artefact_points(step: StepRecord, frames: range, gap_mm: float) -> np.ndarr
     return np.asarray(total)[seen] / np.asarray(count)[seen, None]
 
 
-def _sphere_bar(points: np.ndarray, params: dict[str, Any], focal_px: float) -> dict[str, float] | str:
+#: what an evaluator gives: the figures of one measurement and per sphere the share of its points the fit used
+#: (empty for the plate), or why the measurement is not evaluated
+Evaluated = tuple[dict[str, float], tuple[float, ...]] | str
+
+
+def _sphere_bar(points: np.ndarray, params: dict[str, Any], focal_px: float) -> Evaluated:
     if len(points) < 2 * MIN_POINTS:
         return f"{len(points)} points on the ball bar"
     phi = math.radians(float(params.get("orientation_deg", 0.0)))
@@ -110,13 +117,13 @@ def _sphere_bar(points: np.ndarray, params: dict[str, Any], focal_px: float) -> 
         "probing_error_form_mm": max(probing_error_form(f) for f in fits),
         "probing_error_size_mm": max(sizes, key=abs),
         "sphere_spacing_error_mm": sphere_spacing_error(fits[0], fits[1], float(params["spacing_mm"])),
-    }
+    }, tuple(f.used_share for f in fits)
 
 
-def _flatness(points: np.ndarray, params: dict[str, Any], _: float) -> dict[str, float] | str:
+def _flatness(points: np.ndarray, params: dict[str, Any], _: float) -> Evaluated:
     if len(points) < MIN_POINTS:
         return f"{len(points)} points on the plate"
-    return {"flatness_error_mm": flatness_error(fit_flat(points))}
+    return {"flatness_error_mm": flatness_error(fit_flat(points))}, ()
 
 
 def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
@@ -141,11 +148,11 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
                                 f"measurement of {per} frames, not evaluated")
         for first in range(0, recorded - per + 1, per):
             frames = range(first, first + per)
-            values = evaluate(_artefact_points(step, frames, float(params.get("gap_mm", 500.0))), params, focal_px)
-            if isinstance(values, str):
-                result.notes.append(f"{step.step_id} frames {first}-{first + per - 1}: {values}, not evaluated")
+            evaluated = evaluate(_artefact_points(step, frames, float(params.get("gap_mm", 500.0))), params, focal_px)
+            if isinstance(evaluated, str):
+                result.notes.append(f"{step.step_id} frames {first}-{first + per - 1}: {evaluated}, not evaluated")
                 continue
-            result.measurements.append(Measurement(step.step_id, frames, distance, pose, values))
+            result.measurements.append(Measurement(step.step_id, frames, distance, pose, *evaluated))
     return result
 
 
@@ -162,22 +169,37 @@ def figure_values(result: AcceptanceResult) -> dict[str, tuple[float, list[str]]
     return figures
 
 
+def rim_rule_deviation(result: AcceptanceResult) -> str | None:
+    """The sphere fits' departure from VDI/VDE 2634-2 (which allows leaving out at most 0.3 % of a measurement's
+    points): the rim rule's range of shares of a sphere's points used; None without a sphere measured."""
+    shares = [share for m in result.measurements for share in m.points_used]
+    if not shares:
+        return None
+    return (f"deviation from VDI/VDE 2634-2: the rim rule fits each sphere to {100 * min(shares):.0f}-"
+            f"{100 * max(shares):.0f} % of its points (per sphere and measurement: acceptance_positions' "
+            f"points_used); the guideline allows leaving out at most {100 * MAX_EXCLUDED_SHARE:g} %")
+
+
 def verdicts(result: AcceptanceResult) -> dict[str, AcceptanceVerdict]:
-    """Per quantity: the figure, its maximum permissible error, pass / fail (``no_mpe`` without one) and the
-    frames averaged per measurement (None when its positions differ: ``acceptance_table`` has them)."""
+    """Per quantity: the figure, its maximum permissible error, pass / fail (``no_mpe`` without one), the
+    frames averaged per measurement (None when its positions differ: ``acceptance_table`` has them) and its
+    departure from the guideline (the sphere quantities' rim rule; None for the plate)."""
     out: dict[str, AcceptanceVerdict] = {}
+    deviation = rim_rule_deviation(result)
     for name, (value, _) in figure_values(result).items():
         mpe = result.mpe_mm.get(name)
         verdict = "no_mpe" if mpe is None else ("pass" if abs(value) <= mpe else "fail")
         averaged = {len(m.frames) for m in result.measurements if name in m.values}
         out[name] = {"value": value, "mpe_mm": mpe, "verdict": verdict,
-                     "frames_per_measurement": averaged.pop() if len(averaged) == 1 else None}
+                     "frames_per_measurement": averaged.pop() if len(averaged) == 1 else None,
+                     "deviation": None if name == "flatness_error_mm" else deviation}
     return out
 
 
 def acceptance_table(result: AcceptanceResult) -> list[AcceptancePositionRow]:
-    """Per step: its frames evaluated, measurements and frames averaged per measurement, and the worst measurement
-    of each quantity, NaN where not measured (report, JSON)."""
+    """Per step: its frames evaluated, measurements and frames averaged per measurement, the worst measurement
+    of each quantity (NaN where not measured) and per measurement and sphere the share of its points the fit
+    used (None for the plate) (report, JSON)."""
     rows: list[AcceptancePositionRow] = []
     for step_id in dict.fromkeys(m.step_id for m in result.measurements):
         ms = [m for m in result.measurements if m.step_id == step_id]
@@ -187,7 +209,8 @@ def acceptance_table(result: AcceptanceResult) -> list[AcceptancePositionRow]:
                      "probing_error_form_mm": _worst(ms, "probing_error_form_mm"),
                      "probing_error_size_mm": _worst(ms, "probing_error_size_mm"),
                      "sphere_spacing_error_mm": _worst(ms, "sphere_spacing_error_mm"),
-                     "flatness_error_mm": _worst(ms, "flatness_error_mm")})
+                     "flatness_error_mm": _worst(ms, "flatness_error_mm"),
+                     "points_used": [list(m.points_used) for m in ms] if ms[0].points_used else None})
     return rows
 
 

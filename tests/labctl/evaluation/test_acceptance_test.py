@@ -12,7 +12,14 @@ from labctl.run.config import parse_campaign
 from labctl.run.store import RunReader
 from metrics.vdi2634 import fit_sphere
 from sim.model import parse_model
-from tests.artefact_model import plate_flatness, plate_model, predicted_acceptance, wall_mm
+from tests.artefact_model import (
+    ball_bar_centres,
+    plate_flatness,
+    plate_model,
+    predicted_acceptance,
+    sphere_pixels,
+    wall_mm,
+)
 
 PROCEDURES = """
 [[procedure]]
@@ -74,8 +81,13 @@ def test_every_acceptance_quantity_with_its_verdict(evaluated):
     assert [(row["frames"], row["measurements"], row["frames_per_measurement"])
             for row in doc["acceptance_positions"]] == [(3, 3, 1)] * 6
     assert {v["frames_per_measurement"] for v in verdicts.values()} == {1}
+    for name in ("probing_error_form_mm", "probing_error_size_mm", "sphere_spacing_error_mm"):
+        assert "at most 0.3 %" in verdicts[name]["deviation"], name
+    assert verdicts["flatness_error_mm"]["deviation"] is None
+    assert [len(row["points_used"] or []) for row in doc["acceptance_positions"]] == [3] * 4 + [0] * 2
     report = (evaluated / "report.html").read_text()
     assert "Acceptance test (VDI/VDE 2634 Part 2)" in report and "plots/acceptance.png" in report
+    assert "Deviation from VDI/VDE 2634-2: the rim rule" in report and "Points each sphere fit used" in report
 
 
 def artefact_points(step, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -187,6 +199,33 @@ def test_averaged_measurement_does_not_grow_with_frames(tmp_path):
                 assert value < extreme, (name, value, extreme)
     for name in ("probing_error_form_mm", "flatness_error_mm"):
         assert measured[16][name] < measured[4][name], (name, measured)
+
+
+def test_points_used_are_the_rim_rule_share(evaluated):
+    """Per sphere and measurement, the share of its points the fit used against tests/artefact_model's rim rule
+    (pixels whose ray meets the exact sphere at most 60 deg from its normal and one pixel inside its silhouette,
+    among the frame's pixels on that sphere): within 2 of the sphere's pixels (the evaluation draws the cap about
+    the fitted centre, the model about the true one), and below 75 % (a 60 deg cap covers at most
+    sin^2 60 deg = 75 % of the sphere's disc in the image, less the one-pixel margin), far from the guideline's
+    99.7 %."""
+    directory = evaluated.parent
+    model = parse_model((directory / "model.toml").read_text())
+    measured = {(m.step_id, m.frames.start): m.points_used for m in evaluate_runs([directory / "run.h5"])
+                .acceptance.measurements if m.points_used}
+    with RunReader(directory / "run.h5") as reader:
+        for step in reader.steps("sphere_bar"):
+            params = json.loads(step.attrs["target_json"])
+            centres = ball_bar_centres(wall_mm(step), params)
+            phi = np.radians(params["orientation_deg"])
+            for k in range(step.group["z"].shape[0]):
+                points, mask = artefact_points(step, k)
+                side = (points[:, :2] - points[:, :2].mean(axis=0)) @ [np.cos(phi), np.sin(phi)] >= 0
+                for sphere, (centre, on_it) in enumerate(zip(centres, (~side, side))):
+                    kept = sphere_pixels(model, centre, params["diameter_mm"] / 2)
+                    expected = mask[kept.rows, kept.cols].sum()
+                    used = measured[(step.step_id, k)][sphere]
+                    assert abs(round(used * on_it.sum()) - expected) <= 2, (step.step_id, k, sphere, used, expected)
+                    assert used < 0.75, (step.step_id, k, sphere, used)
 
 
 def test_procedures_validate_their_parameters():
