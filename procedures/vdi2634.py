@@ -15,8 +15,11 @@
 A measurement is the mean of ``frames_per_measurement`` frames (default: all
 of the step's ``frames``, one measurement per placement), so each placement
 gives ``frames // frames_per_measurement`` measurements. The maximum
-permissible errors (``mpe_*_mm``, optional) travel with the steps' target
-parameters; the evaluation gives pass / fail per quantity.
+permissible errors (``mpe_*_mm``, optional) and the ball bar's calibration
+uncertainties (``sphere_*_uncertainty_mm``, optional, stated with
+``calibration_coverage_factor`` as the certificate states them) travel with
+the steps' target parameters; the evaluation gives pass / fail / marginal per
+quantity.
 """
 
 from __future__ import annotations
@@ -76,6 +79,12 @@ class SphereBar(_Artefact):
     tilt_deg: float = Field(0.0, ge=-60.0, le=60.0, description="bar out of the image plane")
     max_incidence_deg: float = Field(60.0, gt=0.0, le=90.0, description="rim rule: steepest incidence kept")
     rim_margin_px: float = Field(1.0, ge=0.0, le=20.0, description="rim rule: pixels kept inside the silhouette")
+    sphere_diameter_uncertainty_mm: float | None = Field(
+        None, ge=0, le=10.0, description="calibration certificate's uncertainty of the diameter")
+    sphere_spacing_uncertainty_mm: float | None = Field(
+        None, ge=0, le=10.0, description="calibration certificate's uncertainty of the centre distance")
+    calibration_coverage_factor: float = Field(
+        2.0, ge=1.0, le=10.0, description="k the certificate states its uncertainties with (1: standard)")
     mpe_form_mm: float | None = Field(None, gt=0, description="maximum permissible probing error form")
     mpe_size_mm: float | None = Field(None, gt=0, description="maximum permissible |probing error size|")
     mpe_spacing_mm: float | None = Field(None, gt=0, description="maximum permissible |sphere-spacing error|")
@@ -87,7 +96,9 @@ class SphereBar(_Artefact):
                 first_index + n, distance, "ball_bar",
                 {"diameter_mm": self.sphere_diameter_mm, "spacing_mm": self.sphere_spacing_mm,
                  "orientation_deg": orientation, "tilt_deg": self.tilt_deg, "max_incidence_deg": self.max_incidence_deg,
-                 "rim_margin_px": self.rim_margin_px, "mpe_form_mm": self.mpe_form_mm,
+                 "rim_margin_px": self.rim_margin_px, "diameter_uncertainty_mm": self.sphere_diameter_uncertainty_mm,
+                 "spacing_uncertainty_mm": self.sphere_spacing_uncertainty_mm,
+                 "calibration_coverage_factor": self.calibration_coverage_factor, "mpe_form_mm": self.mpe_form_mm,
                  "mpe_size_mm": self.mpe_size_mm, "mpe_spacing_mm": self.mpe_spacing_mm},
                 f"place the ball bar ({self.sphere_diameter_mm:g} mm spheres, {self.sphere_spacing_mm:g} mm apart) "
                 f"{self.gap_mm:g} mm in front of the wall, centred on the camera axis, at {orientation:g} deg from "

@@ -102,13 +102,17 @@ class DepthQualityRow(TypedDict):
 
 class AcceptanceVerdict(TypedDict):
     """A quantity of ``acceptance_test`` (VDI/VDE 2634-2): its figure (mm), the campaign's maximum permissible
-    error (None when it gives none), ``pass``, ``fail`` or ``no_mpe``, and the frames averaged into each
+    error (None when it gives none), ``pass``, ``fail`` or ``marginal`` (within the figure's expanded uncertainty
+    of the MPE) or ``no_mpe``, that expanded uncertainty (mm, None: not estimated) and what it rests on
+    (``uncertainty_basis``), the frames averaged into each
     measurement (None when its positions average different numbers); ``deviation`` says where the quantity departs
     from the guideline (the sphere fits' rim rule; None for the plate's flatness)."""
 
     value: float | None
     mpe_mm: float | None
     verdict: str
+    expanded_uncertainty_mm: float | None
+    uncertainty_basis: str
     frames_per_measurement: int | None
     deviation: str | None
 

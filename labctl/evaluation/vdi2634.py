@@ -12,8 +12,16 @@ the bar's nominal direction, and each sphere is fitted with the rim rule of
 the margin turned into an angle with the camera's focal length). Per quantity the key figure is the measurement of
 largest magnitude over all measurements and positions (what the guideline compares
 with the maximum permissible error): P_F and F their maximum, P_S and SD
-signed. With a maximum permissible error in the campaign, the verdict is pass
-when that magnitude does not exceed it.
+signed. With a maximum permissible error in the campaign, the verdict is
+``metrics.uncertainty.conformity`` of that magnitude with the figure's expanded
+uncertainty: pass or fail outside a guard band of U around the MPE, marginal
+inside it. The budget is the ball bar's calibration where the campaign states
+it (the certificate's uncertainty of the diameter for P_S and of the centre
+distance for SD, each with sensitivity 1); it has no Type A component: the
+figure is the extreme of the test's measurements, which the guideline compares
+with the MPE as it is, not a mean of repeated measurements with a standard
+error. P_F and F have none (their artefacts' form calibration is not among the
+campaign's fields): their verdict is on the value alone.
 """
 
 from __future__ import annotations
@@ -28,8 +36,10 @@ import numpy as np
 
 from drivers.protocols import CameraInfo
 from labctl.evaluation.depth_quality import focal_length_px
+from labctl.evaluation.keyfigures import FigureValue, standard_uncertainty
 from labctl.evaluation.sections import AcceptancePositionRow, AcceptanceVerdict
 from labctl.run.store import StepRecord
+from metrics.uncertainty import Component, conformity, expanded_uncertainty, from_multiple
 from metrics.vdi2634 import (
     MAX_EXCLUDED_SHARE,
     fit_flat,
@@ -51,6 +61,14 @@ QUANTITIES = {
     "sphere_spacing_error_mm": ("mpe_spacing_mm", "signed"),
     "flatness_error_mm": ("mpe_flatness_mm", "max"),
 }
+#: figure -> (the ball bar's calibrated value its budget takes, the step parameter with its stated uncertainty)
+CALIBRATED = {
+    "probing_error_size_mm": ("sphere diameter", "diameter_uncertainty_mm"),
+    "sphere_spacing_error_mm": ("centre distance", "spacing_uncertainty_mm"),
+}
+#: why no acceptance figure has a Type A component
+NO_TYPE_A = ("no Type A component: the figure is the extreme of the test's measurements, compared with the MPE as "
+             "it is, not a mean of repeated measurements with a standard error")
 
 
 @dataclass(frozen=True)
@@ -68,6 +86,8 @@ class AcceptanceResult:
     measurements: list[Measurement] = field(default_factory=list)
     mpe_mm: dict[str, float | None] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: step -> figure -> the ball bar's calibration component (standard uncertainty, mm) where the campaign states it
+    calibration: dict[str, dict[str, Component]] = field(default_factory=dict)
 
 
 def _params(step: StepRecord) -> dict[str, Any]:
@@ -138,6 +158,7 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
         for name, (mpe, _) in QUANTITIES.items():
             if mpe in params:
                 result.mpe_mm[name] = params[mpe]
+        result.calibration[step.step_id] = acceptance_calibration(params)
         evaluate = _sphere_bar if kind == "sphere_bar" else _flatness
         pose = float(params.get("orientation_deg" if kind == "sphere_bar" else "tilt_deg", 0.0))
         distance = _wall_mm(step) - float(params.get("gap_mm", 500.0))
@@ -156,17 +177,38 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
     return result
 
 
-def figure_values(result: AcceptanceResult) -> dict[str, tuple[float, list[str]]]:
-    """Key figures: per quantity the measurement of largest magnitude, with the steps measured."""
-    figures: dict[str, tuple[float, list[str]]] = {}
+def acceptance_calibration(params: dict[str, Any]) -> dict[str, Component]:
+    """The ball bar's calibration components of a step: each stated uncertainty divided by the certificate's
+    coverage factor (GUM 4.3.3), sensitivity 1 (P_S and SD are measured minus calibrated value)."""
+    k = float(params.get("calibration_coverage_factor", 2.0))
+    return {name: Component(f"ball bar: calibrated {what} (certificate, Type B)", from_multiple(float(params[key]), k))
+            for name, (what, key) in CALIBRATED.items() if params.get(key) is not None}
+
+
+def figure_values(result: AcceptanceResult) -> dict[str, FigureValue]:
+    """Key figures: per quantity the measurement of largest magnitude, with the steps measured and the budget of
+    the step it comes from (the ball bar's calibration; empty, not estimated, where the campaign states none)."""
+    figures: dict[str, FigureValue] = {}
     for name, (_, reduce) in QUANTITIES.items():
         rows = [m for m in result.measurements if name in m.values]
         if not rows:
             continue
         worst = max(rows, key=lambda m: abs(m.values[name]))
         value = worst.values[name] if reduce == "signed" else max(m.values[name] for m in rows)
-        figures[name] = (value, sorted({m.step_id for m in rows}))
+        component = result.calibration.get(worst.step_id, {}).get(name)
+        figures[name] = FigureValue(value, sorted({m.step_id for m in rows}), (component,) if component else ())
     return figures
+
+
+def _uncertainty_basis(name: str, figure: FigureValue) -> str:
+    """What a figure's uncertainty rests on, in words (report, JSON)."""
+    if figure.budget:
+        return f"{figure.budget[0].name}; {NO_TYPE_A}"
+    if name in CALIBRATED:
+        what, key = CALIBRATED[name]
+        return (f"not estimated: the campaign states no uncertainty of the calibrated {what} "
+                f"(sphere_{key.removesuffix('_mm')}_mm); {NO_TYPE_A}")
+    return f"not estimated: the artefact's form calibration is not among the campaign's fields; {NO_TYPE_A}"
 
 
 def rim_rule_deviation(result: AcceptanceResult) -> str | None:
@@ -181,16 +223,22 @@ def rim_rule_deviation(result: AcceptanceResult) -> str | None:
 
 
 def verdicts(result: AcceptanceResult) -> dict[str, AcceptanceVerdict]:
-    """Per quantity: the figure, its maximum permissible error, pass / fail (``no_mpe`` without one), the
-    frames averaged per measurement (None when its positions differ: ``acceptance_table`` has them) and its
-    departure from the guideline (the sphere quantities' rim rule; None for the plate)."""
+    """Per quantity: the figure, its maximum permissible error, pass / fail / marginal with the figure's expanded
+    uncertainty (``metrics.uncertainty.conformity``; ``no_mpe`` without an MPE), that uncertainty (None: not
+    estimated) and what it rests on, the frames averaged per measurement (None when its positions differ:
+    ``acceptance_table`` has them) and its departure from the guideline (the sphere quantities' rim rule; None
+    for the plate)."""
     out: dict[str, AcceptanceVerdict] = {}
     deviation = rim_rule_deviation(result)
-    for name, (value, _) in figure_values(result).items():
+    for name, figure in figure_values(result).items():
+        assert figure.value is not None
         mpe = result.mpe_mm.get(name)
-        verdict = "no_mpe" if mpe is None else ("pass" if abs(value) <= mpe else "fail")
+        u = standard_uncertainty(figure)
+        expanded = None if u is None else expanded_uncertainty(u)
+        verdict = "no_mpe" if mpe is None else conformity(figure.value, mpe, expanded, "max_abs")
         averaged = {len(m.frames) for m in result.measurements if name in m.values}
-        out[name] = {"value": value, "mpe_mm": mpe, "verdict": verdict,
+        out[name] = {"value": figure.value, "mpe_mm": mpe, "verdict": verdict, "expanded_uncertainty_mm": expanded,
+                     "uncertainty_basis": _uncertainty_basis(name, figure),
                      "frames_per_measurement": averaged.pop() if len(averaged) == 1 else None,
                      "deviation": None if name == "flatness_error_mm" else deviation}
     return out

@@ -364,9 +364,14 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
     assert result is not None
     judged = verdicts(result)
     doc.acceptance_test = {name: _clean(row) for name, row in judged.items()}
-    rows = [{"quantity": name, "value_mm": row["value"], "mpe_mm": row["mpe_mm"] if row["mpe_mm"] is not None
-             else math.nan, "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
-    table = _rows_table(rows, "quantity")
+    rows = [{"quantity": name, "value_mm": row["value"],
+             "expanded_uncertainty_mm": _or_nan(row["expanded_uncertainty_mm"]), "mpe_mm": _or_nan(row["mpe_mm"]),
+             "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
+    bases = "".join(f"<li><code>{name}</code>: {html.escape(row['uncertainty_basis'])}</li>"
+                    for name, row in judged.items())
+    table = (_rows_table(rows, "quantity") + "<p>The verdict is decided with guard bands of the expanded "
+             "uncertainty U (k = 2) around the MPE: pass inside it by more than U, fail outside it by more than U, "
+             f"marginal within U of it; without U on the value alone. U rests on:</p><ul>{bases}</ul>")
     doc.acceptance_positions = per_step = _clean_rows(acceptance_table(result))
     img = plot_acceptance(result, plots / "acceptance.png")
     averaged = sorted({len(m.frames) for m in result.measurements})
@@ -387,6 +392,11 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
             + _rows_table([{k: v for k, v in row.items() if k != "points_used"} for row in per_step], "step")
             + (f"<h3>Points each sphere fit used</h3>{_rows_table(used, 'measurement')}" if used else ""))
     return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
+
+
+def _or_nan(value: float | None) -> float:
+    """A number for a report table: NaN (shown n/a) where None."""
+    return math.nan if value is None else value
 
 
 def depth_quantization_html(quantization_mm: dict[str, float]) -> str:

@@ -8,6 +8,7 @@ import pytest
 from labctl.cli import main
 from labctl.errors import InputError
 from labctl.evaluation.evaluate import evaluate_runs
+from labctl.evaluation.vdi2634 import AcceptanceResult, Measurement, acceptance_calibration, verdicts
 from labctl.run.config import parse_campaign
 from labctl.run.store import RunReader
 from metrics.vdi2634 import fit_sphere
@@ -33,6 +34,7 @@ frames_per_measurement = 1
 mpe_form_mm = {mpe_form}
 mpe_size_mm = 5.0
 mpe_spacing_mm = 5.0
+sphere_diameter_uncertainty_mm = 0.004
 
 [[procedure]]
 kind = "flatness"
@@ -81,6 +83,14 @@ def test_every_acceptance_quantity_with_its_verdict(evaluated):
     assert [(row["frames"], row["measurements"], row["frames_per_measurement"])
             for row in doc["acceptance_positions"]] == [(3, 3, 1)] * 6
     assert {v["frames_per_measurement"] for v in verdicts.values()} == {1}
+    # the certificate's 0.004 mm (k = 2) on the diameter: u = 0.002 mm, U = 0.004 mm for P_S; no spacing uncertainty
+    assert figures["probing_error_size_mm"]["uncertainty"] == pytest.approx(0.002)
+    assert verdicts["probing_error_size_mm"]["expanded_uncertainty_mm"] == pytest.approx(0.004)
+    assert "calibrated sphere diameter" in verdicts["probing_error_size_mm"]["uncertainty_basis"]
+    for name in ("probing_error_form_mm", "sphere_spacing_error_mm", "flatness_error_mm"):
+        assert figures[name]["uncertainty"] is None and verdicts[name]["expanded_uncertainty_mm"] is None, name
+        assert verdicts[name]["uncertainty_basis"].startswith("not estimated"), name
+    assert "sphere_spacing_uncertainty_mm" in verdicts["sphere_spacing_error_mm"]["uncertainty_basis"]
     for name in ("probing_error_form_mm", "probing_error_size_mm", "sphere_spacing_error_mm"):
         assert "at most 0.3 %" in verdicts[name]["deviation"], name
     assert verdicts["flatness_error_mm"]["deviation"] is None
@@ -228,6 +238,26 @@ def test_points_used_are_the_rim_rule_share(evaluated):
                     assert used < 0.75, (step.step_id, k, sphere, used)
 
 
+def test_verdict_with_the_calibration_uncertainty():
+    """JCGM 106 guard bands of U around the MPE (5 mm): a size error of -4.9 mm passes on its value alone but is
+    marginal with the certificate's U = 0.3 mm (k = 2) on the diameter; -4.6 mm passes and 5.4 mm fails with
+    it; the spacing error of 5.2 mm with U = 0.3 mm (stated at k = 1 as 0.15 mm: u = 0.15 mm) is marginal."""
+    def judged(size: float, spacing: float, **calibration: float) -> dict[str, str]:
+        params = {"mpe_size_mm": 5.0, "mpe_spacing_mm": 5.0, **calibration}
+        result = AcceptanceResult([Measurement("00000_sphere_bar", range(1), 1000.0, 0.0,
+                                               {"probing_error_size_mm": size, "sphere_spacing_error_mm": spacing})],
+                                  {"probing_error_size_mm": 5.0, "sphere_spacing_error_mm": 5.0})
+        result.calibration["00000_sphere_bar"] = acceptance_calibration(params)
+        return {name: row["verdict"] for name, row in verdicts(result).items()}
+
+    assert judged(-4.9, 0.0) == {"probing_error_size_mm": "pass", "sphere_spacing_error_mm": "pass"}
+    assert judged(-4.9, 0.0, diameter_uncertainty_mm=0.3)["probing_error_size_mm"] == "marginal"
+    assert judged(-4.6, 0.0, diameter_uncertainty_mm=0.3)["probing_error_size_mm"] == "pass"
+    assert judged(5.4, 0.0, diameter_uncertainty_mm=0.3)["probing_error_size_mm"] == "fail"
+    assert judged(0.0, 5.2, spacing_uncertainty_mm=0.15, calibration_coverage_factor=1.0) == {
+        "probing_error_size_mm": "pass", "sphere_spacing_error_mm": "marginal"}
+
+
 def test_procedures_validate_their_parameters():
     from tests.conftest import campaign_text
 
@@ -236,6 +266,9 @@ def test_procedures_validate_their_parameters():
                            "c.toml")
     with pytest.raises(InputError, match="mpe_flatnes"):
         parse_campaign(campaign_text(procedures='[[procedure]]\nkind = "flatness"\nmpe_flatnes = 1\n'), "c.toml")
+    with pytest.raises(InputError, match="calibration_coverage_factor"):
+        parse_campaign(campaign_text(procedures='[[procedure]]\nkind = "sphere_bar"\ncalibration_coverage_factor = 0.5\n'),
+                       "c.toml")
     with pytest.raises(InputError, match="frames_per_measurement = 3 must divide frames = 10"):
         parse_campaign(campaign_text(procedures='[[procedure]]\nkind = "sphere_bar"\nframes_per_measurement = 3\n'),
                        "c.toml")
