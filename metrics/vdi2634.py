@@ -61,6 +61,18 @@ class SphereFit:
     def diameter(self) -> float:
         return 2.0 * self.radius
 
+    @property
+    def used_share(self) -> float:
+        """Share of the points the fit used: neither outside the rim rule nor left out as outliers (VDI/VDE
+        2634-2 allows leaving out 0.3 %; the rim rule leaves out more, module docstring).
+
+        Examples
+        --------
+        >>> SphereFit(np.zeros(3), 25.0, np.zeros(70), n_points=100, n_excluded=0, n_rim=30).used_share
+        0.7
+        """
+        return (self.n_points - self.n_rim - self.n_excluded) / self.n_points
+
 
 def _excluded(deviations: np.ndarray) -> np.ndarray:
     """Boolean mask of the points the outlier rule leaves out (see the module docstring)."""

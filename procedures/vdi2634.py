@@ -12,9 +12,14 @@
 * ``flatness``: a flat plate of ``plate_mm`` placed ``gap_mm`` in front of the
   wall at each distance, tilted about the vertical axis by each of ``tilts_deg``.
 
-Each frame of a step is one measurement. The maximum permissible errors
-(``mpe_*_mm``, optional) travel with the steps' target parameters; the
-evaluation gives pass / fail per quantity.
+A measurement is the mean of ``frames_per_measurement`` frames (default: all
+of the step's ``frames``, one measurement per placement), so each placement
+gives ``frames // frames_per_measurement`` measurements. The maximum
+permissible errors (``mpe_*_mm``, optional) and the ball bar's calibration
+uncertainties (``sphere_*_uncertainty_mm``, optional, stated with
+``calibration_coverage_factor`` as the certificate states them) travel with
+the steps' target parameters; the evaluation gives pass / fail / marginal per
+quantity.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import ClassVar, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from procedures.steps import Step, StrictModel
 
@@ -38,13 +43,27 @@ class _Artefact(StrictModel):
     exposure_us: float | None = Field(None, gt=0)
     camera_settings: dict[str, object] = Field(default_factory=dict)
     distances_mm: list[float]
+    frames_per_measurement: int | None = Field(None, ge=1, le=10000,
+                                               description="frames averaged into one measurement (default: all)")
+
+    @model_validator(mode="after")
+    def _measurements_divide_frames(self) -> _Artefact:
+        if self.frames_per_measurement is not None and self.frames % self.frames_per_measurement:
+            raise ValueError(f"frames_per_measurement = {self.frames_per_measurement} must divide frames = "
+                             f"{self.frames} (each measurement averages that many frames)")
+        return self
+
+    def averaged_frames(self) -> int:
+        """Frames averaged into one measurement: ``frames_per_measurement``, else all of a step's frames."""
+        return self.frames if self.frames_per_measurement is None else self.frames_per_measurement
 
     def stage_distances_mm(self) -> list[float]:
         """The stage sets the camera-wall distance: artefact distance plus gap."""
         return [d + self.gap_mm for d in self.distances_mm]
 
     def _step(self, index: int, distance: float, target: str, params: dict[str, object], prompt: str) -> Step:
-        return Step(index=index, procedure=self.kind, target=target, target_params={"gap_mm": self.gap_mm, **params},
+        return Step(index=index, procedure=self.kind, target=target, target_params={"gap_mm": self.gap_mm,
+                    "frames_per_measurement": self.averaged_frames(), **params},
                     frames=self.frames, distance_mm=distance + self.gap_mm, exposure_us=self.exposure_us,
                     camera_settings=self.camera_settings, prompt=prompt)
 
@@ -60,6 +79,12 @@ class SphereBar(_Artefact):
     tilt_deg: float = Field(0.0, ge=-60.0, le=60.0, description="bar out of the image plane")
     max_incidence_deg: float = Field(60.0, gt=0.0, le=90.0, description="rim rule: steepest incidence kept")
     rim_margin_px: float = Field(1.0, ge=0.0, le=20.0, description="rim rule: pixels kept inside the silhouette")
+    sphere_diameter_uncertainty_mm: float | None = Field(
+        None, ge=0, le=10.0, description="calibration certificate's uncertainty of the diameter")
+    sphere_spacing_uncertainty_mm: float | None = Field(
+        None, ge=0, le=10.0, description="calibration certificate's uncertainty of the centre distance")
+    calibration_coverage_factor: float = Field(
+        2.0, ge=1.0, le=10.0, description="k the certificate states its uncertainties with (1: standard)")
     mpe_form_mm: float | None = Field(None, gt=0, description="maximum permissible probing error form")
     mpe_size_mm: float | None = Field(None, gt=0, description="maximum permissible |probing error size|")
     mpe_spacing_mm: float | None = Field(None, gt=0, description="maximum permissible |sphere-spacing error|")
@@ -71,7 +96,9 @@ class SphereBar(_Artefact):
                 first_index + n, distance, "ball_bar",
                 {"diameter_mm": self.sphere_diameter_mm, "spacing_mm": self.sphere_spacing_mm,
                  "orientation_deg": orientation, "tilt_deg": self.tilt_deg, "max_incidence_deg": self.max_incidence_deg,
-                 "rim_margin_px": self.rim_margin_px, "mpe_form_mm": self.mpe_form_mm,
+                 "rim_margin_px": self.rim_margin_px, "diameter_uncertainty_mm": self.sphere_diameter_uncertainty_mm,
+                 "spacing_uncertainty_mm": self.sphere_spacing_uncertainty_mm,
+                 "calibration_coverage_factor": self.calibration_coverage_factor, "mpe_form_mm": self.mpe_form_mm,
                  "mpe_size_mm": self.mpe_size_mm, "mpe_spacing_mm": self.mpe_spacing_mm},
                 f"place the ball bar ({self.sphere_diameter_mm:g} mm spheres, {self.sphere_spacing_mm:g} mm apart) "
                 f"{self.gap_mm:g} mm in front of the wall, centred on the camera axis, at {orientation:g} deg from "

@@ -13,7 +13,9 @@ Per pixel of a sphere, with the pinhole of the profile's FOV:
   90 % wall at 2 m on the axis (``tof_sigma_mm``); stereo: disparity noise s (1 + g theta^2 / (pi/2 - theta)^2)
   with s from ``noise_mm_at_2m``, rounded to the disparity step; then the output rounded to ``output_step_mm``;
 * the rim rule, in its definition (pixel ray at most 60 deg incidence on the true sphere and one pixel
-  inside its silhouette), and a least-squares sphere of its own.
+  inside its silhouette), and a least-squares sphere of its own;
+* a measurement: per pixel the mean of the frames it averages (``frames_per_measurement`` of the run's steps,
+  all of a step's frames when it does not say), each frame drawn independently.
 """
 
 from __future__ import annotations
@@ -122,6 +124,18 @@ def draw_points(model, pixels: SpherePixels, valid: np.ndarray, rng: np.random.G
     return np.round(points / step) * step if step > 0 else points
 
 
+def mean_points(model, pixels: SpherePixels, valids: list[np.ndarray], rng: np.random.Generator) -> np.ndarray:
+    """One measurement averaging the frames of ``valids`` (each frame's valid pixels): every frame drawn as in
+    ``draw_points``, each kept pixel the mean of the frames in which it is valid."""
+    total, count = np.zeros((len(pixels.rows), 3)), np.zeros(len(pixels.rows))
+    for valid in valids:
+        keep = valid[pixels.rows, pixels.cols]
+        total[keep] += draw_points(model, pixels, valid, rng)
+        count[keep] += 1
+    seen = count > 0
+    return total[seen] / count[seen][:, None]
+
+
 def sphere_fit(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """Least-squares sphere (geometric distances): centre, radius, radial deviations."""
     centre0 = points.mean(axis=0) + np.array([0.0, 0.0, 10.0])
@@ -158,11 +172,31 @@ def plate_model(model, distance_mm: float, tilt_deg: float) -> tuple[np.ndarray,
 def plate_flatness(model, points: np.ndarray, along: np.ndarray, sigma: np.ndarray, rng: np.random.Generator) -> float:
     """F of one frame of the plate's pixels: the noise drawn, the output rounded, the range of the deviations from
     the orthogonal least-squares plane after the 0.3 % rule."""
+    return plane_range(_plate_frame(model, points, along, sigma, rng))
+
+
+def mean_plate_flatness(model, plate: tuple[np.ndarray, np.ndarray, np.ndarray], masks: list[np.ndarray],
+                        rng: np.random.Generator) -> float:
+    """F of one measurement averaging the frames of ``masks`` (each frame's plate pixels): every frame drawn as in
+    ``plate_flatness``, each pixel the mean of the frames that saw it."""
+    total, count = np.zeros(plate[0].shape), np.zeros(plate[0].shape[:-1])
+    for mask in masks:
+        total[mask] += _plate_frame(model, *(a[mask] for a in plate), rng)
+        count[mask] += 1
+    seen = count > 0
+    return plane_range(total[seen] / count[seen][:, None])
+
+
+def _plate_frame(model, points: np.ndarray, along: np.ndarray, sigma: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One frame of the plate's pixels: the noise drawn, the output rounded."""
     noisy = points + along * (sigma * rng.standard_normal(sigma.size))[:, None]
     step = model.effect_params()["quantization"].step_mm if "quantization" in model.effect_params() else 0.0
-    if step > 0:
-        noisy = np.round(noisy / step) * step
-    centred = noisy - noisy.mean(axis=0)
+    return np.round(noisy / step) * step if step > 0 else noisy
+
+
+def plane_range(points: np.ndarray) -> float:
+    """Range of the deviations from the orthogonal least-squares plane after the 0.3 % rule."""
+    centred = points - points.mean(axis=0)
     normal = np.linalg.svd(centred, full_matrices=False)[2][2]
     return rule_range(centred @ normal)
 
@@ -182,16 +216,27 @@ def wall_mm(step) -> float:
     return reference if math.isfinite(reference) else float(step.attrs["distance_mm"])
 
 
-def predicted_acceptance(model, reader, rng: np.random.Generator, n_draws: int) -> list[dict[str, list[float]]]:
+def _measurements(step, masks: list[np.ndarray], per: int | None) -> list[list[np.ndarray]]:
+    """The frames' masks grouped into measurements of ``per`` consecutive frames (None: the step's
+    ``frames_per_measurement``, all of its frames when the run does not say), a last incomplete group left out."""
+    if per is None:
+        per = min(json.loads(step.attrs["target_json"]).get("frames_per_measurement", len(masks)), len(masks))
+    return [masks[i:i + per] for i in range(0, len(masks) - per + 1, per)]
+
+
+def predicted_acceptance(model, reader, rng: np.random.Generator, n_draws: int,
+                         frames_per_measurement: int | None = None) -> list[dict[str, list[float]]]:
     """``n_draws`` repetitions of every ball-bar and plate measurement of the run, from tests/artefact_model
-    (the exact spheres and plates above, each frame's valid pixels as the run has them): per draw, each
+    (the exact spheres and plates above, each frame's valid pixels as the run has them, each measurement the
+    per-pixel mean of ``frames_per_measurement`` frames, None: as the run's steps say): per draw, each
     quantity's measurements."""
     bars = []
     for step in reader.steps("sphere_bar"):
         params = json.loads(step.attrs["target_json"])
         radius = params["diameter_mm"] / 2
         pixels = [sphere_pixels(model, c, radius) for c in ball_bar_centres(wall_mm(step), params)]
-        bars.append((params, pixels, [np.isfinite(step.frame("z", k)) for k in range(step.group["z"].shape[0])]))
+        valids = [np.isfinite(step.frame("z", k)) for k in range(step.group["z"].shape[0])]
+        bars.append((params, pixels, _measurements(step, valids, frames_per_measurement)))
     plates = []
     for step in reader.steps("flatness"):
         params = json.loads(step.attrs["target_json"])
@@ -199,19 +244,19 @@ def predicted_acceptance(model, reader, rng: np.random.Generator, n_draws: int) 
         plate = plate_model(model, wall - params["gap_mm"], params["tilt_deg"])
         masks = [np.isfinite(z) & (z < wall - params["gap_mm"] / 2)
                  for z in (step.frame("z", k) for k in range(step.group["z"].shape[0]))]
-        plates.append([tuple(a[m] for a in plate) for m in masks])
+        plates.append((plate, _measurements(step, masks, frames_per_measurement)))
     draws = []
     for _ in range(n_draws):
         values: dict[str, list[float]] = {name: [] for name in ("probing_error_form_mm", "probing_error_size_mm",
                                                                   "sphere_spacing_error_mm", "flatness_error_mm")}
-        for params, pixels, valids in bars:
-            for valid in valids:
-                fits = [sphere_fit(draw_points(model, p, valid, rng)) for p in pixels]
+        for params, pixels, measurements in bars:
+            for valids in measurements:
+                fits = [sphere_fit(mean_points(model, p, valids, rng)) for p in pixels]
                 values["probing_error_form_mm"].append(max(float(np.ptp(f[2])) for f in fits))
                 values["probing_error_size_mm"].append(max((2 * f[1] - params["diameter_mm"] for f in fits), key=abs))
                 values["sphere_spacing_error_mm"].append(
                     float(np.linalg.norm(fits[0][0] - fits[1][0])) - params["spacing_mm"])
-        for frames in plates:
-            values["flatness_error_mm"].extend(plate_flatness(model, *frame, rng) for frame in frames)
+        for plate, measurements in plates:
+            values["flatness_error_mm"].extend(mean_plate_flatness(model, plate, masks, rng) for masks in measurements)
         draws.append(values)
     return draws

@@ -366,8 +366,7 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         if artefacts:
             evaluation.acceptance = evaluate_acceptance(artefacts, readers[0].camera, progress)
             evaluation.notes.extend(evaluation.acceptance.notes)
-            for name, (value, source) in acceptance_figures(evaluation.acceptance).items():
-                evaluation.figures[name] = FigureValue(value, source)
+            evaluation.figures.update(acceptance_figures(evaluation.acceptance))
         masks = [s for r in readers for s in r.steps("face_mask")]
         if masks:
             progress(f"{masks[-1].step_id} face mask")

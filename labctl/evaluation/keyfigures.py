@@ -124,14 +124,16 @@ VENDOR_FIGURES: tuple[FigureDef, ...] = _vendor_figures(1000) + _vendor_figures(
 #: figures only a stereo camera has (null for the others)
 STEREO_ONLY = frozenset(f.name for f in VENDOR_FIGURES if f.name.startswith("subpixel_rms_"))
 VDI = "VDI/VDE 2634 Part 2"
-#: the acceptance-test quantities (largest magnitude over all measurements)
+#: the acceptance-test quantities (largest magnitude over all measurements, each the mean of frames_per_measurement
+#: frames)
 ACCEPTANCE_FIGURES: tuple[FigureDef, ...] = (
-    FigureDef("probing_error_form_mm", "mm", "max over spheres and frames of the range of radial deviations from "
-              "the fitted sphere (P_F)", VDI),
-    FigureDef("probing_error_size_mm", "mm", "fitted minus calibrated sphere diameter, largest magnitude (P_S)", VDI),
+    FigureDef("probing_error_form_mm", "mm", "max over spheres and measurements (each the mean of "
+              "frames_per_measurement frames) of the range of radial deviations from the fitted sphere (P_F)", VDI),
+    FigureDef("probing_error_size_mm", "mm", "fitted minus calibrated sphere diameter, largest magnitude over "
+              "spheres and measurements (P_S)", VDI),
     FigureDef("sphere_spacing_error_mm", "mm", "measured minus calibrated ball-bar centre distance, largest "
-              "magnitude over positions and frames (SD)", VDI),
-    FigureDef("flatness_error_mm", "mm", "max over positions and frames of the range of deviations from the "
+              "magnitude over positions and measurements (SD)", VDI),
+    FigureDef("flatness_error_mm", "mm", "max over positions and measurements of the range of deviations from the "
               "least-squares plane of the flat plate (F)", VDI),
 )
 FIGURES = FIGURES + VENDOR_FIGURES + ACCEPTANCE_FIGURES

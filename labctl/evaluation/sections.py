@@ -102,26 +102,39 @@ class DepthQualityRow(TypedDict):
 
 class AcceptanceVerdict(TypedDict):
     """A quantity of ``acceptance_test`` (VDI/VDE 2634-2): its figure (mm), the campaign's maximum permissible
-    error (None when it gives none) and ``pass``, ``fail`` or ``no_mpe``."""
+    error (None when it gives none), ``pass``, ``fail`` or ``marginal`` (within the figure's expanded uncertainty
+    of the MPE) or ``no_mpe``, that expanded uncertainty (mm, None: not estimated) and what it rests on
+    (``uncertainty_basis``), the frames averaged into each
+    measurement (None when its positions average different numbers); ``deviation`` says where the quantity departs
+    from the guideline (the sphere fits' rim rule; None for the plate's flatness)."""
 
     value: float | None
     mpe_mm: float | None
     verdict: str
+    expanded_uncertainty_mm: float | None
+    uncertainty_basis: str
+    frames_per_measurement: int | None
+    deviation: str | None
 
 
 class AcceptancePositionRow(TypedDict):
-    """A row of ``acceptance_positions``: one sphere-bar or flat-plate step, its number of frames and, per
-    VDI/VDE 2634-2 quantity, the measurement of largest magnitude over its frames (None where the step does not
-    measure it); ``pose_deg`` is the bar's orientation or the plate's tilt."""
+    """A row of ``acceptance_positions``: one sphere-bar or flat-plate step, its frames evaluated, its
+    measurements, the frames averaged into each and, per VDI/VDE 2634-2 quantity, the measurement of largest
+    magnitude (None where the step does not measure it), and ``points_used``: per measurement, per sphere the share
+    of its points the fit used (rim rule and 0.3 % rule; None for the plate); ``pose_deg`` is the bar's
+    orientation or the plate's tilt."""
 
     step: str
     distance_mm: float
     pose_deg: float
     frames: float
+    measurements: float
+    frames_per_measurement: float
     probing_error_form_mm: float | None
     probing_error_size_mm: float | None
     sphere_spacing_error_mm: float | None
     flatness_error_mm: float | None
+    points_used: list[list[float]] | None
 
 
 class CheckerboardRow(TypedDict):

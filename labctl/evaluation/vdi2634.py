@@ -1,16 +1,27 @@
 """Evaluation of the VDI/VDE 2634-2 procedures (``sphere_bar``, ``flatness``) with ``metrics.vdi2634``.
 
-Every frame of a step is one measurement. The artefact's points are those
-nearer than the wall minus half the artefact's gap (the wall: the step's
-reference distance, else the stage's nominal distance); a ball bar's points are
+A measurement is the mean of the step's ``frames_per_measurement`` consecutive
+frames (all of them when the run does not say): per frame the artefact's points
+are those nearer than the wall minus half the artefact's gap (the wall: the
+step's reference distance, else the stage's nominal distance), and per pixel
+the measurement is the mean of the frames in which the pixel saw the artefact
+(frames left over after the last whole measurement are not evaluated). A ball bar's points are
 split between its two spheres by the side of their centroid they lie on along
 the bar's nominal direction, and each sphere is fitted with the rim rule of
 ``metrics.vdi2634`` (``max_incidence_deg``, ``rim_margin_px`` of the step,
 the margin turned into an angle with the camera's focal length). Per quantity the key figure is the measurement of
-largest magnitude over all frames and positions (what the guideline compares
+largest magnitude over all measurements and positions (what the guideline compares
 with the maximum permissible error): P_F and F their maximum, P_S and SD
-signed. With a maximum permissible error in the campaign, the verdict is pass
-when that magnitude does not exceed it.
+signed. With a maximum permissible error in the campaign, the verdict is
+``metrics.uncertainty.conformity`` of that magnitude with the figure's expanded
+uncertainty: pass or fail outside a guard band of U around the MPE, marginal
+inside it. The budget is the ball bar's calibration where the campaign states
+it (the certificate's uncertainty of the diameter for P_S and of the centre
+distance for SD, each with sensitivity 1); it has no Type A component: the
+figure is the extreme of the test's measurements, which the guideline compares
+with the MPE as it is, not a mean of repeated measurements with a standard
+error. P_F and F have none (their artefacts' form calibration is not among the
+campaign's fields): their verdict is on the value alone.
 """
 
 from __future__ import annotations
@@ -25,9 +36,12 @@ import numpy as np
 
 from drivers.protocols import CameraInfo
 from labctl.evaluation.depth_quality import focal_length_px
+from labctl.evaluation.keyfigures import FigureValue, standard_uncertainty
 from labctl.evaluation.sections import AcceptancePositionRow, AcceptanceVerdict
 from labctl.run.store import StepRecord
+from metrics.uncertainty import Component, conformity, expanded_uncertainty, from_multiple
 from metrics.vdi2634 import (
+    MAX_EXCLUDED_SHARE,
     fit_flat,
     fit_sphere_cap,
     flatness_error,
@@ -36,7 +50,7 @@ from metrics.vdi2634 import (
     sphere_spacing_error,
 )
 
-#: fewer artefact points than this in a frame (or on a sphere inside its rim): the frame is not evaluated
+#: fewer artefact points than this in a measurement (or on a sphere inside its rim): the frame is not evaluated
 MIN_POINTS = 10
 #: rim rule of the sphere fit when the step does not give one (metrics.vdi2634)
 MAX_INCIDENCE_DEG, RIM_MARGIN_PX = 60.0, 1.0
@@ -47,15 +61,24 @@ QUANTITIES = {
     "sphere_spacing_error_mm": ("mpe_spacing_mm", "signed"),
     "flatness_error_mm": ("mpe_flatness_mm", "max"),
 }
+#: figure -> (the ball bar's calibrated value its budget takes, the step parameter with its stated uncertainty)
+CALIBRATED = {
+    "probing_error_size_mm": ("sphere diameter", "diameter_uncertainty_mm"),
+    "sphere_spacing_error_mm": ("centre distance", "spacing_uncertainty_mm"),
+}
+#: why no acceptance figure has a Type A component
+NO_TYPE_A = ("no Type A component: the figure is the extreme of the test's measurements, compared with the MPE as "
+             "it is, not a mean of repeated measurements with a standard error")
 
 
 @dataclass(frozen=True)
 class Measurement:
     step_id: str
-    frame: int
+    frames: range  # the step's frames averaged into this measurement
     distance_mm: float
     pose_deg: float  # the bar's orientation or the plate's tilt
     values: dict[str, float]  # figure name -> value of this measurement
+    points_used: tuple[float, ...] = ()  # per sphere: share of its points the fit used (rim and 0.3 % rules)
 
 
 @dataclass
@@ -63,6 +86,8 @@ class AcceptanceResult:
     measurements: list[Measurement] = field(default_factory=list)
     mpe_mm: dict[str, float | None] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: step -> figure -> the ball bar's calibration component (standard uncertainty, mm) where the campaign states it
+    calibration: dict[str, dict[str, Component]] = field(default_factory=dict)
 
 
 def _params(step: StepRecord) -> dict[str, Any]:
@@ -74,14 +99,24 @@ def _wall_mm(step: StepRecord) -> float:
     return reference if math.isfinite(reference) else float(step.attrs.get("distance_mm", math.nan))
 
 
-def _artefact_points(step: StepRecord, k: int, gap_mm: float) -> np.ndarray:
-    cloud = np.stack([step.frame(c, k) for c in ("x", "y", "z")], axis=-1).reshape(-1, 3).astype(np.float64)
-    cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
-    return cloud[cloud[:, 2] < _wall_mm(step) - gap_mm / 2]
+def _artefact_points(step: StepRecord, frames: range, gap_mm: float) -> np.ndarray:
+    """The measurement of ``frames``: per pixel the mean of the frames in which it saw the artefact, (n, 3)."""
+    total, count = 0.0, 0
+    for k in frames:
+        cloud = np.stack([step.frame(c, k) for c in ("x", "y", "z")], axis=-1).reshape(-1, 3).astype(np.float64)
+        artefact = np.all(np.isfinite(cloud), axis=1) & (cloud[:, 2] < _wall_mm(step) - gap_mm / 2)
+        total = total + np.where(artefact[:, None], cloud, 0.0)
+        count = count + artefact
+    seen = np.asarray(count) > 0
+    return np.asarray(total)[seen] / np.asarray(count)[seen, None]
 
 
-def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any], focal_px: float) -> dict[str, float] | str:
-    points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
+#: what an evaluator gives: the figures of one measurement and per sphere the share of its points the fit used
+#: (empty for the plate), or why the measurement is not evaluated
+Evaluated = tuple[dict[str, float], tuple[float, ...]] | str
+
+
+def _sphere_bar(points: np.ndarray, params: dict[str, Any], focal_px: float) -> Evaluated:
     if len(points) < 2 * MIN_POINTS:
         return f"{len(points)} points on the ball bar"
     phi = math.radians(float(params.get("orientation_deg", 0.0)))
@@ -102,14 +137,13 @@ def _sphere_bar(step: StepRecord, k: int, params: dict[str, Any], focal_px: floa
         "probing_error_form_mm": max(probing_error_form(f) for f in fits),
         "probing_error_size_mm": max(sizes, key=abs),
         "sphere_spacing_error_mm": sphere_spacing_error(fits[0], fits[1], float(params["spacing_mm"])),
-    }
+    }, tuple(f.used_share for f in fits)
 
 
-def _flatness(step: StepRecord, k: int, params: dict[str, Any], _: float) -> dict[str, float] | str:
-    points = _artefact_points(step, k, float(params.get("gap_mm", 500.0)))
+def _flatness(points: np.ndarray, params: dict[str, Any], _: float) -> Evaluated:
     if len(points) < MIN_POINTS:
         return f"{len(points)} points on the plate"
-    return {"flatness_error_mm": flatness_error(fit_flat(points))}
+    return {"flatness_error_mm": flatness_error(fit_flat(points))}, ()
 
 
 def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
@@ -124,51 +158,107 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
         for name, (mpe, _) in QUANTITIES.items():
             if mpe in params:
                 result.mpe_mm[name] = params[mpe]
+        result.calibration[step.step_id] = acceptance_calibration(params)
         evaluate = _sphere_bar if kind == "sphere_bar" else _flatness
         pose = float(params.get("orientation_deg" if kind == "sphere_bar" else "tilt_deg", 0.0))
         distance = _wall_mm(step) - float(params.get("gap_mm", 500.0))
-        for k in range(step.group["z"].shape[0]):
-            values = evaluate(step, k, params, focal_px)
-            if isinstance(values, str):
-                result.notes.append(f"{step.step_id} frame {k}: {values}, not evaluated")
+        recorded = step.group["z"].shape[0]
+        per = min(int(params.get("frames_per_measurement", recorded)), recorded)
+        if recorded % per:
+            result.notes.append(f"{step.step_id}: the last {recorded % per} of {recorded} frames make no whole "
+                                f"measurement of {per} frames, not evaluated")
+        for first in range(0, recorded - per + 1, per):
+            frames = range(first, first + per)
+            evaluated = evaluate(_artefact_points(step, frames, float(params.get("gap_mm", 500.0))), params, focal_px)
+            if isinstance(evaluated, str):
+                result.notes.append(f"{step.step_id} frames {first}-{first + per - 1}: {evaluated}, not evaluated")
                 continue
-            result.measurements.append(Measurement(step.step_id, k, distance, pose, values))
+            result.measurements.append(Measurement(step.step_id, frames, distance, pose, *evaluated))
     return result
 
 
-def figure_values(result: AcceptanceResult) -> dict[str, tuple[float, list[str]]]:
-    """Key figures: per quantity the measurement of largest magnitude, with the steps measured."""
-    figures: dict[str, tuple[float, list[str]]] = {}
+def acceptance_calibration(params: dict[str, Any]) -> dict[str, Component]:
+    """The ball bar's calibration components of a step: each stated uncertainty divided by the certificate's
+    coverage factor (GUM 4.3.3), sensitivity 1 (P_S and SD are measured minus calibrated value)."""
+    k = float(params.get("calibration_coverage_factor", 2.0))
+    return {name: Component(f"ball bar: calibrated {what} (certificate, Type B)", from_multiple(float(params[key]), k))
+            for name, (what, key) in CALIBRATED.items() if params.get(key) is not None}
+
+
+def figure_values(result: AcceptanceResult) -> dict[str, FigureValue]:
+    """Key figures: per quantity the measurement of largest magnitude, with the steps measured and the budget of
+    the step it comes from (the ball bar's calibration; empty, not estimated, where the campaign states none)."""
+    figures: dict[str, FigureValue] = {}
     for name, (_, reduce) in QUANTITIES.items():
         rows = [m for m in result.measurements if name in m.values]
         if not rows:
             continue
         worst = max(rows, key=lambda m: abs(m.values[name]))
         value = worst.values[name] if reduce == "signed" else max(m.values[name] for m in rows)
-        figures[name] = (value, sorted({m.step_id for m in rows}))
+        component = result.calibration.get(worst.step_id, {}).get(name)
+        figures[name] = FigureValue(value, sorted({m.step_id for m in rows}), (component,) if component else ())
     return figures
 
 
+def _uncertainty_basis(name: str, figure: FigureValue) -> str:
+    """What a figure's uncertainty rests on, in words (report, JSON)."""
+    if figure.budget:
+        return f"{figure.budget[0].name}; {NO_TYPE_A}"
+    if name in CALIBRATED:
+        what, key = CALIBRATED[name]
+        return (f"not estimated: the campaign states no uncertainty of the calibrated {what} "
+                f"(sphere_{key.removesuffix('_mm')}_mm); {NO_TYPE_A}")
+    return f"not estimated: the artefact's form calibration is not among the campaign's fields; {NO_TYPE_A}"
+
+
+def rim_rule_deviation(result: AcceptanceResult) -> str | None:
+    """The sphere fits' departure from VDI/VDE 2634-2 (which allows leaving out at most 0.3 % of a measurement's
+    points): the rim rule's range of shares of a sphere's points used; None without a sphere measured."""
+    shares = [share for m in result.measurements for share in m.points_used]
+    if not shares:
+        return None
+    return (f"deviation from VDI/VDE 2634-2: the rim rule fits each sphere to {100 * min(shares):.0f}-"
+            f"{100 * max(shares):.0f} % of its points (per sphere and measurement: acceptance_positions' "
+            f"points_used); the guideline allows leaving out at most {100 * MAX_EXCLUDED_SHARE:g} %")
+
+
 def verdicts(result: AcceptanceResult) -> dict[str, AcceptanceVerdict]:
-    """Per quantity: the figure, its maximum permissible error and pass / fail (``no_mpe`` without one)."""
+    """Per quantity: the figure, its maximum permissible error, pass / fail / marginal with the figure's expanded
+    uncertainty (``metrics.uncertainty.conformity``; ``no_mpe`` without an MPE), that uncertainty (None: not
+    estimated) and what it rests on, the frames averaged per measurement (None when its positions differ:
+    ``acceptance_table`` has them) and its departure from the guideline (the sphere quantities' rim rule; None
+    for the plate)."""
     out: dict[str, AcceptanceVerdict] = {}
-    for name, (value, _) in figure_values(result).items():
+    deviation = rim_rule_deviation(result)
+    for name, figure in figure_values(result).items():
+        assert figure.value is not None
         mpe = result.mpe_mm.get(name)
-        verdict = "no_mpe" if mpe is None else ("pass" if abs(value) <= mpe else "fail")
-        out[name] = {"value": value, "mpe_mm": mpe, "verdict": verdict}
+        u = standard_uncertainty(figure)
+        expanded = None if u is None else expanded_uncertainty(u)
+        verdict = "no_mpe" if mpe is None else conformity(figure.value, mpe, expanded, "max_abs")
+        averaged = {len(m.frames) for m in result.measurements if name in m.values}
+        out[name] = {"value": figure.value, "mpe_mm": mpe, "verdict": verdict, "expanded_uncertainty_mm": expanded,
+                     "uncertainty_basis": _uncertainty_basis(name, figure),
+                     "frames_per_measurement": averaged.pop() if len(averaged) == 1 else None,
+                     "deviation": None if name == "flatness_error_mm" else deviation}
     return out
 
 
 def acceptance_table(result: AcceptanceResult) -> list[AcceptancePositionRow]:
-    """Per step: the worst measurement of each quantity over its frames, NaN where not measured (report, JSON)."""
+    """Per step: its frames evaluated, measurements and frames averaged per measurement, the worst measurement
+    of each quantity (NaN where not measured) and per measurement and sphere the share of its points the fit
+    used (None for the plate) (report, JSON)."""
     rows: list[AcceptancePositionRow] = []
     for step_id in dict.fromkeys(m.step_id for m in result.measurements):
         ms = [m for m in result.measurements if m.step_id == step_id]
         rows.append({"step": step_id, "distance_mm": ms[0].distance_mm, "pose_deg": ms[0].pose_deg,
-                     "frames": float(len(ms)), "probing_error_form_mm": _worst(ms, "probing_error_form_mm"),
+                     "frames": float(sum(len(m.frames) for m in ms)), "measurements": float(len(ms)),
+                     "frames_per_measurement": float(len(ms[0].frames)),
+                     "probing_error_form_mm": _worst(ms, "probing_error_form_mm"),
                      "probing_error_size_mm": _worst(ms, "probing_error_size_mm"),
                      "sphere_spacing_error_mm": _worst(ms, "sphere_spacing_error_mm"),
-                     "flatness_error_mm": _worst(ms, "flatness_error_mm")})
+                     "flatness_error_mm": _worst(ms, "flatness_error_mm"),
+                     "points_used": [list(m.points_used) for m in ms] if ms[0].points_used else None})
     return rows
 
 

@@ -34,7 +34,7 @@ from labctl.evaluation.sections import (
 )
 from labctl.evaluation.sharpness import resolution_table
 from labctl.evaluation.suitability import Suitability
-from labctl.evaluation.vdi2634 import acceptance_table, verdicts
+from labctl.evaluation.vdi2634 import acceptance_table, rim_rule_deviation, verdicts
 from labctl.jsondoc import write_json
 from labctl.report.curves import write_curves
 from labctl.report.plots.acceptance import plot_acceptance
@@ -364,23 +364,45 @@ def _null_reason(entry: FigureEntry) -> str:
 
 
 def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: KeyFiguresDocument) -> str:
-    """VDI/VDE 2634-2 quantities with their maximum permissible errors and verdicts, and per position."""
+    """VDI/VDE 2634-2 quantities with their maximum permissible errors and verdicts, per position, and the share of
+    each sphere's points its fit used (the rim rule's departure from the guideline)."""
     result = evaluation.acceptance
     assert result is not None
     judged = verdicts(result)
     doc.acceptance_test = {name: _clean(row) for name, row in judged.items()}
-    rows = [{"quantity": name, "value_mm": row["value"], "mpe_mm": row["mpe_mm"] if row["mpe_mm"] is not None
-             else math.nan, "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
-    table = _rows_table(rows, "quantity")
+    rows = [{"quantity": name, "value_mm": row["value"],
+             "expanded_uncertainty_mm": _or_nan(row["expanded_uncertainty_mm"]), "mpe_mm": _or_nan(row["mpe_mm"]),
+             "verdict": row["verdict"].replace("_", " ")} for name, row in judged.items()]
+    bases = "".join(f"<li><code>{name}</code>: {html.escape(row['uncertainty_basis'])}</li>"
+                    for name, row in judged.items())
+    table = (_rows_table(rows, "quantity") + "<p>The verdict is decided with guard bands of the expanded "
+             "uncertainty U (k = 2) around the MPE: pass inside it by more than U, fail outside it by more than U, "
+             f"marginal within U of it; without U on the value alone. U rests on:</p><ul>{bases}</ul>")
     doc.acceptance_positions = per_step = _clean_rows(acceptance_table(result))
     img = plot_acceptance(result, plots / "acceptance.png")
-    text = ("<p>Each frame is one measurement; a quantity's figure is the measurement of largest magnitude, "
+    averaged = sorted({len(m.frames) for m in result.measurements})
+    deviation = rim_rule_deviation(result)
+    used = [{"measurement": f"{m.step_id} frames {m.frames.start}-{m.frames.stop - 1}",
+             **{f"sphere_{i + 1}_points_used_pct": 100 * share for i, share in enumerate(m.points_used)}}
+            for m in result.measurements if m.points_used]
+    text = (f"<p>A measurement is the per-pixel mean of {' or '.join(str(n) for n in averaged)} frames "
+            "(<code>frames_per_measurement</code>); a quantity's figure is the measurement of largest magnitude, "
             "compared with the campaign's maximum permissible error (MPE). Each sphere is fitted to its points whose "
             "line of sight meets it at an incidence of at most <code>max_incidence_deg</code> and passes at least "
             "<code>rim_margin_px</code> inside its silhouette (the rim rule; 60 deg and 1 px unless the campaign "
-            "says otherwise), besides the guideline's 0.3 % outlier rule.</p>" + table
-            + f"<h3>Per position (largest magnitude over the frames)</h3>{_rows_table(per_step, 'step')}")
+            "says otherwise), besides the guideline's 0.3 % outlier rule.</p>"
+            + (f'<p class="note">{html.escape(deviation[0].upper() + deviation[1:])}. The rim rule removes the '
+               "size bias of the rim pixels, which mix the sphere with the background (docs/metrics.md).</p>"
+               if deviation else "") + table
+            + "<h3>Per position (largest magnitude over the measurements)</h3>"
+            + _rows_table([{k: v for k, v in row.items() if k != "points_used"} for row in per_step], "step")
+            + (f"<h3>Points each sphere fit used</h3>{_rows_table(used, 'measurement')}" if used else ""))
     return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
+
+
+def _or_nan(value: float | None) -> float:
+    """A number for a report table: NaN (shown n/a) where None."""
+    return math.nan if value is None else value
 
 
 def depth_quantization_html(quantization_mm: dict[str, float]) -> str:

@@ -8,11 +8,19 @@ import pytest
 from labctl.cli import main
 from labctl.errors import InputError
 from labctl.evaluation.evaluate import evaluate_runs
+from labctl.evaluation.vdi2634 import AcceptanceResult, Measurement, acceptance_calibration, verdicts
 from labctl.run.config import parse_campaign
 from labctl.run.store import RunReader
 from metrics.vdi2634 import fit_sphere
 from sim.model import parse_model
-from tests.artefact_model import plate_flatness, plate_model, predicted_acceptance, wall_mm
+from tests.artefact_model import (
+    ball_bar_centres,
+    plate_flatness,
+    plate_model,
+    predicted_acceptance,
+    sphere_pixels,
+    wall_mm,
+)
 
 PROCEDURES = """
 [[procedure]]
@@ -22,15 +30,18 @@ sphere_spacing_mm = 300.0
 distances_mm = [1000.0, 1500.0]
 orientations_deg = [0.0, 90.0]
 frames = 3
+frames_per_measurement = 1
 mpe_form_mm = {mpe_form}
 mpe_size_mm = 5.0
 mpe_spacing_mm = 5.0
+sphere_diameter_uncertainty_mm = 0.004
 
 [[procedure]]
 kind = "flatness"
 distances_mm = [1000.0]
 tilts_deg = [0.0, 30.0]
 frames = 3
+frames_per_measurement = 1
 mpe_flatness_mm = 20.0
 """
 
@@ -43,7 +54,8 @@ def invoke(*args) -> int:
 
 @pytest.fixture(scope="module")
 def evaluated(tmp_path_factory):
-    """The blaze-101 at 320 x 240 with a tight form MPE (0.01 mm: fails) and loose others (pass)."""
+    """The blaze-101 at 320 x 240 with a tight form MPE (0.01 mm: fails) and loose others (pass), every frame one
+    measurement (what the per-frame predictions below compare with)."""
     from tests.conftest import SMALL_MODEL, campaign_text
 
     directory = tmp_path_factory.mktemp("acceptance")
@@ -67,10 +79,25 @@ def test_every_acceptance_quantity_with_its_verdict(evaluated):
                                                   "verdict": "fail"}
     for name in ("probing_error_size_mm", "sphere_spacing_error_mm", "flatness_error_mm"):
         assert verdicts[name]["verdict"] == "pass", (name, verdicts[name])
-    # 4 bar positions and 2 plate positions, each evaluated on all 3 frames
-    assert [row["frames"] for row in doc["acceptance_positions"]] == [3] * 6
+    # 4 bar positions and 2 plate positions, each evaluated on all 3 frames, each frame one measurement
+    assert [(row["frames"], row["measurements"], row["frames_per_measurement"])
+            for row in doc["acceptance_positions"]] == [(3, 3, 1)] * 6
+    assert {v["frames_per_measurement"] for v in verdicts.values()} == {1}
+    # the certificate's 0.004 mm (k = 2) on the diameter: u = 0.002 mm, U = 0.004 mm for P_S; no spacing uncertainty
+    assert figures["probing_error_size_mm"]["uncertainty"] == pytest.approx(0.002)
+    assert verdicts["probing_error_size_mm"]["expanded_uncertainty_mm"] == pytest.approx(0.004)
+    assert "calibrated sphere diameter" in verdicts["probing_error_size_mm"]["uncertainty_basis"]
+    for name in ("probing_error_form_mm", "sphere_spacing_error_mm", "flatness_error_mm"):
+        assert figures[name]["uncertainty"] is None and verdicts[name]["expanded_uncertainty_mm"] is None, name
+        assert verdicts[name]["uncertainty_basis"].startswith("not estimated"), name
+    assert "sphere_spacing_uncertainty_mm" in verdicts["sphere_spacing_error_mm"]["uncertainty_basis"]
+    for name in ("probing_error_form_mm", "probing_error_size_mm", "sphere_spacing_error_mm"):
+        assert "at most 0.3 %" in verdicts[name]["deviation"], name
+    assert verdicts["flatness_error_mm"]["deviation"] is None
+    assert [len(row["points_used"] or []) for row in doc["acceptance_positions"]] == [3] * 4 + [0] * 2
     report = (evaluated / "report.html").read_text()
     assert "Acceptance test (VDI/VDE 2634 Part 2)" in report and "plots/acceptance.png" in report
+    assert "Deviation from VDI/VDE 2634-2: the rim rule" in report and "Points each sphere fit used" in report
 
 
 def artefact_points(step, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -134,6 +161,103 @@ def test_rim_rule_removes_the_size_bias(evaluated):
             assert np.mean(free_sizes) - predicted.mean() > 3 * standard_error, (np.mean(free_sizes), standard_error)
 
 
+AVERAGED = """
+[[procedure]]
+kind = "sphere_bar"
+distances_mm = [1000.0]
+orientations_deg = [0.0]
+frames = {frames}
+
+[[procedure]]
+kind = "flatness"
+distances_mm = [1000.0]
+tilts_deg = [0.0]
+frames = {frames}
+"""
+
+
+def test_averaged_measurement_does_not_grow_with_frames(tmp_path):
+    """One bar and one plate position, recorded with 4 and with 16 frames, each averaged into one measurement
+    (the default). Against tests/artefact_model (100 draws): each measurement's P_F and F lie in the 1..99 %
+    band of the model's per-pixel mean of that many frames (widened by 5 % plus 0.05 mm: the renderer's
+    sub-pixel sampling and blur, which the model leaves out and averaging does not remove), so they shrink
+    as the noise averages down; the extreme of 16 independent single frames (the figure before averaging)
+    would lie above the 16-frame measurement in 99 % of the model's draws."""
+    from tests.conftest import SMALL_MODEL, campaign_text
+
+    model_path = tmp_path / "model.toml"
+    model_path.write_text(SMALL_MODEL.format(camera="blaze101", width=320, height=240))
+    model = parse_model(model_path.read_text())
+    rng = np.random.default_rng(4)
+    measured = {}
+    for frames in (4, 16):
+        campaign, run = tmp_path / f"campaign{frames}.toml", tmp_path / f"run{frames}.h5"
+        campaign.write_text(campaign_text(procedures=AVERAGED.format(frames=frames)))
+        assert invoke("run", campaign, "--sim", "--model", model_path, "-o", run, "--quiet") == 0
+        result = evaluate_runs([run]).acceptance
+        assert [len(m.frames) for m in result.measurements] == [frames, frames]
+        measured[frames] = {n: v for m in result.measurements for n, v in m.values.items()}
+        with RunReader(run) as reader:
+            averaged = predicted_acceptance(model, reader, rng, 100)
+            single = predicted_acceptance(model, reader, rng, 100, frames_per_measurement=1) if frames == 16 else []
+        for name in ("probing_error_form_mm", "flatness_error_mm"):
+            low, high = np.quantile([d[name][0] for d in averaged], [0.01, 0.99])
+            value = measured[frames][name]
+            assert 0.95 * low - 0.05 <= value <= 1.05 * high + 0.05, (frames, name, value, low, high)
+            if single:
+                extreme = np.quantile([max(d[name]) for d in single], 0.01)
+                assert value < extreme, (name, value, extreme)
+    for name in ("probing_error_form_mm", "flatness_error_mm"):
+        assert measured[16][name] < measured[4][name], (name, measured)
+
+
+def test_points_used_are_the_rim_rule_share(evaluated):
+    """Per sphere and measurement, the share of its points the fit used against tests/artefact_model's rim rule
+    (pixels whose ray meets the exact sphere at most 60 deg from its normal and one pixel inside its silhouette,
+    among the frame's pixels on that sphere): within 2 of the sphere's pixels (the evaluation draws the cap about
+    the fitted centre, the model about the true one), and below 75 % (a 60 deg cap covers at most
+    sin^2 60 deg = 75 % of the sphere's disc in the image, less the one-pixel margin), far from the guideline's
+    99.7 %."""
+    directory = evaluated.parent
+    model = parse_model((directory / "model.toml").read_text())
+    measured = {(m.step_id, m.frames.start): m.points_used for m in evaluate_runs([directory / "run.h5"])
+                .acceptance.measurements if m.points_used}
+    with RunReader(directory / "run.h5") as reader:
+        for step in reader.steps("sphere_bar"):
+            params = json.loads(step.attrs["target_json"])
+            centres = ball_bar_centres(wall_mm(step), params)
+            phi = np.radians(params["orientation_deg"])
+            for k in range(step.group["z"].shape[0]):
+                points, mask = artefact_points(step, k)
+                side = (points[:, :2] - points[:, :2].mean(axis=0)) @ [np.cos(phi), np.sin(phi)] >= 0
+                for sphere, (centre, on_it) in enumerate(zip(centres, (~side, side))):
+                    kept = sphere_pixels(model, centre, params["diameter_mm"] / 2)
+                    expected = mask[kept.rows, kept.cols].sum()
+                    used = measured[(step.step_id, k)][sphere]
+                    assert abs(round(used * on_it.sum()) - expected) <= 2, (step.step_id, k, sphere, used, expected)
+                    assert used < 0.75, (step.step_id, k, sphere, used)
+
+
+def test_verdict_with_the_calibration_uncertainty():
+    """JCGM 106 guard bands of U around the MPE (5 mm): a size error of -4.9 mm passes on its value alone but is
+    marginal with the certificate's U = 0.3 mm (k = 2) on the diameter; -4.6 mm passes and 5.4 mm fails with
+    it; the spacing error of 5.2 mm with U = 0.3 mm (stated at k = 1 as 0.15 mm: u = 0.15 mm) is marginal."""
+    def judged(size: float, spacing: float, **calibration: float) -> dict[str, str]:
+        params = {"mpe_size_mm": 5.0, "mpe_spacing_mm": 5.0, **calibration}
+        result = AcceptanceResult([Measurement("00000_sphere_bar", range(1), 1000.0, 0.0,
+                                               {"probing_error_size_mm": size, "sphere_spacing_error_mm": spacing})],
+                                  {"probing_error_size_mm": 5.0, "sphere_spacing_error_mm": 5.0})
+        result.calibration["00000_sphere_bar"] = acceptance_calibration(params)
+        return {name: row["verdict"] for name, row in verdicts(result).items()}
+
+    assert judged(-4.9, 0.0) == {"probing_error_size_mm": "pass", "sphere_spacing_error_mm": "pass"}
+    assert judged(-4.9, 0.0, diameter_uncertainty_mm=0.3)["probing_error_size_mm"] == "marginal"
+    assert judged(-4.6, 0.0, diameter_uncertainty_mm=0.3)["probing_error_size_mm"] == "pass"
+    assert judged(5.4, 0.0, diameter_uncertainty_mm=0.3)["probing_error_size_mm"] == "fail"
+    assert judged(0.0, 5.2, spacing_uncertainty_mm=0.15, calibration_coverage_factor=1.0) == {
+        "probing_error_size_mm": "pass", "sphere_spacing_error_mm": "marginal"}
+
+
 def test_procedures_validate_their_parameters():
     from tests.conftest import campaign_text
 
@@ -142,3 +266,9 @@ def test_procedures_validate_their_parameters():
                            "c.toml")
     with pytest.raises(InputError, match="mpe_flatnes"):
         parse_campaign(campaign_text(procedures='[[procedure]]\nkind = "flatness"\nmpe_flatnes = 1\n'), "c.toml")
+    with pytest.raises(InputError, match="calibration_coverage_factor"):
+        parse_campaign(campaign_text(procedures='[[procedure]]\nkind = "sphere_bar"\ncalibration_coverage_factor = 0.5\n'),
+                       "c.toml")
+    with pytest.raises(InputError, match="frames_per_measurement = 3 must divide frames = 10"):
+        parse_campaign(campaign_text(procedures='[[procedure]]\nkind = "sphere_bar"\nframes_per_measurement = 3\n'),
+                       "c.toml")

@@ -4,7 +4,8 @@ Every key figure of docs/keyfigures.md comes out (none null), and each sits wher
 camera's profile puts it. To keep the suite fast the campaigns keep every
 position but take 10 frames per depth-sweep stack and 4 elsewhere, the 640 x 480
 cameras run at 160 x 120 (the flexx2 at its own 224 x 172), the ball bar and the
-flat plate stand at 1000 mm only, in two poses, the ball bar's spheres are 100 mm
+flat plate stand at 1000 mm only, in two poses, every frame of theirs one measurement (as
+tests/artefact_model predicts the single frame), the ball bar's spheres are 100 mm
 (about 80 pixels each inside the rim rule at 160 x 120), and the checkerboard
 has 60 mm tiles (about 7 px at the best-focus distance, as the 19 mm board gives
 at full resolution). The model is the profile's built-in one (defocus, output
@@ -63,8 +64,9 @@ def reduced_campaign(camera: str, directory: Path) -> tuple[Path, Path]:
         procedure["frames"] = DEPTH_FRAMES if procedure["kind"] == "depth_sweep" else FRAMES
         if procedure["kind"] == "checkerboard":
             procedure["tile_mm"] = 60.0
-        if procedure["kind"] in ("sphere_bar", "flatness"):  # one distance, two poses
+        if procedure["kind"] in ("sphere_bar", "flatness"):  # one distance, two poses, every frame a measurement
             procedure["distances_mm"] = [1000.0]
+            procedure["frames_per_measurement"] = 1
         if procedure["kind"] == "sphere_bar":  # about 80 pixels per sphere inside the rim at 160 x 120
             procedure["sphere_diameter_mm"] = 100.0
             procedure["orientations_deg" if procedure["kind"] == "sphere_bar" else "tilts_deg"] = [0.0, 30.0]
