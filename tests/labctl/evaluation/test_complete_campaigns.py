@@ -168,10 +168,12 @@ def test_hyperfocal_and_face_depth_uncertainties(complete):
     left_out = np.array([np.quantile(np.nanstd(np.delete(z, i, axis=0)[:, used], axis=0, ddof=1), 0.9)
                          for i in range(n)])
     jackknife = math.sqrt((n - 1) / n * np.sum((left_out - left_out.mean()) ** 2))
-    assert combined_standard_uncertainty(precision.budget) == pytest.approx(jackknife, rel=1e-3)
+    # abs: with quantized output (the D455's) the Q90 of the stds can sit on one level whatever frame is left out
+    assert combined_standard_uncertainty(precision.budget) == pytest.approx(jackknife, rel=1e-3, abs=1e-6)
     checks = [c for story in judged_suitability(evaluation).stories.values() for c in story.checks
               if FACE_PRECISION in c.values]
-    assert checks and all(c.uncertainties[FACE_PRECISION] == pytest.approx(2 * jackknife, rel=1e-3) for c in checks)
+    assert checks and all(c.uncertainties[FACE_PRECISION] == pytest.approx(2 * jackknife, rel=1e-3, abs=2e-6)
+                          for c in checks)
     assert evaluation.face_depth[FACE_TRUENESS].budget[0].name.startswith("frames: jackknife")
 
 
@@ -189,7 +191,11 @@ def test_xy_noise_figures_state_their_uncertainty(complete):
         assert u == pytest.approx(figure.value / math.sqrt(2 * (DEPTH_FRAMES - 1))), name
     for name in ("x_precision_q90_mm", "y_precision_q90_mm"):
         figure = evaluation.figures[name]
-        assert 0 < combined_standard_uncertainty(figure.budget) < 0.2 * figure.value, name
+        u = combined_standard_uncertainty(figure.budget)
+        # quantized output (the AM-T100's x and y): the Q90 of the stds sits on one level whatever frame is left
+        # out, and the jackknife states 0 (docs/keyfigures.md, Uncertainty)
+        quantized = math.isfinite(evaluation.quantization_mm.get(name[0], math.nan))
+        assert 0 <= u < 0.2 * figure.value and (quantized or u > 0), name
 
 
 def test_geometry_figures_of_an_undistorted_camera(complete):
