@@ -128,3 +128,20 @@ def run_labctl(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[
 @pytest.fixture
 def labctl():
     return run_labctl
+
+
+@pytest.fixture(scope="session")
+def evaluated_small_campaign(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The output directory of ``labctl evaluate --no-pdf`` on a simulated run of :func:`campaign_text` (with a
+    depth origin offset), made once per test session for the tests that read its outputs."""
+    from labctl.cli import main
+
+    tmp = tmp_path_factory.mktemp("evaluated")
+    campaign = tmp / "c.toml"
+    campaign.write_text(campaign_text(camera="depth_origin_offset_mm = 42.0"))
+    for command in (["run", str(campaign), "--sim", "-o", str(tmp / "r.h5"), "--quiet"],
+                    ["evaluate", str(tmp / "r.h5"), "-o", str(tmp / "out"), "--quiet", "--no-pdf"]):
+        with pytest.raises(SystemExit) as info:
+            main(command)
+        assert info.value.code == 0
+    return tmp / "out"

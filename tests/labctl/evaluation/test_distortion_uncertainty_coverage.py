@@ -26,6 +26,7 @@ from labctl.cli import main
 from labctl.evaluation.evaluate import evaluate_runs
 from metrics.uncertainty import combined_standard_uncertainty
 from tests.conftest import SMALL_MODEL, campaign_text
+from tests.coverage_check import assert_u_covers_the_spread
 
 SEEDS = 48
 MIN_COVERED = 42
@@ -64,8 +65,4 @@ def figures(tmp_path_factory) -> dict[str, np.ndarray]:
 @pytest.mark.parametrize("name", FIGURES)
 def test_expanded_uncertainty_covers_the_spread_over_seeds(figures, name):
     value, u = figures[name].T
-    assert np.isfinite(value).all() and np.isfinite(u).all() and (u > 0).all()
-    covered = int(np.sum(np.abs(value - value.mean()) <= 2.0 * u))
-    spread = float(np.std(value, ddof=1))
-    assert covered >= MIN_COVERED, f"{name}: U covers {covered} of {SEEDS} seeds (spread {spread:.4g}, u {u.mean():.4g})"
-    assert 1 / RATIO <= u.mean() / spread <= RATIO, f"{name}: mean u {u.mean():.4g}, spread over seeds {spread:.4g}"
+    assert_u_covers_the_spread(name, value, u, MIN_COVERED, RATIO)

@@ -16,11 +16,9 @@ import h5py
 import jsonschema
 import pytest
 
-from labctl.cli import main
 from labctl.evaluation.conditions import sha256_of
 from labctl.evaluation.keyfigures import SCHEMA_VERSION, read_keyfigures
 from labctl.evaluation.schema import SCHEMA_FILE, schema_text
-from tests.conftest import campaign_text
 
 
 def validator() -> jsonschema.Draft202012Validator:
@@ -34,16 +32,8 @@ def test_the_committed_schema_is_the_one_the_document_classes_give():
 
 
 @pytest.fixture(scope="module")
-def evaluated(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("schema")
-    campaign = tmp / "c.toml"
-    campaign.write_text(campaign_text(camera="depth_origin_offset_mm = 42.0"))
-    for command in (["run", str(campaign), "--sim", "-o", str(tmp / "r.h5"), "--quiet"],
-                    ["evaluate", str(tmp / "r.h5"), "-o", str(tmp / "out"), "--quiet", "--no-pdf"]):
-        with pytest.raises(SystemExit) as info:
-            main(command)
-        assert info.value.code == 0
-    return tmp / "out" / "keyfigures.json"
+def evaluated(evaluated_small_campaign):
+    return evaluated_small_campaign / "keyfigures.json"
 
 
 def test_an_evaluation_validates_and_states_its_schema_version(evaluated):

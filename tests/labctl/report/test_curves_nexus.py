@@ -11,21 +11,10 @@ import numpy as np
 import pytest
 from silx.io import nxdata
 
-from labctl.cli import main
-from tests.conftest import campaign_text
-
 
 @pytest.fixture(scope="module")
-def evaluated(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("curves")
-    campaign = tmp / "c.toml"
-    campaign.write_text(campaign_text(camera="depth_origin_offset_mm = 42.0"))
-    for command in (["run", str(campaign), "--sim", "-o", str(tmp / "r.h5"), "--quiet"],
-                    ["evaluate", str(tmp / "r.h5"), "-o", str(tmp / "out"), "--quiet", "--no-pdf"]):
-        with pytest.raises(SystemExit) as info:
-            main(command)
-        assert info.value.code == 0
-    return tmp / "out"
+def evaluated(evaluated_small_campaign):
+    return evaluated_small_campaign
 
 
 def test_the_default_is_the_depth_error_curve_with_its_auxiliary_signals(evaluated):
