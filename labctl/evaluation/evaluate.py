@@ -39,8 +39,8 @@ from labctl.evaluation.suitability import (
     FACE_DISTANCE,
     FACE_PRECISION,
     FACE_TRUENESS,
-    FACE_WALL_STEP,
     Suitability,
+    face_depth_values,
     face_wall_row,
     suitability,
 )
@@ -268,25 +268,22 @@ def evaluate_face_depth(steps: Sequence[StepRecord], evaluation: Evaluation, pro
     name: the jackknife over the stack's frames, and for trueness the reference's components through its
     sensitivity (``calibration``: the offset calibration the references rest on)."""
     values = {name: f.value for name, f in evaluation.figures.items()}
-    row = face_wall_row(values, depth_table(evaluation))
+    rows = depth_table(evaluation)
+    row = face_wall_row(values, rows)
     if row is None:
         return
     step = next(s for s in steps if s.step_id == row["step"])
     progress(f"{step.step_id} depth on the face")
     z = step.read("z")
-    reference_mm = step.attrs["reference_distance_mm"]
-    u = depth_error_uncertainties(z, stack_stats(z), reference_mm)
+    u = depth_error_uncertainties(z, stack_stats(z), step.attrs["reference_distance_mm"])
     reference = calibrated_reference(step.attrs, offset_calibration(calibration) if calibration else ())
-    source = [step.step_id]
-    evaluation.face_depth = {
-        FACE_DISTANCE: FigureValue(values["hyperfocal_distance_mm"], evaluation.figures["hyperfocal_distance_mm"].source),
-        FACE_WALL_STEP: FigureValue(reference_mm, source),
-        FACE_PRECISION: FigureValue(row["precision_q90_mm"], source,
-                                    (Component("frames: jackknife of the stack (Type A)", u.precision_q90_mm),)),
-        FACE_TRUENESS: FigureValue(row["trueness_q90_mm"], source,
-                                   _with_reference(Component("frames: jackknife of the stack (Type A)", u.trueness_q90_mm),
-                                                   scaled(reference, abs(u.trueness_reference_sensitivity)))),
-    }
+    jackknife = "frames: jackknife of the stack (Type A)"
+    budgets = {FACE_PRECISION: (Component(jackknife, u.precision_q90_mm),),
+               FACE_TRUENESS: _with_reference(Component(jackknife, u.trueness_q90_mm),
+                                              scaled(reference, abs(u.trueness_reference_sensitivity)))}
+    sources = {FACE_DISTANCE: evaluation.figures["hyperfocal_distance_mm"].source}
+    evaluation.face_depth = {name: FigureValue(value, sources.get(name, [step.step_id]), budgets.get(name, ()))
+                             for name, value in face_depth_values(values, rows).items()}
 
 
 def judged_suitability(evaluation: Evaluation) -> Suitability:
