@@ -36,10 +36,23 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from labctl.reconcile.noise_model import dot_window_stats, stereo_statistics, tof_statistics
+from labctl.reconcile.noise_model import (
+    disparity_noise_px,
+    dot_window_stats,
+    stereo_statistics,
+    stored_depth_bias,
+    tof_statistics,
+)
 from labctl.reconcile.observe import Observation, StepScene, bin_mean
 from metrics.stack import central_roi
-from sim.effects import EFFECTS, EffectParams, frame_offset_mm, plate_placement_mm, shading_factor
+from sim.effects import (
+    EFFECTS,
+    EffectParams,
+    frame_offset_mm,
+    output_step_mm,
+    plate_placement_mm,
+    shading_factor,
+)
 from sim.geometry import Pose
 from sim.model import SimModel
 from sim.profiles import CameraProfile
@@ -271,7 +284,8 @@ class Predictor:
             range_mm, _, _ = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
             z = (range_mm + drift) * self.z_per_range
         else:
-            z = self._stereo_depth(rendered, drift)
+            exposure = step.exposure_us or self.profile.exposure_us
+            z = self._stereo_depth(rendered, drift, disparity_noise_px(self.sensor, rendered, exposure, step.projector))
         z = z + bin_curvature(z, self.bin_px)
         rows, cols = central_roi(self.full.height, self.full.width)
         weight = np.outer(_overlap(rows, z.shape[0], self.bin_px), _overlap(cols, z.shape[1], self.bin_px))
@@ -307,18 +321,23 @@ class Predictor:
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
                               np.zeros_like(z), _independent(noise))
-        z = self._stereo_depth(rendered, drift)
+        sigma_d = disparity_noise_px(self.sensor, rendered, exposure, step.projector)
+        z = self._stereo_depth(rendered, drift, sigma_d)
         ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
-            self.sensor, rendered, z, exposure, step.projector, self._dot_stats(centre_distance_mm(recorded)),
-            self.bin_px)
+            self.sensor, rendered, z, sigma_d, exposure, step.projector,
+            self._dot_stats(centre_distance_mm(recorded)), self.bin_px)
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
 
-    def _stereo_depth(self, rendered: Any, drift_mm: float) -> np.ndarray:
-        """A stereo render's binned noise-free z, NaN where nothing is hit or matched."""
-        z = self.sensor.depth(rendered) + drift_mm
-        return np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
+    def _stereo_depth(self, rendered: Any, drift_mm: float, sigma_d: np.ndarray) -> np.ndarray:
+        """A stereo render's binned expected stored z (the noise-free depth plus ``stored_depth_bias`` for the
+        disparity noise ``sigma_d``), NaN where nothing is hit or matched."""
+        z = self.sensor.depth(rendered)
+        z = np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
+        p = self.profile
+        return z + drift_mm + stored_depth_bias(z, sigma_d, p.disparity_step_px, self.sensor.matching_focal_baseline,
+                                                output_step_mm(self.effects), drift_mm, self.bin_px)
 
 
 def _overlap(region: slice, bins: int, bin_px: int) -> np.ndarray:

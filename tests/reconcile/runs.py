@@ -67,16 +67,18 @@ frames = 10
 
 
 def simulated_run(directory: Path, camera: str, hidden: dict[str, Any] | None = None, seed: int = 3,
-                  campaign: str | None = None, sweep_step_mm: int = 200, robot: bool = True) -> Path:
+                  campaign: str | None = None, sweep_step_mm: int = 200, robot: bool = True,
+                  lab: dict[str, float] | None = None) -> Path:
     """A simulated campaign (``CAMPAIGN`` or the given campaign text) of ``camera`` at its test size with the
-    built-in effects plus ``hidden`` library effects; ``/sim`` removed. Returns the run file's path."""
+    built-in effects plus ``hidden`` library effects, in the default simulated lab or one with ``lab``'s values
+    (sim/lab.py); ``/sim`` removed. Returns the run file's path."""
     directory.mkdir(parents=True, exist_ok=True)
     width, height = SIZES[camera]
     text = campaign if campaign is not None else CAMPAIGN.format(
         backend=BACKENDS[camera], seed=seed, sweep_step_mm=sweep_step_mm, robot=ROBOT if robot else "")
     (directory / "campaign.toml").write_text(text)
     model = {"camera": camera, "camera_overrides": {"width": width, "height": height},
-             "effects": {**default_effects(get_profile(camera)), **(hidden or {})}}
+             "effects": {**default_effects(get_profile(camera)), **(hidden or {})}, **({"lab": lab} if lab else {})}
     (directory / "hidden.toml").write_text(tomli_w.dumps(model))
     run = directory / "measured.h5"
     with pytest.raises(SystemExit) as info:
