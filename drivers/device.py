@@ -122,3 +122,8 @@ class CameraDevice(BaseDevice):
     @abstractmethod
     def capture(self, count: int, first_index: int = 0) -> Iterator[Frame]:
         """Yield ``count`` frames, numbered from ``first_index`` within the stack."""
+
+    def temperatures_c(self) -> dict[str, float]:
+        """The camera's temperature sensors (name -> degrees Celsius) as it reports them now; a camera whose
+        SDK reports none gives an empty mapping (the default)."""
+        return {}

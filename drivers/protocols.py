@@ -142,3 +142,7 @@ class DepthCamera(Device, Protocol):
         A transient failure raises after the frames already yielded, so the
         caller can continue with ``first_index`` = frames received so far.
         """
+
+    def temperatures_c(self) -> dict[str, float]:
+        """The camera's temperature sensors as it reports them now (sensor name -> degrees Celsius); empty
+        when it reports none."""

@@ -10,6 +10,7 @@ the same interface.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -30,6 +31,9 @@ from sim.tof import ToFSensor
 from sim.world import RobotSettings, SimWorld, StageSettings
 
 SERIAL_TIMEOUT_S = 1.0
+ROOM_C = 23.0  # assumption: the lab's air temperature
+WARM_UP_K = 20.0  # assumption: a camera's sensor settles this far above the room once warm
+WARM_UP_TAU_S = 600.0  # the sensor's time constant without a temperature_drift effect (that effect's default)
 
 
 def _serial_exchange(world: SimWorld, device: str) -> None:
@@ -189,6 +193,15 @@ class SimCamera(SimDevice, CameraDevice):
         self.exposure_us = self.profile.exposure_us if exposure_us is None else float(exposure_us)
         self._settings = dict(settings)
         self.world.clock.sleep(CAPTURE_SETUP_S)
+
+    def temperatures_c(self) -> dict[str, float]:
+        """The simulated sensor's temperature, a first-order warm-up from the room since the camera started,
+        ROOM_C + WARM_UP_K (1 - exp(-t / tau)), tau the first time constant of the model's
+        ``temperature_drift`` (the same lumped thermal node that moves its range) or ``WARM_UP_TAU_S``."""
+        drift = self.world.effects.get("temperature_drift")
+        tau = float(getattr(drift, "tau_s", WARM_UP_TAU_S))
+        t = max(self.world.clock.now(), 0.0)
+        return {"sensor": round(ROOM_C + WARM_UP_K * (1.0 - math.exp(-t / tau)), 2)}
 
     @property
     def projector(self) -> bool:

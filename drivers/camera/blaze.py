@@ -32,6 +32,7 @@ from drivers.camera.gentl import (
     GenTLProfile,
     NodeMap,
     Scan3d,
+    device_temperatures,
     enable_components,
     frame_from_parts,
     read_scan3d,
@@ -253,6 +254,10 @@ class PylonBlazeCamera(CameraDevice):
         self._settings = apply_settings(nodes, exposure_us, settings)
         nodes.set("ComponentSelector", "Range")
         self._scan3d = read_scan3d(nodes)
+
+    def temperatures_c(self) -> dict[str, float]:
+        """The SFNC ``DeviceTemperature`` of each sensor the blaze names (:func:`device_temperatures`)."""
+        return device_temperatures(self._ready())
 
     def capture(self, count: int, first_index: int = 0) -> Iterator[Frame]:
         """Grab ``count`` frames one by one (``StartGrabbingMax``, ``RetrieveResult``)."""

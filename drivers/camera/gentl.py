@@ -118,6 +118,28 @@ def readable(nodes: NodeMap, name: str, default: Any = None) -> Any:
         return default
 
 
+def device_temperatures(nodes: NodeMap) -> dict[str, float]:
+    """The GenICam SFNC ``DeviceTemperature`` (degrees Celsius) of every sensor ``DeviceTemperatureSelector``
+    names (e.g. ``Sensor``, ``Mainboard``), or of the one sensor a camera without the selector has (``device``);
+    empty where the camera lacks the feature or cannot read it now."""
+    if not nodes.has("DeviceTemperature"):
+        return {}
+    sensors = nodes.entries("DeviceTemperatureSelector") if nodes.has("DeviceTemperatureSelector") else []
+    if not sensors:
+        value = readable(nodes, "DeviceTemperature")
+        return {} if value is None else {"device": float(value)}
+    found: dict[str, float] = {}
+    for sensor in sensors:
+        try:
+            nodes.set("DeviceTemperatureSelector", sensor)
+        except DeviceError:
+            continue
+        value = readable(nodes, "DeviceTemperature")
+        if value is not None:
+            found[sensor] = float(value)
+    return found
+
+
 @dataclass(frozen=True)
 class Component:
     """One image component a backend needs, and how to switch it on.
@@ -456,6 +478,10 @@ class GenTLCamera(CameraDevice):
             applied["focal_length_px"], applied["principal_point_px"] = self._intrinsics[0], list(self._intrinsics[1])
         self._scan3d = self._read_scan3d()
         self._settings = applied
+
+    def temperatures_c(self) -> dict[str, float]:
+        """The SFNC ``DeviceTemperature`` of each sensor (:func:`device_temperatures`)."""
+        return device_temperatures(self._ready())
 
     def capture(self, count: int, first_index: int = 0) -> Iterator[Frame]:
         """Start acquisition, yield ``count`` frames (``ImageAcquirer.fetch``), stop acquisition."""

@@ -192,6 +192,20 @@ class RealSenseCamera(CameraDevice):
             confidence_dtype="float32",
         )
 
+    def temperatures_c(self) -> dict[str, float]:
+        """The depth module's ASIC and projector temperatures (``rs.option.asic_temperature``,
+        ``projector_temperature``) where a sensor of the device supports them; a recording gives the values
+        recorded with it."""
+        rs = self._ready()
+        options = {"asic": rs.option.asic_temperature, "projector": rs.option.projector_temperature}
+        found: dict[str, float] = {}
+        for sensor in self._profile.get_device().query_sensors():
+            for name, option in options.items():
+                if name not in found and sensor.supports(option):
+                    with contextlib.suppress(RuntimeError):
+                        found[name] = float(sensor.get_option(option))
+        return found
+
     def configure(self, exposure_us: float | None, settings: Mapping[str, Any]) -> None:
         """Exposure (µs, auto exposure off) and ``settings``: ``mode`` (visual preset), ``projector``
         (emitter on/off), ``laser_power`` (mW), ``filters`` (post-processing on/off).

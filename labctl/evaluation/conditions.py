@@ -1,20 +1,19 @@
 """The conditions behind an evaluation's figures, as the run files record them: which file (its SHA-256), recorded
 by which labctl, when, with which devices (the camera and the reference instruments: stage, laser meter, robot;
-model, serial, firmware) and which exposure times.
-
-The camera's temperature is not among them: no camera driver of labctl reads one, so the report says so instead
-of leaving it out silently.
+model, serial, firmware), which exposure times, and the camera's temperatures where it reports them (the range over
+the steps of each sensor's readings before and after every stack).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import threading
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import TypedDict
+from typing import NotRequired, TypedDict
 
 from labctl.run.store import RunReader
 
@@ -34,8 +33,9 @@ class DeviceRecord(TypedDict):
 
 class RunConditions(TypedDict):
     """One run file's conditions: its path and SHA-256, the labctl version that recorded it, when it was created,
-    its status, whether it was simulated, its devices and the exposure times (µs) its steps used (empty where no
-    step states one)."""
+    its status, whether it was simulated, its devices, the exposure times (µs) its steps used (empty where no
+    step states one) and per temperature sensor of the camera its lowest and highest reading (°C; empty where the
+    camera reports none or the file predates the record)."""
 
     path: str
     sha256: str
@@ -45,6 +45,7 @@ class RunConditions(TypedDict):
     simulated: bool
     devices: list[DeviceRecord]
     exposures_us: list[float]
+    camera_temperatures_c: NotRequired[dict[str, list[float]]]  # from layout 1.1 on
 
 
 def sha256_of(path: Path, stop: threading.Event | None = None) -> str:
@@ -90,4 +91,19 @@ def run_conditions(reader: RunReader, sha256: str) -> RunConditions:
     return {"path": str(reader.path), "sha256": sha256, "recorded_by": str(reader.attrs.get("labctl_version", "unknown")),
             "created": str(reader.attrs.get("created", "unknown")), "status": str(reader.attrs.get("status", "unknown")),
             "simulated": bool(reader.attrs.get("simulated", False)), "devices": devices,
-            "exposures_us": sorted(exposures)}
+            "exposures_us": sorted(exposures), "camera_temperatures_c": camera_temperature_ranges(reader)}
+
+
+def camera_temperature_ranges(reader: RunReader) -> dict[str, list[float]]:
+    """Per temperature sensor of the camera, [lowest, highest] of its readings before and after every stack
+    (the steps' ``camera_temperatures_json``; docs/runfile.md)."""
+    readings: dict[str, list[float]] = {}
+    for step in reader.steps():
+        try:
+            recorded = json.loads(str(step.attrs.get("camera_temperatures_json", "{}")))
+        except json.JSONDecodeError:
+            continue
+        for sensor, values in recorded.items() if isinstance(recorded, dict) else ():
+            readings.setdefault(str(sensor), []).extend(
+                float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(v))
+    return {sensor: [min(values), max(values)] for sensor, values in readings.items() if values}

@@ -450,7 +450,19 @@ def _conditions_html(conditions: list[RunConditions]) -> str:
                          f'<th class="l">status</th><th class="l">exposure (&micro;s)</th></tr>{runs}</table>')
             + wrap_table('<table><tr><th class="l">device</th><th class="l">model</th><th class="l">serial</th>'
                          f'<th class="l">firmware</th><th class="l">backend</th></tr>{devices}</table>')
-            + '<p class="note">Camera temperature: not recorded (no camera driver of labctl reads one).</p>')
+            + _temperatures_html(conditions))
+
+
+def _temperatures_html(conditions: list[RunConditions]) -> str:
+    """The camera's temperature range per sensor and run file, or a note that the camera reports none."""
+    rows = "".join(
+        f'<tr><td class="l">{html.escape(c["path"])}</td><td class="l">{html.escape(sensor)}</td>'
+        f"<td>{low:.1f}</td><td>{high:.1f}</td></tr>"
+        for c in conditions for sensor, (low, high) in c.get("camera_temperatures_c", {}).items())
+    if not rows:
+        return '<p class="note">Camera temperature: not reported (this camera reports none to labctl).</p>'
+    return wrap_table('<table><tr><th class="l">run file</th><th class="l">camera temperature sensor</th>'
+                      f"<th>lowest (&deg;C)</th><th>highest (&deg;C)</th></tr>{rows}</table>")
 
 
 def _suitability_html(suit: Suitability) -> str:

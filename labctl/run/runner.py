@@ -235,13 +235,25 @@ class Runner:
         while True:
             writer = self.run.begin_step(step, position)
             roi = RoiMean(central_roi(info.height, info.width), step.frames) if step.role == "offset" else None
+            before = self._camera_temperatures()
             self._capture(writer, faults, roi, settings)
             attrs = self._step_attrs(step, readings, roi, faults)
+            after = self._camera_temperatures()
+            attrs["camera_temperatures_json"] = json.dumps(
+                {name: [before.get(name), after.get(name)] for name in {**before, **after}})
             if step.role != "alignment" or self._alignment_accepted(writer, step, attrs):
                 break
         writer.commit(attrs)
         retries = f" ({len(faults)} fault(s) recovered)" if faults else ""
         self.reporter.message(f"{step.step_id} complete{retries}")
+
+    def _camera_temperatures(self) -> dict[str, float]:
+        """The camera's temperatures as it reports them (name -> degrees Celsius); empty where it reports none
+        or the reading fails (a temperature is a condition to record, never a reason to stop the run)."""
+        try:
+            return {name: float(value) for name, value in self.lab.camera.temperatures_c().items()}
+        except DeviceError:
+            return {}
 
     def _alignment_accepted(self, writer: StepWriter, step: Any, attrs: dict[str, Any]) -> bool:
         """Show the four corner fields and the implied tilt; the operator accepts or measures again."""

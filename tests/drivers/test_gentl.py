@@ -23,6 +23,7 @@ from drivers.camera.gentl import (
     GenTLProfile,
     Part,
     Scan3d,
+    device_temperatures,
     frame_from_parts,
     producers_on_path,
     read_scan3d,
@@ -202,3 +203,39 @@ def test_depth_only_is_back_projected_and_mono16_parts_keep_their_order() -> Non
         split_parts(parts[:2], components, "cam")
     with pytest.raises(DroppedFrame, match="buffer lacks the range component"):
         split_parts(parts[1:], components, "cam")
+
+
+class TemperatureNodes:
+    """A node map with the SFNC temperature features only: ``DeviceTemperature`` reads the sensor the selector
+    selects (``selector`` None: a camera without the selector)."""
+
+    def __init__(self, sensors: dict[str, float], selector: bool = True, unreadable: tuple[str, ...] = ()) -> None:
+        self.sensors, self.selector, self.unreadable = sensors, selector, unreadable
+        self.selected = next(iter(sensors))
+
+    def has(self, name: str) -> bool:
+        return name == "DeviceTemperature" or (self.selector and name == "DeviceTemperatureSelector")
+
+    def get(self, name: str) -> Any:
+        if name == "DeviceTemperatureSelector":
+            return self.selected
+        if self.selected in self.unreadable:
+            raise DeviceError("camera", "DeviceTemperature is not readable now")
+        return self.sensors[self.selected]
+
+    def set(self, name: str, value: Any) -> None:
+        assert name == "DeviceTemperatureSelector" and value in self.sensors
+        self.selected = value
+
+    def entries(self, name: str) -> list[str]:
+        return list(self.sensors) if name == "DeviceTemperatureSelector" else []
+
+
+def test_device_temperatures_reads_every_sensor_the_selector_names() -> None:
+    nodes = TemperatureNodes({"Sensor": 48.5, "Illumination": 55.25, "Mainboard": 39.0}, unreadable=("Mainboard",))
+    assert device_temperatures(nodes) == {"Sensor": 48.5, "Illumination": 55.25}
+    assert device_temperatures(TemperatureNodes({"Sensor": 41.0}, selector=False)) == {"device": 41.0}
+
+
+def test_a_camera_without_the_temperature_feature_reports_none(viky: GenTLCamera) -> None:
+    assert viky.temperatures_c() == {}

@@ -22,6 +22,8 @@ FX, FY, PPX, PPY = 50.0, 51.0, 31.5, 23.25
 
 
 IDENTITY = ("Intel RealSense D455", "233722070123", "5.16.0.1")
+TEMPERATURES_C = {"asic": 41.5, "projector": 36.0}
+"""The ASIC and projector temperatures the software camera reports (read-only options)."""
 """Product name, serial number and firmware the software camera reports (``rs.camera_info``)."""
 
 
@@ -43,6 +45,8 @@ class SoftwareCamera:
         self.depth = self._stream(rs.stream.depth, 0, rs.format.z16, 2, intrinsics)
         self.ir = self._stream(rs.stream.infrared, 1, rs.format.y8, 1, intrinsics)
         self.sensor.add_read_only_option(rs.option.depth_units, 0.001)
+        self.sensor.add_read_only_option(rs.option.asic_temperature, TEMPERATURES_C["asic"])
+        self.sensor.add_read_only_option(rs.option.projector_temperature, TEMPERATURES_C["projector"])
         self.recorder = rs.recorder(str(record_to), self.device) if record_to is not None else None
         self.syncer = rs.syncer(100)  # a queue, so no frameset is dropped while the test feeds frames
         self.sensor.open([self.depth, self.ir])
@@ -182,6 +186,21 @@ def test_every_stack_starts_at_the_beginning_of_the_recording(playback: RealSens
     again = [f.meta["frame_number"] for f in playback.capture(1)]
     resumed = [f.meta["frame_number"] for f in playback.capture(1, first_index=1)]
     assert (first, again, resumed) == ([169, 170], [169], [170])
+
+
+def test_a_recording_gives_the_temperatures_recorded_with_it(tmp_path: Path) -> None:
+    camera = RealSenseCamera(playback=write_recording(tmp_path / "warm.db3", 3))
+    camera.connect()
+    try:
+        assert camera.temperatures_c() == TEMPERATURES_C
+    finally:
+        camera.close()
+
+
+def test_the_real_recording_holds_its_cameras_temperatures(playback: RealSenseCamera) -> None:
+    temperatures = playback.temperatures_c()
+    assert set(temperatures) == {"asic", "projector"}
+    assert all(15.0 < t < 60.0 for t in temperatures.values())  # a D435 in a room, not a default of 0
 
 
 def test_a_stack_longer_than_the_recording_is_an_error(playback: RealSenseCamera) -> None:

@@ -68,6 +68,7 @@ def _with_every_section() -> KeyFiguresDocument:
     doc.runs, doc.notes = ["run.h5"], []
     doc.conditions = [{"path": "run.h5", "sha256": "ab" * 32, "recorded_by": "0.1.0", "created": "2026-11-26T19:00:00Z",
                        "status": "complete", "simulated": True, "exposures_us": [100.0, 300.0],
+                       "camera_temperatures_c": {"asic": [29.0, 31.5]},
                        "devices": [{"role": "camera", "backend": "sim", "model": "cam", "serial": "1", "firmware": "2"}]}]
     doc.depth_sweep = [{"step": "00002_depth_sweep", "reference_mm": 2005.0, "trueness_median_mm": 0.1,
                         "trueness_q90_mm": 0.3, "accuracy_median_mm": 0.5, "accuracy_q90_mm": 1.5,

@@ -77,8 +77,12 @@ def test_the_conditions_name_the_file_by_its_hash_and_its_devices(evaluated):
         recorded = {role: g.attrs["serial"] for role, g in f["devices"].items()}
     assert {d["role"]: d["serial"] for d in conditions["devices"]} == recorded and {"camera", "laser"} <= set(recorded)
     assert conditions["status"] == "complete" and conditions["simulated"] is True
+    # the simulated camera's sensor warms from the room (23 degC) towards 20 K above it while the run lasts
+    (low, high), = conditions["camera_temperatures_c"].values()
+    assert 23.0 <= low < high < 43.0
     page = (evaluated.parent / "report.html").read_text()
     assert "<h2>Conditions</h2>" in page and conditions["sha256"] in page
+    assert "camera temperature sensor" in page and f"{high:.1f}" in page
 
 
 def test_a_hash_stops_when_asked():
