@@ -253,13 +253,20 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
         ("hyperfocal_distance_mm", result.hyperfocal_mm, ids, hyperfocal),
         ("best_focus_distance_mm", result.best_focus_mm, ids,
          _position_budget(result.best_focus_spacing_mm) if result.focus_warning is None else ()),
-        ("intensity_resolution_h_deg", result.resolution_deg[0], best, ()),
-        ("intensity_resolution_v_deg", result.resolution_deg[1], best, ()),
+        ("intensity_resolution_h_deg", result.resolution_deg[0], best, _resolution_budget(result.resolution_u_deg[0])),
+        ("intensity_resolution_v_deg", result.resolution_deg[1], best, _resolution_budget(result.resolution_u_deg[1])),
         ("ied_pixels_at_hyperfocal", result.ied_px, ids, scaled(hyperfocal, result.ied_px / result.hyperfocal_mm)),
         ("ied_pixels_at_hyperfocal_angular", result.ied_px_angular, ids,
          scaled(hyperfocal, result.ied_px_angular / result.hyperfocal_mm)),
     ):
         evaluation.figures[name] = FigureValue(value, source, budget)
+
+
+def _resolution_budget(u_deg: float) -> tuple[Component, ...]:
+    """The budget of an intensity resolution: the SFR10's jackknife over the chart's and white sheet's frames at
+    best focus, through the sensitivity resolution / SFR10 (GUM 5.1.3); no Type B component, the sensor's angular
+    resolution FOV / pixels coming from the datasheet, which states no tolerance."""
+    return (Component("frames: delete-a-group jackknife of the SFR10 at best focus (Type A)", u_deg),)
 
 
 def _position_budget(spacing_mm: float) -> tuple[Component, ...]:

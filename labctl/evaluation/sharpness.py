@@ -9,6 +9,11 @@ horizontal angular resolution FOV_h / W), "vertical" ones from the near-
 horizontal edge. A position whose edge was not found, is clipped or has no
 SFR10 or SFR50 is invalid (hollow in the plots, ignored by the distance figures; the table's note
 gives the reason).
+
+The intensity resolution's Type A uncertainty is the delete-a-group jackknife of the SFR10 at best focus over
+``JACKKNIFE_GROUPS`` contiguous groups of frames of the chart and white stacks (``metrics.sfr.sfr10_jackknife``):
+each stack's means without each group come from the same read as its mean, and only the edges' ROIs of them are
+kept until best focus is known.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from labctl.evaluation.sections import SlantedEdgeRow
 from labctl.run.store import StepRecord
 from metrics.optics import sensor_angular_resolution_deg
 from metrics.plausibility import above_nyquist
-from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white
+from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white, sfr10_jackknife
 from metrics.sharpness import (
     best_focus_distance,
     hyperfocal_distance,
@@ -36,7 +41,11 @@ from metrics.sharpness import (
     position_spacing,
     sharpness_peak_at_sweep_end,
 )
-from metrics.stack import stack_stats
+from metrics.stack import leave_group_out_means, stack_stats
+from metrics.uncertainty import contiguous_groups
+
+#: contiguous groups of frames of the intensity resolution's jackknife (fewer frames: one group per frame)
+JACKKNIFE_GROUPS = 10
 
 
 @dataclass(frozen=True)
@@ -77,6 +86,9 @@ class SharpnessResult:
     best_focus_spacing_mm: float = math.nan
     best_focus_mm: float = math.nan
     resolution_deg: tuple[float, float] = (math.nan, math.nan)
+    #: Type A standard uncertainties of ``resolution_deg`` (the jackknife of the SFR10 at best focus; NaN where
+    #: not evaluated)
+    resolution_u_deg: tuple[float, float] = (math.nan, math.nan)
     ied_px: float = math.nan  # a face at the image centre (pinhole model)
     ied_px_angular: float = math.nan  # with the mean angular pixel size FOV / pixels (Thesis 2024, eq. 6-2)
     #: set when the sharpness peaks at an end of the sweep (best focus is then a bound)
@@ -141,8 +153,20 @@ def measure_position(chart: np.ndarray, white: np.ndarray) -> tuple[EdgeMeasurem
     return found["vertical"], found["horizontal"], notes
 
 
-def _mean_image(step: StepRecord, channel: str = "intensity") -> np.ndarray:
-    return stack_stats(step.read(channel)).mean
+def _read_intensity(step: StepRecord, groups: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """The step's stack-mean intensity and its (``groups``, H, W) means without each of that many contiguous groups
+    of frames (None for fewer than two groups), from one read of the stack."""
+    stack = step.read("intensity")
+    left_out = leave_group_out_means(stack, contiguous_groups(stack.shape[0], groups)) if groups >= 2 else None
+    return stack_stats(stack).mean, left_out
+
+
+def _roi_replicates(left_out: np.ndarray | None, edge: EdgeMeasurement | None) -> np.ndarray | None:
+    """The edge's ROI of each replicate mean (None without replicates or edge)."""
+    if left_out is None or edge is None:
+        return None
+    x, y, w, h = edge.roi
+    return left_out[:, y : y + h, x : x + w].copy()
 
 
 def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
@@ -156,20 +180,40 @@ def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
     missing = sorted(set(charts) - set(whites))
     if missing:
         result.notes.append(f"no white reference at {', '.join(f'{d:g}' for d in missing)} mm: positions skipped")
+    #: per distance and orientation, the edge ROI's replicates of the chart and of the white mean
+    replicates: dict[tuple[float, str], tuple[np.ndarray | None, np.ndarray | None]] = {}
     for distance in sorted(set(charts) & set(whites)):
         chart, white = charts[distance], whites[distance]
         progress(f"{chart.step_id} slanted edge")
-        h, v, notes = measure_position(_mean_image(chart), _mean_image(white))
+        groups = min(JACKKNIFE_GROUPS, *(int(s.group["intensity"].shape[0]) for s in (chart, white)))
+        (chart_mean, chart_out), (white_mean, white_out) = _read_intensity(chart, groups), _read_intensity(white, groups)
+        h, v, notes = measure_position(chart_mean, white_mean)
+        for orientation, edge in (("horizontal", h), ("vertical", v)):
+            replicates[float(distance), orientation] = (_roi_replicates(chart_out, edge), _roi_replicates(white_out, edge))
         result.notes.extend(f"{chart.step_id}: {n}" for n in notes)
         result.positions.append(SharpnessPosition(float(distance), chart.step_id, white.step_id,
                                                   float(chart.attrs.get("exposure_us", math.nan)), h, v))
     if not result.positions:
         return None
     _summarize(result)
+    if all(math.isfinite(r) for r in result.resolution_deg):
+        best = next(p for p in result.positions if p.distance_mm == result.best_focus_mm)
+        result.resolution_u_deg = (
+            _resolution_u(result.resolution_deg[0], best.horizontal, *replicates[best.distance_mm, "horizontal"]),
+            _resolution_u(result.resolution_deg[1], best.vertical, *replicates[best.distance_mm, "vertical"]))
     if math.isfinite(result.hyperfocal_mm):
         result.ied_px = ied_pixels_at_centre(camera.fov_deg[0], camera.width, result.hyperfocal_mm)
         result.ied_px_angular = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
     return result
+
+
+def _resolution_u(resolution_deg: float, edge: EdgeMeasurement | None, charts: np.ndarray | None,
+                  whites: np.ndarray | None) -> float:
+    """Standard uncertainty of an imagery resolution sensor / SFR10: the SFR10's jackknife times the sensitivity
+    |d resolution / d SFR10| = resolution / SFR10 (GUM 5.1.3); NaN without replicates."""
+    if edge is None or charts is None or whites is None:
+        return math.nan
+    return resolution_deg / edge.sfr10 * sfr10_jackknife(charts, whites)
 
 
 def _sweep_end_warning(end: str, distances: np.ndarray) -> str:
