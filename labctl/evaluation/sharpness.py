@@ -12,8 +12,8 @@ gives the reason).
 
 The intensity resolution's Type A uncertainty is the delete-a-group jackknife of the SFR10 at best focus over
 ``JACKKNIFE_GROUPS`` contiguous groups of frames of the chart and white stacks (``metrics.sfr.sfr10_jackknife``):
-each stack's means without each group come from the same read as its mean, and only the edges' ROIs of them are
-kept until best focus is known.
+once best focus is known, its two stacks are read again for their means without each group (keeping every
+position's replicates until then would hold hundreds of MB at 640 x 480).
 """
 
 from __future__ import annotations
@@ -153,20 +153,36 @@ def measure_position(chart: np.ndarray, white: np.ndarray) -> tuple[EdgeMeasurem
     return found["vertical"], found["horizontal"], notes
 
 
-def _read_intensity(step: StepRecord, groups: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """The step's stack-mean intensity and its (``groups``, H, W) means without each of that many contiguous groups
-    of frames (None for fewer than two groups), from one read of the stack."""
+def _mean_image(step: StepRecord, channel: str = "intensity") -> np.ndarray:
+    return stack_stats(step.read(channel)).mean
+
+
+def _left_out(step: StepRecord, groups: int) -> np.ndarray:
+    """The (``groups``, H, W) means of the step's intensity stack without each of that many contiguous groups of
+    frames."""
     stack = step.read("intensity")
-    left_out = leave_group_out_means(stack, contiguous_groups(stack.shape[0], groups)) if groups >= 2 else None
-    return stack_stats(stack).mean, left_out
+    return leave_group_out_means(stack, contiguous_groups(stack.shape[0], groups))
 
 
-def _roi_replicates(left_out: np.ndarray | None, edge: EdgeMeasurement | None) -> np.ndarray | None:
-    """The edge's ROI of each replicate mean (None without replicates or edge)."""
-    if left_out is None or edge is None:
-        return None
-    x, y, w, h = edge.roi
-    return left_out[:, y : y + h, x : x + w].copy()
+def _resolution_u(chart: StepRecord, white: StepRecord, position: SharpnessPosition,
+                  resolution_deg: tuple[float, float]) -> tuple[float, float]:
+    """Standard uncertainties of the two imagery resolutions sensor / SFR10 at ``position`` (best focus): the
+    SFR10's delete-a-group jackknife over ``JACKKNIFE_GROUPS`` groups of frames of the ``chart`` and ``white``
+    stacks, on each edge's ROI, times the sensitivity |d resolution / d SFR10| = resolution / SFR10 (GUM 5.1.3);
+    NaN with fewer than two frames."""
+    groups = min(JACKKNIFE_GROUPS, *(int(s.group["intensity"].shape[0]) for s in (chart, white)))
+    if groups < 2:
+        return math.nan, math.nan
+    charts, whites = (_left_out(step, groups) for step in (chart, white))
+    out = []
+    for edge, resolution in ((position.horizontal, resolution_deg[0]), (position.vertical, resolution_deg[1])):
+        if edge is None:
+            out.append(math.nan)
+            continue
+        x, y, w, h = edge.roi
+        u_sfr10 = sfr10_jackknife(charts[:, y : y + h, x : x + w], whites[:, y : y + h, x : x + w])
+        out.append(resolution / edge.sfr10 * u_sfr10)
+    return out[0], out[1]
 
 
 def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
@@ -180,16 +196,10 @@ def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
     missing = sorted(set(charts) - set(whites))
     if missing:
         result.notes.append(f"no white reference at {', '.join(f'{d:g}' for d in missing)} mm: positions skipped")
-    #: per distance and orientation, the edge ROI's replicates of the chart and of the white mean
-    replicates: dict[tuple[float, str], tuple[np.ndarray | None, np.ndarray | None]] = {}
     for distance in sorted(set(charts) & set(whites)):
         chart, white = charts[distance], whites[distance]
         progress(f"{chart.step_id} slanted edge")
-        groups = min(JACKKNIFE_GROUPS, *(int(s.group["intensity"].shape[0]) for s in (chart, white)))
-        (chart_mean, chart_out), (white_mean, white_out) = _read_intensity(chart, groups), _read_intensity(white, groups)
-        h, v, notes = measure_position(chart_mean, white_mean)
-        for orientation, edge in (("horizontal", h), ("vertical", v)):
-            replicates[float(distance), orientation] = (_roi_replicates(chart_out, edge), _roi_replicates(white_out, edge))
+        h, v, notes = measure_position(_mean_image(chart), _mean_image(white))
         result.notes.extend(f"{chart.step_id}: {n}" for n in notes)
         result.positions.append(SharpnessPosition(float(distance), chart.step_id, white.step_id,
                                                   float(chart.attrs.get("exposure_us", math.nan)), h, v))
@@ -198,22 +208,13 @@ def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
     _summarize(result)
     if all(math.isfinite(r) for r in result.resolution_deg):
         best = next(p for p in result.positions if p.distance_mm == result.best_focus_mm)
-        result.resolution_u_deg = (
-            _resolution_u(result.resolution_deg[0], best.horizontal, *replicates[best.distance_mm, "horizontal"]),
-            _resolution_u(result.resolution_deg[1], best.vertical, *replicates[best.distance_mm, "vertical"]))
+        progress(f"{best.chart_step} intensity resolution uncertainty")
+        result.resolution_u_deg = _resolution_u(charts[best.distance_mm], whites[best.distance_mm], best,
+                                                result.resolution_deg)
     if math.isfinite(result.hyperfocal_mm):
         result.ied_px = ied_pixels_at_centre(camera.fov_deg[0], camera.width, result.hyperfocal_mm)
         result.ied_px_angular = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)
     return result
-
-
-def _resolution_u(resolution_deg: float, edge: EdgeMeasurement | None, charts: np.ndarray | None,
-                  whites: np.ndarray | None) -> float:
-    """Standard uncertainty of an imagery resolution sensor / SFR10: the SFR10's jackknife times the sensitivity
-    |d resolution / d SFR10| = resolution / SFR10 (GUM 5.1.3); NaN without replicates."""
-    if edge is None or charts is None or whites is None:
-        return math.nan
-    return resolution_deg / edge.sfr10 * sfr10_jackknife(charts, whites)
 
 
 def _sweep_end_warning(end: str, distances: np.ndarray) -> str:
