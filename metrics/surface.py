@@ -200,7 +200,8 @@ def sq_jackknife(x: np.ndarray, y: np.ndarray, z_replicates: np.ndarray, valid: 
     than Sq's spread over repeated stacks: Sq^2 is then quadratic in the noise of the mean, and the jackknife's
     linear approximation of it has twice its variance (the jackknife variance errs on the large side, Efron &
     Stein 1981); on simulated flat walls u was 1.5 to 1.7 times the spread. Where a texture of the camera's
-    own dominates, Sq is near linear in the noise and the jackknife states its spread.
+    own dominates, Sq is near linear in the noise and the jackknife states its spread (with a fixed per-pixel
+    pattern of 0.5 mm on the simulated wall, u was 0.89 to 1.02 times the spread).
 
     Examples
     --------
