@@ -63,7 +63,8 @@ from scipy import optimize
 from metrics.optics import Pinhole, pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 
 __all__ = [
-    "CloudDistortion", "Corners", "DistortionResult", "cloud_distortion", "detect_corners", "distortion",
+    "CloudDistortion", "Corners", "DistortionResult", "bilinear_samples", "cloud_distortion", "detect_corners",
+    "distortion",
     "pixel_aspect_distortion_pct", "pixel_aspect_ratio", "refine_corners", "refined_distortion", "sample_cloud",
 ]
 
@@ -620,19 +621,37 @@ def sample_cloud(cloud: np.ndarray, uv: np.ndarray) -> np.ndarray:
     >>> sample_cloud(cloud, np.array([[1.25, 0.5], [2.5, 2.5]])).tolist()
     [[1.25, 0.5, 1000.0], [nan, nan, nan]]
     """
-    cloud = np.asarray(cloud)
+    out = bilinear_samples(cloud, uv)
+    out[~np.isfinite(out).all(axis=1)] = np.nan
+    return out
+
+
+def bilinear_samples(values: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear (N, ...) samples of (H, W, ...) ``values`` at sub-pixel (u, v), each trailing element on its own:
+    NaN where that element is invalid (NaN) at one of the four neighbouring pixels, or the sample lies outside.
+
+    Examples
+    --------
+    Two frames of a 3 x 3 image as its trailing axis, the second with an invalid pixel next to the sample.
+
+    >>> v, u = np.mgrid[0:3, 0:3].astype(float)
+    >>> frames = np.dstack([u, np.where((u == 1) & (v == 1), np.nan, v)])
+    >>> bilinear_samples(frames, np.array([[0.5, 0.25]])).tolist()
+    [[0.5, nan]]
+    """
+    values = np.asarray(values)
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
-    h, w = cloud.shape[:2]
+    h, w = values.shape[:2]
     u0, v0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
     u0, v0 = np.where(u0 == w - 1, w - 2, u0), np.where(v0 == h - 1, h - 2, v0)  # the last row / column
     ok = (u0 >= 0) & (v0 >= 0) & (u0 + 1 <= w - 1) & (v0 + 1 <= h - 1) & np.isfinite(uv).all(axis=1)
     ok &= (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     u0, v0 = np.where(ok, u0, 0), np.where(ok, v0, 0)
-    # only the four neighbours of each sample are read (not the whole cloud converted and masked)
-    p00, p01, p10, p11 = (np.asarray(cloud[v, u], dtype=float)
+    # only the four neighbours of each sample are read (not the whole array converted and masked)
+    p00, p01, p10, p11 = (np.asarray(values[v, u], dtype=float)
                           for v, u in ((v0, u0), (v0, u0 + 1), (v0 + 1, u0), (v0 + 1, u0 + 1)))
-    ok &= np.isfinite(np.stack([p00, p01, p10, p11])).all(axis=(0, 2))
-    fu, fv = (uv[:, 0] - u0)[:, None], (uv[:, 1] - v0)[:, None]
+    trailing = (slice(None),) + (None,) * (values.ndim - 2)
+    fu, fv = (uv[:, 0] - u0)[trailing], (uv[:, 1] - v0)[trailing]
     out = (1 - fu) * (1 - fv) * p00 + fu * (1 - fv) * p01 + (1 - fu) * fv * p10 + fu * fv * p11
     out[~ok] = np.nan
     return out

@@ -34,10 +34,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from metrics.depth import center_pixel, median_q90_abs, precision_q90_uncertainty
+from metrics.depth import center_pixel, median_q90_abs, precision_q90_uncertainty, quantile_abs
 from metrics.distortion import Corners, sample_cloud
 from metrics.stack import StackStats, stack_stats
-from metrics.uncertainty import standard_error_of_std
+from metrics.uncertainty import sensitivity, standard_error_of_std
+
+#: step (mm) of the tile size for the Q90s' numerical sensitivity to it (:func:`tile_sensitivity`)
+TILE_STEP_MM = 0.01
 
 
 @dataclass(frozen=True)
@@ -90,6 +93,22 @@ def _summary(errors: np.ndarray) -> tuple[float, float]:
     return q90, float(np.median(errors)) if errors.size else float("nan")
 
 
+def neighbour_pairs(corners: Corners) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 2) indices into the corners of the neighbours along the board's i axis (x) and along its j axis (y).
+
+    Examples
+    --------
+    >>> ij = np.array([(0, 0), (1, 0), (0, 1)])
+    >>> pairs_x, pairs_y = neighbour_pairs(Corners(np.zeros((3, 2)), ij, (4, 4), "given", (1.0, 1.0)))
+    >>> pairs_x.tolist(), pairs_y.tolist()
+    ([[0, 1]], [[0, 2]])
+    """
+    index = {(int(i), int(j)): n for n, (i, j) in enumerate(corners.ij)}
+    pairs_x = np.array([(n, index[(i + 1, j)]) for (i, j), n in index.items() if (i + 1, j) in index]).reshape(-1, 2)
+    pairs_y = np.array([(n, index[(i, j + 1)]) for (i, j), n in index.items() if (i, j + 1) in index]).reshape(-1, 2)
+    return pairs_x.astype(int), pairs_y.astype(int)
+
+
 def spacing_errors(cloud: np.ndarray, corners: Corners, tile_mm: float) -> SpacingErrors:
     """e_x, e_y of every pair of neighbouring corners valid in an organized (H, W, 3) cloud (mm, NaN invalid).
 
@@ -111,9 +130,7 @@ def spacing_errors(cloud: np.ndarray, corners: Corners, tile_mm: float) -> Spaci
         raise ValueError(f"cloud must be H x W x 3 = {corners.image_shape[0]} x {corners.image_shape[1]} x 3, "
                          f"got shape {cloud.shape}")
     xyz = sample_cloud(cloud, corners.uv)
-    index = {(int(i), int(j)): n for n, (i, j) in enumerate(corners.ij)}
-    pairs_x = np.array([(n, index[(i + 1, j)]) for (i, j), n in index.items() if (i + 1, j) in index]).reshape(-1, 2)
-    pairs_y = np.array([(n, index[(i, j + 1)]) for (i, j), n in index.items() if (i, j + 1) in index]).reshape(-1, 2)
+    pairs_x, pairs_y = neighbour_pairs(corners)
     ex = np.abs(xyz[pairs_x[:, 1], 0] - xyz[pairs_x[:, 0], 0]) - tile_mm
     ey = np.abs(xyz[pairs_y[:, 1], 1] - xyz[pairs_y[:, 0], 1]) - tile_mm
     ex, ey = ex[np.isfinite(ex)], ey[np.isfinite(ey)]
@@ -139,6 +156,47 @@ def xy_errors(mean_cloud: np.ndarray, frame_cloud: np.ndarray, corners: Corners,
     (0.0, 0.08)
     """
     return XYErrors(spacing_errors(mean_cloud, corners, tile_mm), spacing_errors(frame_cloud, corners, tile_mm))
+
+
+def single_frame_q90_spread(x_at_corners: np.ndarray, y_at_corners: np.ndarray, corners: Corners,
+                            tile_mm: float) -> tuple[float, float]:
+    """Type A standard uncertainties of the x and y accuracy Q90 (one frame's spacing errors): the experimental
+    standard deviation of the figure over the N frames, each taken as the single frame (GUM 4.2.2), as for the
+    depth accuracy Q90. ``x_at_corners``, ``y_at_corners``: (N, M) x and y of every frame at the M ``corners``
+    (``metrics.distortion.bilinear_samples`` of the stacks); NaN with fewer than two frames giving a figure.
+
+    Examples
+    --------
+    Three frames of a board 10 % too large, 20 % too large, exact (corners 1 px apart, 1 mm tiles): the
+    frames' x accuracy Q90 are 0.1, 0.2 and 0 mm, std 0.1 mm; y is exact in every frame.
+
+    >>> ij = np.array([(i, j) for j in range(3) for i in range(3)], dtype=float)
+    >>> corners = Corners(ij, ij.astype(int), (3, 3), "given", (1.0, 1.0))
+    >>> scale = np.array([1.1, 1.2, 1.0])[:, None]
+    >>> [round(u, 6) for u in single_frame_q90_spread(scale * ij[:, 0], np.ones((3, 1)) * ij[:, 1], corners, 1.0)]
+    [0.1, 0.0]
+    """
+    pairs_x, pairs_y = neighbour_pairs(corners)
+    out = []
+    for values, pairs in ((x_at_corners, pairs_x), (y_at_corners, pairs_y)):
+        errors = np.abs(np.abs(values[:, pairs[:, 1]] - values[:, pairs[:, 0]]) - tile_mm)
+        q90 = np.array([quantile_abs(frame, 0.9) for frame in errors])
+        q90 = q90[np.isfinite(q90)]
+        out.append(float(np.std(q90, ddof=1)) if q90.size >= 2 else math.nan)
+    return out[0], out[1]
+
+
+def tile_sensitivity(errors: np.ndarray) -> float:
+    """Sensitivity coefficient of the Q90 of |``errors``| (spacing errors |spacing| - tile) to the tile size, by
+    central differences of ``TILE_STEP_MM`` (GUM 5.1.3): -1 where every error has one sign and the spacings are
+    short or long alike, less in magnitude where the errors lie on both sides of 0.
+
+    Examples
+    --------
+    >>> round(tile_sensitivity(np.array([0.2, 0.3, 0.4])), 6), round(tile_sensitivity(np.array([-0.3, 0.3])), 6)
+    (-1.0, 0.0)
+    """
+    return sensitivity(lambda tile_change: quantile_abs(errors - tile_change, 0.9), 0.0, TILE_STEP_MM)
 
 
 def off_axis_pixels(shape: tuple[int, int]) -> tuple[tuple[int, int], tuple[int, int]]:

@@ -57,14 +57,18 @@ from metrics.depth import (
 )
 from metrics.optics import pixel_aspect_distortion_pct
 from metrics.plausibility import quantization_step
-from metrics.stack import stack_stats
-from metrics.surface import SurfaceTexture, surface_texture
-from metrics.uncertainty import Component, expanded_uncertainty, rectangular
+from metrics.stack import leave_group_out_means, stack_stats
+from metrics.surface import SurfaceTexture, sq_jackknife, surface_texture
+from metrics.uncertainty import Component, contiguous_groups, expanded_uncertainty, rectangular
 
 #: distance at which the single-position key figures are taken (docs/keyfigures.md)
 KEY_DISTANCE_MM = 2000.0
 #: a step counts as "at 2000 mm" when its reference lies within this distance
 KEY_DISTANCE_TOLERANCE_MM = 150.0
+#: contiguous groups of frames of the surface Sq's jackknife (a stack of fewer frames: one group per frame)
+SURFACE_GROUPS = 10
+#: the budget component of the surface Sq figures
+SURFACE_COMPONENT = "frames: delete-a-group jackknife of the stack (Type A)"
 
 
 @dataclass(frozen=True)
@@ -204,7 +208,12 @@ def evaluate_depth_sweep(
     ):
         figures[name] = FigureValue(value, [key.step_id], budget)
     progress(f"{key.step_id} surface")
-    means = {c: stack_stats(key.read(c)) for c in ("x", "y", "z")}
+    means = {c: stack_stats(key.read(c)) for c in ("x", "y")}
+    z = key.read("z")
+    means["z"] = stack_stats(z)
+    frames = z.shape[0]
+    z_left_out = leave_group_out_means(z, contiguous_groups(frames, min(SURFACE_GROUPS, frames))) if frames >= 2 else None
+    del z
     valid = means["z"].valid & means["x"].valid & means["y"].valid
     try:
         texture = surface_texture(means["x"].mean, means["y"].mean, means["z"].mean, valid)
@@ -212,12 +221,14 @@ def evaluate_depth_sweep(
         evaluation.notes.append(f"surface texture at {key.step_id} not evaluated: {exc}")
         return
     evaluation.surface = SurfaceResult(key.step_id, key.attrs["reference_distance_mm"], texture)
-    for name, value in (
-        ("surface_primary_sq_mm", texture.sq_primary_mm),
-        ("surface_waviness_sq_mm", texture.sq_waviness_mm),
-        ("surface_roughness_sq_mm", texture.sq_roughness_mm),
+    u = (sq_jackknife(means["x"].mean, means["y"].mean, z_left_out, valid, texture.cutoff_mm)
+         if z_left_out is not None else (math.nan,) * 3)
+    for name, value, u_sq in (
+        ("surface_primary_sq_mm", texture.sq_primary_mm, u[0]),
+        ("surface_waviness_sq_mm", texture.sq_waviness_mm, u[1]),
+        ("surface_roughness_sq_mm", texture.sq_roughness_mm, u[2]),
     ):
-        figures[name] = FigureValue(value, [key.step_id])
+        figures[name] = FigureValue(value, [key.step_id], (Component(SURFACE_COMPONENT, u_sq),))
 
 
 def _with_reference(frames: Component, reference: tuple[Component, ...]) -> tuple[Component, ...]:
@@ -242,13 +253,20 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
         ("hyperfocal_distance_mm", result.hyperfocal_mm, ids, hyperfocal),
         ("best_focus_distance_mm", result.best_focus_mm, ids,
          _position_budget(result.best_focus_spacing_mm) if result.focus_warning is None else ()),
-        ("intensity_resolution_h_deg", result.resolution_deg[0], best, ()),
-        ("intensity_resolution_v_deg", result.resolution_deg[1], best, ()),
+        ("intensity_resolution_h_deg", result.resolution_deg[0], best, _resolution_budget(result.resolution_u_deg[0])),
+        ("intensity_resolution_v_deg", result.resolution_deg[1], best, _resolution_budget(result.resolution_u_deg[1])),
         ("ied_pixels_at_hyperfocal", result.ied_px, ids, scaled(hyperfocal, result.ied_px / result.hyperfocal_mm)),
         ("ied_pixels_at_hyperfocal_angular", result.ied_px_angular, ids,
          scaled(hyperfocal, result.ied_px_angular / result.hyperfocal_mm)),
     ):
         evaluation.figures[name] = FigureValue(value, source, budget)
+
+
+def _resolution_budget(u_deg: float) -> tuple[Component, ...]:
+    """The budget of an intensity resolution: the SFR10's jackknife over the chart's and white sheet's frames at
+    best focus, through the sensitivity resolution / SFR10 (GUM 5.1.3); no Type B component, the sensor's angular
+    resolution FOV / pixels coming from the datasheet, which states no tolerance."""
+    return (Component("frames: delete-a-group jackknife of the SFR10 at best focus (Type A)", u_deg),)
 
 
 def _position_budget(spacing_mm: float) -> tuple[Component, ...]:

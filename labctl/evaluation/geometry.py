@@ -5,10 +5,12 @@
   radial part, what remains after the effective FOV is fitted; the raw EBU
   max deviation and the medians are reported alongside); x/y trueness (stack
   mean) and accuracy (first frame) from neighbouring corner spacings. The
-  radial distortion figures' Type A uncertainty is a delete-a-group jackknife
-  of the stack: the frames in ``JACKKNIFE_GROUPS`` contiguous groups, each
-  left out in turn, the corners refined again on the mean of the others and
-  the four figures evaluated again (docs/keyfigures.md, Uncertainty).
+  Type A uncertainty of the radial distortion and x/y trueness figures is a
+  delete-a-group jackknife of the stack: the frames in ``JACKKNIFE_GROUPS``
+  contiguous groups, each left out in turn, the corners refined again on the
+  mean of the others and the six figures evaluated again; that of x/y accuracy
+  the spread of the figure over the frames, each taken as the single frame
+  (docs/keyfigures.md, Uncertainty).
 * ``boehler_star``: the automated Boehler-star resolution of the stack-mean
   cloud, rings binned by the point spacing on the star (``auto_binning``);
   the 72-segment star where it is resolved, else the 24-segment one (Thesis 2024, 6.3.2).
@@ -28,12 +30,14 @@ import numpy as np
 
 from drivers.protocols import CameraInfo
 from labctl.evaluation.keyfigures import FigureValue
+from labctl.evaluation.uncertainty import tile_size
 from labctl.run.store import StepRecord
 from metrics.boehler import BoehlerResult, analyze_boehler
 from metrics.distortion import (
     CloudDistortion,
     Corners,
     DistortionResult,
+    bilinear_samples,
     cloud_distortion,
     detect_corners,
     distortion,
@@ -41,7 +45,15 @@ from metrics.distortion import (
 )
 from metrics.stack import leave_group_out_means, stack_stats
 from metrics.uncertainty import Component, contiguous_groups, delete_a_group_jackknife
-from metrics.xy_error import XYErrors, XYPrecision, xy_errors, xy_precision
+from metrics.xy_error import (
+    XYErrors,
+    XYPrecision,
+    single_frame_q90_spread,
+    spacing_errors,
+    tile_sensitivity,
+    xy_errors,
+    xy_precision,
+)
 
 KEY_DISTANCE_MM = 2000.0
 KEY_TOLERANCE_MM = 150.0
@@ -82,6 +94,7 @@ class CheckerboardResult:
     cloud_distortion: CloudDistortion | None
     xy: XYErrors | None
     radial_uncertainty: RadialUncertainty | None = None
+    xy_uncertainty: XYUncertainty | None = None
 
 
 @dataclass(frozen=True)
@@ -94,6 +107,17 @@ class RadialUncertainty:
     cloud_w_pct: float
     cloud_h_pct: float
     groups: int
+
+
+@dataclass(frozen=True)
+class XYUncertainty:
+    """Type A standard uncertainties (mm) of the x/y trueness Q90 (the delete-a-group jackknife of the stack) and
+    accuracy Q90 (the figure's spread over the frames, each taken as the single frame): NaN where not evaluated."""
+
+    trueness_x_mm: float
+    trueness_y_mm: float
+    accuracy_x_mm: float
+    accuracy_y_mm: float
 
 
 @dataclass(frozen=True)
@@ -116,25 +140,30 @@ class GeometryResult:
 
 @dataclass(frozen=True)
 class _Channel:
-    """One channel of a stack, read once: its mean, its first frame and its means without each group of frames."""
+    """One channel of a stack, read once: its mean, its first frame, its means without each group of frames and
+    every frame's values at the corners."""
 
     mean: np.ndarray
     first: np.ndarray
     left_out: np.ndarray | None
+    at_corners: np.ndarray | None = None
 
 
-def _read_channel(step: StepRecord, channel: str, groups: list[range] | None,
-                  buffer: np.ndarray | None) -> tuple[_Channel, np.ndarray]:
-    """The channel's :class:`_Channel` (``left_out`` None without ``groups``) and the buffer it was read into."""
+def _read_channel(step: StepRecord, channel: str, groups: list[range] | None, buffer: np.ndarray | None,
+                  uv: np.ndarray | None = None) -> tuple[_Channel, np.ndarray]:
+    """The channel's :class:`_Channel` (``left_out`` None without ``groups``, ``at_corners`` the (N, M) values
+    of its N frames at the M corners ``uv``, None without them) and the buffer it was read into."""
     buffer = step.read(channel, out=buffer)
     left_out = leave_group_out_means(buffer, groups) if groups else None
-    return _Channel(stack_stats(buffer).mean, buffer[0].copy(), left_out), buffer
+    at_corners = None if uv is None else bilinear_samples(np.moveaxis(buffer, 0, -1), uv).T
+    return _Channel(stack_stats(buffer).mean, buffer[0].copy(), left_out, at_corners), buffer
 
 
 def evaluate_checkerboard(step: StepRecord, camera: CameraInfo) -> CheckerboardResult:
-    """Distortion of the intensity image and of the cloud, x/y errors, and the radial distortion's Type A
-    uncertainty (the delete-a-group jackknife of the stack), of one checkerboard step. Each channel is read
-    once: its mean, its first frame and its means without each group of frames come from the same read."""
+    """Distortion of the intensity image and of the cloud, x/y errors, and the Type A uncertainties of the radial
+    distortion and x/y trueness (the delete-a-group jackknife of the stack) and of the x/y accuracy (its spread
+    over the frames), of one checkerboard step. Each channel is read once: its mean, its first frame, its means
+    without each group of frames and its frames' values at the corners come from the same read."""
     tile = float(json.loads(step.attrs.get("target_json", "{}") or "{}").get("tile_mm", 19.0))
     frames = int(step.group["intensity"].shape[0])
     groups = contiguous_groups(frames, min(JACKKNIFE_GROUPS, frames)) if frames >= 2 else None
@@ -149,18 +178,21 @@ def evaluate_checkerboard(step: StepRecord, camera: CameraInfo) -> CheckerboardR
     del intensity_channel
     xyz = []
     for c in ("x", "y", "z"):
-        channel, buffer = _read_channel(step, c, groups, buffer)
+        channel, buffer = _read_channel(step, c, groups, buffer, intensity.corners.uv if c in "xy" else None)
         xyz.append(channel)
     del buffer
     cloud = np.stack([c.mean for c in xyz], axis=-1)
     cloud_result = cloud_distortion(cloud, intensity.corners, tile, camera.fov_deg)
     first = np.stack([c.first for c in xyz], axis=-1)
-    uncertainty = None
+    radial_u = xy_u = None
     if groups is not None:
-        rows = [_replicate_figures(replica, xyz, g, tile, camera.fov_deg) for g, replica in enumerate(replicas)]
-        uncertainty = RadialUncertainty(*delete_a_group_jackknife(np.array(rows)), groups=len(groups))
+        rows = np.array([_replicate_figures(replica, xyz, g, tile, camera.fov_deg) for g, replica in enumerate(replicas)])
+        jackknife = delete_a_group_jackknife(rows)
+        radial_u = RadialUncertainty(*jackknife[:4], groups=len(groups))
+        xy_u = XYUncertainty(*jackknife[4:], *single_frame_q90_spread(xyz[0].at_corners, xyz[1].at_corners,
+                                                                      intensity.corners, tile))
     return CheckerboardResult(step.step_id, distance, _placed(step), tile, image, cloud, intensity.corners, intensity,
-                              cloud_result, xy_errors(cloud, first, intensity.corners, tile), uncertainty)
+                              cloud_result, xy_errors(cloud, first, intensity.corners, tile), radial_u, xy_u)
 
 
 def _replica(image: np.ndarray, corners: Corners, tile_mm: float, distance_mm: float,
@@ -173,16 +205,20 @@ def _replica(image: np.ndarray, corners: Corners, tile_mm: float, distance_mm: f
 
 
 def _replicate_figures(replica: DistortionResult | None, xyz: list[_Channel], g: int, tile_mm: float,
-                       fov_deg: tuple[float, float]) -> tuple[float, float, float, float]:
-    """The four radial distortion figures of jackknife replicate ``g`` (NaN where they cannot be evaluated)."""
+                       fov_deg: tuple[float, float]) -> tuple[float, ...]:
+    """The four radial distortion figures and the x and y trueness Q90 of jackknife replicate ``g`` (NaN where
+    they cannot be evaluated)."""
     if replica is None:
-        return (math.nan,) * 4
+        return (math.nan,) * 6
+    cloud = np.stack([c.left_out[g] for c in xyz], axis=-1)
+    trueness = spacing_errors(cloud, replica.corners, tile_mm)
     try:
-        cloud = cloud_distortion(np.stack([c.left_out[g] for c in xyz], axis=-1), replica.corners, tile_mm, fov_deg)
+        cloud_result = cloud_distortion(cloud, replica.corners, tile_mm, fov_deg)
+        cloud_figures = (cloud_result.distortion_w_pct, cloud_result.distortion_h_pct)
     except ValueError:
-        return replica.radial_distortion_w_pct, replica.radial_distortion_h_pct, math.nan, math.nan
-    return (replica.radial_distortion_w_pct, replica.radial_distortion_h_pct, cloud.distortion_w_pct,
-            cloud.distortion_h_pct)
+        cloud_figures = (math.nan, math.nan)
+    return (replica.radial_distortion_w_pct, replica.radial_distortion_h_pct, *cloud_figures,
+            trueness.x_q90_mm, trueness.y_q90_mm)
 
 
 def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
@@ -224,9 +260,27 @@ def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
     return out
 
 
+def _xy_figures(xy: XYErrors, u: XYUncertainty | None, tile_mm: float, src: list[str]) -> dict[str, FigureValue]:
+    """The x/y trueness and accuracy Q90 with their budgets: the frames' Type A component ``u`` and the tile
+    size's (:func:`labctl.evaluation.uncertainty.tile_size` through the Q90's sensitivity to the tile, GUM
+    5.1.3); empty (not estimated) without ``u``."""
+    figures = {}
+    for kind, errors, label in (("trueness", xy.trueness, JACKKNIFE_COMPONENT),
+                                ("accuracy", xy.accuracy, "frames: spread of the single frame (Type A)")):
+        for axis in "xy":
+            budget: tuple[Component, ...] = ()
+            if u is not None:
+                tile = tile_size(tile_mm)
+                budget = (Component(label, getattr(u, f"{kind}_{axis}_mm")),
+                          Component(tile.name, tile.value * abs(tile_sensitivity(getattr(errors, f"{axis}_errors")))))
+            figures[f"{axis}_{kind}_q90_mm"] = FigureValue(getattr(errors, f"{axis}_q90_mm"), src, budget)
+    return figures
+
+
 def figure_values(result: GeometryResult) -> dict[str, FigureValue]:
     """Key figures (docs/keyfigures.md) with their source steps and uncertainty budgets (the radial distortion
-    figures': the jackknife of the stack; empty for the others)."""
+    and x/y trueness figures': the jackknife of the stack; x/y accuracy: its spread over the frames; those of
+    x/y on the checkerboard with the tile size's component; the x/y noise figures' their own)."""
     figures: dict[str, FigureValue] = {}
     board = result.checkerboard
     if board is not None:
@@ -243,10 +297,7 @@ def figure_values(result: GeometryResult) -> dict[str, FigureValue]:
             figures["radial_distortion_cloud_w_pct"] = radial(board.cloud_distortion.distortion_w_pct, "cloud_w_pct")
             figures["radial_distortion_cloud_h_pct"] = radial(board.cloud_distortion.distortion_h_pct, "cloud_h_pct")
         if board.xy is not None:
-            figures["x_trueness_q90_mm"] = FigureValue(board.xy.trueness.x_q90_mm, src)
-            figures["y_trueness_q90_mm"] = FigureValue(board.xy.trueness.y_q90_mm, src)
-            figures["x_accuracy_q90_mm"] = FigureValue(board.xy.accuracy.x_q90_mm, src)
-            figures["y_accuracy_q90_mm"] = FigureValue(board.xy.accuracy.y_q90_mm, src)
+            figures.update(_xy_figures(board.xy, board.xy_uncertainty, board.tile_mm, src))
     if result.chosen_star is not None:
         star = result.chosen_star
         figures["cloud_resolution_h_deg"] = FigureValue(star.result.angular_h_deg, [star.step_id])

@@ -9,6 +9,11 @@ horizontal angular resolution FOV_h / W), "vertical" ones from the near-
 horizontal edge. A position whose edge was not found, is clipped or has no
 SFR10 or SFR50 is invalid (hollow in the plots, ignored by the distance figures; the table's note
 gives the reason).
+
+The intensity resolution's Type A uncertainty is the delete-a-group jackknife of the SFR10 at best focus over
+``JACKKNIFE_GROUPS`` contiguous groups of frames of the chart and white stacks (``metrics.sfr.sfr10_jackknife``):
+once best focus is known, its two stacks are read again for their means without each group (keeping every
+position's replicates until then would hold hundreds of MB at 640 x 480).
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from labctl.evaluation.sections import SlantedEdgeRow
 from labctl.run.store import StepRecord
 from metrics.optics import sensor_angular_resolution_deg
 from metrics.plausibility import above_nyquist
-from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white
+from metrics.sfr import SFRResult, edge_sfr, find_edge_rois, normalize_by_white, sfr10_jackknife
 from metrics.sharpness import (
     best_focus_distance,
     hyperfocal_distance,
@@ -36,7 +41,11 @@ from metrics.sharpness import (
     position_spacing,
     sharpness_peak_at_sweep_end,
 )
-from metrics.stack import stack_stats
+from metrics.stack import leave_group_out_means, stack_stats
+from metrics.uncertainty import contiguous_groups
+
+#: contiguous groups of frames of the intensity resolution's jackknife (fewer frames: one group per frame)
+JACKKNIFE_GROUPS = 10
 
 
 @dataclass(frozen=True)
@@ -77,6 +86,9 @@ class SharpnessResult:
     best_focus_spacing_mm: float = math.nan
     best_focus_mm: float = math.nan
     resolution_deg: tuple[float, float] = (math.nan, math.nan)
+    #: Type A standard uncertainties of ``resolution_deg`` (the jackknife of the SFR10 at best focus; NaN where
+    #: not evaluated)
+    resolution_u_deg: tuple[float, float] = (math.nan, math.nan)
     ied_px: float = math.nan  # a face at the image centre (pinhole model)
     ied_px_angular: float = math.nan  # with the mean angular pixel size FOV / pixels (Thesis 2024, eq. 6-2)
     #: set when the sharpness peaks at an end of the sweep (best focus is then a bound)
@@ -145,6 +157,34 @@ def _mean_image(step: StepRecord, channel: str = "intensity") -> np.ndarray:
     return stack_stats(step.read(channel)).mean
 
 
+def _left_out(step: StepRecord, groups: int) -> np.ndarray:
+    """The (``groups``, H, W) means of the step's intensity stack without each of that many contiguous groups of
+    frames."""
+    stack = step.read("intensity")
+    return leave_group_out_means(stack, contiguous_groups(stack.shape[0], groups))
+
+
+def _resolution_u(chart: StepRecord, white: StepRecord, position: SharpnessPosition,
+                  resolution_deg: tuple[float, float]) -> tuple[float, float]:
+    """Standard uncertainties of the two imagery resolutions sensor / SFR10 at ``position`` (best focus): the
+    SFR10's delete-a-group jackknife over ``JACKKNIFE_GROUPS`` groups of frames of the ``chart`` and ``white``
+    stacks, on each edge's ROI, times the sensitivity |d resolution / d SFR10| = resolution / SFR10 (GUM 5.1.3);
+    NaN with fewer than two frames."""
+    groups = min(JACKKNIFE_GROUPS, *(int(s.group["intensity"].shape[0]) for s in (chart, white)))
+    if groups < 2:
+        return math.nan, math.nan
+    charts, whites = (_left_out(step, groups) for step in (chart, white))
+    out = []
+    for edge, resolution in ((position.horizontal, resolution_deg[0]), (position.vertical, resolution_deg[1])):
+        if edge is None:
+            out.append(math.nan)
+            continue
+        x, y, w, h = edge.roi
+        u_sfr10 = sfr10_jackknife(charts[:, y : y + h, x : x + w], whites[:, y : y + h, x : x + w])
+        out.append(resolution / edge.sfr10 * u_sfr10)
+    return out[0], out[1]
+
+
 def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
                           progress: Callable[[str], None]) -> SharpnessResult | None:
     """Thesis 2024, 5.1.2 over every chart position that has a white reference at the same distance."""
@@ -166,6 +206,11 @@ def evaluate_slanted_edge(steps: Sequence[StepRecord], camera: CameraInfo,
     if not result.positions:
         return None
     _summarize(result)
+    if all(math.isfinite(r) for r in result.resolution_deg):
+        best = next(p for p in result.positions if p.distance_mm == result.best_focus_mm)
+        progress(f"{best.chart_step} intensity resolution uncertainty")
+        result.resolution_u_deg = _resolution_u(charts[best.distance_mm], whites[best.distance_mm], best,
+                                                result.resolution_deg)
     if math.isfinite(result.hyperfocal_mm):
         result.ied_px = ied_pixels_at_centre(camera.fov_deg[0], camera.width, result.hyperfocal_mm)
         result.ied_px_angular = ied_pixels(result.sensor_resolution_deg[0], result.hyperfocal_mm)

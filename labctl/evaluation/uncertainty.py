@@ -11,7 +11,9 @@ Type B components (GUM 4.3) from what the lab's instruments state, in mm of the 
   absolute: against the offset-calibrated reference (``laser + offset``, docs/campaign.md) a bias the meter has
   at the step and at the offset calibration alike cancels;
 * the tolerance of ``devices.camera.depth_origin_offset_mm`` (``DEPTH_ORIGIN_TOLERANCE_MM``, rectangular), for the
-  figures measured against the absolute reference.
+  figures measured against the absolute reference;
+* the checkerboard's tile size (``TILE_TOLERANCE_MM``, rectangular), the reference of the x/y trueness and
+  accuracy.
 
 The reference's uncertainty is not estimated (the budget is empty, the figure's uncertainty null) where the
 reference is the stage's nominal distance or the offset was given in the campaign instead of calibrated.
@@ -34,6 +36,8 @@ from metrics.uncertainty import Component, from_multiple, rectangular, standard_
 #: assumed tolerance (+-, mm) of the campaign's depth_origin_offset_mm: the vendors state the depth origin to
 #: about a millimetre and the campaign gives no tolerance of its own
 DEPTH_ORIGIN_TOLERANCE_MM = 1.0
+#: assumed tolerance (+-, mm) of a checkerboard tile against the campaign's tile_mm: the campaign states none
+TILE_TOLERANCE_MM = 0.1
 
 
 def laser_readings(attrs: Mapping[str, Any]) -> int:
@@ -90,3 +94,9 @@ def scaled(components: tuple[Component, ...], factor: float) -> tuple[Component,
     """The components each times ``factor``: a sensitivity coefficient (GUM 5.1.3), or a change of unit (mm to
     % of a distance: 100 / distance)."""
     return tuple(Component(c.name, c.value * factor) for c in components)
+
+
+def tile_size(tile_mm: float) -> Component:
+    """The component (mm) of a checkerboard tile of nominal ``tile_mm``: the assumed tolerance
+    ``TILE_TOLERANCE_MM`` as a bound, rectangular (GUM 4.3.7); the caller scales it by the figure's sensitivity."""
+    return Component(f"tile size {tile_mm:g} mm: tolerance (assumed, rectangular)", rectangular(TILE_TOLERANCE_MM))

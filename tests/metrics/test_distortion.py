@@ -25,6 +25,7 @@ import pytest
 
 from metrics.distortion import (
     Corners,
+    bilinear_samples,
     cloud_distortion,
     detect_corners,
     distortion,
@@ -305,6 +306,18 @@ def test_sample_cloud_is_bilinear_and_respects_invalid_pixels():
     got = sample_cloud(cloud, uv)
     assert np.isnan(got[2]).all() and np.isfinite(got[:2]).all()
     assert np.isnan(sample_cloud(cloud, np.array([[7.5, 1.0], [-0.1, 2.0], [2.0, 5.2]]))).all()
+
+
+def test_bilinear_samples_of_a_stack_are_each_frames_own():
+    """Frames along the last axis: each frame sampled as it alone would be, an invalid pixel voiding only its frame."""
+    v, u = np.mgrid[0:6, 0:8].astype(float)
+    frames = np.stack([3 * u - 2 * v, u * v, u + 0 * v], axis=-1)
+    frames[4, 7, 1] = np.nan
+    uv = np.array([[2.25, 3.5], [6.9, 4.99]])
+    got = bilinear_samples(frames, uv)
+    np.testing.assert_allclose(got[:, 0], 3 * uv[:, 0] - 2 * uv[:, 1])
+    np.testing.assert_allclose(got[:, 2], uv[:, 0])
+    assert np.isfinite(got[0, 1]) and np.isnan(got[1, 1])
 
 
 def test_cloud_distortion_follows_the_clouds_axes_and_rejects_wrong_shapes():

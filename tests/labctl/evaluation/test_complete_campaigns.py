@@ -198,6 +198,24 @@ def test_xy_noise_figures_state_their_uncertainty(complete):
         assert 0 <= u < 0.2 * figure.value and (quantized or u > 0), name
 
 
+def test_surface_resolution_and_checkerboard_figures_state_their_uncertainty(complete):
+    """The surface Sq, the intensity resolutions (jackknife over the 4 frames of the best-focus position) and the
+    x/y trueness and accuracy on the checkerboard (with the tile size's component) state a standard uncertainty
+    above 0 and below the figure; the Boehler star's resolution states none (docs/keyfigures.md, Uncertainty)."""
+    camera, _, _, evaluation = complete
+    names = ("surface_primary_sq_mm", "surface_waviness_sq_mm", "surface_roughness_sq_mm",
+             "intensity_resolution_h_deg", "intensity_resolution_v_deg",
+             *(f"{axis}_{kind}_q90_mm" for kind in ("trueness", "accuracy") for axis in "xy"))
+    for name in names:
+        figure = evaluation.figures[name]
+        u = combined_standard_uncertainty(figure.budget)
+        assert 0 < u < figure.value, (camera, name, u, figure.value)
+    for axis in "xy":
+        for kind in ("trueness", "accuracy"):
+            assert evaluation.figures[f"{axis}_{kind}_q90_mm"].budget[-1].name.startswith("tile size"), (camera, axis)
+    assert all(not evaluation.figures[f"cloud_resolution_{o}_deg"].budget for o in "hv")
+
+
 def test_geometry_figures_of_an_undistorted_camera(complete):
     """No distortion in the model: within the method's 0.3 % in image and cloud. The Böhler star is
     resolved no finer than the sensor and within 3 sensor resolutions (the star's sampling limit is

@@ -1,0 +1,65 @@
+"""The intensity resolution figures' stated uncertainty covers their spread over independent repetitions.
+
+Known answer (GUM 6.2, 6.3: U = 2 u covers about 95 % of the values a figure takes), as in
+test_distortion_uncertainty_coverage.py: the same simulated slanted-edge position (chart and white sheet) is run
+with ``SEEDS`` different seeds, a seed drawing new camera noise. For both intensity resolution figures each
+seed's value must lie within its own U (k = 2, the delete-a-group jackknife of the SFR10 over ten groups of
+frames: nine degrees of freedom, a correct U covers a seed with probability 0.92) of the mean over the seeds in at
+least ``MIN_COVERED`` of ``SEEDS`` seeds, and the mean u must be within a factor ``RATIO`` of the standard
+deviation over the seeds.
+
+One position: the figure is taken at best focus, and a sweep whose best position changed from seed to seed
+would make the figure jump between positions, a choice no uncertainty of one position's SFR covers. 160 x 120
+px at 600 mm and 20 frames (ten groups of two) keep a seed's run and evaluation under a second.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from labctl.cli import main
+from labctl.evaluation.evaluate import evaluate_runs
+from metrics.uncertainty import combined_standard_uncertainty
+from tests.conftest import SMALL_MODEL, campaign_text
+from tests.coverage_check import assert_u_covers_the_spread
+
+SEEDS = 48
+MIN_COVERED = 42
+RATIO = 2.0
+EDGE = """
+[[procedure]]
+kind = "slanted_edge"
+start_mm = 600
+stop_mm = 600
+step_mm = 100
+frames = 20
+"""
+FIGURES = ("intensity_resolution_h_deg", "intensity_resolution_v_deg")
+
+
+@pytest.fixture(scope="module")
+def figures(tmp_path_factory) -> dict[str, np.ndarray]:
+    """Per figure, (value, u) of every seed."""
+    tmp = tmp_path_factory.mktemp("seeds")
+    model = tmp / "model.toml"
+    model.write_text(SMALL_MODEL.format(camera="blaze101", width=160, height=120))
+    rows: dict[str, list[tuple[float, float]]] = {name: [] for name in FIGURES}
+    for seed in range(SEEDS):
+        campaign = tmp / f"c{seed}.toml"
+        campaign.write_text(campaign_text(procedures=EDGE, seed=seed))
+        out = tmp / f"r{seed}.h5"
+        with pytest.raises(SystemExit) as info:
+            main(["run", str(campaign), "--sim", "--model", str(model), "-o", str(out), "--quiet"])
+        assert info.value.code == 0
+        found = evaluate_runs([out]).figures
+        for name in FIGURES:
+            rows[name].append((found[name].value, combined_standard_uncertainty(found[name].budget)))
+        out.unlink()
+    return {name: np.array(values) for name, values in rows.items()}
+
+
+@pytest.mark.parametrize("name", FIGURES)
+def test_expanded_uncertainty_covers_the_spread_over_seeds(figures, name):
+    value, u = figures[name].T
+    assert_u_covers_the_spread(name, value, u, MIN_COVERED, RATIO)
