@@ -312,13 +312,29 @@ def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim
 
 
 def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_steps: int) -> np.ndarray:
-    """Covariance of least-squares parameters with the steps as the independent replications (cluster-robust
-    sandwich, Liang & Zeger 1986): (J'J)^-1 (sum_s J_s' f_s f_s' J_s) (J'J)^-1 n / (n - k)."""
+    """Covariance of least-squares parameters with the steps as the independent replications: the
+    delete-one-step jackknife (CR3; MacKinnon & White 1985, Bell & McCaffrey 2002), (n - 1) / n B (sum_s
+    c_s c_s') B with B = (J'J)^-1 and c_s = J'J (J'J - J_s'J_s)^-1 J_s' f_s, the score of step s as the fit
+    without that step would see it (the cluster-robust sandwich of Liang & Zeger 1986 uses J_s' f_s itself,
+    and understates the scatter where a few precise steps carry the fit)."""
     k = jac.shape[1]
-    bread = np.linalg.pinv(jac.T @ jac)
-    scores = np.stack([np.bincount(steps, jac[:, i] * fun, n_steps) for i in range(k)], axis=1)  # (n, k)
-    used = max(int(np.count_nonzero(np.any(scores != 0, axis=1))), k + 1)
-    return bread @ (scores.T @ scores) @ bread * used / (used - k)
+    info = jac.T @ jac
+    bread = np.linalg.pinv(info)
+    rows = [np.flatnonzero(steps == s) for s in range(n_steps)]
+    scores = []
+    for r in rows:
+        if not len(r):
+            continue
+        js = jac[r]
+        gs = js.T @ fun[r]
+        if not np.any(gs):
+            continue
+        scores.append(info @ np.linalg.pinv(info - js.T @ js) @ gs)
+    used = max(len(scores), k + 1)
+    meat = np.zeros((k, k))
+    for c in scores:
+        meat += np.outer(c, c)
+    return bread @ meat @ bread * (used - 1) / used
 
 
 def determination(candidate: Candidate, params: Parameters, x: np.ndarray, cov: np.ndarray,
