@@ -1,10 +1,20 @@
 """The known-answer check of the uncertainty coverage tests: over independent repetitions (seeds), the stated
 U = 2 u covers each figure's deviation from the mean over the seeds in about 95 % of them (GUM 6.2, 6.3), and the
-stated u matches the spread actually seen (a grossly overstated uncertainty fails too)."""
+stated u matches the spread actually seen (a grossly overstated uncertainty fails too); and the figures of one simulated
+campaign over many seeds, which those tests check."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
+
 import numpy as np
+import pytest
+
+from labctl.cli import main
+from labctl.evaluation.evaluate import evaluate_runs
+from metrics.uncertainty import combined_standard_uncertainty
+from tests.conftest import SMALL_MODEL, campaign_text
 
 
 def assert_u_covers_the_spread(name: str, value: np.ndarray, u: np.ndarray, min_covered: int, ratio: float) -> None:
@@ -15,3 +25,27 @@ def assert_u_covers_the_spread(name: str, value: np.ndarray, u: np.ndarray, min_
     spread = float(np.std(value, ddof=1))
     assert covered >= min_covered, f"{name}: U covers {covered} of {value.size} seeds (spread {spread:.4g}, u {u.mean():.4g})"
     assert 1 / ratio <= u.mean() / spread <= ratio, f"{name}: mean u {u.mean():.4g}, spread over seeds {spread:.4g}"
+
+
+def figures_over_seeds(tmp: Path, procedures: str, figures: Sequence[str], seeds: int, size: tuple[int, int],
+                       fixed: tuple[str, ...] = (), **campaign: str) -> dict[str, np.ndarray]:
+    """Per figure, (value, u of the budget's components that vary between seeds) of a simulated blaze-101 run of
+    ``procedures`` at ``size`` (width, height) with each of the seeds 0 ... ``seeds`` - 1. ``fixed``: the names
+    (prefixes) of the components that stand for an error the same in every seed; ``campaign``: further
+    arguments of ``campaign_text``."""
+    model = tmp / "model.toml"
+    model.write_text(SMALL_MODEL.format(camera="blaze101", width=size[0], height=size[1]))
+    rows: dict[str, list[tuple[float, float]]] = {name: [] for name in figures}
+    for seed in range(seeds):
+        text = tmp / f"c{seed}.toml"
+        text.write_text(campaign_text(procedures=procedures, seed=seed, **campaign))
+        out = tmp / f"r{seed}.h5"
+        with pytest.raises(SystemExit) as info:
+            main(["run", str(text), "--sim", "--model", str(model), "-o", str(out), "--quiet"])
+        assert info.value.code == 0
+        found = evaluate_runs([out]).figures
+        for name in figures:
+            varying = [c for c in found[name].budget if not (fixed and c.name.startswith(fixed))]
+            rows[name].append((found[name].value, combined_standard_uncertainty(varying)))
+        out.unlink()
+    return {name: np.array(values) for name, values in rows.items()}

@@ -24,11 +24,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from labctl.cli import main
-from labctl.evaluation.evaluate import evaluate_runs
-from metrics.uncertainty import combined_standard_uncertainty
-from tests.conftest import SMALL_MODEL, campaign_text
-from tests.coverage_check import assert_u_covers_the_spread
+from tests.coverage_check import assert_u_covers_the_spread, figures_over_seeds
 
 SEEDS = 48
 MIN_COVERED = 42
@@ -43,29 +39,13 @@ frames = 20
 FIGURES = (*(f"radial_distortion_{image}_{axis}_pct" for image in ("intensity", "cloud") for axis in "wh"),
            *(f"{axis}_{kind}_q90_mm" for kind in ("trueness", "accuracy") for axis in "xy"))
 #: the component that stands for an error the same in every seed
-FIXED = "tile size"
+FIXED = ("tile size",)
 
 
 @pytest.fixture(scope="module")
 def figures(tmp_path_factory) -> dict[str, np.ndarray]:
     """Per figure, (value, u of the components that vary between seeds) of every seed."""
-    tmp = tmp_path_factory.mktemp("seeds")
-    model = tmp / "model.toml"
-    model.write_text(SMALL_MODEL.format(camera="blaze101", width=80, height=60))
-    rows: dict[str, list[tuple[float, float]]] = {name: [] for name in FIGURES}
-    for seed in range(SEEDS):
-        campaign = tmp / f"c{seed}.toml"
-        campaign.write_text(campaign_text(procedures=BOARD, seed=seed))
-        out = tmp / f"r{seed}.h5"
-        with pytest.raises(SystemExit) as info:
-            main(["run", str(campaign), "--sim", "--model", str(model), "-o", str(out), "--quiet"])
-        assert info.value.code == 0
-        found = evaluate_runs([out]).figures
-        for name in FIGURES:
-            varying = [c for c in found[name].budget if not c.name.startswith(FIXED)]
-            rows[name].append((found[name].value, combined_standard_uncertainty(varying)))
-        out.unlink()
-    return {name: np.array(values) for name, values in rows.items()}
+    return figures_over_seeds(tmp_path_factory.mktemp("seeds"), BOARD, FIGURES, SEEDS, (80, 60), FIXED)
 
 
 @pytest.mark.parametrize("name", FIGURES)

@@ -26,11 +26,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from labctl.cli import main
-from labctl.evaluation.evaluate import evaluate_runs
-from metrics.uncertainty import combined_standard_uncertainty
-from tests.conftest import SMALL_MODEL, campaign_text
-from tests.coverage_check import assert_u_covers_the_spread
+from tests.coverage_check import assert_u_covers_the_spread, figures_over_seeds
 
 SEEDS = 16
 MIN_COVERED = 14
@@ -58,22 +54,8 @@ FIXED = ("reference: laser accuracy", "depth origin offset tolerance")
 @pytest.fixture(scope="module")
 def figures(tmp_path_factory) -> dict[str, np.ndarray]:
     """Per figure, (value, u of the components that vary between seeds) of every seed."""
-    tmp = tmp_path_factory.mktemp("seeds")
-    model = tmp / "model.toml"
-    model.write_text(SMALL_MODEL.format(camera="blaze101", width=64, height=48))
-    rows: dict[str, list[tuple[float, float]]] = {name: [] for name in FIGURES}
-    for seed in range(SEEDS):
-        campaign = tmp / f"c{seed}.toml"
-        campaign.write_text(campaign_text(procedures=SWEEP, seed=seed, camera="depth_origin_offset_mm = 42.0"))
-        out = tmp / f"r{seed}.h5"
-        with pytest.raises(SystemExit) as info:
-            main(["run", str(campaign), "--sim", "--model", str(model), "-o", str(out), "--quiet"])
-        assert info.value.code == 0
-        found = evaluate_runs([out]).figures
-        for name in FIGURES:
-            varying = [c for c in found[name].budget if not c.name.startswith(FIXED)]
-            rows[name].append((found[name].value, combined_standard_uncertainty(varying)))
-    return {name: np.array(values) for name, values in rows.items()}
+    return figures_over_seeds(tmp_path_factory.mktemp("seeds"), SWEEP, FIGURES, SEEDS, (64, 48), FIXED,
+                              camera="depth_origin_offset_mm = 42.0")
 
 
 @pytest.mark.parametrize("name", FIGURES)
