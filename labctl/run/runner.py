@@ -268,10 +268,12 @@ class Runner:
         self.reporter.message(f"alignment fields (mm): {depths}; implied tilt about x {fields.tilt_x_deg:+.3f} deg, "
                               f"about y {fields.tilt_y_deg:+.3f} deg")
         self.observer.alignment(alignment_summary(fields))
-        preview = (lambda: self._preview(step)) if self._watched else None
+        question, options = "accept this alignment, or adjust the tilt stage and measure again", ["accept", "measure again"]
         with self.stop.at_once():
-            choice = self.operator.choose("accept this alignment, or adjust the tilt stage and measure again",
-                                          ["accept", "measure again"], idle=preview)
+            if self._watched:  # the live preview; an operator of a script's own may not take idle=
+                choice = self.operator.choose(question, options, idle=lambda: self._preview(step))
+            else:
+                choice = self.operator.choose(question, options)
         if choice != "accept":
             return False
         attrs["alignment_fields_json"] = json.dumps(fields.fields)
