@@ -1,8 +1,9 @@
 """What the console shows: a :class:`~labctl.run.observer.RunObserver` that keeps the run's latest state
 for any number of browsers to poll.
 
-The runner's thread only copies a decimated image into a bounded queue (dropped when full) and returns;
-a thread of its own turns the images into PNG, so the console never slows the recording."""
+The runner's thread only copies a decimated image, at most five a second, into a bounded queue (dropped
+when full) and returns; a thread of its own turns the images into PNG, so the console never slows the
+recording."""
 
 from __future__ import annotations
 
@@ -30,6 +31,9 @@ MAX_WIDTH = 320
 """Frames are decimated to at most this width before they are queued."""
 QUEUE_SIZE = 2
 """Images waiting to be encoded; a frame arriving while it is full is not shown."""
+FRAME_INTERVAL_S = 0.2
+"""At most one frame in this time is shown (five a second): encoding every frame of a 60 fps camera would
+take a core from the recording's compression."""
 MESSAGES = 40
 """Log lines kept for the page."""
 
@@ -72,6 +76,7 @@ class ConsoleState(RunObserver):
         self._queue: queue.Queue[Images | None] = queue.Queue(maxsize=QUEUE_SIZE)
         self._encoder = threading.Thread(target=self._encode, name="console-png", daemon=True)
         self._encoder.start()
+        self._offered = -FRAME_INTERVAL_S
         self.dropped = 0
         """Frames not shown because the queue was full (the recording went on regardless)."""
 
@@ -203,6 +208,9 @@ class ConsoleState(RunObserver):
 
     # ------------------------------------------------------------------ internals
     def _offer(self, frame: Frame, label: str) -> None:
+        now = time.monotonic()
+        if now - self._offered < FRAME_INTERVAL_S:
+            return
         if self._queue.full():
             self.dropped += 1
             return
@@ -212,6 +220,7 @@ class ConsoleState(RunObserver):
         role, params = self._step_info
         try:
             self._queue.put_nowait(Images(z, intensity, factor, _regions(role, params, height, width), label))
+            self._offered = now
         except queue.Full:
             self.dropped += 1
 

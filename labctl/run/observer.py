@@ -29,7 +29,8 @@ class RunObserver:
         alignment fields computed on it (``alignment_summary``) at the alignment step."""
 
     def readings(self, laser_mm: float | None, robot_angle_deg: float | None, stage_mm: float | None) -> None:
-        """The reference instruments' latest values (None: the device is absent)."""
+        """The laser's mean reading of the step and the robot angle and stage position it moved to (None: the
+        device is absent or not moved)."""
 
     def alignment(self, summary: dict[str, Any]) -> None:
         """The alignment step's four corner fields and implied tilt of a recorded stack."""

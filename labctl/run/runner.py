@@ -236,9 +236,10 @@ class Runner:
             laser = lab.laser
             n = self.campaign.devices.laser.readings
             readings = [self._retry("laser reading", laser.measure_mm, faults) for _ in range(n)]
+        # the positions the devices were moved to, not queried: watching adds no device traffic
         self.observer.readings(sum(readings) / len(readings) if readings else None,
-                               lab.robot.angle_deg() if lab.robot is not None else None,
-                               lab.stage.position_mm() if lab.stage is not None else None)
+                               step.robot_angle_deg if lab.robot is not None else None,
+                               position if lab.stage is not None else None)
         settings = {**self.campaign.devices.camera.settings, **step.camera_settings}
         self._retry("camera configure", lambda: lab.camera.configure(step.exposure_us, settings), faults)
         info = lab.camera.info()
