@@ -1,2 +1,1 @@
-"""The live operator console: a local web page that shows a run as it records (plan, progress, frames,
-readings, prompts) and answers its prompts or stops it (docs/console.md)."""
+"""The live operator console: a local web page that shows a run as it records and answers its prompts (docs/console.md)."""

@@ -70,3 +70,13 @@ def test_a_port_in_use_is_named_in_a_clear_message(state: ConsoleState) -> None:
         port = taken.getsockname()[1]
         with pytest.raises(InputError, match=rf"--console-port {port}: .*127\.0\.0\.1:{port}, the port is already in use"):
             ConsoleServer(state, port=port)
+
+
+def test_console_port_and_host_without_console_are_refused(tmp_path, write_campaign, capsys) -> None:
+    from labctl.cli import main
+
+    with pytest.raises(SystemExit) as done:
+        main(["run", str(write_campaign()), "--sim", "--console-host", "0.0.0.0", "-o", str(tmp_path / "r.h5")])
+    assert done.value.code == 2
+    assert "--console-host and --console-port only apply with --console" in capsys.readouterr().err
+    assert not (tmp_path / "r.h5").exists()
