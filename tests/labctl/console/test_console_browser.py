@@ -106,8 +106,9 @@ def test_stop_in_the_browser_leaves_the_run_safe_aborted_and_resumable(browser, 
     with h5py.File(out, "r") as f:
         assert f.attrs["status"] == "aborted"
         assert not any(step.attrs.get("complete", False) for step in f["steps"].values())
-    resumed = run_labctl("resume", out, "--quiet")
+    resumed = run_labctl("resume", out, "--quiet", "--console")  # resume serves the console too
     assert resumed.returncode == 0, resumed.stderr
+    assert resumed.stderr.startswith("console: http://127.0.0.1:")
     with h5py.File(out, "r") as f:
         assert f.attrs["status"] == "complete"
         assert list(f["steps"]) == ["00000_alignment", "00001_offset_calibration"]
