@@ -67,8 +67,6 @@ def read_answer(prompt: str, remote: RemoteAnswers | None = None, idle: Callable
     wake_r, wake_w = os.pipe()
     os.set_blocking(wake_w, False)
     previous = signal.set_wakeup_fd(wake_w, warn_on_full_buffer=False)
-    if remote is not None:
-        remote.discard()
     try:
         stdin = sys.stdin.fileno() if sys.stdin.isatty() else None
         watched = [fd for fd in (stdin, wake_r, remote.fileno() if remote else None) if fd is not None]
@@ -121,7 +119,13 @@ class Operator:
     def _can_ask(self) -> bool:
         return sys.stdin.isatty() or self.remote is not None
 
-    def confirm(self, message: str, idle: Callable[[], None] | None = None) -> None:
+    def _publish(self, question: str, options: list[str]) -> None:
+        """Tell the observer of the prompt, after dropping remote answers left from an earlier one."""
+        if self.remote is not None:
+            self.remote.discard()
+        self.observer.prompt(question, options)
+
+    def confirm(self, message: str) -> None:
         """Wait until the operator confirms ``message`` (a simulated operator confirms at once)."""
         if self.automatic:
             self.report(f"operator (simulated): {message} -- done")
@@ -129,9 +133,9 @@ class Operator:
         if not self._can_ask():
             raise RuntimeError(f"operator action needed but no terminal to ask: {message}")
         self.report(f"OPERATOR: {message}")
-        self.observer.prompt(message, ["done"])
+        self._publish(message, ["done"])
         try:
-            read_answer("Press Enter when done (Ctrl-C aborts safely) ", self.remote, idle)
+            read_answer("Press Enter when done (Ctrl-C aborts safely) ", self.remote)
         finally:
             self.observer.prompt_closed()
 
@@ -144,7 +148,7 @@ class Operator:
         if not self._can_ask():
             raise RuntimeError(f"operator decision needed but no terminal to ask: {question}")
         menu = ", ".join(f"{i + 1} = {o}" for i, o in enumerate(options))
-        self.observer.prompt(question, options)
+        self._publish(question, options)
         try:
             while True:
                 answer = read_answer(f"OPERATOR: {question} [{menu}] ", self.remote, idle)
