@@ -38,10 +38,11 @@ MODULES = (
 """Modules with native code that labctl or its tests import (pmd's roypy is optional: not on PyPI)."""
 DEBIAN_PACKAGES = {SONAME: DEBIAN_PACKAGE}
 """Shared libraries the check knows the Debian/Ubuntu package of."""
-TEST_TOOLS = {"strace": "strace", "chromium": "chromium"}
+TEST_TOOLS = {"strace": "strace", "chromium": "chromium", "chromedriver": "chromium-driver"}
 """Programs the tests use, with their Debian/Ubuntu package: strace lets tests/labctl/run/test_crash_points.py
 kill a run at a chosen write (without it, at random times only); Chromium prints the report to report.pdf
-(``labctl evaluate``; tests/labctl/report/test_report_layout.py checks the PDF)."""
+(``labctl evaluate``; tests/labctl/report/test_report_layout.py checks the PDF); chromedriver lets Selenium
+drive it for the live console's browser tests (tests/labctl/console)."""
 _MISSING_LIBRARY = re.compile(r"([\w.+-]+\.so(?:\.[\w.]+)?): cannot open shared object file")
 
 

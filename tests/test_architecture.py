@@ -396,3 +396,15 @@ def test_fact_check_finds_an_effect_fact_stated_outside_its_module(tmp_path: Pat
     write_tree(root, {module: violation})
     owner = check[2].get((-0.1, 0.1), "")  # range_scale.scale, or another effect's parameter with the same bounds
     assert stated_effect_facts(root, *check) == [f"{module}: {found.format(owner=owner)}"]
+
+
+def test_the_run_does_not_depend_on_its_console() -> None:
+    """labctl.console watches a run through labctl.run.observer; labctl.run never imports the console."""
+    importers = []
+    for path in (ROOT / "labctl" / "run").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            modules = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                       else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any(m == "labctl.console" or m.startswith("labctl.console.") for m in modules):
+                importers.append(str(path.relative_to(ROOT)))
+    assert importers == []

@@ -22,6 +22,7 @@ from labctl.cli import export as cli_export
 from labctl.cli import info as cli_info
 from labctl.cli import reconcile as cli_reconcile
 from labctl.cli import simulate as cli_sim
+from labctl.cli.console import console_options, run_console
 from labctl.cli.inputs import distinct, warn, warn_run_suffix
 from labctl.cli.outputs import OutputDirectory, OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
@@ -148,9 +149,10 @@ INTERACTIVE_HELP = ("with --sim: ask at every operator prompt as on real hardwar
 @click.option("--interactive", is_flag=True, help=INTERACTIVE_HELP)
 @click.option("--compression", type=click.Choice(COMPRESSIONS), help="how frames are stored (default: [runner] compression)")
 @click.option("--quiet", is_flag=True, help="no progress output")
+@console_options
 def run(
     campaign: Path, output: Path, sim: bool, model: Path | None, seed: int | None, interactive: bool,
-    compression: str | None, quiet: bool
+    compression: str | None, quiet: bool, with_console: bool, console_port: int, console_host: str | None,
 ) -> None:
     """Run CAMPAIGN into the run file OUTPUT."""
     config, text = load_campaign(campaign)
@@ -167,8 +169,9 @@ def run(
         lab = simulated_lab(config, seed=seed)
     else:
         lab = build_real_lab(config)
-    run_campaign(config, text, lab, output, interactive=interactive, reporter=Reporter(quiet=quiet),
-                 compression=compression)
+    with run_console(with_console, console_host, console_port) as watch:
+        run_campaign(config, text, lab, output, interactive=interactive, reporter=Reporter(quiet=quiet),
+                     compression=compression, **watch)
 
 
 @cli.command()
@@ -182,8 +185,10 @@ def run(
                    "(RUN_FILE is only read)")
 @click.option("--interactive", is_flag=True, help=INTERACTIVE_HELP)
 @click.option("--quiet", is_flag=True, help="no progress output")
+@console_options
 def resume(
-    run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], into: Path | None, interactive: bool, quiet: bool
+    run_file: Path, ports: tuple[str, ...], hosts: tuple[str, ...], into: Path | None, interactive: bool, quiet: bool,
+    with_console: bool, console_port: int, console_host: str | None,
 ) -> None:
     """Continue RUN_FILE at the first step that is not complete.
 
@@ -196,7 +201,9 @@ def resume(
     new += [(role, "host", value) for role, value in parse_overrides("host", hosts).items()]
     if into is not None:
         output_file(into, "--into")
-    resume_run(run_file, overrides=new, into=into, interactive=interactive, reporter=Reporter(quiet=quiet))
+    with run_console(with_console, console_host, console_port) as watch:
+        resume_run(run_file, overrides=new, into=into, interactive=interactive, reporter=Reporter(quiet=quiet),
+                   **watch)
 
 
 # ---------------------------------------------------------------------- evaluate

@@ -19,7 +19,8 @@ from labctl.errors import InputError
 from labctl.run.config import Campaign, parse_campaign
 from labctl.run.diskspace import ensure_free, format_bytes
 from labctl.run.lab import Lab, build_real_lab, simulated_lab
-from labctl.run.operator import Operator
+from labctl.run.observer import RunObserver
+from labctl.run.operator import Operator, RemoteAnswers
 from labctl.run.overrides import ATTRIBUTE as OVERRIDES_ATTRIBUTE
 from labctl.run.overrides import apply_overrides, encode_history, history_entries, recorded_overrides
 from labctl.run.planning import expected_run_bytes
@@ -49,13 +50,15 @@ class RunResult:
 def run_campaign(
     campaign: Campaign, campaign_toml: str, lab: Lab, run_file: str | Path, *, operator: Operator | None = None,
     interactive: bool = False, reporter: Reporter | None = None, compression: str | None = None,
+    observer: RunObserver | None = None, remote: RemoteAnswers | None = None,
 ) -> RunResult:
     """Run ``campaign`` (``campaign_toml``: its text, stored in the run file) on the not yet connected ``lab``
     into the new file ``run_file``, as ``labctl run`` does.
 
     ``operator`` answers the prompts (default: :func:`default_operator`; ``interactive`` asks on the terminal
     in a simulated lab too); ``reporter`` shows progress on stderr (default: ``Reporter()``); ``compression``
-    stores the frames (default: the campaign's ``[runner] compression``). A simulated lab is built with
+    stores the frames (default: the campaign's ``[runner] compression``); ``observer`` watches the run and
+    ``remote`` answers prompts beside the terminal (the live console, labctl.console). A simulated lab is built with
     :func:`labctl.run.lab.simulated_lab`, which keeps the model for the run file. InputError when ``run_file``
     exists; DiskSpaceLow (before anything is written) when its disk cannot hold the run."""
     run_file = Path(run_file)
@@ -63,7 +66,8 @@ def run_campaign(
     if lab.simulated and lab.sim_record is None:
         raise ValueError("a simulated lab without its model text: build it with labctl.run.lab.simulated_lab")
     reporter = reporter or Reporter()
-    operator = operator or default_operator(lab, reporter, interactive)
+    reporter.observer = observer
+    operator = operator or default_operator(lab, reporter, interactive, remote, observer)
     compression = compression or campaign.runner.compression
     steps = campaign.steps()
     connect_lab(lab, reporter.message, operator)
@@ -84,7 +88,7 @@ def run_campaign(
         close_all(lab, reporter.message)
         raise
     try:
-        return _execute(campaign, lab, writer, reporter, operator)
+        return _execute(campaign, lab, writer, reporter, operator, observer=observer)
     finally:
         writer.close()
 
@@ -92,18 +96,21 @@ def run_campaign(
 def resume_run(
     run_file: str | Path, *, overrides: Sequence[Override] = (), into: str | Path | None = None,
     operator: Operator | None = None, interactive: bool = False, reporter: Reporter | None = None,
+    observer: RunObserver | None = None, remote: RemoteAnswers | None = None,
 ) -> RunResult:
     """Continue ``run_file`` at the first step that is not complete, as ``labctl resume`` does: on the lab it
     was run on (the simulated one rebuilt from the stored model and seed, or the real devices of the stored
     campaign with the connections recorded by earlier resumes and the new ``overrides``, which are recorded too).
 
     ``into``: continue a damaged ``run_file`` in this new file, carrying its readable complete steps over
-    (``run_file`` is only read). ``operator``, ``interactive`` and ``reporter`` as for :func:`run_campaign`.
+    (``run_file`` is only read). ``operator``, ``interactive``, ``reporter``, ``observer`` and ``remote`` as for
+    :func:`run_campaign`.
     InputError when ``run_file`` is not a run file or is damaged (the message says how to continue)."""
     run_file = Path(run_file)
     if not run_file.is_file():
         raise InputError(f"run file {run_file} does not exist")
     reporter = reporter or Reporter()
+    reporter.observer = observer
     try:
         if into is not None:
             refuse_what_is_not_hdf5(run_file)  # named for what it is, before anything is carried over
@@ -137,7 +144,7 @@ def resume_run(
             lab = simulated_lab(config, model_text, seed=seed, source=f"{run_file} (stored model)")
         else:
             lab = build_real_lab(config)
-        operator = operator or default_operator(lab, reporter, interactive)
+        operator = operator or default_operator(lab, reporter, interactive, remote, observer)
         connect_lab(lab, reporter.message, operator)
         if new:
             writer.attrs[OVERRIDES_ATTRIBUTE] = encode_history(history)
@@ -146,15 +153,19 @@ def resume_run(
         if dropped:
             reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
         writer.set_status("running")
-        return _execute(config, lab, writer, reporter, operator, resumed=True, discarded=tuple(dropped))
+        return _execute(config, lab, writer, reporter, operator, resumed=True, discarded=tuple(dropped),
+                        observer=observer)
     finally:
         writer.close()
 
 
-def default_operator(lab: Lab, reporter: Reporter, interactive: bool = False) -> Operator:
+def default_operator(lab: Lab, reporter: Reporter, interactive: bool = False, remote: RemoteAnswers | None = None,
+                     observer: RunObserver | None = None) -> Operator:
     """The run's one operator, answering the connect-time questions and the campaign's prompts: a simulated
-    lab's confirms at once (unless ``interactive``), any other asks on the terminal."""
-    return Operator(automatic=lab.simulated and not interactive, report=reporter.message)
+    lab's confirms at once (unless ``interactive``), any other asks on the terminal and takes ``remote``
+    answers as well."""
+    return Operator(automatic=lab.simulated and not interactive, report=reporter.message, remote=remote,
+                    observer=observer)
 
 
 def _ensure_room(run_file: Path, campaign: Campaign, compression: str, steps: list[Step], camera: CameraInfo) -> None:
@@ -166,11 +177,11 @@ def _ensure_room(run_file: Path, campaign: Campaign, compression: str, steps: li
 
 def _execute(
     campaign: Campaign, lab: Lab, writer: RunWriter, reporter: Reporter, operator: Operator, *,
-    resumed: bool = False, discarded: tuple[str, ...] = (),
+    resumed: bool = False, discarded: tuple[str, ...] = (), observer: RunObserver | None = None,
 ) -> RunResult:
     """Every step not complete yet; what the run file holds afterwards."""
     before = len(writer.completed())
-    Runner(campaign, lab, writer, reporter, operator, resumed=resumed).execute()
+    Runner(campaign, lab, writer, reporter, operator, resumed=resumed, observer=observer).execute()
     reporter.message(f"run complete: {writer.path}")
     done = len(writer.completed())
     return RunResult(writer.path, str(writer.attrs["status"]), len(campaign.steps()), done, done - before,

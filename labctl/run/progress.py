@@ -17,6 +17,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
+from labctl.run.observer import RunObserver
 from labctl.run.planning import PlannedStep, format_duration
 
 
@@ -80,6 +81,8 @@ class Reporter:
         self._current: PlannedStep | None = None
         self._captured = 0
         self._frames_done = 0
+        self.observer: RunObserver | None = None
+        """Told of every log line as well (the live console)."""
 
     def start(self, plan: Sequence[PlannedStep], done: Collection[str]) -> None:
         """Begin a run of ``plan`` whose steps ``done`` are already complete (resume)."""
@@ -131,6 +134,9 @@ class Reporter:
             self.progress.update(self._task, advance=n, left=self._left_text())
 
     def message(self, text: str) -> None:
+        """A log line: on stderr, and to the observer."""
+        if self.observer is not None:
+            self.observer.message(text)
         self.console.print(text, markup=False)
         if not self.console.is_terminal:
             self.console.file.flush()

@@ -35,6 +35,7 @@ from drivers.errors import (
 from labctl.errors import Interrupted, RunAborted
 from labctl.run.config import Campaign
 from labctl.run.lab import Lab
+from labctl.run.observer import RunObserver, alignment_summary
 from labctl.run.operator import Operator, unlock_confirmation
 from labctl.run.planning import PlannedStep, schedule
 from labctl.run.progress import Reporter
@@ -93,10 +94,11 @@ class Runner:
 
     def __init__(
         self, campaign: Campaign, lab: Lab, run: RunWriter, reporter: Reporter, operator: Operator,
-        *, resumed: bool = False,
+        *, resumed: bool = False, observer: RunObserver | None = None,
     ) -> None:
         """``resumed``: the run continues an interrupted one, so the operator re-confirms the mounted
-        target before the first step that has no prompt of its own."""
+        target before the first step that has no prompt of its own. ``observer`` is told of every step,
+        frame, reading and prompt (the live console); with one, the alignment prompt streams preview frames."""
         self.campaign = campaign
         self.lab = lab
         self.run = run
@@ -106,6 +108,8 @@ class Runner:
         laser = campaign.devices.laser
         self.offset_mm: float | None = laser.offset_mm if laser else None
         self.stop = StopRequests()
+        self.observer = observer or RunObserver()
+        self._watched = observer is not None
         self._focus_mm: float | None = None
         self._confirm_target = resumed
 
@@ -126,6 +130,7 @@ class Runner:
             if offset is not None and math.isfinite(offset):
                 self.offset_mm = float(offset)
         self.reporter.start(plan, done)
+        self.observer.started(plan, list(done), self.stop.request)
         try:
             for planned in plan:
                 if planned.step.step_id not in done:
@@ -158,6 +163,7 @@ class Runner:
         finally:
             self.reporter.stop()
             close_all(self.lab, self.reporter.message)
+            self.observer.finished(str(self.run.attrs.get("status", "")))
 
     def _reconnect_option(self, exc: DeviceVanished) -> str:
         """The resume option that finds a vanished device again if it comes back under another port or address."""
@@ -213,6 +219,7 @@ class Runner:
             position = self._stage_position(step.distance_mm)
         lab.begin_step(step, planned.start_s)
         self.reporter.step(planned)
+        self.observer.step(planned, self.reporter.lab_time_left_s())
         faults: list[dict[str, Any]] = []
         if step.prompt:
             self._confirm(step.prompt)
@@ -229,6 +236,10 @@ class Runner:
             laser = lab.laser
             n = self.campaign.devices.laser.readings
             readings = [self._retry("laser reading", laser.measure_mm, faults) for _ in range(n)]
+        # the positions the devices were moved to, not queried: watching adds no device traffic
+        self.observer.readings(sum(readings) / len(readings) if readings else None,
+                               step.robot_angle_deg if lab.robot is not None else None,
+                               position if lab.stage is not None else None)
         settings = {**self.campaign.devices.camera.settings, **step.camera_settings}
         self._retry("camera configure", lambda: lab.camera.configure(step.exposure_us, settings), faults)
         info = lab.camera.info()
@@ -269,15 +280,38 @@ class Runner:
         depths = ", ".join(f"{name.replace('_', ' ')} {value:.1f}" for name, value in fields.depths().items())
         self.reporter.message(f"alignment fields (mm): {depths}; implied tilt about x {fields.tilt_x_deg:+.3f} deg, "
                               f"about y {fields.tilt_y_deg:+.3f} deg")
+        self.observer.alignment(alignment_summary(fields))
+        question, options = "accept this alignment, or adjust the tilt stage and measure again", ["accept", "measure again"]
         with self.stop.at_once():
-            choice = self.operator.choose("accept this alignment, or adjust the tilt stage and measure again",
-                                          ["accept", "measure again"])
+            if self._watched:  # the live preview; an operator of a script's own may not take idle=
+                choice = self.operator.choose(question, options, idle=lambda: self._preview(step))
+            else:
+                choice = self.operator.choose(question, options)
         if choice != "accept":
             return False
         attrs["alignment_fields_json"] = json.dumps(fields.fields)
         attrs["tilt_x_deg"] = fields.tilt_x_deg
         attrs["tilt_y_deg"] = fields.tilt_y_deg
         return True
+
+    def _preview(self, step: Any) -> None:
+        """One frame from the camera, not recorded, and its four corner fields, for the observer while the
+        operator adjusts the target; a frame the camera cannot deliver now is skipped."""
+        from metrics.alignment import alignment_fields
+
+        try:
+            frame = next(iter(self.lab.camera.capture(1)), None)
+        except DeviceError:
+            return
+        if frame is None:
+            return
+        try:
+            fields = alignment_fields(frame.x, frame.y, frame.z, int(step.target_params.get("field_px", 10)),
+                                      step.target_params.get("margin_px"))
+        except ValueError:
+            self.observer.preview(frame, None)
+            return
+        self.observer.preview(frame, alignment_summary(fields))
 
     def _step_attrs(
         self, step: Any, readings: list[float], roi: RoiMean | None, faults: list[dict[str, Any]]
@@ -369,6 +403,8 @@ class Runner:
                 for frame in camera.capture(n - k, first_index=k):
                     self.stop.check()
                     writer.write(k, frame)
+                    if self._watched:
+                        self.observer.frame(writer.step.step_id, k, frame, self.reporter.lab_time_left_s())
                     if roi is not None:
                         roi.add(frame.z)
                     k += 1

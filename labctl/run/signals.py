@@ -52,11 +52,13 @@ class StopRequests:
         self.reason: str | None = None
         self._waiting = False
         self._holding = False
+        self._handling = False
+        self._requested: str | None = None
 
     def _handle(self, signum: int, frame: Any) -> None:
         first = self.reason is None
         if first:
-            self.reason = REASONS.get(signum, f"stopped by signal {signum}")
+            self.reason = self._requested or REASONS.get(signum, f"stopped by signal {signum}")
         if self._holding:
             return
         if signum == signal.SIGINT and not first:
@@ -86,10 +88,26 @@ class StopRequests:
             self._holding = True
             raise Interrupted(self.reason)
 
-    def installed(self) -> AbstractContextManager[None]:
+    def request(self, reason: str) -> None:
+        """A stop asked for from any thread (the live console's Stop): exactly a Ctrl-C, SIGINT sent to the
+        main thread, recorded with ``reason``; a second request stops at once like a second Ctrl-C. Where the
+        handlers are not installed (a run outside the main thread) the stop waits for the next safe point."""
+        self._requested = self._requested or reason
+        if self._handling:
+            signal.pthread_kill(threading.main_thread().ident or 0, signal.SIGINT)
+        elif self.reason is None:
+            self.reason = reason
+
+    @contextmanager
+    def installed(self) -> Iterator[None]:
         """The handlers, in the main thread; a run in another thread (a Dask worker's task, labctl batch)
         leaves the signals to the process that owns that thread (Python delivers them to the main thread)."""
-        return _handling_stop_signals(self._handle)
+        with _handling_stop_signals(self._handle):
+            self._handling = main_thread()
+            try:
+                yield
+            finally:
+                self._handling = False
 
 
 def signals_ignored() -> AbstractContextManager[None]:

@@ -45,11 +45,12 @@ def test_apt_command_uses_sudo_unless_root():
 
 
 def test_a_missing_optional_test_tool_is_named_with_its_command_and_the_check_still_passes(tmp_path):
-    """With a PATH holding neither strace, Chromium nor apt-get (so nothing can be installed, even as root), the
-    check names both and the command that installs them, and succeeds: the tests that use them say so."""
+    """With a PATH holding neither strace, Chromium, chromedriver nor apt-get (so nothing can be installed, even as
+    root), the check names them and the command that installs them, and succeeds: the tests that use them say so."""
     result = subprocess.run([sys.executable, "-m", "labctl.setup_check", "--install"], capture_output=True, text=True,
                             timeout=300, env={**os.environ, "PATH": str(tmp_path)})
     assert result.returncode == 0, result.stderr
     assert "every SDK imports" in result.stdout
     prefix = "" if os.geteuid() == 0 else "sudo "
-    assert "optional test tools missing" in result.stderr and f"run: {prefix}apt-get install -y chromium strace" in result.stderr
+    assert "optional test tools missing" in result.stderr and (
+        f"run: {prefix}apt-get install -y chromium chromium-driver strace" in result.stderr)
