@@ -10,6 +10,7 @@ import pytest
 from labctl.cli import main
 from labctl.errors import InputError
 from labctl.evaluation.evaluate import evaluate_runs
+from labctl.evaluation.vdi2634 import bar_sides
 from labctl.run.config import parse_campaign
 from labctl.run.store import RunReader
 from metrics.vdi2634 import fit_sphere_cap
@@ -164,3 +165,23 @@ def test_range_scale_known_answer_at_every_tilt(runs, tmp_path):
         (d, o, p, t) for d, o, p, t in PLACEMENTS]
     worst = max((r["sphere_spacing_error_mm"] for r in rows), key=abs)
     assert document["acceptance_test"]["sphere_spacing_error_mm"]["value"] == pytest.approx(worst)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 60.0, 80.0, 90.0])
+def test_the_spheres_split_along_the_bar_in_space(tilt):
+    """Caps of the two spheres (radius 25 mm, 300 mm apart, middle at 1 m), the near one with twice the points of
+    the far one: split along the bar's direction in space, each point goes to its own sphere, down to a bar along
+    the range axis (90 deg), where the spheres' x, y overlap and no split in the image plane could tell them
+    apart."""
+    rng = np.random.default_rng(3)
+    t = math.radians(tilt)
+    axis = np.array([math.cos(t), 0.0, math.sin(t)])
+    centres = [np.array([0.0, 0.0, 1000.0]) - axis * 150.0, np.array([0.0, 0.0, 1000.0]) + axis * 150.0]
+    caps = []
+    for centre, n in zip(centres, (400, 200)):
+        directions = rng.normal(size=(n, 3))
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        directions[:, 2] = -np.abs(directions[:, 2])  # the half facing the camera
+        caps.append(centre + 25.0 * directions)
+    sides = bar_sides(np.vstack(caps), 0.0, tilt)
+    assert sides.tolist() == [False] * 400 + [True] * 200
