@@ -206,7 +206,7 @@ class SphereBar(_Artefact):
             for n, p in enumerate(self.placements):
                 yield self._step(
                     first_index + n, p.distance_mm, "ball_bar",
-                    {**self._bar(p.orientation_deg, p.tilt_deg), "offset_mm": [p.offset_mm[0], -p.offset_mm[1]]},
+                    {**self._bar(p.orientation_deg, p.tilt_deg), "offset_mm": [p.offset_mm[0], 0.0 - p.offset_mm[1]]},
                     p.prompt(self.sphere_diameter_mm, self.sphere_spacing_mm, self.gap_mm))
             return
         poses = [(d, o) for d in self.distances_mm for o in self.orientations_deg]

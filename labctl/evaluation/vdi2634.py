@@ -196,9 +196,9 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
         result.calibration[step.step_id] = acceptance_calibration(params)
         evaluate = _sphere_bar if kind == "sphere_bar" else _flatness
         pose = float(params.get("orientation_deg" if kind == "sphere_bar" else "tilt_deg", 0.0))
-        # recorded in the camera frame (x right, y down); reported as the campaign states it (right, up)
+        # recorded in the camera frame (x right, y down); reported as the campaign states it (right, up; 0 - y: no -0)
         x_mm, y_mm = params.get("offset_mm", (0.0, 0.0))
-        placement = {"offset_mm": (float(x_mm), -float(y_mm)), "tilt_deg": float(params.get("tilt_deg", 0.0))}
+        placement = {"offset_mm": (float(x_mm), 0.0 - float(y_mm)), "tilt_deg": float(params.get("tilt_deg", 0.0))}
         distance = _wall_mm(step) - float(params.get("gap_mm", 500.0))
         recorded = step.group["z"].shape[0]
         per = min(int(params.get("frames_per_measurement", recorded)), recorded)
