@@ -129,9 +129,9 @@ class BallBarPlacement(StrictModel):
     def prompt(self, diameter_mm: float, spacing_mm: float, gap_mm: float) -> str:
         """The operator's instruction, in the words of a person standing at the camera looking at the wall."""
         right, up = self.offset_mm
-        where = ("on the camera axis" if right == 0 and up == 0 else
-                 f"{abs(right):g} mm {'right' if right >= 0 else 'left'} of and {abs(up):g} mm "
-                 f"{'above' if up >= 0 else 'below'} the camera axis")
+        sides = [f"{abs(right):g} mm {'right' if right > 0 else 'left'} of"] if right else []
+        sides += [f"{abs(up):g} mm {'above' if up > 0 else 'below'}"] if up else []
+        where = f"{' and '.join(sides)} the camera axis" if sides else "on the camera axis"
         text = (f"place the ball bar ({diameter_mm:g} mm spheres, {spacing_mm:g} mm apart) with its middle "
                 f"{self.distance_mm:g} mm from the camera ({gap_mm:g} mm in front of the wall), {where}, at "
                 f"{self.orientation_deg:g} deg from horizontal (clockwise as seen from the camera)")
