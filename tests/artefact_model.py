@@ -33,10 +33,12 @@ FOOTPRINT = 8
 
 
 def ball_bar_centres(wall_distance_mm: float, params: dict) -> list[np.ndarray]:
-    """The two sphere centres: the bar's middle on the axis ``gap_mm`` in front of the wall, along its direction."""
+    """The two sphere centres: the bar's middle ``gap_mm`` in front of the wall, ``offset_mm`` (camera frame: x
+    right, y down; none: on the axis) off the axis, along its direction."""
     phi, tilt = math.radians(params["orientation_deg"]), math.radians(params["tilt_deg"])
     axis = np.array([math.cos(phi) * math.cos(tilt), math.sin(phi) * math.cos(tilt), math.sin(tilt)])
-    middle = np.array([0.0, 0.0, wall_distance_mm - params["gap_mm"]])
+    x_mm, y_mm = params.get("offset_mm", (0.0, 0.0))
+    middle = np.array([x_mm, y_mm, wall_distance_mm - params["gap_mm"]])
     return [middle - axis * params["spacing_mm"] / 2, middle + axis * params["spacing_mm"] / 2]
 
 

@@ -241,7 +241,7 @@ class CameraDescription:
 
 #: the version of keyfigures.json's layout (docs/keyfigures.schema.json): the minor number grows with keys added,
 #: the major number with a change that breaks a reader of the previous layout
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 
 
 @dataclass(kw_only=True)

@@ -122,11 +122,17 @@ class AcceptancePositionRow(TypedDict):
     measurements, the frames averaged into each and, per VDI/VDE 2634-2 quantity, the measurement of largest
     magnitude (None where the step does not measure it), and ``points_used``: per measurement, per sphere the share
     of its points the fit used (rim rule and 0.3 % rule; None for the plate); ``pose_deg`` is the bar's
-    orientation or the plate's tilt."""
+    orientation or the plate's tilt; the placement (VDI/VDE 2634-2: positions spread through the measuring
+    volume): ``offset_mm`` the artefact's middle right of and above the camera axis, ``orientation_deg`` the
+    bar's direction in the image plane (None for the plate), ``tilt_deg`` the bar's tilt towards the wall or
+    the plate's tilt about the vertical."""
 
     step: str
     distance_mm: float
     pose_deg: float
+    offset_mm: list[float]
+    orientation_deg: float | None
+    tilt_deg: float
     frames: float
     measurements: float
     frames_per_measurement: float

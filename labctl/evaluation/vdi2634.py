@@ -6,8 +6,11 @@ are those nearer than the wall minus half the artefact's gap (the wall: the
 step's reference distance, else the stage's nominal distance), and per pixel
 the measurement is the mean of the frames in which the pixel saw the artefact
 (frames left over after the last whole measurement are not evaluated). A ball bar's points are
-split between its two spheres by the side of their centroid they lie on along
-the bar's nominal direction, and each sphere is fitted with the rim rule of
+split between its two spheres along the bar's nominal direction in space (its
+orientation and its tilt towards the wall, so that a bar along the range axis
+splits by depth): projected on that direction, the points fall into two groups
+a spacing apart, separated where the two groups' means are equidistant (two
+means, iterated from the centroid), and each sphere is fitted with the rim rule of
 ``metrics.vdi2634`` (``max_incidence_deg``, ``rim_margin_px`` of the step,
 the margin turned into an angle with the camera's focal length). Per quantity the key figure is the measurement of
 largest magnitude over all measurements and positions (what the guideline compares
@@ -79,6 +82,8 @@ class Measurement:
     pose_deg: float  # the bar's orientation or the plate's tilt
     values: dict[str, float]  # figure name -> value of this measurement
     points_used: tuple[float, ...] = ()  # per sphere: share of its points the fit used (rim and 0.3 % rules)
+    offset_mm: tuple[float, float] = (0.0, 0.0)  # the artefact's middle right of, above the camera axis
+    tilt_deg: float = 0.0  # the bar out of the image plane towards the wall, or the plate about the vertical
 
 
 @dataclass
@@ -116,11 +121,41 @@ def _artefact_points(step: StepRecord, frames: range, gap_mm: float) -> np.ndarr
 Evaluated = tuple[dict[str, float], tuple[float, ...]] | str
 
 
+def bar_sides(points: np.ndarray, orientation_deg: float, tilt_deg: float, iterations: int = 20) -> np.ndarray:
+    """Which of the ball bar's points lie on the sphere at the ``orientation_deg`` end (True) rather than the
+    other (VDI/VDE 2634-2: each sphere of the bar fitted on its own): projected on the bar's nominal direction
+    in space, the threshold midway between the two sides' means, iterated from the centroid (two means in one
+    dimension), so a bar tilted towards the wall, whose nearer sphere gives more points, splits at its gap.
+
+    Examples
+    --------
+    Ten points of a near sphere, four of a far one, on a bar along the range axis (tilt 90 deg).
+
+    >>> near, far = np.array([0.0, 0.0, 850.0]), np.array([0.0, 0.0, 1150.0])
+    >>> spread = np.linspace(-20.0, 20.0, 10)[:, None] * np.array([1.0, 1.0, 0.5])
+    >>> points = np.vstack([near + spread, far + spread[:4]])
+    >>> bar_sides(points, 0.0, 90.0).tolist() == [False] * 10 + [True] * 4
+    True
+    """
+    phi, tilt = math.radians(orientation_deg), math.radians(tilt_deg)
+    axis = np.array([math.cos(phi) * math.cos(tilt), math.sin(phi) * math.cos(tilt), math.sin(tilt)])
+    along = (points - points.mean(axis=0)) @ axis
+    threshold = 0.0
+    for _ in range(iterations):
+        side = along >= threshold
+        if side.all() or not side.any():
+            break
+        moved = (along[side].mean() + along[~side].mean()) / 2
+        if moved == threshold:
+            break
+        threshold = moved
+    return along >= threshold
+
+
 def _sphere_bar(points: np.ndarray, params: dict[str, Any], focal_px: float) -> Evaluated:
     if len(points) < 2 * MIN_POINTS:
         return f"{len(points)} points on the ball bar"
-    phi = math.radians(float(params.get("orientation_deg", 0.0)))
-    side = (points[:, :2] - points[:, :2].mean(axis=0)) @ np.array([math.cos(phi), math.sin(phi)]) >= 0
+    side = bar_sides(points, float(params.get("orientation_deg", 0.0)), float(params.get("tilt_deg", 0.0)))
     halves = points[~side], points[side]
     if min(len(h) for h in halves) < MIN_POINTS:
         return f"{min(len(h) for h in halves)} points on a sphere"
@@ -161,6 +196,9 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
         result.calibration[step.step_id] = acceptance_calibration(params)
         evaluate = _sphere_bar if kind == "sphere_bar" else _flatness
         pose = float(params.get("orientation_deg" if kind == "sphere_bar" else "tilt_deg", 0.0))
+        # recorded in the camera frame (x right, y down); reported as the campaign states it (right, up; 0 - y: no -0)
+        x_mm, y_mm = params.get("offset_mm", (0.0, 0.0))
+        placement = {"offset_mm": (float(x_mm), 0.0 - float(y_mm)), "tilt_deg": float(params.get("tilt_deg", 0.0))}
         distance = _wall_mm(step) - float(params.get("gap_mm", 500.0))
         recorded = step.group["z"].shape[0]
         per = min(int(params.get("frames_per_measurement", recorded)), recorded)
@@ -173,7 +211,7 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
             if isinstance(evaluated, str):
                 result.notes.append(f"{step.step_id} frames {first}-{first + per - 1}: {evaluated}, not evaluated")
                 continue
-            result.measurements.append(Measurement(step.step_id, frames, distance, pose, *evaluated))
+            result.measurements.append(Measurement(step.step_id, frames, distance, pose, *evaluated, **placement))
     return result
 
 
@@ -245,13 +283,18 @@ def verdicts(result: AcceptanceResult) -> dict[str, AcceptanceVerdict]:
 
 
 def acceptance_table(result: AcceptanceResult) -> list[AcceptancePositionRow]:
-    """Per step: its frames evaluated, measurements and frames averaged per measurement, the worst measurement
+    """Per step: where the artefact stood (distance, the middle's offset right of and above the camera axis, the
+    bar's orientation in the image plane, its tilt towards the wall or the plate's tilt about the vertical),
+    its frames evaluated, measurements and frames averaged per measurement, the worst measurement
     of each quantity (NaN where not measured) and per measurement and sphere the share of its points the fit
     used (None for the plate) (report, JSON)."""
     rows: list[AcceptancePositionRow] = []
     for step_id in dict.fromkeys(m.step_id for m in result.measurements):
         ms = [m for m in result.measurements if m.step_id == step_id]
+        bar = bool(ms[0].points_used)
         rows.append({"step": step_id, "distance_mm": ms[0].distance_mm, "pose_deg": ms[0].pose_deg,
+                     "offset_mm": list(ms[0].offset_mm), "orientation_deg": ms[0].pose_deg if bar else None,
+                     "tilt_deg": ms[0].tilt_deg,
                      "frames": float(sum(len(m.frames) for m in ms)), "measurements": float(len(ms)),
                      "frames_per_measurement": float(len(ms[0].frames)),
                      "probing_error_form_mm": _worst(ms, "probing_error_form_mm"),

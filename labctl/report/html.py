@@ -395,7 +395,8 @@ def _acceptance_section(evaluation: Evaluation, outdir: Path, plots: Path, doc: 
                "size bias of the rim pixels, which mix the sphere with the background (docs/metrics.md).</p>"
                if deviation else "") + table
             + "<h3>Per position (largest magnitude over the measurements)</h3>"
-            + _rows_table([{k: v for k, v in row.items() if k != "points_used"} for row in per_step], "step")
+            + _rows_table([{k: (f"{v[0]:g}, {v[1]:g}" if k == "offset_mm" else v) for k, v in row.items()
+                           if k not in ("points_used", "pose_deg")} for row in per_step], "step")
             + (f"<h3>Points each sphere fit used</h3>{_rows_table(used, 'measurement')}" if used else ""))
     return _section("Acceptance test (VDI/VDE 2634 Part 2)", img, outdir, text)
 

@@ -65,6 +65,7 @@ def reduced_campaign(camera: str, directory: Path) -> tuple[Path, Path]:
         if procedure["kind"] == "checkerboard":
             procedure["tile_mm"] = 60.0
         if procedure["kind"] in ("sphere_bar", "flatness"):  # one distance, two poses, every frame a measurement
+            procedure.pop("placements", None)
             procedure["distances_mm"] = [1000.0]
             procedure["frames_per_measurement"] = 1
         if procedure["kind"] == "sphere_bar":  # about 80 pixels per sphere inside the rim at 160 x 120
