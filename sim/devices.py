@@ -25,6 +25,7 @@ from drivers.errors import (
 )
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from drivers.timing import CAPTURE_SETUP_S, LASER_READING_S, ROBOT_SETTLE_S
+from sim.effects import warm_up_s
 from sim.seeding import stream
 from sim.stereo import StereoSensor
 from sim.tof import ToFSensor
@@ -33,7 +34,7 @@ from sim.world import RobotSettings, SimWorld, StageSettings
 SERIAL_TIMEOUT_S = 1.0
 ROOM_C = 23.0  # assumption: the lab's air temperature
 WARM_UP_K = 20.0  # assumption: a camera's sensor settles this far above the room once warm
-WARM_UP_TAU_S = 600.0  # the sensor's time constant without a temperature_drift effect (that effect's default)
+WARM_UP_TAU_S = 600.0  # assumption: the sensor's warm-up time constant where no effect states one
 
 
 def _serial_exchange(world: SimWorld, device: str) -> None:
@@ -196,10 +197,10 @@ class SimCamera(SimDevice, CameraDevice):
 
     def temperatures_c(self) -> dict[str, float]:
         """The simulated sensor's temperature, a first-order warm-up from the room since the camera started,
-        ROOM_C + WARM_UP_K (1 - exp(-t / tau)), tau the first time constant of the model's
-        ``temperature_drift`` (the same lumped thermal node that moves its range) or ``WARM_UP_TAU_S``."""
-        drift = self.world.effects.get("temperature_drift")
-        tau = float(getattr(drift, "tau_s", WARM_UP_TAU_S))
+        ROOM_C + WARM_UP_K (1 - exp(-t / tau)), tau the warm-up time constant the model's effects state (the
+        same lumped thermal node that moves the range in a drift; ``sim.effects.warm_up_s``) or
+        ``WARM_UP_TAU_S``."""
+        tau = warm_up_s(self.world.effects) or WARM_UP_TAU_S
         t = max(self.world.clock.now(), 0.0)
         return {"sensor": round(ROOM_C + WARM_UP_K * (1.0 - math.exp(-t / tau)), 2)}
 

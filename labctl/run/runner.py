@@ -131,6 +131,7 @@ class Runner:
                 self.offset_mm = float(offset)
         self.reporter.start(plan, done)
         self.observer.started(plan, list(done), self.stop.request)
+        status = "aborted"  # what the observer hears, known here even when the run file can no longer be read
         try:
             for planned in plan:
                 if planned.step.step_id not in done:
@@ -138,6 +139,7 @@ class Runner:
             self.stop.hold()
             bring_to_safe_state(self.lab, self.reporter.message)
             self.run.set_status("complete")
+            status = "complete"
         except (KeyboardInterrupt, Interrupted) as exc:
             reason = "interrupted by the operator (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else exc.args[0]
             self._abort(reason)
@@ -163,7 +165,7 @@ class Runner:
         finally:
             self.reporter.stop()
             close_all(self.lab, self.reporter.message)
-            self.observer.finished(str(self.run.attrs.get("status", "")))
+            self.observer.finished(status)
 
     def _reconnect_option(self, exc: DeviceVanished) -> str:
         """The resume option that finds a vanished device again if it comes back under another port or address."""

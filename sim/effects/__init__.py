@@ -20,7 +20,7 @@ from sim.effects.base import Corners, Effect, EffectParams, Observed, RangeStage
 
 __all__ = ["EFFECTS", "Corners", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "background_level",
            "default_effects", "frame_offset_mm", "output_step_mm", "parse_effects", "plate_placement_mm", "registered",
-           "valid_range"]
+           "valid_range", "warm_up_s"]
 
 
 def _discover() -> dict[str, Effect]:
@@ -69,6 +69,11 @@ def frame_offset_mm(effects: dict[str, EffectParams], t_s: float) -> float:
     for hook, params in acting(effects, "frame_offset_mm"):
         offset = offset + hook(t_s, params)
     return offset
+
+
+def warm_up_s(effects: dict[str, EffectParams]) -> float | None:
+    """The time constant of the camera's warm-up the effects state (``warm_up_s``; None without)."""
+    return next((float(hook(params)) for hook, params in acting(effects, "warm_up_s")), None)
 
 
 def background_level(effects: dict[str, EffectParams]) -> float:

@@ -160,6 +160,8 @@ class Effect:
       in units of the reference signal (ToF: A_ref, the amplitude of the 90 % wall at 2 m; stereo: the
       projector's dot light on that wall); it adds shot noise and lowers the contrast the stereo matcher sees;
     * ``frame_offset_mm(t_s, p)``: a range offset of the frame taken at device time ``t_s``;
+    * ``warm_up_s(p)``: the time constant of the camera's warm-up the effect follows (the camera's reported
+      temperature warms with it);
     * ``step_mm(p)``: the step the coordinates are stored in.
     """
 
@@ -177,6 +179,7 @@ class Effect:
     on_range: Callable[[np.ndarray, Any, RangeStage], np.ndarray] | None = None
     background: Callable[[Any], float] | None = None
     frame_offset_mm: Callable[[float, Any], float] | None = None
+    warm_up_s: Callable[[Any], float] | None = None
     step_mm: Callable[[Any], float] | None = None
     built_in: Callable[[Any], Mapping[str, Any] | None] | None = None
     true_fov_deg: Callable[[Any], tuple[float, float]] | None = None

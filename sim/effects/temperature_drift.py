@@ -63,4 +63,5 @@ EFFECT = Effect(
     observed=Observed("warm_up", fitted=("delta_mm", "tau_s", "terms"), solver_bounds={"tau_s": (1.0, 86400.0)},
                       procedure="depth_sweep", capture=capture),
     frame_offset_mm=offset_mm,
+    warm_up_s=lambda p: p.tau_s,  # the first (leading) thermal time constant
 )
