@@ -31,7 +31,7 @@ def test_frames_are_dropped_not_waited_for_while_the_encoder_is_busy(monkeypatch
         return real_png(*args, **kwargs)
 
     monkeypatch.setattr(console_state, "to_png", stuck_png)
-    monkeypatch.setattr(console_state, "FRAME_INTERVAL_S", 0.0)
+    monkeypatch.setattr(console_state, "RECORDED_INTERVAL_S", 0.0)
     remote = RemoteAnswers()
     state = ConsoleState(remote)
     try:
