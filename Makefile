@@ -1,5 +1,6 @@
 # labctl: the two commands of the README's Quick start.
-#   make demo  - simulated characterization of the four cameras, their reports and their comparison
+#   make demo  - simulated characterization of the four cameras, their reports and their comparison, then a check
+#                of the files it wrote (tests/check_demo.py: keyfigures.json against its schema, the blaze-101's PDF)
 #   make test  - the linter (ruff), then the whole test suite
 # Both create (or refresh, when pyproject.toml changed) the virtual environment .venv, then check that
 # every native SDK imports (labctl/setup_check.py): as root a missing system library is installed with
@@ -39,6 +40,7 @@ demo: $(STAMP)
 	  $(BIN)/labctl evaluate $(DEMO_DIR)/$$camera.h5 -o $(DEMO_DIR)/$$camera || exit 1; \
 	done
 	$(BIN)/labctl compare $(addprefix $(DEMO_DIR)/,$(DEMO_CAMERAS)) -o $(DEMO_DIR)/comparison
+	$(BIN)/python -m tests.check_demo $(DEMO_DIR) $(DEMO_CAMERAS)
 	@echo "Open the reports: $(abspath $(DEMO_DIR))/<camera>/report.html and $(abspath $(DEMO_DIR))/comparison/compare.html"
 
 bench: $(STAMP)
