@@ -175,16 +175,17 @@ def dot_window_stats(optics: SensorOptics, distance_mm: float, bin_px: int) -> t
     return per_bin(mean), per_bin(std)
 
 
-def stereo_statistics(sensor: StereoSensor, rendered, z: np.ndarray, sigma_d: np.ndarray, exposure_us: float,
-                      projector: bool, dot_stats: tuple[np.ndarray, np.ndarray],
+def stereo_statistics(sensor: StereoSensor, z: np.ndarray, sigma_d: np.ndarray, light: StereoLight,
+                      dot_stats: tuple[np.ndarray, np.ndarray],
                       bin_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per bin of a binned stereo sensor with disparity noise ``sigma_d`` (``disparity_noise_px``): the depth's temporal std (mm,
-    NaN where not predicted), the spread of its logarithm over where the depth sits on the grids (``stored_disparity_noise``),
-    the expected valid fraction of its full-resolution pixels, and that fraction's uncertainty (half the share of pixels whose
+    """Per bin of a binned stereo sensor with its light ``light`` (``stereo_light``) and disparity noise
+    ``sigma_d`` (``disparity_noise_px``): the depth's temporal std (mm, NaN where not predicted), the spread of
+    its logarithm over where the depth sits on the grids (``stored_disparity_noise``), the expected valid
+    fraction of its full-resolution pixels, and that fraction's uncertainty (half the share of pixels whose
     contrast lies within ``CONTRAST_TOLERANCE`` of the threshold)."""
     p = sensor.profile
     h, w = z.shape
-    lamps, dots, background = _stereo_light(sensor, rendered, exposure_us, projector)
+    lamps, dots, background = light
     focal_baseline = sensor.matching_focal_baseline  # the full sensor's f b
     mean, std = dot_stats
     # a smooth light with slope g per pixel of the full sensor adds g^2 (w^2 - 1) / 12 per axis to the window's
@@ -209,9 +210,13 @@ def stereo_statistics(sensor: StereoSensor, rendered, z: np.ndarray, sigma_d: np
     return sigma_z, spread, valid, np.where(in_range, marginal / 2, 0.0)
 
 
-def _stereo_light(sensor: StereoSensor, rendered, exposure_us: float,
-                  projector: bool) -> tuple[np.ndarray, np.ndarray, float]:
-    """Per bin: the lamps' light, the projector's light on a fully dotted pixel, and the background level."""
+StereoLight = tuple[np.ndarray, np.ndarray, float]
+"""Per bin: the lamps' light, the projector's light on a fully dotted pixel, and the background level."""
+
+
+def stereo_light(sensor: StereoSensor, rendered, exposure_us: float, projector: bool) -> StereoLight:
+    """The light of a binned stereo sensor's render (``StereoLight``) at ``exposure_us``, with or without the
+    projector, as sim/stereo.py lights it before the blur."""
     gain = exposure_us / sensor.profile.exposure_us
     k = rendered.oversample
     h, w = rendered.hit_fraction.shape
@@ -225,11 +230,12 @@ def _stereo_light(sensor: StereoSensor, rendered, exposure_us: float,
     return lamps, dots, sensor.background(exposure_us)
 
 
-def disparity_noise_px(sensor: StereoSensor, rendered, exposure_us: float, projector: bool) -> np.ndarray:
-    """Per bin of a binned stereo sensor: the disparity noise sigma_d in the full sensor's pixels, s (1 + g
-    theta^2 / (pi/2 - theta)^2) (1 + b / m) as sim/stereo.py draws it (module docstring)."""
+def disparity_noise_px(sensor: StereoSensor, rendered, light: StereoLight) -> np.ndarray:
+    """Per bin of a binned stereo sensor with its light ``light`` (``stereo_light``): the disparity noise sigma_d
+    in the full sensor's pixels, s (1 + g theta^2 / (pi/2 - theta)^2) (1 + b / m) as sim/stereo.py draws it
+    (module docstring)."""
     p = sensor.profile
-    lamps, dots, background = _stereo_light(sensor, rendered, exposure_us, projector)
+    lamps, dots, background = light
     signal = lamps + dots * sensor.dots
     theta = np.arccos(np.clip(rendered.cos_dom, 1e-6, 1.0))
     angle_term = 1.0 + p.angle_noise_gain * theta**2 / np.maximum(math.pi / 2 - theta, 1e-3) ** 2

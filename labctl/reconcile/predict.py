@@ -39,6 +39,7 @@ from scipy import ndimage
 from labctl.reconcile.noise_model import (
     disparity_noise_px,
     dot_window_stats,
+    stereo_light,
     stereo_statistics,
     stored_depth_bias,
     tof_statistics,
@@ -285,7 +286,8 @@ class Predictor:
             z = (range_mm + drift) * self.z_per_range
         else:
             exposure = step.exposure_us or self.profile.exposure_us
-            z = self._stereo_depth(rendered, drift, disparity_noise_px(self.sensor, rendered, exposure, step.projector))
+            lit = stereo_light(self.sensor, rendered, exposure, step.projector)
+            z = self._stereo_depth(rendered, drift, disparity_noise_px(self.sensor, rendered, lit))
         z = z + bin_curvature(z, self.bin_px)
         rows, cols = central_roi(self.full.height, self.full.width)
         weight = np.outer(_overlap(rows, z.shape[0], self.bin_px), _overlap(cols, z.shape[1], self.bin_px))
@@ -321,12 +323,12 @@ class Predictor:
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
                               np.zeros_like(z), _independent(noise))
-        sigma_d = disparity_noise_px(self.sensor, rendered, exposure, step.projector)
+        lit = stereo_light(self.sensor, rendered, exposure, step.projector)
+        sigma_d = disparity_noise_px(self.sensor, rendered, lit)
         z = self._stereo_depth(rendered, drift, sigma_d)
         ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
-            self.sensor, rendered, z, sigma_d, exposure, step.projector,
-            self._dot_stats(centre_distance_mm(recorded)), self.bin_px)
+            self.sensor, z, sigma_d, lit, self._dot_stats(centre_distance_mm(recorded)), self.bin_px)
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
 
