@@ -15,7 +15,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import NotRequired, TypedDict
 
-from labctl.run.store import RunReader
+from labctl.run.store import RunReader, StepRecord
 
 #: the bytes :func:`sha256_of` reads at a time (large reads let hashlib work without the GIL)
 CHUNK_BYTES = 8 * 1024 * 1024
@@ -86,19 +86,20 @@ def run_conditions(reader: RunReader, sha256: str) -> RunConditions:
         {"role": role, **{key: str(attrs.get(key, "unknown")) for key in ("backend", "model", "serial", "firmware")}}
         for role, attrs in reader.devices.items()  # type: ignore[misc]  # the four keys above
     ]
-    exposures = {float(s.attrs["exposure_us"]) for s in reader.steps()
+    steps = reader.steps()
+    exposures = {float(s.attrs["exposure_us"]) for s in steps
                  if isinstance(s.attrs.get("exposure_us"), (int, float)) and math.isfinite(s.attrs["exposure_us"])}
     return {"path": str(reader.path), "sha256": sha256, "recorded_by": str(reader.attrs.get("labctl_version", "unknown")),
             "created": str(reader.attrs.get("created", "unknown")), "status": str(reader.attrs.get("status", "unknown")),
             "simulated": bool(reader.attrs.get("simulated", False)), "devices": devices,
-            "exposures_us": sorted(exposures), "camera_temperatures_c": camera_temperature_ranges(reader)}
+            "exposures_us": sorted(exposures), "camera_temperatures_c": camera_temperature_ranges(steps)}
 
 
-def camera_temperature_ranges(reader: RunReader) -> dict[str, list[float]]:
+def camera_temperature_ranges(steps: Sequence[StepRecord]) -> dict[str, list[float]]:
     """Per temperature sensor of the camera, [lowest, highest] of its readings before and after every stack
     (the steps' ``camera_temperatures_json``; docs/runfile.md)."""
     readings: dict[str, list[float]] = {}
-    for step in reader.steps():
+    for step in steps:
         try:
             recorded = json.loads(str(step.attrs.get("camera_temperatures_json", "{}")))
         except json.JSONDecodeError:

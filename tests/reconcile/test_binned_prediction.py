@@ -30,7 +30,7 @@ from labctl.reconcile.residuals import STATISTICS, layout, raw_statistics
 from labctl.reconcile.workflow import Simulation, base_model, with_effect
 from sim.model import parse_model
 from sim.profiles import get_profile
-from tests.reconcile.runs import SIZES, simulated_run
+from tests.reconcile.runs import BACKENDS, CAMPAIGN, SIZES, simulated_run
 
 
 @pytest.fixture(scope="module")
@@ -151,34 +151,12 @@ def test_stored_stereo_depth_mean_is_that_of_both_roundings(z_mm, slope_mm_px, d
 
 
 def test_the_wall_means_of_a_plain_stereo_run_follow_the_prediction_step_by_step(tmp_path):
-    """A plain d455 run whose laser reads without noise: after the offset calibration's common offset, each
+    """A plain d455 run of the reconcile tests' campaign, its sweep 0.6-1.5 m in 100 mm steps of 20 frames, no
+    robot, whose laser reads without noise: after the offset calibration's common offset, each
     wall's mean residual is within 0.1 mm of the others (the noise-free depth alone left -0.28 mm at 806 mm,
     +0.17 mm at 906 mm: the roundings' bias)."""
-    campaign = """
-[campaign]
-name = "stereo-means"
-[devices.camera]
-backend = "realsense"
-[devices.stage]
-protocol = "zaber"
-port = "/dev/ttyUSB0"
-travel_mm = [0, 4000]
-speed_mm_s = 50
-[devices.laser]
-port = "/dev/ttyUSB1"
-[[procedure]]
-kind = "offset_calibration"
-distance_mm = 2000
-frames = 20
-[[procedure]]
-kind = "depth_sweep"
-start_mm = 600
-stop_mm = 1500
-step_mm = 100
-frames = 20
-[sim]
-seed = 7
-"""
+    campaign = CAMPAIGN.format(backend=BACKENDS["d455"], seed=7, sweep_step_mm=100, robot="").replace(
+        "start_mm = 400", "start_mm = 600").replace("stop_mm = 4000", "stop_mm = 1500").replace("frames = 10", "frames = 20")
     run = simulated_run(tmp_path, "d455", campaign=campaign, lab={"laser_noise_mm": 0.0, "laser_resolution_mm": 0.001})
     observations, info, _ = observe_run(run)
     sim = Simulation(observations, info)

@@ -14,23 +14,12 @@ from selenium.webdriver.support import expected_conditions as ec
 from selenium.webdriver.support.ui import WebDriverWait
 
 from tests.conftest import run_labctl
+from tests.labctl.run.test_operator_prompts import CHART_CAMPAIGN
 
 pytestmark = pytest.mark.slow
 
 WAIT_S = 120.0
 """Upper bound of every wait for the page (a condition, never a pause): 2 loaded cores."""
-
-CHART_CAMPAIGN = """
-[[procedure]]
-kind = "offset_calibration"
-frames = 3
-
-[[procedure]]
-kind = "slanted_edge"
-start_mm = 1000
-stop_mm = 1000
-frames = 3
-"""
 
 ALIGNMENT_CAMPAIGN = """
 [[procedure]]
