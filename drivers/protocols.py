@@ -9,7 +9,7 @@ Units: millimetres, degrees, seconds, microseconds for exposure.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
@@ -37,6 +37,16 @@ class CameraInfo:
     frame_rate_hz: float
     wavelength_nm: float
     confidence_dtype: str = "float32"
+
+
+@dataclass(frozen=True)
+class RobotPose:
+    """Where the robot holds the camera, as read back from it: the angle and radius on the measurement
+    circle and, where the robot reports it, the tool centre point's position in its base frame (mm)."""
+
+    angle_deg: float
+    radius_mm: float
+    tcp_mm: tuple[float, float, float] | None = None
 
 
 @dataclass
@@ -118,10 +128,16 @@ class RangeMeter(Device, Protocol):
 class Robot(Device, Protocol):
     """A robot that carries the camera on a circle around a target."""
 
-    def move_on_circle(self, angle_deg: float, radius_mm: float) -> None:
-        """Move to ``angle_deg`` on the measurement circle; returns when settled."""
+    def move_on_circle(
+        self, angle_deg: float, radius_mm: float, watch: Callable[[RobotPose], None] | None = None
+    ) -> None:
+        """Move to ``angle_deg`` on the measurement circle; returns when settled. ``watch``, if given, is
+        called with the pose read back while the robot moves (and once it has arrived); it must return at once."""
 
     def angle_deg(self) -> float: ...
+
+    def pose(self) -> RobotPose:
+        """The pose read back from the robot now."""
 
     def recover(self) -> None:
         """Clear a protective stop (only after an operator confirmed the cell is safe)."""

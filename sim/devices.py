@@ -11,7 +11,7 @@ the same interface.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 from drivers.device import BaseDevice, CameraDevice
@@ -23,7 +23,7 @@ from drivers.errors import (
     SerialGarbage,
     SerialTimeout,
 )
-from drivers.protocols import CameraInfo, DeviceIdentity, Frame
+from drivers.protocols import CameraInfo, DeviceIdentity, Frame, RobotPose
 from drivers.timing import CAPTURE_SETUP_S, LASER_READING_S, ROBOT_SETTLE_S
 from sim.effects import warm_up_s
 from sim.seeding import stream
@@ -134,7 +134,9 @@ class SimRobot(SimDevice):
     def settings(self) -> Mapping[str, Any]:
         return {"speed_deg_s": self.config.speed_deg_s}
 
-    def move_on_circle(self, angle_deg: float, radius_mm: float) -> None:
+    def move_on_circle(
+        self, angle_deg: float, radius_mm: float, watch: Callable[[RobotPose], None] | None = None
+    ) -> None:
         lo, hi = self.config.angle_limits_deg
         if not lo <= angle_deg <= hi or not 0 < radius_mm <= self.config.radius_max_mm:
             raise LimitViolation(self.name, f"angle {angle_deg:g} deg / radius {radius_mm:g} mm outside limits")
@@ -145,9 +147,15 @@ class SimRobot(SimDevice):
             raise ProtectiveStop(self.name, "protective stop during motion")
         self.world.clock.sleep(abs(angle_deg - self.world.robot_angle_deg) / self.config.speed_deg_s + ROBOT_SETTLE_S)
         self.world.robot_angle_deg, self.world.robot_radius_mm = float(angle_deg), float(radius_mm)
+        if watch is not None:  # the simulated move is one sleep of the clock: only its end is seen
+            watch(self.pose())
 
     def angle_deg(self) -> float:
         return self.world.robot_angle_deg
+
+    def pose(self) -> RobotPose:
+        """The circle position; the simulated lab has no robot base frame, so no TCP position."""
+        return RobotPose(self.world.robot_angle_deg, self.world.robot_radius_mm)
 
     def recover(self) -> None:
         self.stopped = False

@@ -33,7 +33,7 @@ import numpy as np
 
 from drivers.device import LinkedDevice
 from drivers.errors import DeviceError, DeviceVanished, LimitViolation, MissingSDKError, ProtectiveStop, not_connected
-from drivers.protocols import DeviceIdentity
+from drivers.protocols import DeviceIdentity, RobotPose
 from drivers.robot.circle import MeasurementCircle
 
 DASHBOARD_PORT = 29999
@@ -85,6 +85,9 @@ the robot counts as vanished. A controller sends a package every 2 ms (500 Hz; 8
 one is no late package but a lost link, even on a loaded lab computer; ur-rtde 1.6.5 itself drops a connection
 that stayed silent for about 2.5 s (then ``isConnected`` is false, which the watch sees at once), and a
 connection the controller closed is seen at once."""
+
+WATCH_INTERVAL_S = 0.1
+"""How often a move hands the pose it read back to its ``watch`` (a live console shows it a few times a second)."""
 
 SAFE_MODES = frozenset({1, 2})
 ROBOT_RUNNING = 7
@@ -314,9 +317,12 @@ class UR5eRobot(LinkedDevice):
             "joint_limits_deg": [list(pair) for pair in self.joint_limits_deg] if self.joint_limits_deg else None,
         }
 
-    def move_on_circle(self, angle_deg: float, radius_mm: float) -> None:
+    def move_on_circle(
+        self, angle_deg: float, radius_mm: float, watch: Callable[[RobotPose], None] | None = None
+    ) -> None:
         """Move along the circle to ``angle_deg`` at ``radius_mm`` (ur-rtde ``moveL`` with a path of
-        blended waypoints, asynchronous, watched for safety stops); returns when settled.
+        blended waypoints, asynchronous, watched for safety stops); returns when settled. ``watch`` gets
+        the pose read back (``getActualTCPPose``) every ``WATCH_INTERVAL_S`` while the path runs, and at arrival.
 
         Raises :class:`LimitViolation` before any motion if the target or any waypoint lies
         outside the configured limits or the controller's safety limits.
@@ -345,10 +351,12 @@ class UR5eRobot(LinkedDevice):
         if abs(here.angle_deg - angle_deg) > 1e-6:
             waypoints += self.circle.arc(here.angle_deg, angle_deg, radius_mm, self.arc_step_deg)
         if not waypoints:
+            if watch is not None:
+                watch(self.pose())
             return
         what = f"move to {angle_deg} deg at {radius_mm} mm"
         self._check_waypoints(rtde, waypoints)
-        self._run_path(rtde, waypoints, radius_mm, what)
+        self._run_path(rtde, waypoints, radius_mm, what, watch)
         # RTDEReceiveInterface has its own RTDE stream, which can lag the control stream that
         # reported the end of the path by a few output periods: allow it ARRIVAL_LAG_S to catch up
         # (and to show a safety stop that ended the path).
@@ -370,10 +378,18 @@ class UR5eRobot(LinkedDevice):
                 f"{angle_deg} deg / {radius_mm} mm",
             )
         time.sleep(self.settle_s)
+        if watch is not None:
+            watch(self.pose())
 
     def angle_deg(self) -> float:
         """Current angle on the circle from the actual TCP pose (``getActualTCPPose``)."""
         return self.circle.locate(self.pose_mm()).angle_deg
+
+    def pose(self) -> RobotPose:
+        """Angle and radius on the circle and the TCP position, from the actual TCP pose (``getActualTCPPose``)."""
+        pose = self.pose_mm()
+        where = self.circle.locate(pose)
+        return RobotPose(where.angle_deg, where.radius_mm, (float(pose[0]), float(pose[1]), float(pose[2])))
 
     def pose_mm(self) -> np.ndarray:
         """Actual TCP pose ``[x, y, z (mm), rx, ry, rz (rad)]`` in the base frame."""
@@ -533,9 +549,12 @@ class UR5eRobot(LinkedDevice):
                             f"{where(k)}: joint {joint} would be at {value:.1f} deg, outside [{low}, {high}]; nothing moved",
                         )
 
-    def _run_path(self, rtde: RTDEInterfaces, waypoints: list[np.ndarray], radius_mm: float, what: str) -> None:
+    def _run_path(
+        self, rtde: RTDEInterfaces, waypoints: list[np.ndarray], radius_mm: float, what: str,
+        watch: Callable[[RobotPose], None] | None,
+    ) -> None:
         """Run the path asynchronously and watch it: a safety stop raises at once, a path that
-        does not finish within ``move_timeout_s`` is stopped."""
+        does not finish within ``move_timeout_s`` is stopped; ``watch`` gets the pose every ``WATCH_INTERVAL_S``."""
         radius_m = radius_mm / 1000.0
         speed = radius_m * math.radians(self.speed_deg_s)
         acceleration = radius_m * math.radians(self.acceleration_deg_s2)
@@ -548,6 +567,7 @@ class UR5eRobot(LinkedDevice):
             self._check_safety(what)
             raise DeviceError(self.name, f"{what}: the controller did not accept the path")
         deadline = time.monotonic() + self.move_timeout_s
+        watched = -math.inf
         while True:
             try:
                 self._check_safety(what)  # the connection first: a query over a lost one never returns
@@ -556,6 +576,9 @@ class UR5eRobot(LinkedDevice):
                 raise
             if not rtde.control.getAsyncOperationProgressEx().isAsyncOperationRunning():
                 break
+            if watch is not None and time.monotonic() - watched >= WATCH_INTERVAL_S:
+                watched = time.monotonic()
+                watch(self.pose())
             if time.monotonic() > deadline:
                 self.safe_state()
                 raise DeviceError(self.name, f"{what}: still moving after {self.move_timeout_s} s; stopped")

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.protocols import Frame
+from drivers.protocols import Frame, RobotPose
 from labctl.console.images import Box, decimate, scaled_box, to_png
 from labctl.run.observer import RunObserver
 from labctl.run.operator import RemoteAnswers
@@ -67,7 +67,8 @@ class ConsoleState(RunObserver):
         self._status = "starting"
         self._prompt: dict[str, Any] | None = None
         self._prompt_ids = itertools.count(1)
-        self._readings: dict[str, float | None] = {"laser_mm": None, "robot_angle_deg": None, "stage_mm": None}
+        self._readings: dict[str, Any] = {"laser_mm": None, "robot_angle_deg": None, "robot_radius_mm": None,
+                                          "robot_tcp_mm": None, "robot_moving": False, "stage_mm": None}
         self._alignment: dict[str, Any] | None = None
         self._messages: deque[str] = deque(maxlen=MESSAGES)
         self._stop: Callable[[str], None] | None = None
@@ -121,10 +122,15 @@ class ConsoleState(RunObserver):
                 self._alignment = {**alignment, "live": True, "time": time.time()}
         self._offer(frame, "live", FRAME_INTERVAL_S)
 
-    def readings(self, laser_mm: float | None, robot_angle_deg: float | None, stage_mm: float | None) -> None:
-        """Keep the instruments' latest values."""
+    def readings(self, laser_mm: float | None, robot: RobotPose | None, stage_mm: float | None) -> None:
+        """Keep the instruments' latest values, read back from them."""
         with self._lock:
-            self._readings = {"laser_mm": laser_mm, "robot_angle_deg": robot_angle_deg, "stage_mm": stage_mm}
+            self._readings = {"laser_mm": laser_mm, **_pose(robot, moving=False), "stage_mm": stage_mm}
+
+    def robot_pose(self, pose: RobotPose) -> None:
+        """Follow the robot while it moves."""
+        with self._lock:
+            self._readings = {**self._readings, **_pose(pose, moving=True)}
 
     def alignment(self, summary: dict[str, Any]) -> None:
         """Keep the corner fields of the recorded stack."""
@@ -248,3 +254,11 @@ def _regions(role: str, params: dict[str, Any], height: int, width: int) -> list
     if role == "offset":
         return [central_roi(height, width)]
     return [dqt_roi(height, width)]
+
+
+def _pose(pose: RobotPose | None, moving: bool) -> dict[str, Any]:
+    """The robot's entries of the console's readings."""
+    if pose is None:
+        return {"robot_angle_deg": None, "robot_radius_mm": None, "robot_tcp_mm": None, "robot_moving": False}
+    return {"robot_angle_deg": pose.angle_deg, "robot_radius_mm": pose.radius_mm,
+            "robot_tcp_mm": list(pose.tcp_mm) if pose.tcp_mm is not None else None, "robot_moving": moving}

@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from drivers.protocols import Frame
+from drivers.protocols import Frame, RobotPose
 from labctl.run.planning import PlannedStep
 
 
@@ -28,9 +28,12 @@ class RunObserver:
         """A frame grabbed between stacks while the operator adjusts the target (not recorded), with the
         alignment fields computed on it (``alignment_summary``) at the alignment step."""
 
-    def readings(self, laser_mm: float | None, robot_angle_deg: float | None, stage_mm: float | None) -> None:
-        """The laser's mean reading of the step and the robot angle and stage position it moved to (None: the
-        device is absent or not moved)."""
+    def readings(self, laser_mm: float | None, robot: RobotPose | None, stage_mm: float | None) -> None:
+        """The laser's mean reading of the step, and the robot's pose and the stage's position read back from
+        them once they were moved (None: the device is absent)."""
+
+    def robot_pose(self, pose: RobotPose) -> None:
+        """The robot's pose read back while it moves (a few times a second, from the thread that moves it)."""
 
     def alignment(self, summary: dict[str, Any]) -> None:
         """The alignment step's four corner fields and implied tilt of a recorded stack."""

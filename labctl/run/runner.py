@@ -232,16 +232,18 @@ class Runner:
             self._retry("stage move", lambda: lab.stage.move_to(position), faults)
         if step.robot_angle_deg is not None and lab.robot is not None:
             angle, radius = step.robot_angle_deg, step.robot_radius_mm or 0.0
-            self._retry("robot move", lambda: lab.robot.move_on_circle(angle, radius), faults, lab.robot)
+            watch = self.observer.robot_pose if self._watched else None
+            self._retry("robot move", lambda: lab.robot.move_on_circle(angle, radius, watch), faults, lab.robot)
         readings: list[float] = []
         if lab.laser is not None:
             laser = lab.laser
             n = self.campaign.devices.laser.readings
             readings = [self._retry("laser reading", laser.measure_mm, faults) for _ in range(n)]
-        # the positions the devices were moved to, not queried: watching adds no device traffic
-        self.observer.readings(sum(readings) / len(readings) if readings else None,
-                               step.robot_angle_deg if lab.robot is not None else None,
-                               position if lab.stage is not None else None)
+        if self._watched:  # read back for those watching; an unwatched run adds no device traffic
+            self.observer.readings(
+                sum(readings) / len(readings) if readings else None,
+                self._retry("robot pose", lab.robot.pose, faults) if lab.robot is not None else None,
+                self._retry("stage position", lab.stage.position_mm, faults) if lab.stage is not None else None)
         settings = {**self.campaign.devices.camera.settings, **step.camera_settings}
         self._retry("camera configure", lambda: lab.camera.configure(step.exposure_us, settings), faults)
         info = lab.camera.info()

@@ -29,6 +29,7 @@ import rtde_receive
 from scipy.spatial.transform import Rotation
 
 from drivers.errors import DeviceError, DeviceVanished, LimitViolation, ProtectiveStop
+from drivers.protocols import RobotPose
 from drivers.robot import MeasurementCircle, UR5eRobot
 from drivers.robot.ur5e import LINK_SILENCE_S
 from sim.emulators.ur import SafetyPlane, URControllerProcess
@@ -253,6 +254,25 @@ def test_adapter_moves_along_the_circle(emulator: URControllerProcess) -> None:
     scripts = emulator.call("scripts_received")
     paths = [s for s in scripts if "movel(p[" in s]
     assert len(paths) == 2 and paths[0].count("movel(p[") == 4
+
+
+def test_adapter_reports_the_pose_it_reads_back_while_it_moves(emulator: URControllerProcess) -> None:
+    """The watch sees the arm pass through the arc (read back through ur-rtde's receive interface), not only the
+    commanded end: angles between start and target, rising, on the circle's radius and plane."""
+    seen: list[RobotPose] = []
+    with adapter(emulator.host, speed_deg_s=40.0, acceleration_deg_s2=160.0) as robot:
+        robot.move_on_circle(40.0, RADIUS_MM, seen.append)
+        final = robot.pose()
+    angles = [pose.angle_deg for pose in seen]
+    assert sum(1.0 < a < 39.0 for a in angles) >= 2, angles  # a 1 s move, watched every 0.1 s
+    assert all(b >= a - 0.01 for a, b in zip(angles, angles[1:])), angles
+    assert angles[-1] == pytest.approx(40.0, abs=0.01) and final.angle_deg == pytest.approx(40.0, abs=0.01)
+    for pose in seen:
+        assert pose.radius_mm == pytest.approx(RADIUS_MM, abs=2.0)  # blended between waypoints 5° apart
+        assert pose.tcp_mm is not None
+        assert pose.tcp_mm[2] == pytest.approx(CENTER_MM[2], abs=0.01)
+        bearing = np.degrees(np.arctan2(pose.tcp_mm[1] - CENTER_MM[1], pose.tcp_mm[0] - CENTER_MM[0]))
+        assert bearing == pytest.approx(pose.angle_deg, abs=0.01)
 
 
 @pytest.mark.parametrize("emulator", [{"safety_planes": [SafetyPlane((0.0, 1.0, 0.0), -0.1)]}], indirect=True)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import labctl.console.state as console_state
-from drivers.protocols import Frame
+from drivers.protocols import Frame, RobotPose
 from labctl.console.state import QUEUE_SIZE, ConsoleState
 from labctl.run.operator import RemoteAnswers
 from labctl.run.planning import PlannedStep
@@ -51,3 +51,19 @@ def test_frames_are_dropped_not_waited_for_while_the_encoder_is_busy(monkeypatch
     png = state.png("depth")
     assert png is not None and png.startswith(b"\x89PNG")
     assert state.snapshot()["image"]["label"] == f"00000_depth_sweep frame {QUEUE_SIZE + 1}"
+
+
+def test_the_robot_is_followed_while_it_moves_and_shown_as_read_back_after() -> None:
+    remote = RemoteAnswers()
+    state = ConsoleState(remote)
+    try:
+        state.robot_pose(RobotPose(4.5, 700.0, (1.0, 2.0, 3.0)))
+        readings = state.snapshot()["readings"]
+        assert (readings["robot_angle_deg"], readings["robot_moving"], readings["robot_tcp_mm"]) == (4.5, True, [1.0, 2.0, 3.0])
+        state.readings(1999.5, RobotPose(10.0, 700.0), 250.0)
+        readings = state.snapshot()["readings"]
+        assert readings == {"laser_mm": 1999.5, "robot_angle_deg": 10.0, "robot_radius_mm": 700.0, "robot_tcp_mm": None,
+                            "robot_moving": False, "stage_mm": 250.0}
+    finally:
+        state.close()
+        remote.close()
