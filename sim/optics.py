@@ -43,7 +43,10 @@ class CameraOptics:
         for _ in range(20):
             f = r_u * (1 + self.k1 * (r_u / big_r) ** 2) - r_d
             df = 1 + 3 * self.k1 * (r_u / big_r) ** 2
-            r_u = r_u - f / df
+            step = f / df
+            if not step.any():  # converged to the last bit: further steps would change nothing
+                break
+            r_u = r_u - step
         scale = np.where(r_d > 0, r_u / np.where(r_d > 0, r_d, 1.0), 1.0)
         return p.cx + du * scale, p.cy + dv * scale
 
@@ -59,8 +62,11 @@ class CameraOptics:
         uu, vv = self.undistort(np.asarray(u, float), np.asarray(v, float))
         p = self.pinhole
         sx, sy = (uu - p.cx) / p.fx, (vv - p.cy) / p.fy
-        inv = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
-        return np.stack([sx * inv, sy * inv, inv])
+        rays = np.empty((3, *sx.shape))
+        np.divide(1.0, np.sqrt(1.0 + sx * sx + sy * sy), out=rays[2])
+        np.multiply(sx, rays[2], out=rays[0])
+        np.multiply(sy, rays[2], out=rays[1])
+        return rays
 
     def pixel_grid(self) -> tuple[np.ndarray, np.ndarray]:
         """(u, v) of every pixel centre, (H, W) each."""

@@ -82,7 +82,9 @@ def _filter(field: np.ndarray, sigma_px: float, disc_px: float) -> np.ndarray:
     fy = np.fft.fftfreq(shape[0])[:, None]
     fx = (np.fft.rfftfreq if real else np.fft.fftfreq)(shape[1])[None, :]
     freq = np.hypot(fx, fy)
-    otf = gaussian_otf(freq, sigma_px) * disc_otf(freq, disc_px)
+    otf = gaussian_otf(freq, sigma_px)
+    if disc_px > 0:  # a disc of no size passes every frequency (its OTF is 1)
+        otf = otf * disc_otf(freq, disc_px)
     if real:
         out = sfft.irfft2(sfft.rfft2(padded, shape, workers=-1) * otf, shape, workers=-1)
     else:
