@@ -19,9 +19,9 @@
 A measurement is the mean of ``frames_per_measurement`` frames (default: all
 of the step's ``frames``, one measurement per placement), so each placement
 gives ``frames // frames_per_measurement`` measurements. The maximum
-permissible errors (``mpe_*_mm``, optional) and the ball bar's calibration
-uncertainties (``sphere_*_uncertainty_mm``, optional, stated with
-``calibration_coverage_factor`` as the certificate states them) travel with
+permissible errors (``mpe_*_mm``, optional) and the artefacts' calibration
+uncertainties (``sphere_*_uncertainty_mm``, ``flatness_uncertainty_mm``, optional,
+stated with ``calibration_coverage_factor`` as the certificate states them) travel with
 the steps' target parameters; the evaluation gives pass / fail / marginal per
 quantity.
 """
@@ -51,6 +51,8 @@ class _Artefact(StrictModel):
     distances_mm: list[float]
     frames_per_measurement: int | None = Field(None, ge=1, le=10000,
                                                description="frames averaged into one measurement (default: all)")
+    calibration_coverage_factor: float = Field(
+        2.0, ge=1.0, le=10.0, description="k the certificate states its uncertainties with (1: standard)")
 
     @model_validator(mode="after")
     def _measurements_divide_frames(self) -> _Artefact:
@@ -158,8 +160,8 @@ class SphereBar(_Artefact):
         None, ge=0, le=10.0, description="calibration certificate's uncertainty of the diameter")
     sphere_spacing_uncertainty_mm: float | None = Field(
         None, ge=0, le=10.0, description="calibration certificate's uncertainty of the centre distance")
-    calibration_coverage_factor: float = Field(
-        2.0, ge=1.0, le=10.0, description="k the certificate states its uncertainties with (1: standard)")
+    sphere_form_uncertainty_mm: float | None = Field(
+        None, ge=0, le=10.0, description="calibration certificate's uncertainty of the spheres' form deviation")
     mpe_form_mm: float | None = Field(None, gt=0, description="maximum permissible probing error form")
     mpe_size_mm: float | None = Field(None, gt=0, description="maximum permissible |probing error size|")
     mpe_spacing_mm: float | None = Field(None, gt=0, description="maximum permissible |sphere-spacing error|")
@@ -195,6 +197,7 @@ class SphereBar(_Artefact):
                 "rim_margin_px": self.rim_margin_px,
                 "diameter_uncertainty_mm": self.sphere_diameter_uncertainty_mm,
                 "spacing_uncertainty_mm": self.sphere_spacing_uncertainty_mm,
+                "form_uncertainty_mm": self.sphere_form_uncertainty_mm,
                 "calibration_coverage_factor": self.calibration_coverage_factor, "mpe_form_mm": self.mpe_form_mm,
                 "mpe_size_mm": self.mpe_size_mm, "mpe_spacing_mm": self.mpe_spacing_mm}
 
@@ -228,13 +231,17 @@ class Flatness(_Artefact):
     distances_mm: list[float] = Field([1000.0, 2000.0], min_length=1, description="camera to plate")
     tilts_deg: list[float] = Field([0.0, 30.0], min_length=1, description="about the vertical axis")
     mpe_flatness_mm: float | None = Field(None, gt=0, description="maximum permissible flatness error")
+    flatness_uncertainty_mm: float | None = Field(
+        None, ge=0, le=10.0, description="calibration certificate's uncertainty of the plate's flatness deviation")
 
     def steps(self, first_index: int) -> Iterator[Step]:
         poses = [(d, t) for d in self.distances_mm for t in self.tilts_deg]
         for n, (distance, tilt) in enumerate(poses):
             yield self._step(
                 first_index + n, distance, "flat_plate",
-                {"plate_mm": list(self.plate_mm), "tilt_deg": tilt, "mpe_flatness_mm": self.mpe_flatness_mm},
+                {"plate_mm": list(self.plate_mm), "tilt_deg": tilt, "mpe_flatness_mm": self.mpe_flatness_mm,
+                 "flatness_uncertainty_mm": self.flatness_uncertainty_mm,
+                 "calibration_coverage_factor": self.calibration_coverage_factor},
                 f"place the {self.plate_mm[0]:g} x {self.plate_mm[1]:g} mm flat plate {self.gap_mm:g} mm in front "
                 f"of the wall, centred on the camera axis, turned {tilt:g} deg about the vertical",
             )

@@ -18,13 +18,13 @@ with the maximum permissible error): P_F and F their maximum, P_S and SD
 signed. With a maximum permissible error in the campaign, the verdict is
 ``metrics.uncertainty.conformity`` of that magnitude with the figure's expanded
 uncertainty: pass or fail outside a guard band of U around the MPE, marginal
-inside it. The budget is the ball bar's calibration where the campaign states
-it (the certificate's uncertainty of the diameter for P_S and of the centre
-distance for SD, each with sensitivity 1); it has no Type A component: the
+inside it. The budget is the artefact's calibration where the campaign states
+it (the certificate's uncertainty of the spheres' form deviation for P_F, of the
+diameter for P_S, of the centre distance for SD and of the plate's flatness
+deviation for F, each with sensitivity 1); it has no Type A component: the
 figure is the extreme of the test's measurements, which the guideline compares
 with the MPE as it is, not a mean of repeated measurements with a standard
-error. P_F and F have none (their artefacts' form calibration is not among the
-campaign's fields): their verdict is on the value alone.
+error. Where the campaign states none, the verdict is on the value alone.
 """
 
 from __future__ import annotations
@@ -64,10 +64,15 @@ QUANTITIES = {
     "sphere_spacing_error_mm": ("mpe_spacing_mm", "signed"),
     "flatness_error_mm": ("mpe_flatness_mm", "max"),
 }
-#: figure -> (the ball bar's calibrated value its budget takes, the step parameter with its stated uncertainty)
+#: figure -> (the artefact's calibrated value its budget takes, the step parameter with its stated uncertainty,
+#: the campaign field that states it)
 CALIBRATED = {
-    "probing_error_size_mm": ("sphere diameter", "diameter_uncertainty_mm"),
-    "sphere_spacing_error_mm": ("centre distance", "spacing_uncertainty_mm"),
+    "probing_error_form_mm": ("ball bar: calibrated sphere form", "form_uncertainty_mm", "sphere_form_uncertainty_mm"),
+    "probing_error_size_mm": ("ball bar: calibrated sphere diameter", "diameter_uncertainty_mm",
+                              "sphere_diameter_uncertainty_mm"),
+    "sphere_spacing_error_mm": ("ball bar: calibrated centre distance", "spacing_uncertainty_mm",
+                                "sphere_spacing_uncertainty_mm"),
+    "flatness_error_mm": ("flat plate: calibrated flatness", "flatness_uncertainty_mm", "flatness_uncertainty_mm"),
 }
 #: why no acceptance figure has a Type A component
 NO_TYPE_A = ("no Type A component: the figure is the extreme of the test's measurements, compared with the MPE as "
@@ -91,7 +96,7 @@ class AcceptanceResult:
     measurements: list[Measurement] = field(default_factory=list)
     mpe_mm: dict[str, float | None] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
-    #: step -> figure -> the ball bar's calibration component (standard uncertainty, mm) where the campaign states it
+    #: step -> figure -> the artefact's calibration component (standard uncertainty, mm) where the campaign states it
     calibration: dict[str, dict[str, Component]] = field(default_factory=dict)
 
 
@@ -216,16 +221,17 @@ def evaluate_acceptance(steps: Sequence[StepRecord], camera: CameraInfo,
 
 
 def acceptance_calibration(params: dict[str, Any]) -> dict[str, Component]:
-    """The ball bar's calibration components of a step: each stated uncertainty divided by the certificate's
-    coverage factor (GUM 4.3.3), sensitivity 1 (P_S and SD are measured minus calibrated value)."""
+    """The artefact's calibration components of a step: each stated uncertainty divided by the certificate's
+    coverage factor (GUM 4.3.3), sensitivity 1: P_S and SD are measured minus calibrated value, and the form
+    deviation the certificate states for the spheres or the plate is part of the measured P_F or F."""
     k = float(params.get("calibration_coverage_factor", 2.0))
-    return {name: Component(f"ball bar: calibrated {what} (certificate, Type B)", from_multiple(float(params[key]), k))
-            for name, (what, key) in CALIBRATED.items() if params.get(key) is not None}
+    return {name: Component(f"{what} (certificate, Type B)", from_multiple(float(params[key]), k))
+            for name, (what, key, _) in CALIBRATED.items() if params.get(key) is not None}
 
 
 def figure_values(result: AcceptanceResult) -> dict[str, FigureValue]:
     """Key figures: per quantity the measurement of largest magnitude, with the steps measured and the budget of
-    the step it comes from (the ball bar's calibration; empty, not estimated, where the campaign states none)."""
+    the step it comes from (the artefact's calibration; empty, not estimated, where the campaign states none)."""
     figures: dict[str, FigureValue] = {}
     for name, (_, reduce) in QUANTITIES.items():
         rows = [m for m in result.measurements if name in m.values]
@@ -242,11 +248,8 @@ def _uncertainty_basis(name: str, figure: FigureValue) -> str:
     """What a figure's uncertainty rests on, in words (report, JSON)."""
     if figure.budget:
         return f"{figure.budget[0].name}; {NO_TYPE_A}"
-    if name in CALIBRATED:
-        what, key = CALIBRATED[name]
-        return (f"not estimated: the campaign states no uncertainty of the calibrated {what} "
-                f"(sphere_{key.removesuffix('_mm')}_mm); {NO_TYPE_A}")
-    return f"not estimated: the artefact's form calibration is not among the campaign's fields; {NO_TYPE_A}"
+    what, _, field_name = CALIBRATED[name]
+    return f"not estimated: the campaign states no uncertainty of the {what} ({field_name}); {NO_TYPE_A}"
 
 
 def rim_rule_deviation(result: AcceptanceResult) -> str | None:

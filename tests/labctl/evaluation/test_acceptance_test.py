@@ -43,6 +43,8 @@ tilts_deg = [0.0, 30.0]
 frames = 3
 frames_per_measurement = 1
 mpe_flatness_mm = 20.0
+flatness_uncertainty_mm = 0.02
+calibration_coverage_factor = 1.0
 """
 
 
@@ -87,10 +89,15 @@ def test_every_acceptance_quantity_with_its_verdict(evaluated):
     assert figures["probing_error_size_mm"]["uncertainty"] == pytest.approx(0.002)
     assert verdicts["probing_error_size_mm"]["expanded_uncertainty_mm"] == pytest.approx(0.004)
     assert "calibrated sphere diameter" in verdicts["probing_error_size_mm"]["uncertainty_basis"]
-    for name in ("probing_error_form_mm", "sphere_spacing_error_mm", "flatness_error_mm"):
+    # the plate's certificate: 0.02 mm stated as a standard uncertainty (k = 1): u = 0.02 mm, U = 0.04 mm for F
+    assert figures["flatness_error_mm"]["uncertainty"] == pytest.approx(0.02)
+    assert verdicts["flatness_error_mm"]["expanded_uncertainty_mm"] == pytest.approx(0.04)
+    assert "flat plate: calibrated flatness" in verdicts["flatness_error_mm"]["uncertainty_basis"]
+    for name in ("probing_error_form_mm", "sphere_spacing_error_mm"):
         assert figures[name]["uncertainty"] is None and verdicts[name]["expanded_uncertainty_mm"] is None, name
         assert verdicts[name]["uncertainty_basis"].startswith("not estimated"), name
     assert "sphere_spacing_uncertainty_mm" in verdicts["sphere_spacing_error_mm"]["uncertainty_basis"]
+    assert "sphere_form_uncertainty_mm" in verdicts["probing_error_form_mm"]["uncertainty_basis"]
     for name in ("probing_error_form_mm", "probing_error_size_mm", "sphere_spacing_error_mm"):
         assert "at most 0.3 %" in verdicts[name]["deviation"], name
     assert verdicts["flatness_error_mm"]["deviation"] is None
@@ -256,6 +263,25 @@ def test_verdict_with_the_calibration_uncertainty():
     assert judged(5.4, 0.0, diameter_uncertainty_mm=0.3)["probing_error_size_mm"] == "fail"
     assert judged(0.0, 5.2, spacing_uncertainty_mm=0.15, calibration_coverage_factor=1.0) == {
         "probing_error_size_mm": "pass", "sphere_spacing_error_mm": "marginal"}
+
+
+def test_form_and_flatness_verdicts_with_the_certificates_uncertainty():
+    """P_F 4.8 mm against an MPE of 5 mm passes on its value alone; with the spheres' form certificate at
+    U = 0.4 mm (k = 2: u = 0.2 mm, the figure's U = 0.4 mm) the MPE lies within U of it: marginal. F 9.5 mm
+    against 10 mm with the plate's U = 0.4 mm passes; with 1.2 mm (k = 2) it is marginal."""
+    def judged(form: float, flatness: float, **calibration: float) -> dict[str, tuple[str, float | None]]:
+        result = AcceptanceResult([Measurement("00000_sphere_bar", range(1), 1000.0, 0.0, {"probing_error_form_mm": form}),
+                                   Measurement("00001_flatness", range(1), 1000.0, 0.0, {"flatness_error_mm": flatness})],
+                                  {"probing_error_form_mm": 5.0, "flatness_error_mm": 10.0})
+        result.calibration["00000_sphere_bar"] = acceptance_calibration(calibration)
+        result.calibration["00001_flatness"] = acceptance_calibration(calibration)
+        return {name: (row["verdict"], row["expanded_uncertainty_mm"]) for name, row in verdicts(result).items()}
+
+    assert judged(4.8, 9.5) == {"probing_error_form_mm": ("pass", None), "flatness_error_mm": ("pass", None)}
+    with_certificates = judged(4.8, 9.5, form_uncertainty_mm=0.4, flatness_uncertainty_mm=0.4)
+    assert with_certificates["probing_error_form_mm"] == ("marginal", pytest.approx(0.4))
+    assert with_certificates["flatness_error_mm"] == ("pass", pytest.approx(0.4))
+    assert judged(4.8, 9.5, flatness_uncertainty_mm=1.2)["flatness_error_mm"] == ("marginal", pytest.approx(1.2))
 
 
 def test_procedures_validate_their_parameters():
