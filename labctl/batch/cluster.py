@@ -26,6 +26,12 @@ if TYPE_CHECKING:
 #: a worker's compiled kernels run on its one core (numba would start a thread per core in every worker); set in
 #: this process's environment while the local cluster spawns its workers (``_worker_environment``)
 WORKER_ENVIRONMENT = {"NUMBA_NUM_THREADS": "1"}
+#: Dask's nannies set these in every worker's environment, unless set to None (``distributed.nanny.pre-spawn-environ``).
+#: Its MALLOC_TRIM_THRESHOLD_ = 64 KiB (to give freed memory back to the system at once) also switches off glibc's
+#: dynamic mmap threshold (mallopt(3), M_TRIM_THRESHOLD), so every large numpy temporary is mapped afresh and
+#: page-faulted in: an evaluation of a small sweep took 2.2-2.5 s instead of 1.4 s in a process with it set
+#: (docs/benchmarks.md, batch). The local cluster's workers keep glibc's defaults.
+NANNY_ENVIRONMENT = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 #: the local cluster's own log lines shown: none below CRITICAL. Its scheduler, nannies and workers log their
 #: errors with tracebacks (a worker's heartbeat that meets the scheduler already closing after a Ctrl-C is
 #: one, a race inside Dask's shutdown); the batch reports every run's outcome itself, a task lost on the
@@ -109,6 +115,7 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
     """A connected Dask client of ``cluster``; a local cluster is closed on the way out. The local scheduler's
     HTTP server (its dashboard when the ``bokeh`` package is installed) listens on a free port. Used inside
     :func:`labctl.batch.interrupt.deferred_ctrl_c`, Ctrl-C interrupts none of the client's calls."""
+    import dask
     from distributed import Client, LocalCluster
 
     scheduler = cluster.scheduler
@@ -122,7 +129,7 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
         finally:
             client.close()
         return
-    with _workers_block_ctrl_c(), _worker_environment():
+    with _workers_block_ctrl_c(), _worker_environment(), dask.config.set(NANNY_ENVIRONMENT):
         local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
                              dashboard_address=":0", silence_logs=CLUSTER_LOG_LEVEL)
     try:

@@ -81,3 +81,19 @@ def test_a_worker_compiles_after_its_threads_started_and_runs_on_one_thread(tmp_
     worker, own = done.stdout.split("\n")[:2]
     assert worker == "(2, 1)"
     assert int(own) == machine_workers()  # numba's default: the cores this process may use
+
+
+def worker_environment() -> dict[str, str | None]:
+    return {name: os.environ.get(name) for name in ("MALLOC_TRIM_THRESHOLD_", "OMP_NUM_THREADS")}
+
+
+@pytest.mark.xdist_group(REALTIME_GROUP)
+def test_workers_keep_glibcs_malloc_thresholds_and_dasks_one_thread_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Dask's nannies would set MALLOC_TRIM_THRESHOLD_, which switches off glibc's dynamic mmap threshold (every
+    large numpy temporary mapped and faulted in afresh); the local cluster's workers go without it, and keep
+    Dask's one-thread numpy."""
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    with open_client(Cluster(workers=1)) as client:
+        assert client.submit(worker_environment, pure=False).result() == {
+            "MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": "1"}
