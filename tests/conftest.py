@@ -16,6 +16,10 @@ from drivers.libusb import ensure_libusb
 # test modules import pyrealsense2 directly: resolve its libusb first (the system's or libusb-package's)
 ensure_libusb()
 
+# null replicas are simulated in every test that asks for them, never taken from labctl's cache
+# (labctl/reconcile/replica_cache.py; the cache's own test sets a directory); subprocesses inherit this
+os.environ["LABCTL_CACHE_DIR"] = ""
+
 if os.environ.get("PYTEST_XDIST_WORKER"):
     # one pytest-xdist worker per core: the compiled kernels run single-threaded in each, instead of
     # every worker starting a thread per core (oversubscribed, the suite ran twice as long)

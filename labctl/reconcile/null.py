@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from labctl.reconcile import replica_cache
 from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, StepFit, material
 from labctl.reconcile.observe import MAX_FRAMES
 from labctl.reconcile.results import CalibrationSection, NullJudgement, ValueRange
@@ -177,6 +178,7 @@ class NullCalibration:
     alpha: float = ALPHA
     seconds: float = 0.0
     workers: int = 1
+    cached: int = 0  # replicas taken from the cache (labctl/reconcile/replica_cache.py), not simulated
     name: str = "null runs"
 
     @property
@@ -233,6 +235,7 @@ class NullCalibration:
             method=self.name, null_runs=self.null_runs, alpha=self.alpha,
             p_value="empirical: (1 + #{null >= observed}) / (null_runs + 1)",
             seeds=[r.seed for r in self.replicas], seconds=round(self.seconds, 1), workers=self.workers,
+            cached=self.cached,
             null_statistics={k: _range([n[k] for n in null if k in n]) for k in keys},
             null_best_delta_bic=_range(self.null_best(set(dbic))),
             null_delta_bic={k: _range([r.delta_bic[k] for r in self.replicas if k in r.delta_bic]) for k in dbic},
@@ -319,26 +322,42 @@ def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[
 def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any], step_ids: list[str], k: int,
                        workers: int, say: Callable[[str], None], compare: Compare) -> NullCalibration:
     """K null replicas of the measured campaign from ``model``, on a local Dask cluster of ``workers`` processes
-    (labctl/batch/cluster.py), or one after the other for a single worker."""
+    (labctl/batch/cluster.py), or one after the other for a single worker. Replicas kept from an earlier reconcile
+    of the same campaign against the same model are taken from the cache (labctl/reconcile/replica_cache.py),
+    and those made here are kept there."""
     model_text = replica_model(model, info)
     seeds = seeds_for(campaign_toml, k)
-    workers = max(1, min(workers, k))
     start = time.monotonic()
+    cache = replica_cache.cache_directory()
+    keys = {seed: replica_cache.replica_key(model_text, replica_campaign(campaign_toml, seed), step_ids, info)
+            for seed in seeds}
+    kept = {seed: replica_cache.load(cache, keys[seed]) for seed in seeds} if cache is not None else {}
+    done = {seed: replica for seed, replica in kept.items() if isinstance(replica, Replica)}
+    missing = [seed for seed in seeds if seed not in done]
+    if done:
+        say(f"{len(done)} of {k} null replicas from the cache ({cache})")
+    workers = max(1, min(workers, len(missing) or 1))
     directory = tempfile.mkdtemp(prefix="labctl-null-")
     try:
         if workers == 1:
-            replicas = []
-            for i, seed in enumerate(seeds):
-                say(f"null replica {i + 1} of {k} (seed {seed})")
-                replicas.append(null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare))
+            made = []
+            for i, seed in enumerate(missing):
+                say(f"null replica {i + 1} of {len(missing)} (seed {seed})")
+                made.append(null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare))
         else:
             from labctl.batch.cluster import Cluster, open_client
 
-            say(f"{k} null replicas on {workers} workers")
+            say(f"{len(missing)} null replicas on {workers} workers")
+            n = len(missing)
             with open_client(Cluster(workers=workers)) as client:
-                futures = client.map(null_replica, [campaign_toml] * k, [model_text] * k, seeds, [step_ids] * k,
-                                     [info] * k, [directory] * k, [compare] * k, pure=False)
-                replicas = client.gather(futures)
+                futures = client.map(null_replica, [campaign_toml] * n, [model_text] * n, missing, [step_ids] * n,
+                                     [info] * n, [directory] * n, [compare] * n, pure=False)
+                made = client.gather(futures)
     finally:
         shutil.rmtree(directory, ignore_errors=True)
-    return NullCalibration(list(replicas), seconds=time.monotonic() - start, workers=workers)
+    for replica in made:
+        done[replica.seed] = replica
+        if cache is not None:
+            replica_cache.store(cache, keys[replica.seed], replica)
+    return NullCalibration([done[seed] for seed in seeds], seconds=time.monotonic() - start, workers=workers,
+                           cached=k - len(missing))

@@ -421,7 +421,8 @@ class MinimumDetectable:
 @dataclass(kw_only=True)
 class CalibrationSection:
     """``null_calibration`` of reconcile.json: the decision rule. Fixed thresholds: the dBIC threshold and the
-    floors' fractions. Null runs: the K replicas (seeds, seconds, workers), the p-value's formula, the null
+    floors' fractions. Null runs: the K replicas (seeds, seconds, workers, how many came from the cache), the
+    p-value's formula, the null
     distributions of the residual statistics and of the candidates' dBIC, how later rounds are judged, and the
     minimum detectable amplitudes."""
 
@@ -432,6 +433,7 @@ class CalibrationSection:
     seeds: list[int] | None = optional()
     seconds: float | None = optional()
     workers: int | None = optional()
+    cached: int | None = optional()
     null_statistics: dict[str, ValueRange] | None = optional()
     null_best_delta_bic: ValueRange | None = optional()
     null_delta_bic: dict[str, ValueRange] | None = optional()
