@@ -60,10 +60,10 @@ def _count_finite(values: np.ndarray) -> int:  # pragma: no cover - compiled
 def _finite_sample(values: np.ndarray, sample: int) -> np.ndarray:
     """Positions in the flat ``values`` of ``sample`` finite values evenly spread over the finite ones (all of
     them if fewer): the k-th finite value for k = linspace(0, count - 1, sample), located by a compiled pass over
-    the values, so that a whole stack's positions are never listed."""
+    the values (none where every value is finite), so that a whole stack's positions are never listed."""
     total = _count_finite(values)
-    wanted = np.linspace(0, total - 1, sample).astype(int) if total > sample else np.arange(total)
-    return _finite_ranks(values, wanted.astype(np.int64))
+    wanted = (np.linspace(0, total - 1, sample).astype(int) if total > sample else np.arange(total)).astype(np.int64)
+    return wanted if total == values.size else _finite_ranks(values, wanted)  # all finite: the k-th is at k
 
 
 def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
