@@ -12,13 +12,13 @@ camera hiding bad pixels does not look better.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 from metrics.stack import StackStats
-from metrics.uncertainty import jackknife_standard_errors, sensitivity, standard_error_of_std
+from metrics.uncertainty import delete_a_group_jackknife, sensitivity, standard_error_of_std
 
 
 def quantile_abs(values: np.ndarray, q: float) -> float:
@@ -151,34 +151,167 @@ class DepthErrorUncertainties:
 REFERENCE_STEP_MM = 0.1
 
 
-def _moments_without(stack: np.ndarray, stats: StackStats) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """Per-pixel mean and sample std, over the pixels valid in the stack, of the frames where a boolean mask over
-    the frames is true (the jackknife's replicates). With one frame left out, the replicate is the stack's sums
-    less that frame's values (no pass over the stack); any other mask takes one matrix product."""
-    valid = stats.valid
-    mean = stats.mean[valid]
-    deviation = (stack[:, valid] - mean).astype(np.float32)
-    seen = np.isfinite(deviation).astype(np.float32)
-    deviation = np.nan_to_num(deviation, nan=0.0)
-    squared = deviation * deviation
-    totals = (seen.sum(axis=0, dtype=np.float64), deviation.sum(axis=0, dtype=np.float64),
-              squared.sum(axis=0, dtype=np.float64))
+@njit(cache=True, nogil=True)
+def _linear_quantile(values: np.ndarray, n: int, below: int, inside: np.ndarray, n_inside: int,
+                     q: float) -> float:  # pragma: no cover - compiled
+    """NumPy's ``quantile(values[:n], q)`` (method ``linear``, Hyndman & Fan 1996, definition 7), its arithmetic
+    step by step: the virtual index (n - 1) q, its two neighbouring order statistics a and b, and the
+    interpolation a + (b - a) g, or b - (b - a) (1 - g) where the weight g >= 0.5. The order statistics are
+    taken from ``inside[:n_inside]``, the values between two bounds of which ``below`` values lie below the lower
+    one, when both ranks fall among them, else from all the values (NaN where n = 0)."""
+    if n == 0:
+        return np.nan
+    virtual = (n - 1) * q
+    k = n - 1 if virtual >= n - 1 else int(np.floor(virtual))
+    rank = k - below
+    if 0 <= rank and rank + (k < n - 1) < n_inside:
+        part = np.partition(inside[:n_inside], rank)
+    else:
+        rank = k
+        part = np.partition(values[:n], rank)
+    a = part[rank]
+    if k == n - 1:
+        return np.float64(a)
+    b = part[rank + 1:].min()
+    gamma = virtual - k
+    diff = b - a
+    if gamma >= 0.5:
+        return np.float64(b) - np.float64(diff) * (1.0 - gamma)
+    return np.float64(a) + np.float64(diff) * gamma
 
-    def moments(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        left_out = np.flatnonzero(~kept)
-        if left_out.size == 1:
-            i = int(left_out[0])
-            c, s, ss = totals[0] - seen[i], totals[1] - deviation[i], totals[2] - squared[i]
-        else:
-            w = kept.astype(np.float32)
-            c, s, ss = w @ seen, w @ deviation, w @ squared
-        with np.errstate(divide="ignore", invalid="ignore"):
+
+@njit(cache=True, nogil=True)
+def _frame_deviation(v: float, mean: float) -> tuple[float, float, float]:  # pragma: no cover - compiled
+    """A frame's value's deviation from the pixel's stack mean in float32 (NaN as 0, infinities as float32's
+    largest magnitudes), whether it is finite (1 or 0), and its square in float32."""
+    d = np.float32(np.float64(v) - mean)
+    if d - d == 0.0:
+        return np.float64(d), 1.0, np.float64(d * d)
+    if d != d:
+        return 0.0, 0.0, 0.0
+    big = np.float32(3.4028234663852886e38) if d > 0 else np.float32(-3.4028234663852886e38)
+    return np.float64(big), 0.0, np.float64(big * big)
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _frame_totals(stack: np.ndarray, pixels: np.ndarray,
+                  mean: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Per pixel of the flat ``pixels`` of the (N, H * W) ``stack``: the sums over the frames, in frame order
+    and in float64, of its finite count, deviation and squared deviation (:func:`_frame_deviation`)."""
+    n = stack.shape[0]
+    size = pixels.size
+    count, total, squares = np.zeros(size), np.zeros(size), np.zeros(size)
+    block = 4096
+    for b in prange((size + block - 1) // block):
+        for k in range(n):
+            for p in range(b * block, min(size, (b + 1) * block)):
+                d, seen, d2 = _frame_deviation(stack[k, pixels[p]], mean[p])
+                if k == 0:
+                    count[p], total[p], squares[p] = seen, d, d2
+                else:
+                    count[p] += seen
+                    total[p] += d
+                    squares[p] += d2
+    return count, total, squares
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _left_out_q90s(stack: np.ndarray, pixels: np.ndarray, mean: np.ndarray, count: np.ndarray, total: np.ndarray,
+                   squares: np.ndarray, reference: float, bounds: np.ndarray,
+                   q: float) -> np.ndarray:  # pragma: no cover - compiled
+    """(N, 2) per frame left out: the quantile ``q`` of |mean - ``reference``| and of the std over the pixels, the
+    pixels' means and sample stds without the frame from the totals less its values (NaN where fewer than two
+    frames remain). ``bounds``: the values (low, high) of each of the two between which the quantiles are sought
+    first (:func:`_linear_quantile`)."""
+    n = stack.shape[0]
+    size = pixels.size
+    out = np.empty((n, 2))
+    for i in prange(n):
+        values = np.empty((2, size))
+        inside = np.empty((2, size))
+        used = np.zeros(2, np.int64)
+        below = np.zeros(2, np.int64)
+        n_inside = np.zeros(2, np.int64)
+        for p in range(size):
+            d, seen, d2 = _frame_deviation(stack[i, pixels[p]], mean[p])
+            c = count[p] - seen
+            if not c >= 2:
+                continue
+            s = total[p] - d
             shift = s / c
-            var = (ss - s * shift) / (c - 1)
-        ok = c >= 2
-        return np.where(ok, mean + shift, np.nan), np.where(ok, np.sqrt(np.maximum(var, 0.0)), np.nan)
+            var = (squares[p] - d2 - s * shift) / (c - 1)
+            both = (abs(mean[p] + shift - reference), abs(np.sqrt(0.0 if var < 0.0 else var)))
+            for f in range(2):
+                v = both[f]
+                if v - v == 0.0:
+                    values[f, used[f]] = v
+                    used[f] += 1
+                    if v < bounds[f, 0]:
+                        below[f] += 1
+                    elif v <= bounds[f, 1]:
+                        inside[f, n_inside[f]] = v
+                        n_inside[f] += 1
+        for f in range(2):
+            out[i, f] = _linear_quantile(values[f], used[f], below[f], inside[f], n_inside[f], q)
+    return out
 
-    return moments
+
+@njit(parallel=True, cache=True, nogil=True)
+def _frame_q90s(stack: np.ndarray, pixels: np.ndarray, reference: np.floating, bounds: np.ndarray,
+                q: float) -> np.ndarray:  # pragma: no cover - compiled
+    """Per frame of the (N, H * W) ``stack``: the quantile ``q`` of |value - ``reference``| over the finite values of
+    the flat ``pixels``, the difference taken in the stack's precision (``reference`` of the stack's dtype: as NumPy
+    takes a float32 array less a Python float); ``bounds``: (low, high) between which it is sought first."""
+    n = stack.shape[0]
+    size = pixels.size
+    out = np.empty(n)
+    for i in prange(n):
+        values = np.empty(size, stack.dtype)
+        inside = np.empty(size, stack.dtype)
+        used = below = n_inside = 0
+        for p in range(size):
+            v = abs(stack[i, pixels[p]] - reference)
+            if v - v == 0.0:
+                values[used] = v
+                used += 1
+                if v < bounds[0]:
+                    below += 1
+                elif v <= bounds[1]:
+                    inside[n_inside] = v
+                    n_inside += 1
+        out[i] = _linear_quantile(values, used, below, inside, n_inside, q)
+    return out
+
+
+#: the jackknife's replicates seek their Q90 first among the values whose rank in the whole stack's lies within
+#: this fraction of the pixels (plus ``BRACKET_PIXELS``) of the Q90's: a replicate moves few values across it
+BRACKET_FRACTION = 0.02
+BRACKET_PIXELS = 64
+
+
+def _bracket(values: np.ndarray, q: float) -> np.ndarray:
+    """(low, high) of the finite |values| around their quantile ``q``: the order statistics ``BRACKET_FRACTION``
+    of them (and ``BRACKET_PIXELS``) below and above it (where to seek a replicate's quantile first)."""
+    v = np.sort(np.abs(values[np.isfinite(values)]))
+    if not v.size:
+        return np.array([np.inf, -np.inf])
+    k = int((v.size - 1) * q)
+    margin = int(BRACKET_FRACTION * v.size) + BRACKET_PIXELS
+    return np.array([v[max(k - margin, 0)], v[min(k + margin + 1, v.size - 1)]], dtype=np.float64)
+
+
+def _left_out(stack: np.ndarray, stats: StackStats, reference_mm: float) -> np.ndarray:
+    """(N, 2) per frame left out in turn: the Q90 of |mean - ``reference_mm``| and of the sample std of the
+    pixels of the (N, H, W) ``stack`` valid in it (``stats``), the replicates of the jackknife over the frames.
+    A replicate is the stack's sums less that frame's values: per pixel, the deviations from the stack mean in
+    float32 (NaN counted out) and their squares, summed in float64 (no further pass over the stack)."""
+    flat = np.ascontiguousarray(stack).reshape(stack.shape[0], -1)
+    valid = stats.valid.reshape(-1)
+    pixels = np.flatnonzero(valid)
+    mean = stats.mean.reshape(-1)[pixels]
+    totals = _frame_totals(flat, pixels, mean)
+    bounds = np.stack([_bracket(mean - reference_mm, 0.9), _bracket(stats.std.reshape(-1)[pixels], 0.9)])
+    return _left_out_q90s(flat, pixels, mean, *totals, float(reference_mm), bounds, 0.9)
 
 
 def precision_q90_uncertainty(stack: np.ndarray, stats: StackStats) -> float:
@@ -203,8 +336,7 @@ def precision_q90_uncertainty(stack: np.ndarray, stats: StackStats) -> float:
     n = stack.shape[0]
     if n < 2:
         return float("nan")
-    moments = _moments_without(stack, stats)
-    return jackknife_standard_errors(lambda kept: (quantile_abs(moments(kept)[1], 0.9),), n)[0]
+    return delete_a_group_jackknife(_left_out(stack, stats, 0.0)[:, 1:])[0]
 
 
 def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm: float) -> DepthErrorUncertainties:
@@ -233,15 +365,14 @@ def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm
     valid = stats.valid
     n = stack.shape[0]
     mean = stats.mean[valid]
-    moments = _moments_without(stack, stats)
-
-    def q90s(kept: np.ndarray) -> tuple[float, float]:
-        """Trueness and precision Q90 of the frames where ``kept`` is true."""
-        mean_k, std_k = moments(kept)
-        return quantile_abs(mean_k - reference_mm, 0.9), quantile_abs(std_k, 0.9)
-
-    trueness, precision = jackknife_standard_errors(q90s, n) if n >= 2 else (float("nan"), float("nan"))
-    per_frame = np.array([quantile_abs(stack[k][valid] - reference_mm, 0.9) for k in range(n)])
+    trueness, precision = (delete_a_group_jackknife(_left_out(stack, stats, reference_mm)) if n >= 2
+                           else (float("nan"), float("nan")))
+    flat = np.ascontiguousarray(stack).reshape(n, -1)
+    if flat.dtype not in (np.float32, np.float64):
+        flat = flat.astype(np.float64)
+    pixels = np.flatnonzero(valid.reshape(-1))
+    per_frame = _frame_q90s(flat, pixels, flat.dtype.type(reference_mm), _bracket(flat[0, pixels] - reference_mm, 0.9),
+                            0.9)
     per_frame = per_frame[np.isfinite(per_frame)]
     first = stack[0][valid]
     return DepthErrorUncertainties(

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 #: cycles per pixel: the highest frequency a sampled image holds
 NYQUIST_CY_PX = 0.5
@@ -28,25 +29,41 @@ MIN_QUANTIZATION_MM = 0.01
 NEAR_AXIS_RATIO = 0.01
 
 
-#: elements per block when :func:`_finite_sample` locates finite values (a block's positions are cheap to list)
-BLOCK = 1 << 16
+@njit(cache=True, nogil=True)
+def _finite_ranks(values: np.ndarray, ranks: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Positions of the finite values of the given ascending ranks (0 = the first finite value), in one pass."""
+    out = np.empty(ranks.size, np.int64)
+    rank = 0
+    m = 0
+    for i in range(values.size):
+        if m == ranks.size:
+            break
+        v = values[i]
+        if v - v == 0.0:  # finite
+            while m < ranks.size and ranks[m] == rank:
+                out[m] = i
+                m += 1
+            rank += 1
+    return out
 
 
-def _finite_sample(finite: np.ndarray, sample: int) -> np.ndarray:
-    """Positions of ``sample`` finite values evenly spread over the finite ones (all of them if fewer): the k-th
-    finite value for k = linspace(0, count - 1, sample), located block by block, so that a whole stack's
-    positions are never listed."""
-    pad = -finite.size % BLOCK
-    per_block = np.concatenate([finite, np.zeros(pad, bool)]).reshape(-1, BLOCK).sum(axis=1)
-    before = np.concatenate([[0], np.cumsum(per_block)])
-    total = int(before[-1])
-    wanted = np.linspace(0, total - 1, sample).astype(int) if total > sample else np.arange(total)
-    block = np.searchsorted(before, wanted, side="right") - 1
-    where = np.empty(wanted.size, dtype=np.int64)
-    for b in np.unique(block):
-        chosen = block == b
-        where[chosen] = b * BLOCK + np.flatnonzero(finite[b * BLOCK:(b + 1) * BLOCK])[wanted[chosen] - before[b]]
-    return where
+@njit(cache=True, nogil=True)
+def _count_finite(values: np.ndarray) -> int:  # pragma: no cover - compiled
+    """How many of the flat ``values`` are finite."""
+    count = 0
+    for i in range(values.size):
+        v = values[i]
+        count += v - v == 0.0
+    return count
+
+
+def _finite_sample(values: np.ndarray, sample: int) -> np.ndarray:
+    """Positions in the flat ``values`` of ``sample`` finite values evenly spread over the finite ones (all of
+    them if fewer): the k-th finite value for k = linspace(0, count - 1, sample), located by a compiled pass over
+    the values (none where every value is finite), so that a whole stack's positions are never listed."""
+    total = _count_finite(values)
+    wanted = (np.linspace(0, total - 1, sample).astype(int) if total > sample else np.arange(total)).astype(np.int64)
+    return wanted if total == values.size else _finite_ranks(values, wanted)  # all finite: the k-th is at k
 
 
 def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
@@ -64,7 +81,7 @@ def quantization_step(values: np.ndarray, sample: int = 20000) -> float:
     nan
     """
     flat = np.asarray(values).reshape(-1)
-    distinct = np.unique(flat[_finite_sample(np.isfinite(flat), sample)].astype(float))
+    distinct = np.unique(flat[_finite_sample(flat, sample)].astype(float))
     if distinct.size < 2:
         return math.nan
     step = float(np.min(np.diff(distinct)))

@@ -101,12 +101,13 @@ def missing_absolute_reference(attrs: Mapping[str, Any]) -> str:
     return "no laser reading in the step"
 
 
-def _clouds(step: StepRecord, z: np.ndarray, camera: CameraInfo) -> tuple[Cloud, Cloud]:
-    """x, y, z (N, h, w) of the Depth Quality Tool's ROI in every frame (the first frame's x and y, as the tool's
-    figures take them) and of Basler's centre window (each frame's x, y from its z along the pixel's ray)."""
+def _clouds(first_xy: tuple[np.ndarray, np.ndarray], z: np.ndarray, camera: CameraInfo) -> tuple[Cloud, Cloud]:
+    """x, y, z (N, h, w) of the Depth Quality Tool's ROI in every frame (the first frame's x and y,
+    ``first_xy``, as the tool's figures take them) and of Basler's centre window (each frame's x, y from its z
+    along the pixel's ray)."""
     rows, cols = dqt_roi(camera.height, camera.width)
     w_rows, w_cols = centre_window(camera.height, camera.width)
-    x0, y0 = (step.group[c][0] for c in ("x", "y"))
+    x0, y0 = first_xy
     roi_z = z[:, rows, cols]
     dqt = (np.broadcast_to(x0[None, rows, cols], roi_z.shape), np.broadcast_to(y0[None, rows, cols], roi_z.shape),
            roi_z)
@@ -116,10 +117,12 @@ def _clouds(step: StepRecord, z: np.ndarray, camera: CameraInfo) -> tuple[Cloud,
     return dqt, (slope_x * wz, slope_y * wz, wz)
 
 
-def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: str) -> VendorPosition:
-    """The vendor figures of one wall step whose (N, H, W) z stack is ``z``, Z accuracy against its absolute
-    reference (the Depth Quality Tool's of the first ``DQT_FRAMES`` frames)."""
-    dqt, window = _clouds(step, z, camera)
+def vendor_position(step: StepRecord, z: np.ndarray, first_xy: tuple[np.ndarray, np.ndarray], camera: CameraInfo,
+                    model: str) -> VendorPosition:
+    """The vendor figures of one wall step whose (N, H, W) z stack is ``z`` and whose first frame's x and y are
+    ``first_xy``, Z accuracy against its absolute reference (the Depth Quality Tool's of the first ``DQT_FRAMES``
+    frames)."""
+    dqt, window = _clouds(first_xy, z, camera)
     absolute = float(step.attrs.get("absolute_reference_mm", math.nan))
     figures = vendor_figures(tuple(c[:DQT_FRAMES] for c in dqt), window, absolute,  # type: ignore[arg-type]
                              focal_length_px(camera), stereo_baseline_mm(model))
@@ -127,11 +130,11 @@ def vendor_position(step: StepRecord, z: np.ndarray, camera: CameraInfo, model: 
                           missing_absolute_reference(step.attrs))
 
 
-def with_uncertainties(position: VendorPosition, step: StepRecord, z: np.ndarray, camera: CameraInfo,
-                       model: str) -> VendorPosition:
-    """``position`` (of ``step``, whose z stack is ``z``) with the Type A uncertainties of its figures (every
-    frame taken singly) and the components of its absolute reference."""
-    dqt, window = _clouds(step, z, camera)
+def with_uncertainties(position: VendorPosition, step: StepRecord, z: np.ndarray,
+                       first_xy: tuple[np.ndarray, np.ndarray], camera: CameraInfo, model: str) -> VendorPosition:
+    """``position`` (of ``step``, whose z stack is ``z`` and first frame's x and y ``first_xy``) with the Type A
+    uncertainties of its figures (every frame taken singly) and the components of its absolute reference."""
+    dqt, window = _clouds(first_xy, z, camera)
     uncertainties = vendor_uncertainties(dqt, window, position.figures.reference_mm, focal_length_px(camera),
                                          stereo_baseline_mm(model))
     return dataclasses.replace(position, uncertainties=uncertainties, reference_budget=absolute_reference(step.attrs))

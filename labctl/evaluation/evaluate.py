@@ -26,10 +26,11 @@ from labctl.evaluation.depth_quality import (
     with_uncertainties,
 )
 from labctl.evaluation.depth_quality import figure_values as vendor_figures
-from labctl.evaluation.geometry import GeometryResult, evaluate_geometry
+from labctl.evaluation.geometry import GeometryResult, evaluate_geometry, precision_key, wall_noise
 from labctl.evaluation.geometry import figure_values as geometry_figures
 from labctl.evaluation.keyfigures import CameraDescription, FigureValue, clean, standard_uncertainty
 from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flags
+from labctl.evaluation.read_ahead import read_ahead
 from labctl.evaluation.remission import RemissionResult, evaluate_remission
 from labctl.evaluation.remission import figure_values as remission_figures
 from labctl.evaluation.scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
@@ -57,9 +58,10 @@ from metrics.depth import (
 )
 from metrics.optics import pixel_aspect_distortion_pct
 from metrics.plausibility import quantization_step
-from metrics.stack import leave_group_out_means, stack_stats
+from metrics.stack import StackStats, leave_group_out_means, stack_stats
 from metrics.surface import SurfaceTexture, sq_jackknife, surface_texture
 from metrics.uncertainty import Component, contiguous_groups, expanded_uncertainty, rectangular
+from metrics.xy_error import XYPrecision
 
 #: distance at which the single-position key figures are taken (docs/keyfigures.md)
 KEY_DISTANCE_MM = 2000.0
@@ -137,21 +139,36 @@ def _key_step(steps: Sequence[StepRecord]) -> StepRecord | None:
     return best
 
 
-def _detect_quantization(found: dict[str, float], rec: StepRecord, z: np.ndarray) -> None:
-    """Fill in the quantization step of x, y and z from this wall step where no earlier step showed one
-    (a step without valid pixels, e.g. below a camera's minimum range, shows none)."""
-    for channel in ("x", "y", "z"):
+def _detect_quantization(found: dict[str, float], z: np.ndarray, first_xy: tuple[np.ndarray, np.ndarray]) -> None:
+    """Fill in the quantization step of x, y and z from this wall step (its z stack, its first frame's x and y)
+    where no earlier step showed one (a step without valid pixels, e.g. below a camera's minimum range, shows
+    none)."""
+    for channel, values in (("x", first_xy[0]), ("y", first_xy[1]), ("z", z)):
         if not math.isfinite(found.get(channel, math.nan)):
-            found[channel] = quantization_step(z if channel == "z" else rec.frame(channel, 0))
+            found[channel] = quantization_step(values)
+
+
+@dataclass(frozen=True)
+class _SurfaceInputs:
+    """What the surface texture at the key step takes from its stacks: the x, y and z stack statistics and z's
+    means without each group of frames (None with fewer than two frames)."""
+
+    means: dict[str, StackStats]
+    z_left_out: np.ndarray | None
 
 
 def evaluate_depth_sweep(
     steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None],
-    calibration: StepRecord | None = None,
-) -> None:
+    calibration: StepRecord | None = None, xy_noise: bool = False,
+) -> list[tuple[str, float, XYPrecision]]:
     """Thesis 2024, 4.2 on the wall steps: curves over distance, key figures with their uncertainty budgets
     (``calibration``: the offset calibration the references rest on, None without one), surface at 2000 mm;
-    the vendors' depth-quality figures at every distance."""
+    the vendors' depth-quality figures at every distance. With ``xy_noise`` (the run has no ``xy_sweep``), the
+    x/y noise of every step too (:func:`~labctl.evaluation.geometry.wall_noise`), returned for the geometry.
+
+    Each step's arrays are read once, one step ahead of their evaluation (labctl/evaluation/read_ahead.py): z
+    where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
+    frames."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
         evaluation.notes.append(
@@ -160,21 +177,50 @@ def evaluate_depth_sweep(
     key = _key_step(usable)
     key_u: DepthErrorUncertainties | None = None
     vendor_keys = set(key_steps({s.step_id: s.attrs["reference_distance_mm"] for s in usable}).values())
-    buffer = None
-    for rec in usable:
+    with_z = {id(s) for s in usable}
+    noise_key = precision_key(steps) if xy_noise else None
+
+    def load(rec: StepRecord) -> dict[str, np.ndarray]:
+        whole = xy_noise or rec is key
+        arrays = {c: rec.read(c) if whole else rec.group[c][:1] for c in ("x", "y")}
+        if id(rec) in with_z:
+            arrays["z"] = rec.read("z")
+        return arrays
+
+    noise: list[tuple[str, float, XYPrecision]] = []
+    surface: _SurfaceInputs | None = None
+    for rec, arrays in read_ahead(steps if xy_noise else usable, load):
         progress(rec.step_id)
-        buffer = rec.read("z", out=buffer)
-        _detect_quantization(evaluation.quantization_mm, rec, buffer)
-        stats = stack_stats(buffer)
-        errors = depth_errors(stats, buffer[0], rec.attrs["reference_distance_mm"])
-        if rec is key:
-            key_u = depth_error_uncertainties(buffer, stats, rec.attrs["reference_distance_mm"])
-        evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
-        position = vendor_position(rec, buffer, reader.camera, evaluation.camera.model)
-        if rec.step_id in vendor_keys:  # the steps the vendor key figures come from: their uncertainties too
-            position = with_uncertainties(position, rec, buffer, reader.camera, evaluation.camera.model)
-        evaluation.vendor.append(position)
-    del buffer
+        if id(rec) in with_z:
+            z = arrays["z"]
+            first_xy = (arrays["x"][0], arrays["y"][0])
+            _detect_quantization(evaluation.quantization_mm, z, first_xy)
+            stats = stack_stats(z)
+            errors = depth_errors(stats, z[0], rec.attrs["reference_distance_mm"])
+            if rec is key:
+                key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"])
+                frames = z.shape[0]
+                surface = _SurfaceInputs(
+                    {"x": stack_stats(arrays["x"]), "y": stack_stats(arrays["y"]), "z": stats},
+                    leave_group_out_means(z, contiguous_groups(frames, min(SURFACE_GROUPS, frames)))
+                    if frames >= 2 else None)
+            evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
+            position = vendor_position(rec, z, first_xy, reader.camera, evaluation.camera.model)
+            if rec.step_id in vendor_keys:  # the steps the vendor key figures come from: their uncertainties too
+                position = with_uncertainties(position, rec, z, first_xy, reader.camera, evaluation.camera.model)
+            evaluation.vendor.append(position)
+        if xy_noise:
+            progress(f"{rec.step_id} x/y noise")
+            noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key))
+        del arrays
+    _depth_figures(evaluation, key, key_u, surface, calibration, progress)
+    return noise
+
+
+def _depth_figures(evaluation: Evaluation, key: StepRecord | None, key_u: DepthErrorUncertainties | None,
+                   surface: _SurfaceInputs | None, calibration: StepRecord | None,
+                   progress: Callable[[str], None]) -> None:
+    """The depth sweep's key figures from its positions, and the surface texture at the ``key`` step."""
     missing = [p for p in evaluation.vendor if p.missing_reference]
     if missing:
         reasons = "; ".join(sorted({p.missing_reference for p in missing}))
@@ -191,7 +237,7 @@ def evaluate_depth_sweep(
             worst.errors.repeatability_center_mm, [p.step_id for p in evaluation.depth],
             (Component(f"frames at {worst.step_id}: centre pixel's sample std (Type A)", worst.repeatability_center_u_mm),)
         )
-    if key is None or key_u is None:
+    if key is None or key_u is None or surface is None:
         evaluation.notes.append("no depth_sweep step within 150 mm of 2000 mm: single-position figures are null")
         return
     at_key = next(p for p in evaluation.depth if p.step_id == key.step_id).errors
@@ -208,12 +254,7 @@ def evaluate_depth_sweep(
     ):
         figures[name] = FigureValue(value, [key.step_id], budget)
     progress(f"{key.step_id} surface")
-    means = {c: stack_stats(key.read(c)) for c in ("x", "y")}
-    z = key.read("z")
-    means["z"] = stack_stats(z)
-    frames = z.shape[0]
-    z_left_out = leave_group_out_means(z, contiguous_groups(frames, min(SURFACE_GROUPS, frames))) if frames >= 2 else None
-    del z
+    means, z_left_out = surface.means, surface.z_left_out
     valid = means["z"].valid & means["x"].valid & means["y"].valid
     try:
         texture = surface_texture(means["x"].mean, means["y"].mean, means["z"].mean, valid)
@@ -353,8 +394,13 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         sweep = [s for r in readers for s in r.steps("depth_sweep")]
         calibrations = [s for r in readers for s in r.steps("offset_calibration")]
         calibration = calibrations[-1] if calibrations else None
+        geometric = [s for r in readers for s in r.steps()
+                     if s.attrs.get("procedure") in ("checkerboard", "boehler_star", "xy_sweep", "depth_sweep")]
+        noise = None  # the x/y noise of the walls, where they are the depth sweep's and it reads them
         if sweep:
-            evaluate_depth_sweep(sweep, readers[0], evaluation, progress, calibration)
+            xy_noise = not any(s.attrs.get("procedure") == "xy_sweep" for s in geometric)  # noise_walls: the sweep's
+            noise = evaluate_depth_sweep(sweep, readers[0], evaluation, progress, calibration, xy_noise)
+            noise = noise if xy_noise else None
         elif captures:
             evaluation.notes.append("capture steps only (no reference distance): the key figures are null; see "
                                     "the capture section for depth, noise, validity and the plane fit")
@@ -365,10 +411,8 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
             evaluate_sharpness(edges, readers[0], evaluation, progress)
         if sweep:
             evaluate_face_depth(sweep, evaluation, progress, calibration)
-        geometric = [s for r in readers for s in r.steps()
-                     if s.attrs.get("procedure") in ("checkerboard", "boehler_star", "xy_sweep", "depth_sweep")]
         if geometric:
-            evaluation.geometry = evaluate_geometry(geometric, readers[0].camera, progress)
+            evaluation.geometry = evaluate_geometry(geometric, readers[0].camera, progress, noise)
             evaluation.notes.extend(evaluation.geometry.notes)
             evaluation.figures.update(geometry_figures(evaluation.geometry))
         plates = [s for r in readers for s in r.steps("remission_angle")]

@@ -221,9 +221,10 @@ def _replicate_figures(replica: DistortionResult | None, xyz: list[_Channel], g:
             trueness.x_q90_mm, trueness.y_q90_mm)
 
 
-def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
-                      progress: Callable[[str], None]) -> GeometryResult:
-    """Every geometric figure the given steps allow."""
+def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo, progress: Callable[[str], None],
+                      precision: list[tuple[str, float, XYPrecision]] | None = None) -> GeometryResult:
+    """Every geometric figure the given steps allow; ``precision``: the x/y noise of the walls
+    (:func:`noise_walls`) where the caller took it already while reading their stacks (:func:`wall_noise`)."""
     out = GeometryResult()
     boards = [s for s in steps if s.attrs.get("procedure") == "checkerboard"]
     for step in boards[-1:]:  # the last board of the runs (a repeat after re-mounting replaces it)
@@ -250,14 +251,32 @@ def evaluate_geometry(steps: Sequence[StepRecord], camera: CameraInfo,
         out.chosen_star = min(resolved, key=lambda s: (s.segments != 72, s.result.resolution_mm))
     elif out.stars:
         out.notes.append("no Boehler star resolved anywhere: cloud resolution figures are null")
-    walls = [s for s in steps if s.attrs.get("procedure") == "xy_sweep"] or [
-        s for s in steps if s.attrs.get("procedure") == "depth_sweep"]
-    key = min(walls, key=lambda s: abs(_distance(s) - KEY_DISTANCE_MM), default=None)  # the precision figures'
+    if precision is not None:
+        out.precision = precision
+        return out
+    walls = noise_walls(steps)
+    key = precision_key(walls)
     for step in walls:
         progress(f"{step.step_id} x/y noise")
-        out.precision.append((step.step_id, _distance(step),
-                              xy_precision(step.read("x"), step.read("y"), q90_uncertainty=step is key)))
+        out.precision.append(wall_noise(step, step.read("x"), step.read("y"), key))
     return out
+
+
+def noise_walls(steps: Sequence[StepRecord]) -> list[StepRecord]:
+    """The wall steps the x/y noise is taken on: the ``xy_sweep`` steps, else the ``depth_sweep`` steps."""
+    return [s for s in steps if s.attrs.get("procedure") == "xy_sweep"] or [
+        s for s in steps if s.attrs.get("procedure") == "depth_sweep"]
+
+
+def precision_key(walls: Sequence[StepRecord]) -> StepRecord | None:
+    """The wall step the x/y precision figures come from (nearest 2000 mm), whose Q90s get their uncertainties."""
+    return min(walls, key=lambda s: abs(_distance(s) - KEY_DISTANCE_MM), default=None)
+
+
+def wall_noise(step: StepRecord, x: np.ndarray, y: np.ndarray, key: StepRecord | None) -> tuple[str, float, XYPrecision]:
+    """The x/y noise of one wall step from its (N, H, W) ``x`` and ``y`` stacks (the precision Q90s' uncertainties
+    at the ``key`` step of :func:`precision_key`), as :attr:`GeometryResult.precision` lists it."""
+    return step.step_id, _distance(step), xy_precision(x, y, q90_uncertainty=step is key)
 
 
 def _xy_figures(xy: XYErrors, u: XYUncertainty | None, tile_mm: float, src: list[str]) -> dict[str, FigureValue]:

@@ -67,3 +67,23 @@ def test_center_pixel_repeatability():
 def test_quantile_abs_ignores_nan():
     assert quantile_abs(np.array([np.nan, -1.0, 2.0, -3.0]), 1.0) == 3.0
     assert math.isnan(quantile_abs(np.array([np.nan]), 0.9))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_compiled_quantile_is_numpys_bit_for_bit_wherever_the_bracket_lies(dtype):
+    """The jackknife's quantiles (metrics.depth._linear_quantile) equal np.quantile's exactly, whether the sought
+    ranks fall among the bracketed values or the quantile falls back to all of them; ties included."""
+    from metrics.depth import _linear_quantile
+
+    rng = np.random.default_rng(7)
+    for trial in range(600):
+        n = int(rng.integers(1, 200))
+        values = np.abs(rng.normal(size=n)).astype(dtype)
+        if trial % 3 == 0:
+            values = np.round(values * 3).astype(dtype)
+        q = (0.9, 0.5, 0.0, 1.0, 0.99)[trial % 5]
+        ordered = np.sort(values)
+        low, high = sorted(ordered[rng.integers(0, n, 2)])
+        inside = values[(values >= low) & (values <= high)]
+        got = _linear_quantile(values.copy(), n, int(np.sum(values < low)), inside.copy(), inside.size, q)
+        assert float(got).hex() == float(np.quantile(values, (q,))[0]).hex()

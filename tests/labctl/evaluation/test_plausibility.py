@@ -134,7 +134,7 @@ def test_quantization_is_detected_on_the_first_wall_step_with_valid_pixels():
     seen = Step(np.round(1000 + np.random.default_rng(0).normal(0, 3, (2, 4, 5))))
     found = {}
     for step in (blind, seen):
-        _detect_quantization(found, step, step.z)
+        _detect_quantization(found, step.z, (step.frame("x", 0), step.frame("y", 0)))
     assert found["z"] == 1.0 and math.isnan(found["x"]) and math.isnan(found["y"])
 
 
