@@ -53,7 +53,7 @@ import numpy as np
 
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
-from labctl.reconcile.residuals import STATISTICS, Layout, raw_residuals
+from labctl.reconcile.residuals import STATISTICS, Layout, raw_residuals, step_rows
 from labctl.reconcile.results import Parameters
 from sim.effects import EFFECTS, Effect, valid_range
 from sim.materials import get_material
@@ -363,7 +363,7 @@ def _warm_up(effect: Effect) -> Candidate:
         r = np.nan_to_num(lay.profiled(dz, di))[:len(lay.z_step)]  # the depth rows (drift leaves intensity alone)
         taus = grid(ctx)
         cols = np.column_stack([lay.profile_z(_drift_rows(ctx, tau)) * np.sqrt(lay.z_weight) for tau in taus])
-        per_step = [lay.z_step == s for s in range(lay.n_steps)]
+        per_step = step_rows(lay.z_step, lay.n_steps)
         gram = np.stack([cols[k].T @ cols[k] for k in per_step])
         cross = np.stack([cols[k].T @ r[k] for k in per_step])
         rss0 = np.array([r[k] @ r[k] for k in per_step])

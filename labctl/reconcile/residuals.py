@@ -207,6 +207,13 @@ def measured_edges(z: np.ndarray, invalid_is_edge: bool = True) -> np.ndarray:
     return ndimage.binary_dilation(jump)
 
 
+def step_rows(steps: np.ndarray, n_steps: int) -> list[np.ndarray]:
+    """The indices of each step's rows (steps 0 .. ``n_steps`` - 1 of ``steps``), ascending within a step: one
+    stable sort instead of one pass over all rows per step."""
+    order = np.argsort(steps, kind="stable")
+    return np.split(order, np.searchsorted(steps[order], np.arange(1, n_steps)))
+
+
 def layout(observations: list[Observation], predictions: list[Prediction], technology: str = "tof") -> Layout:
     """Usable bins, weights and nuisance design for a run (the masks fixed by the base model)."""
     z_masks, i_masks, z_step, i_step, rows, zw, iw = [], [], [], [], [], [], []

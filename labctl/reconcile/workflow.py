@@ -88,6 +88,7 @@ from labctl.reconcile.residuals import (
     raw_residuals,
     raw_statistics,
     sampling_variance,
+    step_rows,
 )
 from labctl.reconcile.results import (
     Ambiguity,
@@ -320,7 +321,7 @@ def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_step
     k = jac.shape[1]
     info = jac.T @ jac
     bread = np.linalg.pinv(info)
-    rows = [np.flatnonzero(steps == s) for s in range(n_steps)]
+    rows = step_rows(steps, n_steps)
     scores = []
     for r in rows:
         if not len(r):

@@ -31,7 +31,7 @@ import math
 from typing import Any, Literal
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from pydantic import Field
 
 from sim.effects.base import Effect, EffectParams, Observed, RangeStage
@@ -75,14 +75,15 @@ def bounce_phasor(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: str, dista
     return total.reshape(shape)
 
 
-@njit(cache=True, nogil=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _bounce(h: np.ndarray, b: np.ndarray, r2: np.ndarray, z: np.ndarray, d: float, w0: float, tan_lateral: float,
             k: float, s_nodes: np.ndarray, s_weights: np.ndarray, t_nodes: np.ndarray,
             t_weights: np.ndarray) -> np.ndarray:  # pragma: no cover (compiled)
     """m / rho per point: the product rule of the module docstring, point by point (compiled: the grid search
-    of the reconcile candidate evaluates it for every bin of every step at every trial plane)."""
+    of the reconcile candidate evaluates it for every bin of every step at every trial plane; each point on its
+    own, so the same on any number of threads)."""
     out = np.zeros(z.size, np.complex128)
-    for i in range(z.size):
+    for i in prange(z.size):
         if not (h[i] > 0.0 and z[i] > w0):
             continue
         r = math.sqrt(r2[i])
