@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from labctl.blas import one_blas_thread
 from labctl.errors import InputError
 from labctl.evaluation.capture import CaptureResult, evaluate_captures
 from labctl.evaluation.conditions import BackgroundHashes, RunConditions, run_conditions
@@ -363,6 +364,7 @@ def count_complete_steps(paths: Sequence[str | Path]) -> int:
     return total
 
 
+@one_blas_thread
 def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] = lambda _: None) -> Evaluation:
     """Every metric the given runs allow (all runs must come from one camera)."""
     if not paths:

@@ -51,6 +51,7 @@ import numpy as np
 import tomli_w
 from scipy import optimize
 
+from labctl.blas import one_blas_thread
 from labctl.errors import InputError
 from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
 from labctl.reconcile.characterize import characterize, describe_statistics
@@ -597,6 +598,7 @@ def _calibrate(null_runs: int, workers: int | None, info: dict[str, Any], model:
                               workers or machine_workers(), say, first_round)
 
 
+@one_blas_thread
 def reconcile(path: str | Path, model: SimModel | None = None, progress: Callable[[str], None] | None = None,
               warn: Callable[[str], None] | None = None, null_runs: int = 0,
               workers: int | None = None, null: NullCalibration | None = None) -> ReconcileResult:
