@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import queue
 import resource
 import shutil
@@ -98,8 +99,9 @@ def small_campaign(tmp_path: Path):
 
 
 @pytest.fixture
-def browser() -> Iterator[object]:
-    """Headless Debian Chromium through chromedriver; skipped, saying what to install, when either is missing."""
+def browser(tmp_path_factory: pytest.TempPathFactory) -> Iterator[object]:
+    """Headless Debian Chromium through chromedriver; skipped, saying what to install, when either is missing.
+    Chromium's temporary directories go to one of pytest's (TMPDIR), not to /tmp where they would stay."""
     chromium = shutil.which("chromium")
     chromedriver = shutil.which("chromedriver")
     if chromium is None or chromedriver is None:
@@ -119,7 +121,8 @@ def browser() -> Iterator[object]:
     limits = resource.getrlimit(resource.RLIMIT_AS)
     resource.setrlimit(resource.RLIMIT_AS, (limits[1], limits[1]))
     try:
-        driver = webdriver.Chrome(service=Service(chromedriver), options=options)
+        environment = {**os.environ, "TMPDIR": str(tmp_path_factory.mktemp("chromium"))}
+        driver = webdriver.Chrome(service=Service(chromedriver, env=environment), options=options)
     finally:
         resource.setrlimit(resource.RLIMIT_AS, limits)
     try:
