@@ -329,10 +329,13 @@ def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any]
     seeds = seeds_for(campaign_toml, k)
     start = time.monotonic()
     cache = replica_cache.cache_directory()
-    keys = {seed: replica_cache.replica_key(model_text, replica_campaign(campaign_toml, seed), step_ids, info)
-            for seed in seeds}
-    kept = {seed: replica_cache.load(cache, keys[seed]) for seed in seeds} if cache is not None else {}
-    done = {seed: replica for seed, replica in kept.items() if isinstance(replica, Replica)}
+    keys: dict[int, str] = {}
+    done: dict[int, Replica] = {}
+    if cache is not None:  # the keys fingerprint labctl's source: only where a cache is kept
+        keys = {seed: replica_cache.replica_key(model_text, replica_campaign(campaign_toml, seed), step_ids, info)
+                for seed in seeds}
+        done = {seed: replica for seed, key in keys.items()
+                if isinstance(replica := replica_cache.load(cache, key), Replica)}
     missing = [seed for seed in seeds if seed not in done]
     if done:
         say(f"{len(done)} of {k} null replicas from the cache ({cache})")
