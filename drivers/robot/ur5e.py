@@ -383,7 +383,7 @@ class UR5eRobot(LinkedDevice):
 
     def angle_deg(self) -> float:
         """Current angle on the circle from the actual TCP pose (``getActualTCPPose``)."""
-        return self.circle.locate(self.pose_mm()).angle_deg
+        return self.pose().angle_deg
 
     def pose(self) -> RobotPose:
         """Angle and radius on the circle and the TCP position, from the actual TCP pose (``getActualTCPPose``)."""
