@@ -606,6 +606,32 @@ def _orientation(name: str, rings: RingTable, segments: int, floor_mm: float, di
     return radius, lateral, math.degrees(math.atan(lateral / distance_mm)), clamped, warnings
 
 
+def angular_resolution_u_deg(result: BoehlerResult, orientation: str) -> float:
+    """Standard uncertainty (deg) of the angular resolution of one ``orientation`` ("h" or "v") from the ring
+    width: the resolution radius moves in whole rings of width w, so where between its ring's edges the star
+    stops being resolved is unknown; as the figure's resolution that is rectangular over one ring, w / sqrt(12)
+    in radius (GUM F.2.2.1), through the sensitivity of atan(2 pi r / (N d)) to r (GUM 5.1.3). NaN where the
+    figure is not a ring's radius: not resolved, or clamped to the sensor resolution (a bound).
+
+    Examples
+    --------
+    A 72-segment star 1000 mm away resolved from r = 40 mm on, in 2 mm rings: u_r = 2 / sqrt(12) = 0.577 mm,
+    d(angle)/dr = (2 pi / 72) / 1000 / (1 + 0.00349^2) rad/mm, so 0.577 x 8.7266e-5 x 57.2958 = 0.00289 deg.
+
+    >>> from types import SimpleNamespace
+    >>> star = SimpleNamespace(segments=72, distance_mm=1000.0, ring_width_mm=2.0, radius_h_mm=40.0, clamped_h=False)
+    >>> round(angular_resolution_u_deg(star, "h"), 5)
+    0.00289
+    """
+    radius = result.radius_h_mm if orientation == "h" else result.radius_v_mm
+    clamped = result.clamped_h if orientation == "h" else result.clamped_v
+    if clamped or not math.isfinite(radius):
+        return math.nan
+    per_mm = 2 * math.pi / result.segments / result.distance_mm  # d(lateral / d)/dr
+    slope = per_mm / (1 + (radius * per_mm) ** 2)
+    return math.degrees(slope * result.ring_width_mm / math.sqrt(12))
+
+
 def analyze_boehler(cloud: np.ndarray, segments: int, *, inlier_mm: float = DEFAULT_INLIER_MM,
                     ring_mm: float = DEFAULT_RING_MM, binning: int | None = DEFAULT_BINNING,
                     fov_deg: tuple[float, float] | None = None) -> BoehlerResult:

@@ -46,7 +46,7 @@ from labctl.evaluation.suitability import (
     face_wall_row,
     suitability,
 )
-from labctl.evaluation.uncertainty import calibrated_reference, offset_calibration, scaled
+from labctl.evaluation.uncertainty import calibrated_reference, fov_components, offset_calibration, scaled
 from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
 from labctl.run.store import RunReader, StepRecord
@@ -57,8 +57,9 @@ from metrics.depth import (
     depth_error_uncertainties,
     depth_errors,
 )
-from metrics.optics import pixel_aspect_distortion_pct
+from metrics.optics import pixel_aspect_distortion_pct, sensor_angular_resolution_deg
 from metrics.plausibility import quantization_step
+from metrics.sharpness import ied_pixels, ied_pixels_at_centre
 from metrics.stack import StackStats, leave_group_out_means, stack_stats
 from metrics.surface import SurfaceTexture, sq_jackknife, surface_texture
 from metrics.uncertainty import Component, contiguous_groups, expanded_uncertainty, rectangular
@@ -291,24 +292,36 @@ def evaluate_sharpness(steps: Sequence[StepRecord], reader: RunReader, evaluatio
     ids = [p.chart_step for p in result.positions] + [p.white_step for p in result.positions]
     best = [p.chart_step for p in result.positions if p.distance_mm == result.best_focus_mm]
     hyperfocal = _position_budget(result.hyperfocal_spacing_mm)
+    fov, width, d = reader.camera.fov_deg, reader.camera.width, result.hyperfocal_mm
+    ied_fov = fov_components(lambda h, v: ied_pixels_at_centre(h, width, d), fov) if hyperfocal else ()
+    ied_angular_fov = (fov_components(lambda h, v: ied_pixels(sensor_angular_resolution_deg(h, width), d), fov)
+                       if hyperfocal else ())
     for name, value, source, budget in (
         ("hyperfocal_distance_mm", result.hyperfocal_mm, ids, hyperfocal),
         ("best_focus_distance_mm", result.best_focus_mm, ids,
          _position_budget(result.best_focus_spacing_mm) if result.focus_warning is None else ()),
-        ("intensity_resolution_h_deg", result.resolution_deg[0], best, _resolution_budget(result.resolution_u_deg[0])),
-        ("intensity_resolution_v_deg", result.resolution_deg[1], best, _resolution_budget(result.resolution_u_deg[1])),
-        ("ied_pixels_at_hyperfocal", result.ied_px, ids, scaled(hyperfocal, result.ied_px / result.hyperfocal_mm)),
+        ("intensity_resolution_h_deg", result.resolution_deg[0], best,
+         _resolution_budget(result.resolution_u_deg[0], result.resolution_deg[0], 0, fov)),
+        ("intensity_resolution_v_deg", result.resolution_deg[1], best,
+         _resolution_budget(result.resolution_u_deg[1], result.resolution_deg[1], 1, fov)),
+        ("ied_pixels_at_hyperfocal", result.ied_px, ids,
+         (*scaled(hyperfocal, result.ied_px / result.hyperfocal_mm), *ied_fov)),
         ("ied_pixels_at_hyperfocal_angular", result.ied_px_angular, ids,
-         scaled(hyperfocal, result.ied_px_angular / result.hyperfocal_mm)),
+         (*scaled(hyperfocal, result.ied_px_angular / result.hyperfocal_mm), *ied_angular_fov)),
     ):
         evaluation.figures[name] = FigureValue(value, source, budget)
 
 
-def _resolution_budget(u_deg: float) -> tuple[Component, ...]:
+def _resolution_budget(u_deg: float, resolution_deg: float, axis: int,
+                       fov_deg: tuple[float, float]) -> tuple[Component, ...]:
     """The budget of an intensity resolution: the SFR10's jackknife over the chart's and white sheet's frames at
-    best focus, through the sensitivity resolution / SFR10 (GUM 5.1.3); no Type B component, the sensor's angular
-    resolution FOV / pixels coming from the datasheet, which states no tolerance."""
-    return (Component("frames: delete-a-group jackknife of the SFR10 at best focus (Type A)", u_deg),)
+    best focus, through the sensitivity resolution / SFR10 (GUM 5.1.3); and the FOV's tolerance, the resolution
+    being the sensor's angular resolution FOV / pixels over the SFR10, so proportional to the FOV angle of its
+    ``axis`` (0: horizontal, 1: vertical). Empty (not estimated) where the jackknife is not."""
+    if not math.isfinite(u_deg):
+        return ()
+    return (Component("frames: delete-a-group jackknife of the SFR10 at best focus (Type A)", u_deg),
+            *fov_components(lambda h, v: resolution_deg * (h, v)[axis] / fov_deg[axis], fov_deg))
 
 
 def _position_budget(spacing_mm: float) -> tuple[Component, ...]:
@@ -385,7 +398,8 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         hashes = stack.enter_context(BackgroundHashes([r.path for r in readers]))
         cam = readers[0].camera
         evaluation.figures["pixel_aspect_distortion_pct"] = FigureValue(
-            pixel_aspect_distortion_pct(cam.fov_deg[0], cam.fov_deg[1], cam.width, cam.height), []
+            pixel_aspect_distortion_pct(cam.fov_deg[0], cam.fov_deg[1], cam.width, cam.height), [],
+            fov_components(lambda h, v: pixel_aspect_distortion_pct(h, v, cam.width, cam.height), cam.fov_deg),
         )
         for reader in readers:
             if reader.attrs.get("status") != "complete":

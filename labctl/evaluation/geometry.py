@@ -32,7 +32,7 @@ from drivers.protocols import CameraInfo
 from labctl.evaluation.keyfigures import FigureValue
 from labctl.evaluation.uncertainty import tile_size
 from labctl.run.store import StepRecord
-from metrics.boehler import BoehlerResult, analyze_boehler
+from metrics.boehler import BoehlerResult, analyze_boehler, angular_resolution_u_deg
 from metrics.distortion import (
     CloudDistortion,
     Corners,
@@ -299,7 +299,8 @@ def _xy_figures(xy: XYErrors, u: XYUncertainty | None, tile_mm: float, src: list
 def figure_values(result: GeometryResult) -> dict[str, FigureValue]:
     """Key figures (docs/keyfigures.md) with their source steps and uncertainty budgets (the radial distortion
     and x/y trueness figures': the jackknife of the stack; x/y accuracy: its spread over the frames; those of
-    x/y on the checkerboard with the tile size's component; the x/y noise figures' their own)."""
+    x/y on the checkerboard with the tile size's component; the x/y noise figures' their own; the cloud
+    resolution's: its ring width, :func:`metrics.boehler.angular_resolution_u_deg`)."""
     figures: dict[str, FigureValue] = {}
     board = result.checkerboard
     if board is not None:
@@ -319,8 +320,12 @@ def figure_values(result: GeometryResult) -> dict[str, FigureValue]:
             figures.update(_xy_figures(board.xy, board.xy_uncertainty, board.tile_mm, src))
     if result.chosen_star is not None:
         star = result.chosen_star
-        figures["cloud_resolution_h_deg"] = FigureValue(star.result.angular_h_deg, [star.step_id])
-        figures["cloud_resolution_v_deg"] = FigureValue(star.result.angular_v_deg, [star.step_id])
+        for axis in "hv":
+            u = angular_resolution_u_deg(star.result, axis)
+            budget = (Component(f"ring width {star.result.ring_width_mm:g} mm: resolution of the figure (Type B)",
+                                u),) if math.isfinite(u) else ()
+            figures[f"cloud_resolution_{axis}_deg"] = FigureValue(getattr(star.result, f"angular_{axis}_deg"),
+                                                                  [star.step_id], budget)
     if result.precision:
         ids = [sid for sid, _, _ in result.precision]
         for i, axis in enumerate("xy"):

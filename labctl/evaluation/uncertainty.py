@@ -13,7 +13,10 @@ Type B components (GUM 4.3) from what the lab's instruments state, in mm of the 
 * the tolerance of ``devices.camera.depth_origin_offset_mm`` (``DEPTH_ORIGIN_TOLERANCE_MM``, rectangular), for the
   figures measured against the absolute reference;
 * the checkerboard's tile size (``TILE_TOLERANCE_MM``, rectangular), the reference of the x/y trueness and
-  accuracy.
+  accuracy;
+* the camera's field of view (``FOV_TOLERANCE_DEG`` on each of its two angles, rectangular), from which the
+  figures that count pixels per angle take the sensor's angular resolution (pixel aspect, intensity resolution,
+  inter-eye distance), through each figure's sensitivity to the angle (:func:`fov_components`).
 
 The reference's uncertainty is not estimated (the budget is empty, the figure's uncertainty null) where the
 reference is the stage's nominal distance or the offset was given in the campaign instead of calibrated.
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -38,6 +41,11 @@ from metrics.uncertainty import Component, from_multiple, rectangular, standard_
 DEPTH_ORIGIN_TOLERANCE_MM = 1.0
 #: assumed tolerance (+-, mm) of a checkerboard tile against the campaign's tile_mm: the campaign states none
 TILE_TOLERANCE_MM = 0.1
+#: assumed tolerance (+-, deg) of each angle of the camera's field of view (``/camera`` ``fov_deg``): datasheets
+#: state the FOV in whole degrees and no tolerance, so its last digit is the least it is known to (GUM F.2.2.1)
+FOV_TOLERANCE_DEG = 0.5
+#: step (deg) of the central differences that give a figure's sensitivity to a FOV angle (GUM 5.1.3)
+FOV_STEP_DEG = 0.01
 
 
 def laser_readings(attrs: Mapping[str, Any]) -> int:
@@ -100,3 +108,20 @@ def tile_size(tile_mm: float) -> Component:
     """The component (mm) of a checkerboard tile of nominal ``tile_mm``: the assumed tolerance
     ``TILE_TOLERANCE_MM`` as a bound, rectangular (GUM 4.3.7); the caller scales it by the figure's sensitivity."""
     return Component(f"tile size {tile_mm:g} mm: tolerance (assumed, rectangular)", rectangular(TILE_TOLERANCE_MM))
+
+
+def fov_components(figure: Callable[[float, float], float], fov_deg: tuple[float, float]) -> tuple[Component, ...]:
+    """The components of a figure computed from the field of view ``fov_deg`` (horizontal, vertical) by
+    ``figure(fov_h, fov_v)``: each angle's assumed tolerance ``FOV_TOLERANCE_DEG`` as a bound, rectangular (GUM
+    4.3.7), times the figure's sensitivity to that angle by central differences of ``FOV_STEP_DEG`` (GUM 5.1.3);
+    an angle the figure does not depend on gives no component."""
+    h, v = fov_deg
+    u = rectangular(FOV_TOLERANCE_DEG)
+    out = []
+    for axis, plus, minus in (("horizontal", (h + FOV_STEP_DEG, v), (h - FOV_STEP_DEG, v)),
+                              ("vertical", (h, v + FOV_STEP_DEG), (h, v - FOV_STEP_DEG))):
+        sensitivity = (figure(*plus) - figure(*minus)) / (2 * FOV_STEP_DEG)
+        if sensitivity != 0.0 and math.isfinite(sensitivity):
+            out.append(Component(f"FOV {axis}: +-{FOV_TOLERANCE_DEG:g} deg (assumed, rectangular)",
+                                 u * abs(sensitivity)))
+    return tuple(out)

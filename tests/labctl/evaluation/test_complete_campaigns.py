@@ -156,7 +156,9 @@ def test_hyperfocal_and_face_depth_uncertainties(complete):
             if evaluation.sharpness.focus_warning is None else best == ())
     for name in ("ied_pixels_at_hyperfocal", "ied_pixels_at_hyperfocal_angular"):
         figure = evaluation.figures[name]
-        assert combined_standard_uncertainty(figure.budget) == pytest.approx(figure.value * u_h / hyperfocal.value)
+        spacing, fov = figure.budget  # the hyperfocal distance's, and the horizontal FOV's (the count's own)
+        assert spacing.value == pytest.approx(figure.value * u_h / hyperfocal.value)
+        assert fov.name.startswith("FOV horizontal") and 0 < fov.value < spacing.value
 
     with RunReader(run) as reader:
         walls = [s for s in reader.steps("depth_sweep") if s.attrs["reference_distance_mm"] >= hyperfocal.value]
@@ -202,7 +204,8 @@ def test_xy_noise_figures_state_their_uncertainty(complete):
 def test_surface_resolution_and_checkerboard_figures_state_their_uncertainty(complete):
     """The surface Sq, the intensity resolutions (jackknife over the 4 frames of the best-focus position) and the
     x/y trueness and accuracy on the checkerboard (with the tile size's component) state a standard uncertainty
-    above 0 and below the figure; the Boehler star's resolution states none (docs/keyfigures.md, Uncertainty)."""
+    above 0 and below the figure; so does the Boehler star's resolution where it is not clamped to the sensor's,
+    from its ring width alone (docs/keyfigures.md, Uncertainty)."""
     camera, _, _, evaluation = complete
     names = ("surface_primary_sq_mm", "surface_waviness_sq_mm", "surface_roughness_sq_mm",
              "intensity_resolution_h_deg", "intensity_resolution_v_deg",
@@ -214,7 +217,14 @@ def test_surface_resolution_and_checkerboard_figures_state_their_uncertainty(com
     for axis in "xy":
         for kind in ("trueness", "accuracy"):
             assert evaluation.figures[f"{axis}_{kind}_q90_mm"].budget[-1].name.startswith("tile size"), (camera, axis)
-    assert all(not evaluation.figures[f"cloud_resolution_{o}_deg"].budget for o in "hv")
+    star = evaluation.geometry.chosen_star.result
+    for o in "hv":
+        budget = evaluation.figures[f"cloud_resolution_{o}_deg"].budget
+        if getattr(star, f"clamped_{o}"):
+            assert budget == (), (camera, o)
+        else:
+            (ring,) = budget
+            assert ring.name.startswith("ring width") and 0 < ring.value < getattr(star, f"angular_{o}_deg")
 
 
 def test_geometry_figures_of_an_undistorted_camera(complete):

@@ -11,6 +11,9 @@ deviation over the seeds.
 One position: the figure is taken at best focus, and a sweep whose best position changed from seed to seed
 would make the figure jump between positions, a choice no uncertainty of one position's SFR covers. 160 x 120
 px at 600 mm and 20 frames (ten groups of two) keep a seed's run and evaluation under a second.
+
+The FOV's tolerance is the same in every seed (the camera's FOV does not change), so its components cannot show
+in the spread and are left out of U here; they are in the figures' budgets all the same (docs/keyfigures.md).
 """
 
 from __future__ import annotations
@@ -32,12 +35,14 @@ step_mm = 100
 frames = 20
 """
 FIGURES = ("intensity_resolution_h_deg", "intensity_resolution_v_deg")
+#: the components that stand for an error the same in every seed
+FIXED = ("FOV ",)
 
 
 @pytest.fixture(scope="module")
 def figures(tmp_path_factory) -> dict[str, np.ndarray]:
     """Per figure, (value, u) of every seed."""
-    return figures_over_seeds(tmp_path_factory.mktemp("seeds"), EDGE, FIGURES, SEEDS, (160, 120))
+    return figures_over_seeds(tmp_path_factory.mktemp("seeds"), EDGE, FIGURES, SEEDS, (160, 120), FIXED)
 
 
 @pytest.mark.parametrize("name", FIGURES)
