@@ -103,6 +103,14 @@ class Context:
             self._stacks["points"] = np.stack([self.z_rows_of_map(rays[i]) * ranges for i in range(3)])
         return self._stacks["points"]
 
+    def distinct_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The distinct columns of ``points`` (steps that see the same surface where they share a bin: a plate
+        of each material at one robot angle) and the index of each depth row's point among them (cached)."""
+        if "distinct" not in self._stacks:
+            distinct, inverse = np.unique(self.points(), axis=1, return_inverse=True)
+            self._stacks["distinct"], self._stacks["inverse"] = distinct, inverse.ravel()
+        return self._stacks["distinct"], self._stacks["inverse"]
+
     def per_step(self, values: np.ndarray) -> np.ndarray:
         """One value per step spread over that step's depth rows."""
         return np.asarray(values)[self.lay.z_step]
@@ -518,9 +526,11 @@ DIFFUSE_DISTANCES = 12
 
 
 def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray, str, float], np.ndarray],
-                     distances: int) -> Candidate:
+                     distances: int, pointwise: bool = False) -> Candidate:
     """The candidate of a bounce off a plane: ``first_order(ctx, points, plane, distance)`` is the range change per
-    unit of the linear parameter at the rows' points, searched at ``distances`` distances per plane."""
+    unit of the linear parameter at the rows' points, searched at ``distances`` distances per plane. A
+    ``pointwise`` first order (compiled, each point on its own: the same value wherever the point sits in the
+    array) is evaluated once per distinct point (``Context.distinct_points``)."""
     plane_key, distance_key, linear_key = effect.observed.fitted
     planes = typing.get_args(effect.params.model_fields[plane_key].annotation)
     d_lo, d_hi = bounds(effect, distance_key)
@@ -531,7 +541,12 @@ def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray,
 
     def columns(ctx: Context, where: Any) -> list[Column]:
         plane, distance = where
-        return [_depth(ctx, first_order(ctx, ctx.points(), plane, distance) * ctx.z_rows("z_per_range"))]
+        if pointwise:
+            distinct, inverse = ctx.distinct_points()
+            change = first_order(ctx, distinct, plane, distance)[inverse]
+        else:
+            change = first_order(ctx, ctx.points(), plane, distance)
+        return [_depth(ctx, change * ctx.z_rows("z_per_range"))]
 
     def to_params(ctx: Context, c: np.ndarray, where: Any) -> Parameters | None:
         plane, distance = where
@@ -577,7 +592,7 @@ def _plane_phasor(effect: Effect) -> Candidate:
         sensor = ctx.make_predictor(ctx.model).sensor
         return phasor(*points, plane, distance, sensor, nodes=SIGNATURE_NODES).imag / sensor.wavenumber
 
-    return _plane_candidate(effect, first_order, DIFFUSE_DISTANCES)
+    return _plane_candidate(effect, first_order, DIFFUSE_DISTANCES, pointwise=True)
 
 
 # periodic_disparity: dz = -z^2 / (f b) * (a sin(2 pi d / P) + b cos(2 pi d / P)), d = f b / z in the matcher's

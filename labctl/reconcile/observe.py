@@ -38,7 +38,10 @@ from typing import Any
 
 import numpy as np
 
+from labctl.evaluation.read_ahead import read_ahead
+from labctl.reconcile.bin_noise import bin_noise
 from labctl.reconcile.results import ExcludedStep
+from labctl.reconcile.serial import serial_kernels
 from labctl.run.store import RunReader, StepRecord, finite_or_none
 from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
@@ -138,30 +141,14 @@ def bin_mean(values: np.ndarray, bin_px: int) -> tuple[np.ndarray, np.ndarray]:
     return mean, count
 
 
-def _bins(values: np.ndarray, bin_px: int) -> np.ndarray:
-    """(..., H, W) -> (..., h, w, bin_px^2): the pixels of every bin (image cropped to whole bins)."""
-    *lead, height, width = values.shape
-    h, w = height // bin_px, width // bin_px
-    v = values[..., :h * bin_px, :w * bin_px].reshape(*lead, h, bin_px, w, bin_px)
-    return np.moveaxis(v, -3, -2).reshape(*lead, h, w, bin_px * bin_px)
-
-
 def noise_statistics(z: np.ndarray, bin_px: int) -> tuple[np.ndarray, ...]:
     """Per bin of an (n, H, W) depth stack: the pooled temporal std, its degrees of freedom, the valid
     fraction of the pixel-frames, the correlation ratio, and its two sums (the variance of the frame's bin
-    mean and the per-pixel variance / m, for pooling)."""
+    mean and the per-pixel variance / m, for pooling). The sums over the stack are one compiled pass
+    (labctl/reconcile/bin_noise.py)."""
     n = z.shape[0]
-    pixels = _bins(z.astype(float), bin_px)  # (n, h, w, m)
-    finite = np.isfinite(pixels)
-    valid_rate = finite.mean(axis=(0, 3))
-    full = finite.all(axis=0)  # (h, w, m): valid in every frame
-    m = full.sum(axis=-1)
-    deviation = np.where(full, pixels - np.where(full, pixels, 0.0).mean(axis=0), 0.0)
+    m, mean_var, between, valid_rate = bin_noise(np.ascontiguousarray(z), bin_px)
     with np.errstate(invalid="ignore", divide="ignore"):
-        pixel_var = (deviation**2).sum(axis=0) / max(n - 1, 1)  # (h, w, m), 0 where not full
-        mean_var = pixel_var.sum(axis=-1) / m
-        frame_mean = deviation.sum(axis=-1) / m  # (n, h, w)
-        between = (frame_mean**2).sum(axis=0) / max(n - 1, 1)
         ok = (m >= 2) & (n >= 2) & (mean_var > 0)
         independent = np.where(ok, mean_var / m, np.nan)
         between = np.where(ok, between, np.nan)
@@ -180,18 +167,33 @@ def _pooled_ratio(between: np.ndarray, independent: np.ndarray) -> np.ndarray:
         return np.where(si > 0, sb / si, step)
 
 
-def observe(step: StepRecord, scene: StepScene, bin_px: int, max_frames: int = MAX_FRAMES) -> Observation:
-    """Binned stack statistics of one step from its first ``max_frames`` frames."""
+@dataclass(frozen=True)
+class StepStack:
+    """What the observation of a step reads of it: its first frames of z and intensity, and their times."""
+
+    z: np.ndarray  # (n, H, W)
+    intensity: np.ndarray  # (n, H, W) float32
+    times_s: np.ndarray  # (n,) device time, s (empty when the step has none)
+
+
+def read_stack(step: StepRecord, max_frames: int = MAX_FRAMES) -> StepStack:
+    """The step's first ``max_frames`` frames of z and intensity and their times."""
     n = min(int(step.group["z"].shape[0]), max_frames)
-    z_stack = step.group["z"][:n]
-    z_stats = stack_stats(z_stack)
-    i_stats = stack_stats(step.group["intensity"][:n].astype(np.float32))
+    times = np.asarray(step.group["timestamp"][:n], float) if "timestamp" in step.group else np.zeros(0)
+    return StepStack(step.group["z"][:n], step.group["intensity"][:n].astype(np.float32), times)
+
+
+def observe(scene: StepScene, stack: StepStack, bin_px: int) -> Observation:
+    """Binned stack statistics of one step from its frames ``stack`` (``read_stack``)."""
+    n = stack.z.shape[0]
+    z_stats = stack_stats(stack.z)
+    i_stats = stack_stats(stack.intensity)
     z_mean, count = bin_mean(z_stats.mean, bin_px)
     per_pixel_var = np.where(z_stats.valid, z_stats.std**2 / np.maximum(z_stats.count, 1), np.nan)
     var_sum, _ = bin_mean(per_pixel_var, bin_px)
     valid_fraction = count / float(bin_px * bin_px)
     keep = valid_fraction >= 0.5
-    noise, dof, valid_rate, correlation, between, independent = noise_statistics(z_stack, bin_px)
+    noise, dof, valid_rate, correlation, between, independent = noise_statistics(stack.z, bin_px)
     pooled = _pooled_ratio(between, independent)
     with np.errstate(invalid="ignore", divide="ignore"):
         z_var = np.where(keep, var_sum / np.maximum(count, 1) * pooled, np.nan)
@@ -199,8 +201,7 @@ def observe(step: StepRecord, scene: StepScene, bin_px: int, max_frames: int = M
     i_var_sum, _ = bin_mean(np.where(i_stats.valid, i_stats.std**2 / np.maximum(i_stats.count, 1), np.nan), bin_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         i_var = i_var_sum / np.maximum(i_count, 1)
-    times = np.asarray(step.group["timestamp"][:n], float) if "timestamp" in step.group else np.zeros(0)
-    return Observation(scene, np.where(keep, z_mean, np.nan), z_var, i_mean, i_var, valid_fraction, times,
+    return Observation(scene, np.where(keep, z_mean, np.nan), z_var, i_mean, i_var, valid_fraction, stack.times_s,
                        noise, dof / np.maximum(pooled, 1.0), valid_rate, correlation, n, bin_px)
 
 
@@ -215,12 +216,15 @@ def choose_bin(width: int, height: int, target_width: int = 48) -> int:
 def observe_run(path: str | Path, bin_px: int | None = None,
                 max_frames: int = MAX_FRAMES) -> tuple[list[Observation], dict[str, Any], list[str]]:
     """Observations of every re-creatable step, the camera description (``skipped``: the steps left out, with
-    the reason), and notes on skipped steps."""
+    the reason), and notes on skipped steps. Each step's frames are read while the one before is reduced
+    (``read_ahead``: HDF5's reading and decompression on one core, the compiled statistics on one thread on the
+    other: ``serial_kernels``)."""
     notes: list[str] = []
     with RunReader(path) as run:
         camera = run.camera
         bin_px = bin_px or choose_bin(camera.width, camera.height)
-        observations = []
+        scenes: dict[str, StepScene] = {}
+        comparable = []
         skipped = []
         for step in run.steps():
             scene = step_scene(step)
@@ -229,7 +233,11 @@ def observe_run(path: str | Path, bin_px: int | None = None,
                 notes.append(f"{step.step_id}: {why}; skipped")
                 skipped.append(ExcludedStep(step=step.step_id, family="all", reason=why))
                 continue
-            observations.append(observe(step, scene, bin_px, max_frames))
+            scenes[step.step_id] = scene
+            comparable.append(step)
+        with serial_kernels():
+            observations = [observe(scenes[step.step_id], stack, bin_px)
+                            for step, stack in read_ahead(comparable, lambda step: read_stack(step, max_frames))]
         info = {
             "width": camera.width, "height": camera.height, "fov_deg": list(camera.fov_deg),
             "bin_px": bin_px, "backend": run.devices.get("camera", {}).get("backend", ""),

@@ -28,13 +28,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
-import numba
 import numpy as np
 from scipy import ndimage
 
@@ -47,6 +45,7 @@ from labctl.reconcile.noise_model import (
     tof_statistics,
 )
 from labctl.reconcile.observe import Observation, StepScene, bin_mean
+from labctl.reconcile.serial import serial_kernels
 from metrics.stack import central_roi
 from sim.effects import (
     EFFECTS,
@@ -343,22 +342,6 @@ class Predictor:
         p = self.profile
         return z + drift_mm + stored_depth_bias(z, sigma_d, p.disparity_step_px, self.sensor.matching_focal_baseline,
                                                 output_step_mm(self.effects), drift_mm, self.bin_px)
-
-
-@contextmanager
-def serial_kernels() -> Iterator[None]:
-    """The compiled parallel kernels (the renderer's ray casting and aggregation) on one thread within the block.
-
-    A render at the bin grid has a few thousand rays: starting and joining the kernels' thread team costs more
-    than the work it shares out, the more so when other work holds the cores (a bin-grid render of the
-    blaze-101 took 28 ms on 2 threads against 0.4 ms on one at a load average of 3). Each ray is computed
-    alone, so the result is the same on any number of threads."""
-    threads = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(threads)
 
 
 def _overlap(region: slice, bins: int, bin_px: int) -> np.ndarray:

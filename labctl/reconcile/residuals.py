@@ -107,8 +107,16 @@ class Layout:
         return np.concatenate([self.stack_family(f, maps[f]) if f in maps else np.zeros(len(self.s_step.get(f, [])))
                                for f in STATISTICS])
 
-    def _s_weight(self) -> np.ndarray:
-        return np.concatenate([self.s_weight.get(f, np.zeros(0)) for f in STATISTICS])
+    @cached_property
+    def _whitening(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """sqrt of the weights of the depth, intensity and statistics rows (``profiled_rows``)."""
+        s_weight = np.concatenate([self.s_weight.get(f, np.zeros(0)) for f in STATISTICS])
+        return np.sqrt(self.z_weight), np.sqrt(self.i_weight), np.sqrt(s_weight)
+
+    @cached_property
+    def _i_weight_sums(self) -> np.ndarray:
+        """Each step's sum of its intensity rows' weights (``profile_i``)."""
+        return np.maximum(np.bincount(self.i_step, self.i_weight, self.n_steps), 1e-300)
 
     def stack_z(self, maps: list[np.ndarray]) -> np.ndarray:
         return np.concatenate([m[k] for m, k in zip(maps, self.z_masks, strict=True)]) if maps else np.zeros(0)
@@ -152,9 +160,7 @@ class Layout:
         """``v`` minus its weighted mean per step (each step's unknown gain)."""
         if not len(v):
             return v
-        n = self.n_steps
-        wsum = np.bincount(self.i_step, self.i_weight, n)
-        mean = np.bincount(self.i_step, self.i_weight * v, n) / np.maximum(wsum, 1e-300)
+        mean = np.bincount(self.i_step, self.i_weight * v, self.n_steps) / self._i_weight_sums
         return v - mean[self.i_step]
 
     def profiled(self, dz: list[np.ndarray], di: list[np.ndarray],
@@ -166,14 +172,19 @@ class Layout:
     def profiled_rows(self, z_rows: np.ndarray, i_rows: np.ndarray, s_rows: np.ndarray | None = None) -> np.ndarray:
         """Stacked depth, intensity and statistics rows (``stack_statistics``; zero when not given) with the
         nuisance profiled out, whitened (sqrt weight)."""
-        weight = self._s_weight()
-        s_rows = np.zeros(len(weight)) if s_rows is None else s_rows
-        return np.concatenate([self.profile_z(z_rows) * np.sqrt(self.z_weight),
-                               self.profile_i(i_rows) * np.sqrt(self.i_weight), s_rows * np.sqrt(weight)])
+        z_root, i_root, s_root = self._whitening
+        s_rows = np.zeros(len(s_root)) if s_rows is None else s_rows
+        return np.concatenate([self.profile_z(z_rows) * z_root, self.profile_i(i_rows) * i_root, s_rows * s_root])
 
     def row_steps(self) -> np.ndarray:
         """Step number of every row of ``profiled``."""
         return np.concatenate([self.z_step, self.i_step, *(self.s_step.get(f, np.zeros(0, int)) for f in STATISTICS)])
+
+    def family_rows(self) -> list[slice]:
+        """The rows of ``profiled`` of each family, in ``FAMILIES`` order (each family's rows are contiguous)."""
+        sizes = [len(self.z_step), len(self.i_step), *(len(self.s_step.get(f, ())) for f in STATISTICS)]
+        edges = np.cumsum([0, *sizes])
+        return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
     def row_cells(self) -> np.ndarray:
         """(step, family) cell of every row of ``profiled``: F s + f, f the family's place in ``FAMILIES``."""

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from labctl.reconcile.candidates import Candidate, Context
-from labctl.reconcile.residuals import Layout
+from labctl.reconcile.residuals import FAMILIES, Layout
 from labctl.reconcile.results import Parameters
 
 
@@ -51,6 +51,21 @@ def delta_bic(rss0: np.ndarray, rss1: np.ndarray, n_params: int, n_steps: int) -
     if n_steps < 2:
         return -math.inf
     return float(np.sum(np.log(rss0[used] / np.maximum(rss1[used], 1e-300)))) - n_params * math.log(n_steps)
+
+
+def cell_rss(r: np.ndarray, fitted: np.ndarray, columns: np.ndarray, rss0: np.ndarray, lay: Layout,
+             steps: np.ndarray) -> np.ndarray:
+    """The RSS of ``r - fitted`` per (step, family) cell (``Layout.row_cells``), ``fitted`` being ``columns`` times
+    finite coefficients. A family whose rows the columns leave at zero keeps its cells of ``rss0`` (the RSS of
+    ``r``: r - 0 is r), and the others are summed over their own rows only, in the same order, so that the
+    result is the same as summing over all rows."""
+    out = rss0.copy()
+    families = len(FAMILIES)
+    for k, rows in enumerate(lay.family_rows()):
+        if np.any(columns[rows]):
+            rest = r[rows] - fitted[rows]
+            out[k::families] = np.bincount(steps[rows], rest * rest, lay.n_steps)
+    return out
 
 
 def loso_gain(columns: np.ndarray, r: np.ndarray, steps: np.ndarray, n_steps: int) -> float:
@@ -91,8 +106,12 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray) -> Fit
         params = candidate.to_params(ctx, coef, nonlinear)
         if params is None:
             continue
-        rest = r - columns @ coef
-        value = delta_bic(rss0, np.bincount(cells, rest * rest, lay.n_cells), candidate.n_params, n)
+        fitted = columns @ coef
+        if np.all(np.isfinite(coef)):
+            rss1 = cell_rss(r, fitted, columns, rss0, lay, steps)
+        else:  # 0 times an infinite coefficient is NaN: every row changes
+            rss1 = np.bincount(cells, (r - fitted) ** 2, lay.n_cells)
+        value = delta_bic(rss0, rss1, candidate.n_params, n)
         if best is None or value > best[0]:
             best = (value, coef, columns, params)
     if best is None:
