@@ -49,6 +49,7 @@ from labctl.evaluation.suitability import (
 from labctl.evaluation.uncertainty import calibrated_reference, offset_calibration, scaled
 from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
+from labctl.kernel_threads import kernel_threads_beside
 from labctl.run.store import RunReader, StepRecord
 from metrics.depth import (
     DepthErrors,
@@ -72,6 +73,8 @@ KEY_DISTANCE_TOLERANCE_MM = 150.0
 SURFACE_GROUPS = 10
 #: the budget component of the surface Sq figures
 SURFACE_COMPONENT = "frames: delete-a-group jackknife of the stack (Type A)"
+#: the threads busy beside the depth sweep's compiled kernels: the read-ahead and the run files' hash
+SWEEP_BACKGROUND_THREADS = 2
 
 
 @dataclass(frozen=True)
@@ -158,6 +161,7 @@ class _SurfaceInputs:
     z_left_out: np.ndarray | None
 
 
+@kernel_threads_beside(SWEEP_BACKGROUND_THREADS)
 def evaluate_depth_sweep(
     steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None],
     calibration: StepRecord | None = None, xy_noise: bool = False,
@@ -169,7 +173,8 @@ def evaluate_depth_sweep(
 
     Each step's arrays are read once, one step ahead of their evaluation (labctl/evaluation/read_ahead.py): z
     where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
-    frames."""
+    frames. The compiled kernels leave a core each to the read-ahead and the run files' hash
+    (labctl/kernel_threads.py)."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
         evaluation.notes.append(
