@@ -31,7 +31,7 @@ from labctl.evaluation.geometry import GeometryResult, evaluate_geometry, precis
 from labctl.evaluation.geometry import figure_values as geometry_figures
 from labctl.evaluation.keyfigures import CameraDescription, FigureValue, clean, standard_uncertainty
 from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flags
-from labctl.evaluation.read_ahead import read_ahead
+from labctl.evaluation.read_ahead import SLOTS, read_ahead
 from labctl.evaluation.remission import RemissionResult, evaluate_remission
 from labctl.evaluation.remission import figure_values as remission_figures
 from labctl.evaluation.scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
@@ -173,8 +173,9 @@ def evaluate_depth_sweep(
 
     Each step's arrays are read once, one step ahead of their evaluation (labctl/evaluation/read_ahead.py): z
     where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
-    frames. The compiled kernels leave a core each to the read-ahead and the run files' hash
-    (labctl/kernel_threads.py)."""
+    frames, the stacks into the buffers of the step two before (nothing of a step's arrays is kept past its turn
+    but what is computed from them). The compiled kernels leave a core each to the read-ahead and the run files'
+    hash (labctl/kernel_threads.py)."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
         evaluation.notes.append(
@@ -186,11 +187,18 @@ def evaluate_depth_sweep(
     with_z = {id(s) for s in usable}
     noise_key = precision_key(steps) if xy_noise else None
 
-    def load(rec: StepRecord) -> dict[str, np.ndarray]:
+    buffers: list[dict[str, np.ndarray]] = [{} for _ in range(SLOTS)]  # per read-ahead slot, the stacks read
+
+    def load(rec: StepRecord, slot: int) -> dict[str, np.ndarray]:
         whole = xy_noise or rec is key
-        arrays = {c: rec.read(c) if whole else rec.group[c][:1] for c in ("x", "y")}
+
+        def stack(channel: str) -> np.ndarray:
+            buffers[slot][channel] = rec.read(channel, buffers[slot].get(channel))
+            return buffers[slot][channel]
+
+        arrays = {c: stack(c) if whole else rec.group[c][:1] for c in ("x", "y")}
         if id(rec) in with_z:
-            arrays["z"] = rec.read("z")
+            arrays["z"] = stack("z")
         return arrays
 
     noise: list[tuple[str, float, XYPrecision]] = []
