@@ -31,7 +31,7 @@ from labctl.evaluation.geometry import GeometryResult, evaluate_geometry, precis
 from labctl.evaluation.geometry import figure_values as geometry_figures
 from labctl.evaluation.keyfigures import CameraDescription, FigureValue, clean, standard_uncertainty
 from labctl.evaluation.plausibility import PlausibilityInputs, plausibility_flags
-from labctl.evaluation.read_ahead import read_ahead
+from labctl.evaluation.read_ahead import SLOTS, read_ahead
 from labctl.evaluation.remission import RemissionResult, evaluate_remission
 from labctl.evaluation.remission import figure_values as remission_figures
 from labctl.evaluation.scenes import AlignmentRecord, FaceMaskResult, alignment, face_mask
@@ -49,6 +49,7 @@ from labctl.evaluation.suitability import (
 from labctl.evaluation.uncertainty import calibrated_reference, fov_components, offset_calibration, scaled
 from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
+from labctl.kernel_threads import kernel_threads_beside
 from labctl.run.store import RunReader, StepRecord
 from metrics.depth import (
     DepthErrors,
@@ -73,6 +74,8 @@ KEY_DISTANCE_TOLERANCE_MM = 150.0
 SURFACE_GROUPS = 10
 #: the budget component of the surface Sq figures
 SURFACE_COMPONENT = "frames: delete-a-group jackknife of the stack (Type A)"
+#: the threads busy beside the depth sweep's compiled kernels: the read-ahead and the run files' hash
+SWEEP_BACKGROUND_THREADS = 2
 
 
 @dataclass(frozen=True)
@@ -159,6 +162,7 @@ class _SurfaceInputs:
     z_left_out: np.ndarray | None
 
 
+@kernel_threads_beside(SWEEP_BACKGROUND_THREADS)
 def evaluate_depth_sweep(
     steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None],
     calibration: StepRecord | None = None, xy_noise: bool = False,
@@ -170,7 +174,9 @@ def evaluate_depth_sweep(
 
     Each step's arrays are read once, one step ahead of their evaluation (labctl/evaluation/read_ahead.py): z
     where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
-    frames."""
+    frames, the stacks into the buffers of the step two before (nothing of a step's arrays is kept past its turn
+    but what is computed from them). The compiled kernels leave a core each to the read-ahead and the run files'
+    hash (labctl/kernel_threads.py)."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
         evaluation.notes.append(
@@ -182,11 +188,18 @@ def evaluate_depth_sweep(
     with_z = {id(s) for s in usable}
     noise_key = precision_key(steps) if xy_noise else None
 
-    def load(rec: StepRecord) -> dict[str, np.ndarray]:
+    buffers: list[dict[str, np.ndarray]] = [{} for _ in range(SLOTS)]  # per read-ahead slot, the stacks read
+
+    def load(rec: StepRecord, slot: int) -> dict[str, np.ndarray]:
         whole = xy_noise or rec is key
-        arrays = {c: rec.read(c) if whole else rec.group[c][:1] for c in ("x", "y")}
+
+        def stack(channel: str) -> np.ndarray:
+            buffers[slot][channel] = rec.read(channel, buffers[slot].get(channel))
+            return buffers[slot][channel]
+
+        arrays = {c: stack(c) if whole else rec.group[c][:1] for c in ("x", "y")}
         if id(rec) in with_z:
-            arrays["z"] = rec.read("z")
+            arrays["z"] = stack("z")
         return arrays
 
     noise: list[tuple[str, float, XYPrecision]] = []

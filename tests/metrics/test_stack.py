@@ -1,4 +1,5 @@
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -15,6 +16,48 @@ def test_mean_and_std_match_numpy_on_complete_stack():
     np.testing.assert_allclose(stats.mean, stack.astype(float).mean(0), rtol=0, atol=1e-9)
     np.testing.assert_allclose(stats.std, stack.astype(float).std(0, ddof=1), rtol=1e-10)
     assert stats.valid.all()
+
+
+def _sequential_moments(values: list[float]) -> tuple[int, float, float]:
+    """Valid count, mean and sum of squared deviations of one pixel's frames as stack_stats defines them (shifted by
+    the first valid value, float64 sums taken frame by frame in order), in plain Python floats."""
+    valid = [v for v in values if not math.isnan(v)]
+    if not valid:
+        return 0, math.nan, math.nan
+    s = ss = 0.0
+    for v in valid:
+        d = v - valid[0]
+        s += d
+        ss += d * d
+    return len(valid), valid[0] + s / len(valid), max(ss - s * s / len(valid), 0.0)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("frames", range(1, 10))
+def test_moments_match_numpy_and_frame_by_frame_sums_for_any_number_of_frames(frames, dtype):
+    """Every remainder of the kernel's four frames at a time, with invalid frames scattered and pixels valid in
+    none: counts and means as numpy's (nanmean, nanstd), and bit for bit the frame-by-frame sums."""
+    rng = np.random.default_rng(frames)
+    stack = rng.normal(1500.0, 2.0, (frames, 3, 11)).astype(dtype)
+    stack[rng.random(stack.shape) < 0.3] = np.nan
+    stack[:, 2, 10] = np.nan
+    stats = stack_stats(stack)
+    values = stack.astype(float)
+    count = np.isfinite(values).sum(axis=0)
+    np.testing.assert_array_equal(stats.count, count)
+    valid = (2 * count >= frames) & (count >= min(2, frames))
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0, ddof=1)
+    np.testing.assert_allclose(stats.mean[valid], mean[valid], rtol=1e-13)
+    np.testing.assert_allclose(stats.std[valid], std[valid], rtol=1e-9, atol=1e-12)
+    assert np.isnan(stats.mean[~valid]).all() and np.isnan(stats.std[~valid]).all()
+    for r in range(3):
+        for c in range(11):
+            n, m, m2 = _sequential_moments(values[:, r, c].tolist())
+            if valid[r, c]:
+                assert stats.mean[r, c] == m
+                assert stats.std[r, c] == math.sqrt(m2 / (n - 1)) if n > 1 else math.isnan(stats.std[r, c])
 
 
 def test_invalid_frames_are_ignored_per_pixel():
