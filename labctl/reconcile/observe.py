@@ -237,7 +237,7 @@ def observe_run(path: str | Path, bin_px: int | None = None,
             comparable.append(step)
         with serial_kernels():
             observations = [observe(scenes[step.step_id], stack, bin_px)
-                            for step, stack in read_ahead(comparable, lambda step: read_stack(step, max_frames))]
+                            for step, stack in read_ahead(comparable, lambda step, _slot: read_stack(step, max_frames))]
         info = {
             "width": camera.width, "height": camera.height, "fov_deg": list(camera.fov_deg),
             "bin_px": bin_px, "backend": run.devices.get("camera", {}).get("backend", ""),
