@@ -69,7 +69,8 @@ def main(seeds: int, effects: list[str], factor: float) -> int:
                 result = reconcile(run, null=base.rule)
                 hit = effect in [e.name for e in result.named]
                 named += hit
-                print(f"  seed {seed}: {hidden[effect]}: verdict {result.verdict}, named "
+                between = f" between {' and '.join(result.ambiguity.between)}" if result.ambiguity else ""
+                print(f"  seed {seed}: {hidden[effect]}: verdict {result.verdict}{between}, named "
                       f"{[e.name for e in result.named] or 'nothing'}{' (hit)' if hit else ''}", flush=True)
                 run.unlink()
             summary.append(f"{effect} at {factor:g} x its minimum detectable {detail.parameter} "
