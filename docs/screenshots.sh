@@ -56,7 +56,7 @@ shot "$DEMO_DIR/comparison/compare.html" "$OUT/compare.png" "$COMPARE_HEIGHT"
 
 # one section of a page (from its <h2> to the next): the whole page at 1400 px through chromedriver, cut
 "$PYTHON" - "$DEMO_DIR/d455/report.html" "$OUT/suitability_d455.png" "Suitability" <<'PY'
-import pathlib, shutil, sys, tempfile
+import os, pathlib, shutil, sys, tempfile
 from PIL import Image
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
@@ -69,7 +69,9 @@ if shutil.which("chromedriver") is None:
 options = webdriver.ChromeOptions()
 for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--window-size=1400,900"):
     options.add_argument(argument)
-driver = webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=options)
+scratch = tempfile.TemporaryDirectory()  # Chromium's own temporary directories, removed after
+driver = webdriver.Chrome(service=Service(shutil.which("chromedriver"), env={**os.environ, "TMPDIR": scratch.name}),
+                          options=options)
 try:
     driver.get(pathlib.Path(page).resolve().as_uri())
     top, bottom, height = driver.execute_script("""
@@ -85,6 +87,7 @@ try:
         image = Image.open(whole).convert("RGB")
 finally:
     driver.quit()
+    scratch.cleanup()
 image.crop((0, max(0, int(top) - 20), image.width, int(bottom))).quantize(256).save(output, optimize=True)
 print(output)
 PY
