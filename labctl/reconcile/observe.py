@@ -39,9 +39,9 @@ from typing import Any
 import numpy as np
 
 from labctl.evaluation.read_ahead import read_ahead
+from labctl.kernel_threads import serial_kernels
 from labctl.reconcile.bin_noise import bin_noise
 from labctl.reconcile.results import ExcludedStep
-from labctl.reconcile.serial import serial_kernels
 from labctl.run.store import RunReader, StepRecord, finite_or_none
 from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS

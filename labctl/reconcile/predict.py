@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
+from labctl.kernel_threads import serial_kernels
 from labctl.reconcile.noise_model import (
     disparity_noise_px,
     dot_window_stats,
@@ -45,7 +46,6 @@ from labctl.reconcile.noise_model import (
     tof_statistics,
 )
 from labctl.reconcile.observe import Observation, StepScene, bin_mean
-from labctl.reconcile.serial import serial_kernels
 from metrics.stack import central_roi
 from sim.effects import (
     EFFECTS,
