@@ -166,11 +166,12 @@ class _SurfaceInputs:
 def evaluate_depth_sweep(
     steps: Sequence[StepRecord], reader: RunReader, evaluation: Evaluation, progress: Callable[[str], None],
     calibration: StepRecord | None = None, xy_noise: bool = False,
-) -> list[tuple[str, float, XYPrecision]]:
+) -> list[tuple[str, float, XYPrecision]] | None:
     """Thesis 2024, 4.2 on the wall steps: curves over distance, key figures with their uncertainty budgets
     (``calibration``: the offset calibration the references rest on, None without one), surface at 2000 mm;
     the vendors' depth-quality figures at every distance. With ``xy_noise`` (the run has no ``xy_sweep``), the
-    x/y noise of every step too (:func:`~labctl.evaluation.geometry.wall_noise`), returned for the geometry.
+    x/y noise of every step too (:func:`~labctl.evaluation.geometry.wall_noise`), returned for the geometry (else
+    None).
 
     Each step's arrays are read once, one step ahead of their evaluation (labctl/evaluation/read_ahead.py): z
     where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
@@ -202,7 +203,7 @@ def evaluate_depth_sweep(
             arrays["z"] = stack("z")
         return arrays
 
-    noise: list[tuple[str, float, XYPrecision]] = []
+    noise: list[tuple[str, float, XYPrecision]] | None = [] if xy_noise else None
     surface: _SurfaceInputs | None = None
     for rec, arrays in read_ahead(steps if xy_noise else usable, load):
         progress(rec.step_id)
@@ -224,7 +225,7 @@ def evaluate_depth_sweep(
             if rec.step_id in vendor_keys:  # the steps the vendor key figures come from: their uncertainties too
                 position = with_uncertainties(position, rec, z, first_xy, reader.camera, evaluation.camera.model)
             evaluation.vendor.append(position)
-        if xy_noise:
+        if noise is not None:
             progress(f"{rec.step_id} x/y noise")
             noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key))
         del arrays
@@ -429,7 +430,6 @@ def evaluate_runs(paths: Sequence[str | Path], progress: Callable[[str], None] =
         if sweep:
             xy_noise = not any(s.attrs.get("procedure") == "xy_sweep" for s in geometric)  # noise_walls: the sweep's
             noise = evaluate_depth_sweep(sweep, readers[0], evaluation, progress, calibration, xy_noise)
-            noise = noise if xy_noise else None
         elif captures:
             evaluation.notes.append("capture steps only (no reference distance): the key figures are null; see "
                                     "the capture section for depth, noise, validity and the plane fit")
