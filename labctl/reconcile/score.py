@@ -29,6 +29,12 @@ from labctl.reconcile.candidates import Candidate, Context
 from labctl.reconcile.residuals import FAMILIES, Layout
 from labctl.reconcile.results import Parameters
 
+#: a runner-up within 10 of the winner's dBIC (Kass & Raftery 1995: a BIC difference above 10 is "very strong"
+#: evidence) cannot be told from it
+MARGIN = 10.0
+#: candidates whose fitted changes correlate at least this much explain the same part of the residual (set by hand)
+COMPETING_CORRELATION = 0.5
+
 
 @dataclass(frozen=True)
 class Fit:
@@ -42,6 +48,12 @@ class Fit:
     loso_gain: float  # 1 - held-out RSS with the effect / held-out RSS without it
     stderr: list[float]  # standard errors of the linear coefficients
     signature: np.ndarray  # fitted change of the whitened residual vector (S theta)
+
+
+def competing(a: Fit, b: Fit) -> bool:
+    """Whether two candidates explain the same part of the residual (their fitted changes correlate)."""
+    norm = float(np.linalg.norm(a.signature) * np.linalg.norm(b.signature))
+    return norm > 0 and abs(float(a.signature @ b.signature)) / norm >= COMPETING_CORRELATION
 
 
 def delta_bic(rss0: np.ndarray, rss1: np.ndarray, n_params: int, n_steps: int) -> float:

@@ -115,7 +115,7 @@ from labctl.reconcile.results import (
     SignificanceRule,
     Unexplained,
 )
-from labctl.reconcile.score import Fit, score
+from labctl.reconcile.score import MARGIN, Fit, competing, score
 from sim.effects import EFFECTS, default_effects
 from sim.model import SimModel, parse_model
 from sim.profiles import PROFILES, get_profile
@@ -123,11 +123,6 @@ from sim.profiles import PROFILES, get_profile
 #: without null runs (``--null-runs 0``): the largest dBIC of any candidate on 200 null runs of the test campaign
 #: was 3.87 (docs/reconcile.md, bench/reconcile_null.py); 30 keeps a wide margin above it
 DBIC_THRESHOLD = 30.0
-#: a runner-up within 10 of the winner's dBIC (Kass & Raftery 1995: a BIC difference above 10 is "very strong"
-#: evidence) cannot be told from it
-MARGIN = 10.0
-#: candidates whose fitted changes correlate at least this much explain the same part of the residual (set by hand)
-COMPETING_CORRELATION = 0.5
 #: at most this many effects per reconcile (set by hand: the tests hide at most two)
 MAX_EFFECTS = 4
 MIN_STEPS = 2  # steps are the replications: one step cannot separate an effect from the lab's nuisance
@@ -280,12 +275,6 @@ class Simulation:
     def predict(self, model: SimModel) -> list[Prediction]:
         """Every measured step as ``model`` predicts it (``Predictor.predict_run``)."""
         return self.predictor(model).predict_run(self.observations, self.t0_s)
-
-
-def competing(a: Fit, b: Fit) -> bool:
-    """Whether two candidates explain the same part of the residual (their fitted changes correlate)."""
-    norm = float(np.linalg.norm(a.signature) * np.linalg.norm(b.signature))
-    return norm > 0 and abs(float(a.signature @ b.signature)) / norm >= COMPETING_CORRELATION
 
 
 def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout,
