@@ -126,16 +126,22 @@ def standardized_max(pool: list[dict[str, float]]) -> list[float]:
     """For every member of ``pool`` (the measured run first, then the replicas) the largest of its statistics
     standardized by their mean and standard deviation over the pool; statistics some member lacks, or that do
     not vary, are left out."""
-    keys = sorted(set.intersection(*(set(p) for p in pool))) if pool else []
-    out = [-math.inf] * len(pool)
-    for key in keys:
-        values = np.array([p[key] for p in pool])
-        spread = float(values.std())
-        if not spread > 0:
-            continue
-        z = (values - values.mean()) / spread
-        out = [max(a, float(b)) for a, b in zip(out, z, strict=True)]
-    return out
+    if not pool:
+        return []
+    keys = sorted(set.intersection(*(set(p) for p in pool)))
+    values = np.array([[p[key] for key in keys] for p in pool], float).reshape(len(pool), len(keys))
+    return [float(v) for v in standardized_max_rows(values)]
+
+
+def standardized_max_rows(values: np.ndarray) -> np.ndarray:
+    """``standardized_max`` of arrays: ``values`` (..., members, statistics) gives (..., members); a statistic
+    that does not vary over the members, or is NaN in one, is left out (-inf where none is left)."""
+    by_statistic = np.ascontiguousarray(np.moveaxis(values, -1, -2))  # members last: reduced as one row each
+    with np.errstate(invalid="ignore", divide="ignore"):
+        spread = by_statistic.std(axis=-1, keepdims=True)
+        z = (by_statistic - by_statistic.mean(axis=-1, keepdims=True)) / spread
+    z = np.where(spread > 0, z, -np.inf)
+    return z.max(axis=-2) if values.shape[-1] else np.full(values.shape[:-1], -np.inf)
 
 
 @dataclass(frozen=True)
