@@ -21,21 +21,36 @@ to each null replica (labctl/reconcile/null.py) in thought:
   own null dBIC of the candidate and RSS_c its cell's residual sum of squares;
   the cross term of signal and noise adds a normal spread of variance
   sum_c 4 A^2 q_c / (n_c RSS_c) (n_c rows; each logarithm linearized). The
-  effect is named when dBIC(A) passes the critical value of the null replicas'
-  best dBIC.
+  effect must pass the critical value of the null replicas' best dBIC;
+* the margin over a competitor: another candidate C fits of the effect's change
+  u its projection w on C's signature columns (least squares, score.py), at the
+  point of C's grid where that projection is largest. The two compete
+  (``score.competing``) where the fitted changes correlate, |w| / |u| >=
+  ``COMPETING_CORRELATION``, and then C's dBIC falls short of the effect's by
+  what C cannot fit: dBIC(A) - dBIC_C(A) = dBIC_0 - dBIC_0,C + sum_c ln(1 + A^2
+  |u_c - w_c|^2 / RSS_c), with the spread of variance sum_c 4 A^2 |u_c - w_c|^2
+  / (n_c RSS_c) (the noise's cross with u - w). The effect is named only where
+  that exceeds ``MARGIN`` against every competitor, the workflow's ambiguity rule
+  (labctl/reconcile/workflow.py; the probabilities of passing the threshold and
+  the margin are multiplied, as if independent). A competitor whose signature
+  reproduces the effect's, |w| = |u|, leaves no amplitude at which it is named:
+  the effect is not separable from it in this campaign (``MinimumDetectable.
+  rival``).
 
 The detection probability at A is the mean over the replicas and over the
 effect's directions (both signs; a two-part signature, a wiggling's sine and
-cosine, at ``PHASES`` phases) of [outside the null] x P(dBIC(A) > critical
-value); the amplitude where it
+cosine, at ``PHASES`` phases; one sign where the effect's parameter is bounded
+at 0, an albedo or a level) of [outside the null] x P(dBIC(A) > critical
+value) x P(margin over every competitor); the amplitude where it
 reaches ``POWER`` is found by bisection, at ``GRID_POINTS`` points spread evenly
 over the candidate's grid of nonlinear parameters (a wiggling's period, a drift's
 time constant). The
 headline figure is the median over that grid; the detail gives the grid's
 range and the parameters of the median point. The dBIC's gain counts a
 two-part signature with its parts' mean power. What this does
-not model: the ambiguity margin against a competing candidate, the leave-one-step-
-out check and the materiality rule, which a named effect must pass as well; and
+not model: the separating steps' screen (labctl/reconcile/confounds.py), the
+leave-one-step-out check and the materiality rule, which a named effect must
+pass as well; and
 effects whose signature is built from the run's own residual (``fixed_pattern``)
 have no amplitude to state.
 """
@@ -50,9 +65,10 @@ import numpy as np
 from scipy.stats import norm
 
 from labctl.reconcile.candidates import Candidate, Context, candidates_for
-from labctl.reconcile.null import NullCalibration, critical_value, p_value, standardized_max
+from labctl.reconcile.null import NullCalibration, critical_value, p_value, standardized_max_rows
 from labctl.reconcile.residuals import STATISTICS, Layout
 from labctl.reconcile.results import MinimumDetectable
+from labctl.reconcile.score import COMPETING_CORRELATION, MARGIN
 
 #: the probability of naming the effect the figure promises (the contract's 90 %)
 POWER = 0.9
@@ -66,62 +82,117 @@ GRID_POINTS = 15
 PHASES = 8
 
 
-def _unit(candidate: Candidate, ctx: Context, nonlinear: Any, k: int, n: int) -> tuple[str, float] | None:
-    """The amplitude parameter column ``k`` of the candidate moves and by how much per unit coefficient (None when
-    the column moves no scalar parameter in proportion)."""
-    values = []
-    for scale in (PROBE, 2 * PROBE):
+def _unit(candidate: Candidate, ctx: Context, nonlinear: Any, k: int,
+          n: int) -> tuple[str, float, tuple[float, ...]] | None:
+    """The amplitude parameter column ``k`` of the candidate moves, by how much per unit coefficient, and the signs
+    of the coefficient the candidate accepts (one where the parameter is bounded at 0; None when the column moves
+    no scalar parameter in proportion)."""
+    def params(scale: float) -> Any:
         coef = np.zeros(n)
         coef[k] = scale
-        params = candidate.to_params(ctx, coef, nonlinear)
-        if params is None:
-            coef[k] = -scale
-            params = candidate.to_params(ctx, coef, nonlinear)
-        values.append(params)
-    if values[0] is None or values[1] is None:
+        return candidate.to_params(ctx, coef, nonlinear)
+
+    signs = tuple(sign for sign in (1.0, -1.0) if params(sign * PROBE) is not None)
+    if not signs:
+        return None
+    values = [params(signs[0] * scale) for scale in (PROBE, 2 * PROBE)]
+    if values[1] is None:
         return None
     for key, v in values[0].items():
         w = values[1].get(key)
         if isinstance(v, float) and isinstance(w, float) and v != 0 and math.isclose(w, 2 * v, rel_tol=1e-3):
-            return key, abs(v) / PROBE
+            return key, abs(v) / PROBE, signs
     return None
 
 
 class _Signal:
-    """A candidate's signature at one grid point per unit amplitude: its power per residual cell (averaged over its
-    parts), and per (step id, family) its unwhitened change, a map per part (a wiggling's sine and cosine are two
-    parts, most signatures one)."""
+    """A candidate's signature at one grid point per unit amplitude: its whitened, profiled rows per part ``u``
+    (parts, rows), its power per residual cell (averaged over its parts), per (step id, family) its unwhitened
+    change, a map per part (a wiggling's sine and cosine are two parts, most signatures one), and the signs its
+    amplitude may take."""
 
-    def __init__(self, q: np.ndarray, rows: np.ndarray, maps: dict[tuple[str, str], list[np.ndarray]]) -> None:
-        self.q, self.rows, self.maps = q, rows, maps
-        self.parts = len(next(iter(maps.values()))) if maps else 1
+    def __init__(self, u: np.ndarray, cells: np.ndarray, maps: dict[tuple[str, str], list[np.ndarray]],
+                 signs: tuple[float, ...]) -> None:
+        self.u, self.cells, self.maps, self.signs = u, cells, maps, signs
+        n_cells = int(cells.max()) + 1 if len(cells) else 0
+        self.q = np.mean([np.bincount(cells, w * w, n_cells) for w in u], axis=0)
+        self.rows = np.bincount(cells, minlength=n_cells)
+        self.parts = len(u)
+
+    def cell_gram(self, v: np.ndarray) -> np.ndarray:
+        """(cells, parts, parts): the products of the rows ``v`` (parts, rows) per residual cell."""
+        n_cells = len(self.rows)
+        return np.stack([np.stack([np.bincount(self.cells, a * b, n_cells) for b in v], -1) for a in v], -2)
 
 
 def _signal(candidate: Candidate, ctx: Context, lay: Layout, nonlinear: Any) -> tuple[str, _Signal] | None:
     columns = candidate.columns(ctx, nonlinear)
     if not columns:
         return None
-    cells = lay.row_cells()
-    n_cells = int(cells.max()) + 1 if len(cells) else 0
-    parts, key = [], None
+    parts, key, signs = [], None, (1.0, -1.0)
     for k, column in enumerate(columns):
         unit = _unit(candidate, ctx, nonlinear, k, len(columns))
         if unit is None or (key is not None and unit[0] != key):
             continue
-        key, per = unit
+        key, per, signs = unit
         parts.append(tuple(rows / per for rows in column))
     if not parts:
         return None
-    q = np.zeros(n_cells)
     maps: dict[tuple[str, str], list[np.ndarray]] = {}
     for part in parts:
-        w = lay.profiled_rows(*part)
-        q += np.bincount(cells, w * w, n_cells) / len(parts)
         for family, values, _ in _family_rows(lay, part):
             for o, m in zip(ctx.observations, lay.unstack(values, lay.family_masks(family)), strict=True):
                 if np.isfinite(m).any():
                     maps.setdefault((o.scene.step_id, family), []).append(m)
-    return key, _Signal(q, np.bincount(cells, minlength=n_cells), maps)
+    u = np.stack([lay.profiled_rows(*part) for part in parts])
+    return key, _Signal(u, lay.row_cells(), maps, signs)
+
+
+class _Rivalry:
+    """What a competitor C leaves of a signature (labctl/reconcile/score.py fits C's columns by least squares):
+    per residual cell the products of the parts of u - w, w the projection of u on C's columns, (cells, P, P);
+    and the parts' products over all rows of u and of w, (P, P)."""
+
+    def __init__(self, name: str, rest: np.ndarray, u: np.ndarray, w: np.ndarray) -> None:
+        self.name, self.rest, self.u, self.w = name, rest, u, w
+
+    def competes(self, a: np.ndarray) -> bool:
+        """Whether C's fit correlates with the effect's in direction ``a`` (``score.competing``: |w| / |u|)."""
+        total = float(a @ self.u @ a)
+        return total > 0 and float(a @ self.w @ a) >= COMPETING_CORRELATION**2 * total
+
+    def share(self) -> float:
+        """The fraction of the signature's power C reproduces, over its parts."""
+        return float(np.trace(self.w) / np.trace(self.u)) if np.trace(self.u) > 0 else 0.0
+
+
+def _bases(candidate: Candidate, ctx: Context, lay: Layout) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Orthonormal bases of the candidate's whitened, profiled columns at every point of its grid where score.py
+    can fit them (finite, of full rank), each on the rows the columns change (most change only the depth rows):
+    (those rows' indices, the basis over them)."""
+    out = []
+    for nonlinear in candidate.grid(ctx):
+        columns = candidate.columns(ctx, nonlinear)
+        if not columns:
+            continue
+        x = np.column_stack([lay.profiled_rows(*column) for column in columns])
+        if np.all(np.isfinite(x)) and np.linalg.matrix_rank(x) == x.shape[1]:
+            rows = np.flatnonzero(np.any(x != 0, axis=1))
+            out.append((rows, np.linalg.qr(x[rows])[0]))
+    return out
+
+
+def _rivalries(signal: _Signal, bases: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> list[_Rivalry]:
+    """Per other candidate, what it leaves of ``signal`` at the point of its grid that reproduces most of it."""
+    out = []
+    for name, found in bases.items():
+        if not found:
+            continue
+        rows, q = max(found, key=lambda b: float(np.sum((b[1].T @ signal.u[:, b[0]].T) ** 2)))
+        w = np.zeros_like(signal.u)
+        w[:, rows] = (q @ (q.T @ signal.u[:, rows].T)).T
+        out.append(_Rivalry(name, signal.cell_gram(signal.u - w), signal.u @ signal.u.T, w @ w.T))
+    return out
 
 
 def _family_rows(lay: Layout, column: tuple[np.ndarray, ...]) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
@@ -143,7 +214,7 @@ class _Replicas:
     family) list, cell residual sums of squares, and the statistics of ``null.step_statistics`` computed from
     them."""
 
-    def __init__(self, null: NullCalibration, name: str, n_params: int, n_steps: int, threshold: float) -> None:
+    def __init__(self, null: NullCalibration, name: str, null_dbic: dict[str, np.ndarray], threshold: float) -> None:
         self.alpha, self.threshold = null.alpha, threshold
         self.steps = sorted({(s.step_id, s.family) for r in null.replicas for s in r.steps})
         index = {k: i for i, k in enumerate(self.steps)}
@@ -157,7 +228,9 @@ class _Replicas:
         self.families = sorted({f for _, f in self.steps})
         self.family_of = np.array([f for _, f in self.steps])
         self.rss = [np.asarray(r.cell_rss, float) for r in null.replicas]
-        self.dbic0 = np.array([r.delta_bic.get(name, -n_params * math.log(n_steps)) for r in null.replicas])
+        self._cell_rss: dict[int, np.ndarray] = {}
+        self.null_dbic = null_dbic
+        self.dbic0 = null_dbic[name]
         self.base = self.statistics(self.square)
         self.maps = [[r.maps.get(family, {}).get(step_id) for r in null.replicas] for step_id, family in self.steps]
 
@@ -175,12 +248,10 @@ class _Replicas:
         """Per replica j: is its statistics row with the effect, ``moved[j]``, outside the distribution of the K
         replicas (``standardized_max`` and ``p_value`` of labctl/reconcile/null.py, as the measured run is judged;
         replica j's own noise-only row stays among the K)?"""
-        base = [dict(enumerate(row)) for row in self.base]
-        out = np.zeros(len(base), bool)
-        for j, row in enumerate(moved):
-            t = standardized_max([dict(enumerate(row)), *base])
-            out[j] = p_value(t[0], t[1:]) <= self.alpha
-        return out
+        k = len(self.base)
+        pools = np.concatenate([moved[:, None, :], np.broadcast_to(self.base, (k, *self.base.shape))], axis=1)
+        t = standardized_max_rows(pools)
+        return np.array([p_value(row[0], row[1:]) <= self.alpha for row in t], bool)
 
     def crossing(self, signal: _Signal) -> tuple[np.ndarray, np.ndarray]:
         """Per (step, family) of ``steps``: the signature parts' mean products over the step's bins, (steps, P, P),
@@ -208,17 +279,45 @@ class _Replicas:
                     cross[j, i] = values[:, both] @ r[both] / both.sum()
         return power, cross
 
-    def probability(self, amplitude: float, signal: _Signal, crossed: tuple[np.ndarray, np.ndarray]) -> float:
+    def probability(self, amplitude: float, signal: _Signal, crossed: tuple[np.ndarray, np.ndarray],
+                    rivals: list[_Rivalry]) -> float:
         """The probability that a replica carrying the effect at ``amplitude``, over the directions of ``phases``
-        (each equally likely), is judged outside the null and the effect's dBIC passes the threshold."""
+        (each equally likely), is judged outside the null, the effect's dBIC passes the threshold and its margin
+        over every competitor ``MARGIN``."""
         power, cross = crossed
         named = self.named(amplitude, signal)
-        directions = phases(signal.parts)
+        directions = phases(signal.parts, signal.signs)
         hits = 0.0
         for a in directions:
             added = amplitude**2 * np.einsum("sab,a,b->s", power, a, a) + 2 * amplitude * cross @ a
-            hits += float(np.sum(named[self.outside(self.statistics(self.square + added))]))
+            chance = named * self.separated(amplitude, signal, a, rivals)
+            hits += float(np.sum(chance[self.outside(self.statistics(self.square + added))]))
         return hits / (len(self.base) * len(directions))
+
+    def separated(self, amplitude: float, signal: _Signal, a: np.ndarray, rivals: list[_Rivalry]) -> np.ndarray:
+        """Per replica, the probability that the effect's dBIC in direction ``a`` exceeds every competitor's by
+        ``MARGIN`` (the smallest over the competitors: the closest one is the runner-up the workflow checks)."""
+        out = np.ones(len(self.base))
+        for rival in rivals:
+            if not rival.competes(a):
+                continue
+            rest = np.einsum("cab,a,b->c", rival.rest, a, a)
+            use = rest > 0
+            rss = self.cell_rss(len(rest))[:, use]
+            gain = np.sum(np.log1p(amplitude**2 * rest[use] / rss), axis=1)
+            var = np.sum(4 * amplitude**2 * rest[use] / (np.maximum(signal.rows[use], 1) * rss), axis=1)
+            margin = self.dbic0 - self.null_dbic[rival.name] + gain - MARGIN
+            with np.errstate(divide="ignore", invalid="ignore"):
+                chance = np.where(var > 0, norm.cdf(margin / np.sqrt(var)), margin > 0)
+            out = np.minimum(out, chance)
+        return out
+
+    def cell_rss(self, cells: int) -> np.ndarray:
+        """(replicas, ``cells``): each replica's residual sum of squares per cell, repeated to ``cells`` as
+        ``named`` reads it, at least 1e-300."""
+        if cells not in self._cell_rss:
+            self._cell_rss[cells] = np.stack([np.maximum(np.resize(r, cells), 1e-300) for r in self.rss])
+        return self._cell_rss[cells]
 
     def named(self, amplitude: float, signal: _Signal) -> np.ndarray:
         """Per replica, the probability that the effect's dBIC at ``amplitude`` passes the threshold (the same in
@@ -235,29 +334,32 @@ class _Replicas:
         return out
 
 
-def phases(parts: int) -> list[np.ndarray]:
-    """The directions an effect of amplitude A takes in its signature's parts, equally likely: both signs of a
-    one-part signature (a range error of either sign); ``PHASES`` phases of a two-part one (a wiggling's sine
-    and cosine: cos phi, sin phi); both signs of each part otherwise."""
+def phases(parts: int, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarray]:
+    """The directions an effect of amplitude A takes in its signature's parts, equally likely: the ``signs`` of a
+    one-part signature (a range error of either sign; one where the parameter is bounded at 0); ``PHASES``
+    phases of a two-part one (a wiggling's sine and cosine: cos phi, sin phi); both signs of each part
+    otherwise."""
     if parts == 2:
         return [np.array([math.cos(phi), math.sin(phi)]) for phi in 2 * math.pi * np.arange(PHASES) / PHASES]
+    if parts == 1:
+        return [np.array([sign]) for sign in signs]
     return [sign * row for row in np.eye(parts) for sign in (1.0, -1.0)]
 
 
-def _amplitude(signal: _Signal, replicas: _Replicas) -> float:
+def _amplitude(signal: _Signal, replicas: _Replicas, rivals: list[_Rivalry]) -> float:
     """The amplitude detected with probability ``POWER`` (inf when none within 1e6 times the first guess)."""
     total = float(np.sum(signal.q))
     if not total > 0:
         return math.inf
     crossed = replicas.crossing(signal)
     lo, hi = 0.0, 1.0 / math.sqrt(total)
-    while replicas.probability(hi, signal, crossed) < POWER:
+    while replicas.probability(hi, signal, crossed, rivals) < POWER:
         lo, hi = hi, hi * 2
         if hi > 1e6 / math.sqrt(total):
             return math.inf
     for _ in range(12):  # the bracket [hi / 2, hi] to 0.03 % of the amplitude
         mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if replicas.probability(mid, signal, crossed) >= POWER else (mid, hi)
+        lo, hi = (lo, mid) if replicas.probability(mid, signal, crossed, rivals) >= POWER else (mid, hi)
     return hi
 
 
@@ -266,9 +368,13 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, Mi
     ``POWER`` (median over the candidate's grid), the grid's range of it and the parameters at the median point."""
     in_play = {n for r in null.replicas for n in r.delta_bic}
     threshold = critical_value(null.null_best(in_play), null.alpha)
+    candidates = list(candidates_for(ctx))
+    null_dbic = {c.name: np.array([r.delta_bic.get(c.name, -c.n_params * math.log(lay.n_steps))
+                                   for r in null.replicas]) for c in candidates}
+    bases = {c.name: _bases(c, ctx, lay) for c in candidates}
     out: dict[str, MinimumDetectable] = {}
-    for candidate in candidates_for(ctx):
-        replicas = _Replicas(null, candidate.name, candidate.n_params, lay.n_steps, threshold)
+    for candidate in candidates:
+        replicas = _Replicas(null, candidate.name, null_dbic, threshold)
         found = []
         grid = candidate.grid(ctx)
         for nonlinear in [grid[int(i)] for i in np.unique(np.linspace(0, len(grid) - 1, GRID_POINTS).round())]:
@@ -276,18 +382,22 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, Mi
             if signal is None:
                 continue
             key, s = signal
-            amplitude = _amplitude(s, replicas)
-            found.append((amplitude, key, nonlinear))
+            rivals = _rivalries(s, {n: b for n, b in bases.items() if n != candidate.name})
+            amplitude = _amplitude(s, replicas, rivals)
+            closest = max(rivals, key=_Rivalry.share, default=None)
+            rival = closest.name if closest is not None and closest.share() >= COMPETING_CORRELATION**2 else None
+            found.append((amplitude, key, nonlinear, rival))
         if not found:
             continue
         found.sort(key=lambda f: f[0])
-        amplitude, key, nonlinear = found[(len(found) - 1) // 2]
+        amplitude, key, nonlinear, rival = found[(len(found) - 1) // 2]
         finite = [f[0] for f in found if math.isfinite(f[0])]
         at = candidate.to_params(ctx, np.eye(len(candidate.columns(ctx, nonlinear)))[0] * PROBE, nonlinear) or {}
         out[candidate.name] = MinimumDetectable(
             parameter=key, amplitude=_round(amplitude),
             grid_min=_round(min(finite)) if finite else None, grid_max=_round(max(finite)) if finite else None,
-            grid_points=len(found), at={k: v for k, v in at.items() if k != key and not isinstance(v, list)})
+            grid_points=len(found), at={k: v for k, v in at.items() if k != key and not isinstance(v, list)},
+            rival=rival)
     return out
 
 
@@ -296,9 +406,12 @@ def _round(value: float) -> float | None:
 
 
 def detectable_message(found: dict[str, MinimumDetectable]) -> str:
-    """What a ``none`` verdict promises: no effect above its minimum detectable amplitude."""
+    """What a ``none`` verdict promises: no effect above its minimum detectable amplitude; and the effects this
+    campaign cannot tell from a competitor at any amplitude."""
     parts = [f"{name} above {d.amplitude:g} ({d.parameter})" for name, d in sorted(found.items())
              if d.amplitude is not None]
-    return ("with 90 % probability this campaign would have named: no " + ", no ".join(parts)
-            + " (minimum detectable amplitudes, the median over each effect's searched nonlinear parameters)"
-            if parts else "no minimum detectable amplitude could be stated")
+    apart = [f"{name} from {d.rival}" for name, d in sorted(found.items()) if d.amplitude is None and d.rival]
+    message = ("with 90 % probability this campaign would have named: no " + ", no ".join(parts)
+               + " (minimum detectable amplitudes, the median over each effect's searched nonlinear parameters)"
+               if parts else "no minimum detectable amplitude could be stated")
+    return message + ("; not separable in this campaign at any amplitude: " + ", ".join(apart) if apart else "")

@@ -408,7 +408,9 @@ class ValueRange:
 class MinimumDetectable:
     """An effect's minimum detectable amplitude (labctl/reconcile/power.py): the amplitude parameter, the amplitude
     named with 90 % probability at the median point of the effect's grid of nonlinear parameters (None: none
-    within reach), its smallest and largest over the grid points evaluated, and the parameters at the median."""
+    within reach), its smallest and largest over the grid points evaluated, the parameters at the median, and
+    the competing candidate that reproduces most of the effect's change there (None when none competes; with
+    no amplitude: the effect is not separable from it in this campaign)."""
 
     parameter: str
     amplitude: float | None
@@ -416,6 +418,7 @@ class MinimumDetectable:
     grid_max: float | None
     grid_points: int
     at: Parameters
+    rival: str | None = None
 
 
 @dataclass(kw_only=True)
