@@ -7,7 +7,7 @@ test_uncertainty_coverage.py, on the cameras whose output sits on a lattice: the
 with its profile's built-in model (sim/effects ``default_effects``: the output quantization). The per-pixel stds
 and means then take a few lattice values, and the Q90 over the pixels took only a few values from seed to seed;
 the jackknife of the Q90 itself over the frames stated 0 in many seeds (D455 64 x 48: z precision Q90 in all
-48, while the figure was 16.57 mm in 47 seeds and 17.11 mm in one; at 160 x 120 in 35 of 48, covering 11). Their
+48, while the figure was 16.57 mm in 47 seeds and 17.11 mm in one; at 160 x 120 in 36 of 48, covering 11). Their
 Type A component is now the jackknife of the share of the pixels at or below the Q90, mapped through the quantile
 function (metrics.uncertainty ``quantile_standard_error``).
 
