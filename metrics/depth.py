@@ -12,13 +12,19 @@ camera hiding bad pixels does not look better.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
 from metrics.stack import StackStats
-from metrics.uncertainty import delete_a_group_jackknife, sensitivity, standard_error_of_std
+from metrics.uncertainty import (
+    delete_a_group_jackknife,
+    quantile_standard_error,
+    sensitivity,
+    standard_error_of_std,
+)
 
 
 def quantile_abs(values: np.ndarray, q: float) -> float:
@@ -216,22 +222,20 @@ def _frame_totals(stack: np.ndarray, pixels: np.ndarray,
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _left_out_q90s(stack: np.ndarray, pixels: np.ndarray, mean: np.ndarray, count: np.ndarray, total: np.ndarray,
-                   squares: np.ndarray, reference: float, bounds: np.ndarray,
-                   q: float) -> np.ndarray:  # pragma: no cover - compiled
-    """(N, 2) per frame left out: the quantile ``q`` of |mean - ``reference``| and of the std over the pixels, the
-    pixels' means and sample stds without the frame from the totals less its values (NaN where fewer than two
-    frames remain). ``bounds``: the values (low, high) of each of the two between which the quantiles are sought
-    first (:func:`_linear_quantile`)."""
+def _left_out_shares(stack: np.ndarray, pixels: np.ndarray, mean: np.ndarray, count: np.ndarray, total: np.ndarray,
+                     squares: np.ndarray, reference: float, thresholds: np.ndarray,
+                     tolerance: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """(N, 2) per frame left out: the share of the pixels whose |mean - ``reference``|, and whose std, lies at or
+    below ``thresholds`` (0 and 1), the pixels' means and sample stds without the frame from the totals less its
+    values; a value within ``tolerance`` of its threshold counts half (a mid-distribution share, so that values
+    equal to it but for their last bits do not count in some replicates and not in others). Among the pixels
+    with two frames or more left and a finite value; NaN where there are none."""
     n = stack.shape[0]
     size = pixels.size
     out = np.empty((n, 2))
     for i in prange(n):
-        values = np.empty((2, size))
-        inside = np.empty((2, size))
-        used = np.zeros(2, np.int64)
-        below = np.zeros(2, np.int64)
-        n_inside = np.zeros(2, np.int64)
+        used = np.zeros(2)
+        at_or_below = np.zeros(2)
         for p in range(size):
             d, seen, d2 = _frame_deviation(stack[i, pixels[p]], mean[p])
             c = count[p] - seen
@@ -244,15 +248,13 @@ def _left_out_q90s(stack: np.ndarray, pixels: np.ndarray, mean: np.ndarray, coun
             for f in range(2):
                 v = both[f]
                 if v - v == 0.0:
-                    values[f, used[f]] = v
-                    used[f] += 1
-                    if v < bounds[f, 0]:
-                        below[f] += 1
-                    elif v <= bounds[f, 1]:
-                        inside[f, n_inside[f]] = v
-                        n_inside[f] += 1
+                    used[f] += 1.0
+                    if v < thresholds[f] - tolerance[f]:
+                        at_or_below[f] += 1.0
+                    elif v <= thresholds[f] + tolerance[f]:
+                        at_or_below[f] += 0.5
         for f in range(2):
-            out[i, f] = _linear_quantile(values[f], used[f], below[f], inside[f], n_inside[f], q)
+            out[i, f] = at_or_below[f] / used[f] if used[f] > 0 else np.nan
     return out
 
 
@@ -283,8 +285,8 @@ def _frame_q90s(stack: np.ndarray, pixels: np.ndarray, reference: np.floating, b
     return out
 
 
-#: the jackknife's replicates seek their Q90 first among the values whose rank in the whole stack's lies within
-#: this fraction of the pixels (plus ``BRACKET_PIXELS``) of the Q90's: a replicate moves few values across it
+#: the single frames' Q90s (accuracy) are sought first among the values whose rank in the first frame's lies within
+#: this fraction of the pixels (plus ``BRACKET_PIXELS``) of its Q90: frames of one stack differ little there
 BRACKET_FRACTION = 0.02
 BRACKET_PIXELS = 64
 
@@ -300,27 +302,49 @@ def _bracket(values: np.ndarray, q: float) -> np.ndarray:
     return np.array([v[max(k - margin, 0)], v[min(k + margin + 1, v.size - 1)]], dtype=np.float64)
 
 
-def _left_out(stack: np.ndarray, stats: StackStats, reference_mm: float) -> np.ndarray:
-    """(N, 2) per frame left out in turn: the Q90 of |mean - ``reference_mm``| and of the sample std of the
-    pixels of the (N, H, W) ``stack`` valid in it (``stats``), the replicates of the jackknife over the frames.
-    A replicate is the stack's sums less that frame's values: per pixel, the deviations from the stack mean in
+#: a replicate's value within this (relative) of the whole stack's Q90 counts half in the share at or below it:
+#: a lattice value computed from the sums less a frame (deviations in float32, about 6e-8 relative) differs from
+#: the same value computed from the frames kept
+SHARE_TOLERANCE = 1e-6
+
+
+def _left_out(stack: np.ndarray, stats: StackStats, reference_mm: float, thresholds: tuple[float, float]) -> np.ndarray:
+    """(N, 2) per frame left out in turn: the share of the pixels of the (N, H, W) ``stack`` valid in it
+    (``stats``) whose |mean - ``reference_mm``|, and whose sample std, lies at or below ``thresholds`` (the whole
+    stack's Q90s), the replicates of the jackknife over the frames of the cumulative proportions at the Q90s. A
+    replicate is the stack's sums less that frame's values: per pixel, the deviations from the stack mean in
     float32 (NaN counted out) and their squares, summed in float64 (no further pass over the stack)."""
     flat = np.ascontiguousarray(stack).reshape(stack.shape[0], -1)
     valid = stats.valid.reshape(-1)
     pixels = np.flatnonzero(valid)
     mean = stats.mean.reshape(-1)[pixels]
     totals = _frame_totals(flat, pixels, mean)
-    bounds = np.stack([_bracket(mean - reference_mm, 0.9), _bracket(stats.std.reshape(-1)[pixels], 0.9)])
-    return _left_out_q90s(flat, pixels, mean, *totals, float(reference_mm), bounds, 0.9)
+    at = np.array(thresholds, dtype=np.float64)
+    return _left_out_shares(flat, pixels, mean, *totals, float(reference_mm), at,
+                            SHARE_TOLERANCE * np.where(np.isfinite(at), np.abs(at), 0.0))
+
+
+def _q90_uncertainty(values: np.ndarray, shares: np.ndarray) -> float:
+    """Type A standard uncertainty of the Q90 of ``values`` from the replicates ``shares`` of the proportion at or
+    below it, one per frame left out: the jackknife of the proportion (Efron & Tibshirani 1993, eq. 11.5) mapped
+    through the quantile function (:func:`metrics.uncertainty.quantile_standard_error`)."""
+    (share_u,) = delete_a_group_jackknife(shares[:, None])
+    return quantile_standard_error(values, 0.9, share_u)
 
 
 def precision_q90_uncertainty(stack: np.ndarray, stats: StackStats) -> float:
     """Type A standard uncertainty of the Q90 of the per-pixel standard deviation of the (N, H, W) ``stack``
-    (statistics ``stats``) over its valid pixels: the jackknife over the frames (Efron & Tibshirani 1993,
-    eq. 11.5), as for depth precision in :func:`depth_error_uncertainties`; NaN with fewer than two frames.
+    (statistics ``stats``) over its valid pixels, as for depth precision in :func:`depth_error_uncertainties`:
+    the jackknife over the frames (Efron & Tibshirani 1993, eq. 11.5) of the share of the pixels at or below the
+    Q90, mapped through the quantile function of the pixels' stds (Bahadur's representation, Woodruff 1952;
+    :func:`metrics.uncertainty.quantile_standard_error`); NaN with fewer than two frames.
 
-    The jackknife of a quantile over pixels is conservative where the pixels' noise is independent and alike:
-    each frame left out moves some pixels across the quantile, which adds to the replicates' spread.
+    Not the jackknife of the Q90 itself: on quantized output (the D455's z16, the AM-T100's whole steps) the
+    per-pixel stds take a few lattice values, and the Q90 of every replicate can sit on the same one, a jackknife
+    of 0 where the figure moves between lattice values from stack to stack. The share at or below the Q90 is a
+    mean over the pixels and moves with every frame left out. The jackknife of a share over pixels is
+    conservative (its expectation is at least the variance, Efron & Stein 1981), and more so where the pixels'
+    noise is independent and alike.
 
     Examples
     --------
@@ -333,19 +357,21 @@ def precision_q90_uncertainty(stack: np.ndarray, stats: StackStats) -> float:
     >>> round(precision_q90_uncertainty(stack, stack_stats(stack)), 3)
     0.012
     """
-    n = stack.shape[0]
-    if n < 2:
+    if stack.shape[0] < 2:
         return float("nan")
-    return delete_a_group_jackknife(_left_out(stack, stats, 0.0)[:, 1:])[0]
+    std = stats.std[stats.valid]
+    q90 = quantile_abs(std, 0.9)
+    return _q90_uncertainty(std, _left_out(stack, stats, 0.0, (math.nan, q90))[:, 1])
 
 
 def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm: float) -> DepthErrorUncertainties:
     """Type A uncertainties of the Q90 figures of :func:`depth_errors` of the (N, H, W) ``stack`` whose
     statistics are ``stats``.
 
-    * trueness and precision Q90 (quantiles over pixels of per-pixel stack statistics): the jackknife standard
-      error over the frames (Efron & Tibshirani 1993, eq. 11.5), each frame left out in turn, on the pixels
-      valid in the stack;
+    * trueness and precision Q90 (quantiles over pixels of per-pixel stack statistics): the jackknife over the
+      frames (Efron & Tibshirani 1993, eq. 11.5), each frame left out in turn, on the pixels valid in the stack,
+      of the share of the pixels at or below the Q90, mapped through the quantile function of the pixels' values
+      (:func:`precision_q90_uncertainty`, :func:`metrics.uncertainty.quantile_standard_error`);
     * accuracy Q90 (one frame): the experimental standard deviation of the figure over the frames, each taken
       as the single frame (GUM 4.2.2);
     * the sensitivity of trueness and accuracy Q90 to the reference: by central differences of
@@ -365,8 +391,11 @@ def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm
     valid = stats.valid
     n = stack.shape[0]
     mean = stats.mean[valid]
-    trueness, precision = (delete_a_group_jackknife(_left_out(stack, stats, reference_mm)) if n >= 2
-                           else (float("nan"), float("nan")))
+    trueness = precision = float("nan")
+    if n >= 2:
+        errors, std = np.abs(mean - reference_mm), stats.std[valid]
+        shares = _left_out(stack, stats, reference_mm, (quantile_abs(errors, 0.9), quantile_abs(std, 0.9)))
+        trueness, precision = _q90_uncertainty(errors, shares[:, 0]), _q90_uncertainty(std, shares[:, 1])
     flat = np.ascontiguousarray(stack).reshape(n, -1)
     if flat.dtype not in (np.float32, np.float64):
         flat = flat.astype(np.float64)

@@ -15,7 +15,10 @@ The components are evaluated
   jackknife, not the bootstrap: a bootstrap resample repeats some frames and leaves others out, which changes
   the noise of the per-pixel means and standard deviations from resample to resample, and a quantile over
   pixels follows that noise level; on simulated runs the bootstrap so stated about twice the spread the
-  figures showed over seeds, the jackknife (every replica n - 1 distinct frames) the spread itself;
+  figures showed over seeds, the jackknife (every replica n - 1 distinct frames) the spread itself. The
+  jackknife is taken of the quantile's cumulative proportion, not of the quantile itself, and mapped through
+  the quantile function (:func:`quantile_standard_error`): on quantized output the per-pixel statistics sit on a
+  lattice and every replica's quantile can fall on the same lattice value, a jackknife of 0;
 * by Type B from stated specifications (GUM 4.3): a bound +-a with no other knowledge as a rectangular
   distribution, u = a / sqrt(3) (GUM 4.3.7), a value stated as a multiple k of a standard deviation as
   u = value / k (GUM 4.3.3).
@@ -232,3 +235,77 @@ def delete_a_group_jackknife(replicates: np.ndarray) -> tuple[float, ...]:
         v = v[np.isfinite(v)]
         out.append(float(np.sqrt((v.size - 1) / v.size * np.sum((v - v.mean()) ** 2))) if v.size >= 2 else math.nan)
     return tuple(out)
+
+
+#: standard normal points (and their weights) over which :func:`quantile_standard_error` averages the quantile
+#: function: +-6 standard deviations in 481 steps, fine enough for a quantile function that is a step function
+_NORMAL_POINTS = np.linspace(-6.0, 6.0, 481)
+_NORMAL_WEIGHTS = np.exp(-0.5 * _NORMAL_POINTS ** 2) / np.sum(np.exp(-0.5 * _NORMAL_POINTS ** 2))
+#: values closer than this (relative to the largest magnitude) count as one lattice value in
+#: :func:`quantile_standard_error` (the same value computed along different paths differs in its last bits)
+TIE_TOLERANCE = 1e-9
+
+
+def _quantile_functions(values: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Knots (levels, values) of two quantile functions of the sorted, finite ``values``: NumPy's ``linear``
+    (Hyndman & Fan 1996, definition 7; value k at level k / (n - 1)), and the continuized one, each distinct
+    value's share spread evenly over its cell, from the midpoint to the value below to the midpoint to the
+    value above (the first and last cells as wide on their outer side as on their inner)."""
+    n = values.size
+    linear = (np.arange(n) / max(n - 1, 1), values)
+    scale = max(abs(float(values[0])), abs(float(values[-1])))
+    starts = np.flatnonzero(np.concatenate([[True], np.diff(values) > TIE_TOLERANCE * scale]))
+    distinct = values[starts]
+    if distinct.size == 1:
+        return linear, (np.array([0.0, 1.0]), np.array([distinct[0], distinct[0]]))
+    levels = np.concatenate([[0.0], np.append(starts[1:], n) / n])
+    mid = (distinct[1:] + distinct[:-1]) / 2
+    edges = np.concatenate([[2 * distinct[0] - mid[0]], mid, [2 * distinct[-1] - mid[-1]]])
+    return linear, (levels, edges)
+
+
+def quantile_standard_error(values: np.ndarray, q: float, cdf_standard_error: float) -> float:
+    """Standard uncertainty of the quantile ``q`` (NumPy's ``linear``) of the finite ``values`` from the standard
+    uncertainty of the cumulative proportion at it, ``cdf_standard_error`` (u of the share of values at or below
+    the quantile, e.g. its jackknife over the frames the values come from); NaN where that is not finite.
+
+    The error of a sample quantile is that of the cumulative proportion at it, mapped through the quantile
+    function (Bahadur's representation, Serfling 1980, 2.5; Woodruff 1952 turns a confidence interval of the
+    proportion into one of the quantile in the same way, Francisco & Fuller 1991 show it consistent under a
+    complex design): u is the standard deviation of Q(q + delta), delta normal with standard deviation
+    ``cdf_standard_error``. For values of a continuous distribution this is cdf_standard_error / f(Q), f the
+    density at the quantile. On a lattice (quantized output) the sample quantile function is a step function,
+    and Q(q + delta) shows the jumps to the next lattice values that the quantile makes between repetitions
+    when the proportion at a lattice value lies near q; deep inside one lattice value's share it shows none.
+    The continuized quantile function, each lattice value's share spread over its cell (jittering, Machado &
+    Santos Silva 2005), shows where within that cell the quantile of the statistic the lattice hides lies.
+    u is the larger of the two: never 0 while the values differ (a lattice hides the quantile, it does not fix
+    it), and the two are the same for values without ties.
+
+    Examples
+    --------
+    100 000 normal values: the quantile 0.9 (1.28) moves by u_F / f(1.28) = u_F / 0.1755 for a proportion
+    known to u_F; 0.005 gives 0.0285 (this sample's density near the quantile a little lower).
+
+    >>> values = np.random.default_rng(2).normal(size=100_000)
+    >>> round(quantile_standard_error(values, 0.9, 0.005), 4)
+    0.0283
+
+    Values on the integers, 1 the quantile 0.9 with 85 % of them below 1 and 10 % at it: the quantile stays on
+    1 unless the proportion moves by 5 %, but the hidden quantile moves within 1's cell, 1 wide, by
+    u_F / 0.10 (the share per unit).
+
+    >>> lattice = np.repeat([0.0, 1.0, 2.0], [8500, 1000, 500])
+    >>> round(quantile_standard_error(lattice, 0.9, 0.002), 4)
+    0.02
+    """
+    v = np.sort(np.asarray(values, dtype=float).ravel())
+    v = v[np.isfinite(v)]
+    if not v.size or not math.isfinite(cdf_standard_error):
+        return math.nan
+    levels = np.clip(q + cdf_standard_error * _NORMAL_POINTS, 0.0, 1.0)
+    spread = []
+    for knots, at in _quantile_functions(v):
+        g = np.interp(levels, knots, at)
+        spread.append(float(np.sqrt(_NORMAL_WEIGHTS @ (g - _NORMAL_WEIGHTS @ g) ** 2)))
+    return max(spread)

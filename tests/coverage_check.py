@@ -28,13 +28,15 @@ def assert_u_covers_the_spread(name: str, value: np.ndarray, u: np.ndarray, min_
 
 
 def figures_over_seeds(tmp: Path, procedures: str, figures: Sequence[str], seeds: int, size: tuple[int, int],
-                       fixed: tuple[str, ...] = (), **campaign: str) -> dict[str, np.ndarray]:
-    """Per figure, (value, u of the budget's components that vary between seeds) of a simulated blaze-101 run of
-    ``procedures`` at ``size`` (width, height) with each of the seeds 0 ... ``seeds`` - 1. ``fixed``: the names
-    (prefixes) of the components that stand for an error the same in every seed; ``campaign``: further
-    arguments of ``campaign_text``."""
+                       fixed: tuple[str, ...] = (), model_text: str | None = None,
+                       **campaign: str) -> dict[str, np.ndarray]:
+    """Per figure, (value, u of the budget's components that vary between seeds) of a simulated run of
+    ``procedures`` at ``size`` (width, height) with each of the seeds 0 ... ``seeds`` - 1: a blaze-101, or the
+    model ``model_text`` (its camera's size overridden by ``size`` already; ``campaign`` then names the camera's
+    ``backend``). ``fixed``: the names (prefixes) of the components that stand for an error the same in every
+    seed; ``campaign``: further arguments of ``campaign_text``."""
     model = tmp / "model.toml"
-    model.write_text(SMALL_MODEL.format(camera="blaze101", width=size[0], height=size[1]))
+    model.write_text(model_text or SMALL_MODEL.format(camera="blaze101", width=size[0], height=size[1]))
     rows: dict[str, list[tuple[float, float]]] = {name: [] for name in figures}
     for seed in range(seeds):
         text = tmp / f"c{seed}.toml"
