@@ -330,7 +330,7 @@ def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any]
     """K null replicas of the measured campaign from ``model``, on a local Dask cluster of ``workers`` processes
     (labctl/batch/cluster.py), or one after the other for a single worker. Replicas kept from an earlier reconcile
     of the same campaign against the same model are taken from the cache (labctl/reconcile/replica_cache.py),
-    and those made here are kept there."""
+    and those made here are kept there, each as soon as it is made."""
     model_text = replica_model(model, info)
     seeds = seeds_for(campaign_toml, k)
     start = time.monotonic()
@@ -346,14 +346,23 @@ def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any]
     if done:
         say(f"{len(done)} of {k} null replicas from the cache ({cache})")
     workers = max(1, min(workers, len(missing) or 1))
+
+    def keep(replica: Replica) -> None:
+        """A replica made is kept at once: a reconcile stopped later (Ctrl-C, a lost worker) loses none of those
+        made before."""
+        done[replica.seed] = replica
+        if cache is not None:
+            replica_cache.store(cache, keys[replica.seed], replica)
+
     directory = tempfile.mkdtemp(prefix="labctl-null-")
     try:
         if workers == 1:
-            made = []
             for i, seed in enumerate(missing):
                 say(f"null replica {i + 1} of {len(missing)} (seed {seed})")
-                made.append(null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare))
+                keep(null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare))
         else:
+            from distributed import as_completed
+
             from labctl.batch.cluster import Cluster, open_client
 
             say(f"{len(missing)} null replicas on {workers} workers")
@@ -361,12 +370,9 @@ def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any]
             with open_client(Cluster(workers=workers)) as client:
                 futures = client.map(null_replica, [campaign_toml] * n, [model_text] * n, missing, [step_ids] * n,
                                      [info] * n, [directory] * n, [compare] * n, pure=False)
-                made = client.gather(futures)
+                for future in as_completed(futures):
+                    keep(future.result())
     finally:
         shutil.rmtree(directory, ignore_errors=True)
-    for replica in made:
-        done[replica.seed] = replica
-        if cache is not None:
-            replica_cache.store(cache, keys[replica.seed], replica)
     return NullCalibration([done[seed] for seed in seeds], seconds=time.monotonic() - start, workers=workers,
                            cached=k - len(missing))

@@ -44,6 +44,29 @@ def test_null_replicas_are_simulated_once_per_model_and_campaign(tmp_path: Path,
     assert len(simulated) == 5  # another model: its own replica
 
 
+def test_a_reconcile_stopped_while_making_replicas_keeps_those_it_made(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setenv("LABCTL_CACHE_DIR", str(tmp_path / "cache"))
+    run = simulated_run(tmp_path / "run", "blaze101", sweep_step_mm=900, robot=False)
+    simulated: list[int] = []
+    real = null.null_replica
+
+    def stopped_at_the_third(*args):  # type: ignore[no-untyped-def]
+        if len(simulated) == 2:
+            raise KeyboardInterrupt  # the operator's Ctrl-C while the third replica is made
+        simulated.append(args[2])
+        return real(*args)
+
+    monkeypatch.setattr(null, "null_replica", stopped_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        reconcile(run, null_runs=3, workers=1)
+    directory = cache_directory()
+    assert directory is not None and len(list(directory.glob("*.pickle"))) == 2
+    monkeypatch.setattr(null, "null_replica", real)
+    again = reconcile(run, null_runs=3, workers=1)
+    assert again.rule.cached == 2 and [r.seed for r in again.rule.replicas][:2] == simulated
+
+
 def test_an_empty_cache_directory_setting_switches_the_cache_off(monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setenv("LABCTL_CACHE_DIR", "")
     assert cache_directory() is None
