@@ -16,6 +16,20 @@ from labctl.evaluation.evaluate import evaluate_runs
 from metrics.uncertainty import combined_standard_uncertainty
 from tests.conftest import SMALL_MODEL, campaign_text
 
+#: the coverage tests' campaign: the offset calibration and walls at 1000 and 2000 mm, 8 frames each
+SWEEP = """
+[[procedure]]
+kind = "offset_calibration"
+frames = 8
+
+[[procedure]]
+kind = "depth_sweep"
+start_mm = 1000
+stop_mm = 2000
+step_mm = 1000
+frames = 8
+"""
+
 
 def assert_u_covers_the_spread(name: str, value: np.ndarray, u: np.ndarray, min_covered: int, ratio: float) -> None:
     """``value`` and standard uncertainty ``u`` of figure ``name`` per seed: every one finite and u > 0, U = 2 u

@@ -35,24 +35,12 @@ import tomli_w
 
 from sim.effects import default_effects
 from sim.profiles import get_profile
-from tests.coverage_check import assert_u_covers_the_spread, figures_over_seeds
+from tests.coverage_check import SWEEP, assert_u_covers_the_spread, figures_over_seeds
 
 SEEDS = 48
 MIN_COVERED = 42
 RATIO = 2.5
 SIZE = (64, 48)
-SWEEP = """
-[[procedure]]
-kind = "offset_calibration"
-frames = 8
-
-[[procedure]]
-kind = "depth_sweep"
-start_mm = 1000
-stop_mm = 2000
-step_mm = 1000
-frames = 8
-"""
 FIGURES = ("z_trueness_q90_mm", "z_precision_q90_mm", "x_precision_q90_mm", "y_precision_q90_mm")
 FIXED = ("reference: laser accuracy", "depth origin offset tolerance")
 AMT100_SEEDS = 12

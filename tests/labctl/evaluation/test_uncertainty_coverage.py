@@ -26,23 +26,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.coverage_check import assert_u_covers_the_spread, figures_over_seeds
+from tests.coverage_check import SWEEP, assert_u_covers_the_spread, figures_over_seeds
 
 SEEDS = 16
 MIN_COVERED = 14
 RATIO = 2.0
-SWEEP = """
-[[procedure]]
-kind = "offset_calibration"
-frames = 8
-
-[[procedure]]
-kind = "depth_sweep"
-start_mm = 1000
-stop_mm = 2000
-step_mm = 1000
-frames = 8
-"""
 FIGURES = ("z_trueness_q90_mm", "z_accuracy_q90_mm", "z_precision_q90_mm", "z_repeatability_center_mm",
            *(f"{name}_{d}mm_{unit}" for d in (1000, 2000) for name, unit in (
                ("z_accuracy", "pct"), ("plane_fit_rms", "mm"), ("spatial_precision", "mm"),
