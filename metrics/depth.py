@@ -22,7 +22,7 @@ from metrics.stack import StackStats
 from metrics.uncertainty import (
     delete_a_group_jackknife,
     quantile_standard_error,
-    sensitivity,
+    spread_sensitivity,
     standard_error_of_std,
 )
 
@@ -142,8 +142,8 @@ def center_repeatability_uncertainty(stats: StackStats) -> float:
 @dataclass(frozen=True)
 class DepthErrorUncertainties:
     """Type A standard uncertainties (GUM 4.2) of the Q90 figures of one stack: what the frames' noise leaves
-    in them; and the sensitivity coefficients of trueness and accuracy Q90 to the reference distance (GUM
-    5.1.3), which scale the reference's components (the caller's)."""
+    in them; and the magnitudes of the sensitivity coefficients of trueness and accuracy Q90 to the reference
+    distance (GUM 5.1.3), which scale the reference's components (the caller's)."""
 
     trueness_q90_mm: float
     accuracy_q90_mm: float
@@ -152,8 +152,8 @@ class DepthErrorUncertainties:
     accuracy_reference_sensitivity: float
 
 
-#: step (mm) of the reference distance for the numerical sensitivity coefficients: about the reference's
-#: standard uncertainty (a laser meter's mean reading and offset)
+#: step (mm) of the reference distance for the numerical sensitivity coefficients where the reference's
+#: standard uncertainty is not known: about what it is (a laser meter's mean reading and offset)
 REFERENCE_STEP_MM = 0.1
 
 
@@ -364,9 +364,11 @@ def precision_q90_uncertainty(stack: np.ndarray, stats: StackStats) -> float:
     return _q90_uncertainty(std, _left_out(stack, stats, 0.0, (math.nan, q90))[:, 1])
 
 
-def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm: float) -> DepthErrorUncertainties:
+def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm: float,
+                               reference_u_mm: float = math.nan) -> DepthErrorUncertainties:
     """Type A uncertainties of the Q90 figures of :func:`depth_errors` of the (N, H, W) ``stack`` whose
-    statistics are ``stats``.
+    statistics are ``stats``, and their sensitivities to the reference ``reference_mm`` of standard uncertainty
+    ``reference_u_mm`` (NaN: not known).
 
     * trueness and precision Q90 (quantiles over pixels of per-pixel stack statistics): the jackknife over the
       frames (Efron & Tibshirani 1993, eq. 11.5), each frame left out in turn, on the pixels valid in the stack,
@@ -374,9 +376,14 @@ def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm
       (:func:`precision_q90_uncertainty`, :func:`metrics.uncertainty.quantile_standard_error`);
     * accuracy Q90 (one frame): the experimental standard deviation of the figure over the frames, each taken
       as the single frame (GUM 4.2.2);
-    * the sensitivity of trueness and accuracy Q90 to the reference: by central differences of
-      ``REFERENCE_STEP_MM`` (GUM 5.1.3). A quantile of |error| moves by less than the reference where the
-      errors lie on both sides of 0 (near 0 for errors centred on it, up to 1 for errors of one sign).
+    * the sensitivity (its magnitude) of trueness and accuracy Q90 to the reference: over the reference's own
+      distribution, normal with ``reference_u_mm`` (:func:`metrics.uncertainty.spread_sensitivity`, JCGM
+      101:2008); by central differences of ``REFERENCE_STEP_MM`` (GUM 5.1.3) where that is not known. A
+      quantile of |error| moves by less than the reference where the errors lie on both sides of 0 (near 0 for
+      errors centred on it, up to 1 for errors of one sign). On quantized output (depth in whole millimetres)
+      the quantile is a function of the reference with a kink wherever the quantile's pixel changes sides, and
+      a central difference of 0.1 mm takes the slope of whichever part it lands on (0.04-0.35 on a simulated
+      D455), where the reference's actual spread moves the figure by more.
 
     Examples
     --------
@@ -408,8 +415,8 @@ def depth_error_uncertainties(stack: np.ndarray, stats: StackStats, reference_mm
         trueness_q90_mm=trueness,
         accuracy_q90_mm=float(np.std(per_frame, ddof=1)) if per_frame.size >= 2 else float("nan"),
         precision_q90_mm=precision,
-        trueness_reference_sensitivity=sensitivity(lambda r: quantile_abs(mean - r, 0.9), reference_mm,
-                                                   REFERENCE_STEP_MM),
-        accuracy_reference_sensitivity=sensitivity(lambda r: quantile_abs(first - r, 0.9), reference_mm,
-                                                   REFERENCE_STEP_MM),
+        trueness_reference_sensitivity=spread_sensitivity(lambda r: quantile_abs(mean - r, 0.9), reference_mm,
+                                                          reference_u_mm, REFERENCE_STEP_MM),
+        accuracy_reference_sensitivity=spread_sensitivity(lambda r: quantile_abs(first - r, 0.9), reference_mm,
+                                                          reference_u_mm, REFERENCE_STEP_MM),
     )

@@ -63,7 +63,13 @@ from metrics.plausibility import quantization_step
 from metrics.sharpness import ied_pixels, ied_pixels_at_centre
 from metrics.stack import StackStats, leave_group_out_means, stack_stats
 from metrics.surface import SurfaceTexture, sq_jackknife, surface_texture
-from metrics.uncertainty import Component, contiguous_groups, expanded_uncertainty, rectangular
+from metrics.uncertainty import (
+    Component,
+    combined_standard_uncertainty,
+    contiguous_groups,
+    expanded_uncertainty,
+    rectangular,
+)
 from metrics.xy_error import XYPrecision
 
 #: distance at which the single-position key figures are taken (docs/keyfigures.md)
@@ -214,7 +220,8 @@ def evaluate_depth_sweep(
             stats = stack_stats(z)
             errors = depth_errors(stats, z[0], rec.attrs["reference_distance_mm"])
             if rec is key:
-                key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"])
+                key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"],
+                                                  _reference_u(rec, calibration))
                 frames = z.shape[0]
                 surface = _SurfaceInputs(
                     {"x": stack_stats(arrays["x"]), "y": stack_stats(arrays["y"]), "z": stats},
@@ -286,6 +293,13 @@ def _depth_figures(evaluation: Evaluation, key: StepRecord | None, key_u: DepthE
         ("surface_roughness_sq_mm", texture.sq_roughness_mm, u[2]),
     ):
         figures[name] = FigureValue(value, [key.step_id], (Component(SURFACE_COMPONENT, u_sq),))
+
+
+def _reference_u(step: StepRecord, calibration: StepRecord | None) -> float:
+    """The combined standard uncertainty (mm) of ``step``'s offset-calibrated reference (NaN where it is not
+    estimated): the spread over which the figures' sensitivity to it is taken."""
+    return combined_standard_uncertainty(
+        calibrated_reference(step.attrs, offset_calibration(calibration) if calibration else ()))
 
 
 def _with_reference(frames: Component, reference: tuple[Component, ...]) -> tuple[Component, ...]:
@@ -362,7 +376,7 @@ def evaluate_face_depth(steps: Sequence[StepRecord], evaluation: Evaluation, pro
     step = next(s for s in steps if s.step_id == row["step"])
     progress(f"{step.step_id} depth on the face")
     z = step.read("z")
-    u = depth_error_uncertainties(z, stack_stats(z), step.attrs["reference_distance_mm"])
+    u = depth_error_uncertainties(z, stack_stats(z), step.attrs["reference_distance_mm"], _reference_u(step, calibration))
     reference = calibrated_reference(step.attrs, offset_calibration(calibration) if calibration else ())
     jackknife = "frames: jackknife of the stack (Type A)"
     budgets = {FACE_PRECISION: (Component(jackknife, u.precision_q90_mm),),
