@@ -449,18 +449,30 @@ def _mean_phasor(effect: Effect) -> Candidate:
 PATTERN_GAIN_LIMIT = 10.0
 
 
-def _additive_profiles(res: np.ndarray, weight: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted least squares of res[s, v, u] = C[u] + R[v] by alternating weighted means (both zero-mean)."""
-    col = np.zeros(res.shape[2])
-    row = np.zeros(res.shape[1])
+def _additive_profiles(weighted: np.ndarray, weight: np.ndarray,
+                       iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares of res[s, v, u] = C[u] + R[v] by alternating weighted means (both zero-mean), from
+    the sums over the steps s of weight x res (``weighted``) and of the weight, (v, u) each."""
+    col = np.zeros(weight.shape[1])
+    row = np.zeros(weight.shape[0])
+    col_weight, row_weight = weight.sum(0), weight.sum(1)
     with np.errstate(invalid="ignore", divide="ignore"):
         for _ in range(iterations):
-            col = np.nan_to_num((weight * (res - row[None, :, None])).sum((0, 1)) / weight.sum((0, 1)))
-            row = np.nan_to_num((weight * (res - col[None, None, :])).sum((0, 2)) / weight.sum((0, 2)))
-    seen_col, seen_row = weight.sum((0, 1)) > 0, weight.sum((0, 2)) > 0
+            col = np.nan_to_num((weighted - row[:, None] * weight).sum(0) / col_weight)
+            row = np.nan_to_num((weighted - col[None, :] * weight).sum(1) / row_weight)
+    seen_col, seen_row = col_weight > 0, row_weight > 0
     col = np.where(seen_col, col - (col[seen_col].mean() if seen_col.any() else 0.0), 0.0)
     row = np.where(seen_row, row - (row[seen_row].mean() if seen_row.any() else 0.0), 0.0)
     return col, row
+
+
+def _held_out_sums(values: np.ndarray) -> np.ndarray:
+    """For every step s of ``values`` (steps first), the sum over the other steps: the steps before s plus those
+    after it (not the total minus step s, which would leave a rounding residue where only s contributes)."""
+    out = np.zeros_like(values)
+    out[1:] += np.cumsum(values[:-1], axis=0)
+    out[:-1] += np.cumsum(values[:0:-1], axis=0)[::-1]
+    return out
 
 
 def _pattern_residual(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
@@ -483,11 +495,11 @@ def _column_row_profile(effect: Effect) -> Candidate:
     def bind(ctx: Context) -> Candidate:
         """The candidate with the profiles of this run's residual."""
         res, weight = _pattern_residual(ctx)
-        col, row = _additive_profiles(res, weight)
+        weighted = weight * res
+        col, row = _additive_profiles(weighted.sum(0), weight.sum(0))
         held_out_col, held_out_row = [], []
-        for s in range(len(res)):
-            keep = np.arange(len(res)) != s
-            c, r = _additive_profiles(res[keep], weight[keep])
+        for others, others_weight in zip(_held_out_sums(weighted), _held_out_sums(weight), strict=True):
+            c, r = _additive_profiles(others, others_weight)
             held_out_col.append(np.broadcast_to(c[None, :], res.shape[1:]))
             held_out_row.append(np.broadcast_to(r[:, None], res.shape[1:]))
         norms = (float(col @ col), float(row @ row))
