@@ -57,6 +57,7 @@ from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import STATISTICS, Layout, raw_residuals, step_rows
 from labctl.reconcile.results import Parameters
 from sim.effects import EFFECTS, Effect, valid_range
+from sim.effects.floor_multipath import PLANES
 from sim.materials import get_material
 from sim.model import SimModel
 from sim.render import C_MM_PER_S
@@ -104,13 +105,27 @@ class Context:
             self._stacks["points"] = np.stack([self.z_rows_of_map(rays[i]) * ranges for i in range(3)])
         return self._stacks["points"]
 
-    def distinct_points(self) -> tuple[np.ndarray, np.ndarray]:
-        """The distinct columns of ``points`` (steps that see the same surface where they share a bin: a plate
-        of each material at one robot angle) and the index of each depth row's point among them (cached)."""
-        if "distinct" not in self._stacks:
-            distinct, inverse = np.unique(self.points(), axis=1, return_inverse=True)
-            self._stacks["distinct"], self._stacks["inverse"] = distinct, inverse.ravel()
-        return self._stacks["distinct"], self._stacks["inverse"]
+    def mirrored_points(self, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The distinct points among ``points`` and their mirror images across the camera's plane normal to its
+        axis ``axis`` (0: x, 1: y; that coordinate's sign flipped), (3, n), with the index among them of each
+        depth row's point and of its mirror image (cached). Steps that see the same surface where they share a
+        bin share a point (a plate of each material at one robot angle), and the points of a wall square to the
+        optical axis are mirror images of each other."""
+        key = f"mirrored {axis}"
+        if key not in self._stacks:
+            points = self.points()
+            mirror = points.copy()
+            mirror[axis] = -mirror[axis]
+            union, inverse = np.unique(np.concatenate([points, mirror], axis=1), axis=1, return_inverse=True)
+            self._stacks[key] = union
+            self._stacks[f"{key} rows"], self._stacks[f"{key} images"] = np.split(inverse.ravel(), 2)
+        return self._stacks[key], self._stacks[f"{key} rows"], self._stacks[f"{key} images"]
+
+    def cached(self, key: str, compute: Callable[[], np.ndarray]) -> np.ndarray:
+        """``compute()``, once per context and ``key``."""
+        if key not in self._stacks:
+            self._stacks[key] = compute()
+        return self._stacks[key]
 
     def per_step(self, values: np.ndarray) -> np.ndarray:
         """One value per step spread over that step's depth rows."""
@@ -536,6 +551,8 @@ PLANE_CODE_MM = 20000.0
 # smoothly (12: 36 % apart), its refit then sets the distance
 SPECULAR_DISTANCES = 24
 DIFFUSE_DISTANCES = 12
+#: per camera axis (``PLANES``: 0 x, 1 y) the plane on its positive side
+POSITIVE_SIDE = {axis: plane for plane, (axis, side) in PLANES.items() if side > 0}
 
 
 def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray, str, float], np.ndarray],
@@ -543,7 +560,10 @@ def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray,
     """The candidate of a bounce off a plane: ``first_order(ctx, points, plane, distance)`` is the range change per
     unit of the linear parameter at the rows' points, searched at ``distances`` distances per plane. A
     ``pointwise`` first order (compiled, each point on its own: the same value wherever the point sits in the
-    array) is evaluated once per distinct point (``Context.distinct_points``)."""
+    array; and depending on the plane through its axis and side in ``PLANES`` alone, so that the plane on one
+    side at a point is the plane on the other side at the point's mirror image) is evaluated once per axis and
+    distance, for the plane of the positive side on the distinct points of the rows and their mirror images
+    (``Context.mirrored_points``), and serves both planes of the axis."""
     plane_key, distance_key, linear_key = effect.observed.fitted
     planes = typing.get_args(effect.params.model_fields[plane_key].annotation)
     d_lo, d_hi = bounds(effect, distance_key)
@@ -555,8 +575,11 @@ def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray,
     def columns(ctx: Context, where: Any) -> list[Column]:
         plane, distance = where
         if pointwise:
-            distinct, inverse = ctx.distinct_points()
-            change = first_order(ctx, distinct, plane, distance)[inverse]
+            axis, side = PLANES[plane]
+            union, rows, images = ctx.mirrored_points(axis)
+            on_union = ctx.cached(f"{effect.name} {axis} {distance!r}",
+                                  lambda: first_order(ctx, union, POSITIVE_SIDE[axis], distance))
+            change = on_union[rows if side > 0 else images]
         else:
             change = first_order(ctx, ctx.points(), plane, distance)
         return [_depth(ctx, change * ctx.z_rows("z_per_range"))]
