@@ -69,6 +69,18 @@ from sim.tof import reference_amplitude
 Column = tuple[np.ndarray, ...]
 
 
+def unique_columns(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct columns of the 2-d array ``a``, sorted, and the index of each column of ``a`` among them: what
+    ``np.unique(a, axis=1, return_inverse=True)`` gives, by one lexicographic sort of the rows."""
+    order = np.lexsort(a[::-1])
+    ordered = a[:, order]
+    first = np.ones(a.shape[1], dtype=bool)
+    first[1:] = np.any(ordered[:, 1:] != ordered[:, :-1], axis=0)
+    inverse = np.empty(a.shape[1], dtype=np.intp)
+    inverse[order] = np.cumsum(first) - 1
+    return ordered[:, first], inverse
+
+
 @dataclass
 class Context:
     """Everything a signature may use: the run's observations and the current model's predictions."""
@@ -116,9 +128,9 @@ class Context:
             points = self.points()
             mirror = points.copy()
             mirror[axis] = -mirror[axis]
-            union, inverse = np.unique(np.concatenate([points, mirror], axis=1), axis=1, return_inverse=True)
+            union, inverse = unique_columns(np.concatenate([points, mirror], axis=1))
             self._stacks[key] = union
-            self._stacks[f"{key} rows"], self._stacks[f"{key} images"] = np.split(inverse.ravel(), 2)
+            self._stacks[f"{key} rows"], self._stacks[f"{key} images"] = np.split(inverse, 2)
         return self._stacks[key], self._stacks[f"{key} rows"], self._stacks[f"{key} images"]
 
     def cached(self, key: str, compute: Callable[[], np.ndarray]) -> np.ndarray:

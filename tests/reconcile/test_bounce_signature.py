@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from labctl.reconcile.bounce import bounce_imag
-from labctl.reconcile.candidates import SIGNATURE_NODES
+from labctl.reconcile.candidates import SIGNATURE_NODES, unique_columns
 from sim.effects.diffuse_floor_multipath import NODES, bounce_phasor
 from sim.effects.floor_multipath import PLANES
 from sim.model import default_model_text, parse_model
@@ -49,3 +49,14 @@ def test_the_plane_on_the_negative_side_is_the_positive_one_at_the_mirror_image(
         on_negative = bounce_imag(*points, negative, distance, sensor, SIGNATURE_NODES)
         assert np.count_nonzero(on_negative) > 100
         np.testing.assert_array_equal(on_negative, bounce_imag(*mirror, positive, distance, sensor, SIGNATURE_NODES))
+
+
+def test_unique_columns_is_numpy_s_unique_along_columns():
+    rng = np.random.default_rng(7)
+    a = rng.integers(0, 3, (3, 500)).astype(float)
+    a[:, 7] = [-0.0, 1.0, 2.0]
+    expected, expected_inverse = np.unique(a, axis=1, return_inverse=True)
+    got, inverse = unique_columns(a)
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(inverse, expected_inverse.ravel())
+    np.testing.assert_array_equal(got[:, inverse], a)
