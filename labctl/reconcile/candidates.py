@@ -51,11 +51,13 @@ from typing import Any
 
 import numpy as np
 
+from labctl.reconcile.bounce import bounce_imag
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import STATISTICS, Layout, raw_residuals, step_rows
 from labctl.reconcile.results import Parameters
 from sim.effects import EFFECTS, Effect, valid_range
+from sim.effects.floor_multipath import PLANES
 from sim.materials import get_material
 from sim.model import SimModel
 from sim.render import C_MM_PER_S
@@ -65,6 +67,18 @@ from sim.tof import reference_amplitude
 #: change of the stacked depth rows and log-intensity rows (Layout order), and optionally of the statistics rows
 #: (``Layout.stack_statistics``: ln noise, valid fraction, ln correlation)
 Column = tuple[np.ndarray, ...]
+
+
+def unique_columns(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct columns of the 2-d array ``a``, sorted, and the index of each column of ``a`` among them: what
+    ``np.unique(a, axis=1, return_inverse=True)`` gives, by one lexicographic sort of the rows."""
+    order = np.lexsort(a[::-1])
+    ordered = a[:, order]
+    first = np.ones(a.shape[1], dtype=bool)
+    first[1:] = np.any(ordered[:, 1:] != ordered[:, :-1], axis=0)
+    inverse = np.empty(a.shape[1], dtype=np.intp)
+    inverse[order] = np.cumsum(first) - 1
+    return ordered[:, first], inverse
 
 
 @dataclass
@@ -103,13 +117,27 @@ class Context:
             self._stacks["points"] = np.stack([self.z_rows_of_map(rays[i]) * ranges for i in range(3)])
         return self._stacks["points"]
 
-    def distinct_points(self) -> tuple[np.ndarray, np.ndarray]:
-        """The distinct columns of ``points`` (steps that see the same surface where they share a bin: a plate
-        of each material at one robot angle) and the index of each depth row's point among them (cached)."""
-        if "distinct" not in self._stacks:
-            distinct, inverse = np.unique(self.points(), axis=1, return_inverse=True)
-            self._stacks["distinct"], self._stacks["inverse"] = distinct, inverse.ravel()
-        return self._stacks["distinct"], self._stacks["inverse"]
+    def mirrored_points(self, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The distinct points among ``points`` and their mirror images across the camera's plane normal to its
+        axis ``axis`` (0: x, 1: y; that coordinate's sign flipped), (3, n), with the index among them of each
+        depth row's point and of its mirror image (cached). Steps that see the same surface where they share a
+        bin share a point (a plate of each material at one robot angle), and the points of a wall square to the
+        optical axis are mirror images of each other."""
+        key = f"mirrored {axis}"
+        if key not in self._stacks:
+            points = self.points()
+            mirror = points.copy()
+            mirror[axis] = -mirror[axis]
+            union, inverse = unique_columns(np.concatenate([points, mirror], axis=1))
+            self._stacks[key] = union
+            self._stacks[f"{key} rows"], self._stacks[f"{key} images"] = np.split(inverse, 2)
+        return self._stacks[key], self._stacks[f"{key} rows"], self._stacks[f"{key} images"]
+
+    def cached(self, key: str, compute: Callable[[], np.ndarray]) -> np.ndarray:
+        """``compute()``, once per context and ``key``."""
+        if key not in self._stacks:
+            self._stacks[key] = compute()
+        return self._stacks[key]
 
     def per_step(self, values: np.ndarray) -> np.ndarray:
         """One value per step spread over that step's depth rows."""
@@ -448,18 +476,30 @@ def _mean_phasor(effect: Effect) -> Candidate:
 PATTERN_GAIN_LIMIT = 10.0
 
 
-def _additive_profiles(res: np.ndarray, weight: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted least squares of res[s, v, u] = C[u] + R[v] by alternating weighted means (both zero-mean)."""
-    col = np.zeros(res.shape[2])
-    row = np.zeros(res.shape[1])
+def _additive_profiles(weighted: np.ndarray, weight: np.ndarray,
+                       iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares of res[s, v, u] = C[u] + R[v] by alternating weighted means (both zero-mean), from
+    the sums over the steps s of weight x res (``weighted``) and of the weight, (v, u) each."""
+    col = np.zeros(weight.shape[1])
+    row = np.zeros(weight.shape[0])
+    col_weight, row_weight = weight.sum(0), weight.sum(1)
     with np.errstate(invalid="ignore", divide="ignore"):
         for _ in range(iterations):
-            col = np.nan_to_num((weight * (res - row[None, :, None])).sum((0, 1)) / weight.sum((0, 1)))
-            row = np.nan_to_num((weight * (res - col[None, None, :])).sum((0, 2)) / weight.sum((0, 2)))
-    seen_col, seen_row = weight.sum((0, 1)) > 0, weight.sum((0, 2)) > 0
+            col = np.nan_to_num((weighted - row[:, None] * weight).sum(0) / col_weight)
+            row = np.nan_to_num((weighted - col[None, :] * weight).sum(1) / row_weight)
+    seen_col, seen_row = col_weight > 0, row_weight > 0
     col = np.where(seen_col, col - (col[seen_col].mean() if seen_col.any() else 0.0), 0.0)
     row = np.where(seen_row, row - (row[seen_row].mean() if seen_row.any() else 0.0), 0.0)
     return col, row
+
+
+def _held_out_sums(values: np.ndarray) -> np.ndarray:
+    """For every step s of ``values`` (steps first), the sum over the other steps: the steps before s plus those
+    after it (not the total minus step s, which would leave a rounding residue where only s contributes)."""
+    out = np.zeros_like(values)
+    out[1:] += np.cumsum(values[:-1], axis=0)
+    out[:-1] += np.cumsum(values[:0:-1], axis=0)[::-1]
+    return out
 
 
 def _pattern_residual(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
@@ -482,11 +522,11 @@ def _column_row_profile(effect: Effect) -> Candidate:
     def bind(ctx: Context) -> Candidate:
         """The candidate with the profiles of this run's residual."""
         res, weight = _pattern_residual(ctx)
-        col, row = _additive_profiles(res, weight)
+        weighted = weight * res
+        col, row = _additive_profiles(weighted.sum(0), weight.sum(0))
         held_out_col, held_out_row = [], []
-        for s in range(len(res)):
-            keep = np.arange(len(res)) != s
-            c, r = _additive_profiles(res[keep], weight[keep])
+        for others, others_weight in zip(_held_out_sums(weighted), _held_out_sums(weight), strict=True):
+            c, r = _additive_profiles(others, others_weight)
             held_out_col.append(np.broadcast_to(c[None, :], res.shape[1:]))
             held_out_row.append(np.broadcast_to(r[:, None], res.shape[1:]))
         norms = (float(col @ col), float(row @ row))
@@ -523,6 +563,8 @@ PLANE_CODE_MM = 20000.0
 # smoothly (12: 36 % apart), its refit then sets the distance
 SPECULAR_DISTANCES = 24
 DIFFUSE_DISTANCES = 12
+#: per camera axis (``PLANES``: 0 x, 1 y) the plane on its positive side
+POSITIVE_SIDE = {axis: plane for plane, (axis, side) in PLANES.items() if side > 0}
 
 
 def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray, str, float], np.ndarray],
@@ -530,7 +572,10 @@ def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray,
     """The candidate of a bounce off a plane: ``first_order(ctx, points, plane, distance)`` is the range change per
     unit of the linear parameter at the rows' points, searched at ``distances`` distances per plane. A
     ``pointwise`` first order (compiled, each point on its own: the same value wherever the point sits in the
-    array) is evaluated once per distinct point (``Context.distinct_points``)."""
+    array; and depending on the plane through its axis and side in ``PLANES`` alone, so that the plane on one
+    side at a point is the plane on the other side at the point's mirror image) is evaluated once per axis and
+    distance, for the plane of the positive side on the distinct points of the rows and their mirror images
+    (``Context.mirrored_points``), and serves both planes of the axis."""
     plane_key, distance_key, linear_key = effect.observed.fitted
     planes = typing.get_args(effect.params.model_fields[plane_key].annotation)
     d_lo, d_hi = bounds(effect, distance_key)
@@ -542,8 +587,11 @@ def _plane_candidate(effect: Effect, first_order: Callable[[Context, np.ndarray,
     def columns(ctx: Context, where: Any) -> list[Column]:
         plane, distance = where
         if pointwise:
-            distinct, inverse = ctx.distinct_points()
-            change = first_order(ctx, distinct, plane, distance)[inverse]
+            axis, side = PLANES[plane]
+            union, rows, images = ctx.mirrored_points(axis)
+            on_union = ctx.cached(f"{effect.name} {axis} {distance!r}",
+                                  lambda: first_order(ctx, union, POSITIVE_SIDE[axis], distance))
+            change = on_union[rows if side > 0 else images]
         else:
             change = first_order(ctx, ctx.points(), plane, distance)
         return [_depth(ctx, change * ctx.z_rows("z_per_range"))]
@@ -586,11 +634,11 @@ SIGNATURE_NODES = 8
 
 
 def _plane_phasor(effect: Effect) -> Candidate:
-    phasor = effect.observed.formula
-
     def first_order(ctx: Context, points: np.ndarray, plane: str, distance: float) -> np.ndarray:
+        """Im(m) / k: the imaginary part of the effect's formula (``bounce_imag``, the diffuse bounce's
+        ``bounce_phasor`` without its real part)."""
         sensor = ctx.make_predictor(ctx.model).sensor
-        return phasor(*points, plane, distance, sensor, nodes=SIGNATURE_NODES).imag / sensor.wavenumber
+        return bounce_imag(*points, plane, distance, sensor, nodes=SIGNATURE_NODES) / sensor.wavenumber
 
     return _plane_candidate(effect, first_order, DIFFUSE_DISTANCES, pointwise=True)
 

@@ -157,8 +157,9 @@ class Layout:
         return v - self.z_nuisance @ (inverse @ (xw.T @ v))
 
     def profile_i(self, v: np.ndarray) -> np.ndarray:
-        """``v`` minus its weighted mean per step (each step's unknown gain)."""
-        if not len(v):
+        """``v`` minus its weighted mean per step (each step's unknown gain); rows that are all zero (a signature
+        that leaves the intensity alone) are returned as they are, without the per-step sums (zero minus zero)."""
+        if not v.any():
             return v
         mean = np.bincount(self.i_step, self.i_weight * v, self.n_steps) / self._i_weight_sums
         return v - mean[self.i_step]
