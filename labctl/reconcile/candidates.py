@@ -51,7 +51,6 @@ from typing import Any
 
 import numpy as np
 
-from labctl.reconcile.bounce import bounce_imag
 from labctl.reconcile.observe import Observation
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import STATISTICS, Layout, raw_residuals, step_rows
@@ -634,11 +633,14 @@ SIGNATURE_NODES = 8
 
 
 def _plane_phasor(effect: Effect) -> Candidate:
+    phasor = effect.observed.formula
+
     def first_order(ctx: Context, points: np.ndarray, plane: str, distance: float) -> np.ndarray:
-        """Im(m) / k: the imaginary part of the effect's formula (``bounce_imag``, the diffuse bounce's
-        ``bounce_phasor`` without its real part)."""
+        """Im(m) / k: the imaginary part of the effect's formula (the diffuse bounce's ``bounce_phasor``, its
+        imaginary part alone)."""
         sensor = ctx.make_predictor(ctx.model).sensor
-        return bounce_imag(*points, plane, distance, sensor, nodes=SIGNATURE_NODES) / sensor.wavenumber
+        m = phasor(*points, plane, distance, sensor, nodes=SIGNATURE_NODES, imag_only=True)
+        return m.imag / sensor.wavenumber
 
     return _plane_candidate(effect, first_order, DIFFUSE_DISTANCES, pointwise=True)
 

@@ -1,10 +1,10 @@
-"""The diffuse bounce's signature on the bin grid is the simulator's bounce phasor's imaginary part, bit for bit, and
-the plane on one side of an axis at a point is the plane on the other side at the point's mirror image."""
+"""The diffuse bounce's signature on the bin grid, the simulator's bounce phasor evaluated for its imaginary part
+alone (``imag_only``: the sines alone), is the full phasor's imaginary part bit for bit, and the plane on one side of
+an axis at a point is the plane on the other side at the point's mirror image."""
 
 import numpy as np
 import pytest
 
-from labctl.reconcile.bounce import bounce_imag
 from labctl.reconcile.candidates import SIGNATURE_NODES, unique_columns
 from sim.effects.diffuse_floor_multipath import NODES, bounce_phasor
 from sim.effects.floor_multipath import PLANES
@@ -15,6 +15,14 @@ from sim.tof import ToFSensor
 def _sensor() -> ToFSensor:
     model = parse_model(default_model_text("blaze101"))
     return ToFSensor(model.profile(), model.effect_params())
+
+
+def bounce_imag(x: np.ndarray, y: np.ndarray, z: np.ndarray, plane: str, distance: float, sensor: ToFSensor,
+                nodes: int) -> np.ndarray:
+    """The imaginary part as the candidate evaluates it; its real part is left 0."""
+    m = bounce_phasor(x, y, z, plane, distance, sensor, nodes=nodes, imag_only=True)
+    assert not np.any(m.real)
+    return m.imag
 
 
 def _points(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
