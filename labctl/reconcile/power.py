@@ -302,19 +302,13 @@ class _Replicas:
             if not rival.competes(a):
                 continue
             rest = np.einsum("cab,a,b->c", rival.rest, a, a)
-            use = rest > 0
-            rss = self.cell_rss(len(rest))[:, use]
-            gain = np.sum(np.log1p(amplitude**2 * rest[use] / rss), axis=1)
-            var = np.sum(4 * amplitude**2 * rest[use] / (np.maximum(signal.rows[use], 1) * rss), axis=1)
-            margin = self.dbic0 - self.null_dbic[rival.name] + gain - MARGIN
-            with np.errstate(divide="ignore", invalid="ignore"):
-                chance = np.where(var > 0, norm.cdf(margin / np.sqrt(var)), margin > 0)
-            out = np.minimum(out, chance)
+            start = self.dbic0 - self.null_dbic[rival.name] - MARGIN
+            out = np.minimum(out, self.passing(amplitude, rest, signal.rows, start))
         return out
 
     def cell_rss(self, cells: int) -> np.ndarray:
-        """(replicas, ``cells``): each replica's residual sum of squares per cell, repeated to ``cells`` as
-        ``named`` reads it, at least 1e-300."""
+        """(replicas, ``cells``): each replica's residual sum of squares per cell, repeated to ``cells``, at least
+        1e-300."""
         if cells not in self._cell_rss:
             self._cell_rss[cells] = np.stack([np.maximum(np.resize(r, cells), 1e-300) for r in self.rss])
         return self._cell_rss[cells]
@@ -322,16 +316,20 @@ class _Replicas:
     def named(self, amplitude: float, signal: _Signal) -> np.ndarray:
         """Per replica, the probability that the effect's dBIC at ``amplitude`` passes the threshold (the same in
         every direction: the gain counts the parts' mean power)."""
-        q, use = signal.q, signal.q > 0
-        out = np.zeros(len(self.base))
-        for j in range(len(self.base)):
-            rss = np.maximum(np.resize(self.rss[j], len(q)), 1e-300)
-            gain = float(np.sum(np.log1p(amplitude**2 * q[use] / rss[use])))
-            var = float(np.sum(4 * amplitude**2 * q[use] / (np.maximum(signal.rows[use], 1) * rss[use])))
-            dbic = self.dbic0[j] + gain
-            out[j] = float(norm.cdf((dbic - self.threshold) / math.sqrt(var))) if var > 0 else float(
-                dbic > self.threshold)
-        return out
+        return self.passing(amplitude, signal.q, signal.rows, self.dbic0 - self.threshold)
+
+    def passing(self, amplitude: float, power: np.ndarray, rows: np.ndarray, start: np.ndarray) -> np.ndarray:
+        """Per replica j, the probability that start_j + sum_c ln(1 + A^2 p_c / RSS_jc) exceeds 0, ``power`` p per
+        cell (of ``rows`` rows each): the fall of the cells' log residual sum of squares when a fit takes up a
+        signal of that power, with the normal spread of its cross term with the noise, variance
+        sum_c 4 A^2 p_c / (n_c RSS_jc) (each logarithm linearized)."""
+        use = power > 0
+        rss = self.cell_rss(len(power))[:, use]
+        gain = np.sum(np.log1p(amplitude**2 * power[use] / rss), axis=1)
+        var = np.sum(4 * amplitude**2 * power[use] / (np.maximum(rows[use], 1) * rss), axis=1)
+        excess = start + gain
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(var > 0, norm.cdf(excess / np.sqrt(var)), (excess > 0).astype(float))
 
 
 def phases(parts: int, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarray]:
