@@ -431,9 +431,15 @@ class _State:
         self.stats = raw_statistics(self.sim.observations, self.preds)
         self.good = goodness(self.lay, self.sim.observations, self.dz, self.di, model.profile().technology,
                              self.preds, self.stats)
+        self._context: Context | None = None
 
     def context(self) -> Context:
-        return Context(self.sim.observations, self.preds, self.model, self.sim.predictor, self.sim.t0_s, self.lay)
+        """The signatures' context of the model under test, one per model: what it caches (the rows' points, a
+        bounce's values at a trial plane) serves the scoring and the minimum detectable amplitudes alike."""
+        if self._context is None:
+            self._context = Context(self.sim.observations, self.preds, self.model, self.sim.predictor,
+                                    self.sim.t0_s, self.lay)
+        return self._context
 
     def whitened(self) -> np.ndarray:
         return np.nan_to_num(self.lay.profiled(self.dz, self.di, self.stats))
