@@ -191,6 +191,7 @@ def evaluate_depth_sweep(
         )
     key = _key_step(usable)
     key_u: DepthErrorUncertainties | None = None
+    offset = offset_calibration(calibration) if calibration else ()  # the references' components: read once
     vendor_keys = set(key_steps({s.step_id: s.attrs["reference_distance_mm"] for s in usable}).values())
     with_z = {id(s) for s in usable}
     noise_key = precision_key(steps) if xy_noise else None
@@ -220,8 +221,8 @@ def evaluate_depth_sweep(
             stats = stack_stats(z)
             errors = depth_errors(stats, z[0], rec.attrs["reference_distance_mm"])
             if rec is key:
-                key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"],
-                                                  _reference_u(rec, calibration))
+                reference_u = combined_standard_uncertainty(calibrated_reference(rec.attrs, offset))
+                key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"], reference_u)
                 frames = z.shape[0]
                 surface = _SurfaceInputs(
                     {"x": stack_stats(arrays["x"]), "y": stack_stats(arrays["y"]), "z": stats},
@@ -236,14 +237,15 @@ def evaluate_depth_sweep(
             progress(f"{rec.step_id} x/y noise")
             noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key))
         del arrays
-    _depth_figures(evaluation, key, key_u, surface, calibration, progress)
+    _depth_figures(evaluation, key, key_u, surface, offset, progress)
     return noise
 
 
 def _depth_figures(evaluation: Evaluation, key: StepRecord | None, key_u: DepthErrorUncertainties | None,
-                   surface: _SurfaceInputs | None, calibration: StepRecord | None,
+                   surface: _SurfaceInputs | None, offset: tuple[Component, ...],
                    progress: Callable[[str], None]) -> None:
-    """The depth sweep's key figures from its positions, and the surface texture at the ``key`` step."""
+    """The depth sweep's key figures from its positions (``offset``: the offset calibration's components, empty
+    without one), and the surface texture at the ``key`` step."""
     missing = [p for p in evaluation.vendor if p.missing_reference]
     if missing:
         reasons = "; ".join(sorted({p.missing_reference for p in missing}))
@@ -264,7 +266,7 @@ def _depth_figures(evaluation: Evaluation, key: StepRecord | None, key_u: DepthE
         evaluation.notes.append("no depth_sweep step within 150 mm of 2000 mm: single-position figures are null")
         return
     at_key = next(p for p in evaluation.depth if p.step_id == key.step_id).errors
-    reference = calibrated_reference(key.attrs, offset_calibration(calibration) if calibration else ())
+    reference = calibrated_reference(key.attrs, offset)
     for name, value, budget in (
         ("z_trueness_q90_mm", at_key.trueness_q90_mm,
          _with_reference(Component("frames: jackknife of the stack (Type A)", key_u.trueness_q90_mm),
@@ -293,13 +295,6 @@ def _depth_figures(evaluation: Evaluation, key: StepRecord | None, key_u: DepthE
         ("surface_roughness_sq_mm", texture.sq_roughness_mm, u[2]),
     ):
         figures[name] = FigureValue(value, [key.step_id], (Component(SURFACE_COMPONENT, u_sq),))
-
-
-def _reference_u(step: StepRecord, calibration: StepRecord | None) -> float:
-    """The combined standard uncertainty (mm) of ``step``'s offset-calibrated reference (NaN where it is not
-    estimated): the spread over which the figures' sensitivity to it is taken."""
-    return combined_standard_uncertainty(
-        calibrated_reference(step.attrs, offset_calibration(calibration) if calibration else ()))
 
 
 def _with_reference(frames: Component, reference: tuple[Component, ...]) -> tuple[Component, ...]:
@@ -376,8 +371,9 @@ def evaluate_face_depth(steps: Sequence[StepRecord], evaluation: Evaluation, pro
     step = next(s for s in steps if s.step_id == row["step"])
     progress(f"{step.step_id} depth on the face")
     z = step.read("z")
-    u = depth_error_uncertainties(z, stack_stats(z), step.attrs["reference_distance_mm"], _reference_u(step, calibration))
     reference = calibrated_reference(step.attrs, offset_calibration(calibration) if calibration else ())
+    u = depth_error_uncertainties(z, stack_stats(z), step.attrs["reference_distance_mm"],
+                                  combined_standard_uncertainty(reference))
     jackknife = "frames: jackknife of the stack (Type A)"
     budgets = {FACE_PRECISION: (Component(jackknife, u.precision_q90_mm),),
                FACE_TRUENESS: _with_reference(Component(jackknife, u.trueness_q90_mm),
