@@ -145,11 +145,25 @@ def sensitivity(f: Callable[[float], float], x: float, step: float) -> float:
     return (f(x + step) - f(x - step)) / (2.0 * step)
 
 
-#: points (standard deviations) and normalized weights over which :func:`spread_sensitivity` averages: +-6 in
-#: steps of 0.25, a sum that takes a kink or a step of f within 1 % (the standard deviation of |t| or of a
+def _normal_grid(points: int) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` values of a standard normal variable t evenly over +-6 and their weights (the density,
+    normalized): the grid over which :func:`spread_sensitivity` and :func:`quantile_standard_error` take the
+    standard deviation of a function of t (:func:`_normal_spread`) by a weighted sum instead of random draws."""
+    t = np.linspace(-6.0, 6.0, points)
+    density = np.exp(-0.5 * t**2)
+    return t, density / np.sum(density)
+
+
+def _normal_spread(values: np.ndarray, weights: np.ndarray) -> float:
+    """The standard deviation of a function of t whose ``values`` at the points of :func:`_normal_grid` are given,
+    with that grid's ``weights``."""
+    return math.sqrt(float(weights @ (values - weights @ values) ** 2))
+
+
+#: points and weights over which :func:`spread_sensitivity` averages: +-6 in steps of 0.25 (each point costs an
+#: evaluation of f), a sum that takes a kink or a step of f within 1 % (the standard deviation of |t| or of a
 #: rounded t, t standard normal; Gauss-Hermite quadrature of as many points misses a kink by 3 %)
-_SPREAD_POINTS = np.linspace(-6.0, 6.0, 49)
-_SPREAD_WEIGHTS = np.exp(-0.5 * _SPREAD_POINTS**2) / np.sum(np.exp(-0.5 * _SPREAD_POINTS**2))
+_SPREAD_POINTS, _SPREAD_WEIGHTS = _normal_grid(49)
 
 
 def spread_sensitivity(f: Callable[[float], float], x: float, u: float, step: float) -> float:
@@ -173,9 +187,7 @@ def spread_sensitivity(f: Callable[[float], float], x: float, u: float, step: fl
     """
     if not (math.isfinite(u) and u > 0):
         return abs(sensitivity(f, x, step))
-    values = np.array([f(x + u * t) for t in _SPREAD_POINTS])
-    mean = float(_SPREAD_WEIGHTS @ values)
-    return math.sqrt(float(_SPREAD_WEIGHTS @ (values - mean) ** 2)) / u
+    return _normal_spread(np.array([f(x + u * t) for t in _SPREAD_POINTS]), _SPREAD_WEIGHTS) / u
 
 
 def standard_error_of_mean(values: np.ndarray) -> float:
@@ -270,10 +282,9 @@ def delete_a_group_jackknife(replicates: np.ndarray) -> tuple[float, ...]:
     return tuple(out)
 
 
-#: standard normal points (and their weights) over which :func:`quantile_standard_error` averages the quantile
-#: function: +-6 standard deviations in 481 steps, fine enough for a quantile function that is a step function
-_NORMAL_POINTS = np.linspace(-6.0, 6.0, 481)
-_NORMAL_WEIGHTS = np.exp(-0.5 * _NORMAL_POINTS ** 2) / np.sum(np.exp(-0.5 * _NORMAL_POINTS ** 2))
+#: points and weights over which :func:`quantile_standard_error` averages the quantile function: +-6 standard
+#: deviations in 481 steps, fine enough for a quantile function that is a step function
+_NORMAL_POINTS, _NORMAL_WEIGHTS = _normal_grid(481)
 #: values closer than this (relative to the largest magnitude) count as one lattice value in
 #: :func:`quantile_standard_error` (the same value computed along different paths differs in its last bits)
 TIE_TOLERANCE = 1e-9
@@ -340,5 +351,5 @@ def quantile_standard_error(values: np.ndarray, q: float, cdf_standard_error: fl
     spread = []
     for knots, at in _quantile_functions(v):
         g = np.interp(levels, knots, at)
-        spread.append(float(np.sqrt(_NORMAL_WEIGHTS @ (g - _NORMAL_WEIGHTS @ g) ** 2)))
+        spread.append(_normal_spread(g, _NORMAL_WEIGHTS))
     return max(spread)
