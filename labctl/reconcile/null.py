@@ -299,10 +299,11 @@ Compare = Callable[[list[Any], dict[str, Any], SimModel],
 
 def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[str], info: dict[str, Any],
                  directory: str, compare: Compare) -> Replica:
-    """Simulate one null replica into ``directory``, compare its steps ``step_ids`` to the model with ``compare``
-    (the very code the measured run goes through), delete its run file. A Dask task (labctl/batch/cluster.py) or a
-    serial call."""
-    from labctl.reconcile.observe import observe_run
+    """Simulate one null replica, observe its steps ``step_ids`` as each is made, compare them to the model with
+    ``compare`` (the very code the measured run goes through). Its run file in ``directory`` keeps the steps'
+    metadata only (their frames go to the observer: ``RunWriter.frame_sink``) and is deleted after. A Dask task
+    (labctl/batch/cluster.py) or a serial call."""
+    from labctl.reconcile.observe import StepObserver
     from labctl.run.campaign import run_campaign
     from labctl.run.config import parse_campaign
     from labctl.run.lab import simulated_lab
@@ -313,15 +314,13 @@ def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[
     text = replica_campaign(campaign_toml, seed)
     campaign = parse_campaign(text, "null replica campaign")
     run = Path(directory) / f"null-{seed}.h5"
+    observer = StepObserver(info["bin_px"], step_ids)
     try:
         run_campaign(campaign, text, simulated_lab(campaign, model_text, seed=seed, source="null replica model"),
-                     run, reporter=Reporter(quiet=True))
-        observations, _, _ = observe_run(run, info["bin_px"])
+                     run, reporter=Reporter(quiet=True), frame_sink=observer)
     finally:
         run.unlink(missing_ok=True)
-    wanted = set(step_ids)
-    observations = [o for o in observations if o.scene.step_id in wanted]
-    good, fits, cell_rss, maps = compare(observations, info, parse_model(model_text, "null replica model"))
+    good, fits, cell_rss, maps = compare(observer.observations(), info, parse_model(model_text, "null replica model"))
     return Replica(seed, good.steps, {f.name: f.score for f in fits}, cell_rss, time.monotonic() - start, maps)
 
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -176,11 +177,14 @@ class StepStack:
     times_s: np.ndarray  # (n,) device time, s (empty when the step has none)
 
 
-def read_stack(step: StepRecord, max_frames: int = MAX_FRAMES) -> StepStack:
-    """The step's first ``max_frames`` frames of z and intensity and their times."""
+def read_stack(step: StepRecord, max_frames: int = MAX_FRAMES,
+               held: Callable[[str], np.ndarray] | None = None) -> StepStack:
+    """The step's first ``max_frames`` frames of z and intensity and their times; ``held``: a channel's stack as
+    a run that keeps no frames in its file hands it over (``RunWriter.frame_sink``), instead of the file's."""
     n = min(int(step.group["z"].shape[0]), max_frames)
     times = np.asarray(step.group["timestamp"][:n], float) if "timestamp" in step.group else np.zeros(0)
-    return StepStack(step.group["z"][:n], step.group["intensity"][:n].astype(np.float32), times)
+    stack = held or step.group.__getitem__
+    return StepStack(stack("z")[:n], stack("intensity")[:n].astype(np.float32), times)
 
 
 def observe(scene: StepScene, stack: StepStack, bin_px: int) -> Observation:
@@ -211,6 +215,27 @@ def choose_bin(width: int, height: int, target_width: int = 48) -> int:
     divisors = [d for d in range(1, common + 1) if common % d == 0]
     goal = max(1.0, width / target_width)
     return min(divisors, key=lambda d: (abs(math.log(d / goal)), d))
+
+
+class StepObserver:
+    """A frame sink (``RunWriter.frame_sink``) observing the steps ``step_ids`` of a run as each is committed,
+    as :func:`observe_run` observes them in its file: a null replica is observed as it is simulated, and none
+    of its frames reaches the disk (labctl/reconcile/null.py)."""
+
+    def __init__(self, bin_px: int, step_ids: Iterable[str], max_frames: int = MAX_FRAMES) -> None:
+        self.bin_px = bin_px
+        self.wanted = set(step_ids)
+        self.max_frames = max_frames
+        self._observed: dict[str, Observation] = {}
+
+    def __call__(self, step: StepRecord, held: Callable[[str], np.ndarray]) -> None:
+        if step.step_id not in self.wanted or (scene := step_scene(step)) is None:
+            return
+        self._observed[step.step_id] = observe(scene, read_stack(step, self.max_frames, held), self.bin_px)
+
+    def observations(self) -> list[Observation]:
+        """The steps observed, in the order a run file lists them (``RunReader.steps``)."""
+        return [self._observed[step_id] for step_id in sorted(self._observed)]
 
 
 def observe_run(path: str | Path, bin_px: int | None = None,

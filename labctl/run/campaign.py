@@ -27,7 +27,14 @@ from labctl.run.planning import expected_run_bytes
 from labctl.run.progress import Reporter
 from labctl.run.runner import Runner, bring_to_safe_state, close_all, connect_lab
 from labctl.run.salvage import carry_over, inspect
-from labctl.run.store import DamagedRunFile, RunWriter, now_iso, refuse_existing_output, refuse_what_is_not_hdf5
+from labctl.run.store import (
+    DamagedRunFile,
+    FrameSink,
+    RunWriter,
+    now_iso,
+    refuse_existing_output,
+    refuse_what_is_not_hdf5,
+)
 from procedures.steps import Step
 
 Override = tuple[str, str, str]
@@ -50,7 +57,7 @@ class RunResult:
 def run_campaign(
     campaign: Campaign, campaign_toml: str, lab: Lab, run_file: str | Path, *, operator: Operator | None = None,
     interactive: bool = False, reporter: Reporter | None = None, compression: str | None = None,
-    observer: RunObserver | None = None, remote: RemoteAnswers | None = None,
+    observer: RunObserver | None = None, remote: RemoteAnswers | None = None, frame_sink: FrameSink | None = None,
 ) -> RunResult:
     """Run ``campaign`` (``campaign_toml``: its text, stored in the run file) on the not yet connected ``lab``
     into the new file ``run_file``, as ``labctl run`` does.
@@ -59,8 +66,9 @@ def run_campaign(
     in a simulated lab too); ``reporter`` shows progress on stderr (default: ``Reporter()``); ``compression``
     stores the frames (default: the campaign's ``[runner] compression``); ``observer`` watches the run and
     ``remote`` answers prompts beside the terminal (the live console, labctl.console). A simulated lab is built with
-    :func:`labctl.run.lab.simulated_lab`, which keeps the model for the run file. InputError when ``run_file``
-    exists; DiskSpaceLow (before anything is written) when its disk cannot hold the run."""
+    :func:`labctl.run.lab.simulated_lab`, which keeps the model for the run file. ``frame_sink``: the run file
+    keeps no frames, each committed step's go to it instead (``RunWriter.hand_frames_to``). InputError when
+    ``run_file`` exists; DiskSpaceLow (before anything is written) when its disk cannot hold the run."""
     run_file = Path(run_file)
     refuse_existing_output(run_file)
     if lab.simulated and lab.sim_record is None:
@@ -72,7 +80,8 @@ def run_campaign(
     steps = campaign.steps()
     connect_lab(lab, reporter.message, operator)
     try:
-        _ensure_room(run_file, campaign, compression, steps, lab.camera.info())
+        if frame_sink is None:
+            _ensure_room(run_file, campaign, compression, steps, lab.camera.info())
         writer = RunWriter.create(
             run_file,
             campaign_toml=campaign_toml,
@@ -83,6 +92,8 @@ def run_campaign(
             sim=lab.sim_record,
             compression=compression,
         )
+        if frame_sink is not None:
+            writer.hand_frames_to(frame_sink)
     except BaseException:
         bring_to_safe_state(lab, reporter.message)
         close_all(lab, reporter.message)

@@ -66,7 +66,7 @@ import errno
 import json
 import math
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -94,6 +94,12 @@ METADATA_ALLOWANCE = 2**20
 STEP_INDEX = "step_index"
 """Root dataset: element i holds an object reference to step i's group once the step is committed (docs/runfile.md)."""
 CHUNK_OVERHEAD = 16 + 64
+
+#: where a run that keeps no frames in its file hands each committed step (:attr:`RunWriter.frame_sink`): the
+#: step's record, and a function giving a channel's (N, H, W) stack as it was recorded
+FrameSink = Callable[["StepRecord", Callable[[str], np.ndarray]], None]
+#: the root attribute of a run file whose frames went to a frame sink: False (absent: the file keeps its frames)
+FRAMES_KEPT = "frames_kept"
 """Worst-case bytes a compressed chunk takes beyond its raw size (Blosc's header, BLOSC_MAX_OVERHEAD = 16)
 plus its share of the chunk index."""
 
@@ -177,6 +183,9 @@ class StepWriter:
         self._datasets = {name: group[name] for name in CHANNELS}
         self._timestamps = group["timestamp"]
         self._chunks = run.chunk_writer()
+        #: the frames by channel, where the run hands them to its frame sink instead of the file
+        self._held: dict[str, dict[int, np.ndarray]] | None = (
+            None if run.frame_sink is None else {name: {} for name in CHANNELS})
 
     def write(self, k: int, frame: Frame) -> None:
         """Store frame ``k`` of the stack; FrameError if its arrays do not fit, RunFileError if the write fails,
@@ -195,7 +204,9 @@ class StepWriter:
             dtype = self.confidence_dtype if name == "confidence" else np.float32
             data = np.ascontiguousarray(array, dtype=dtype)
             dataset = self._datasets[name].id
-            if self._chunks is None:  # one frame is exactly one uncompressed chunk: no selection or filter machinery
+            if self._held is not None:  # the arrays as written, kept by reference until the commit
+                self._held[name][k] = data
+            elif self._chunks is None:  # one frame is exactly one uncompressed chunk: no selection or filter machinery
                 dataset.write_direct_chunk((k, 0, 0), data)
             else:
                 self._chunks.put(dataset, (k, 0, 0), data, f"frame {k}'s {name} of step {self.step.step_id}")
@@ -203,9 +214,20 @@ class StepWriter:
 
     def stack(self, channel: str) -> np.ndarray:
         """The (N, H, W) stack of ``channel`` as written so far (every frame given to :meth:`write` included)."""
+        if self._held is not None:
+            return self._held_stack(channel)
         with self.run.guarded(f"the frames of step {self.step.step_id}"):
             self._write_queued()
         return self.group[channel][()]
+
+    def _held_stack(self, channel: str) -> np.ndarray:
+        """A held channel's (N, H, W) stack, zero where no frame was given (as the file's fill value reads)."""
+        assert self._held is not None
+        dtype = self.confidence_dtype if channel == "confidence" else np.float32
+        stack = np.zeros((self.step.frames, *self.shape), dtype)
+        for k, data in self._held[channel].items():
+            stack[k] = data
+        return stack
 
     def _write_queued(self) -> None:
         if self._chunks is not None:
@@ -227,6 +249,11 @@ class StepWriter:
             self.run.index_step(self.step.index, self.group)
             _fsync(self.run.file)
             release(self.run.file.id.get_vfd_handle())
+        if self._held is not None and self.run.frame_sink is not None:
+            try:
+                self.run.frame_sink(StepRecord(self.step.step_id, _attrs(self.group), self.group), self._held_stack)
+            finally:
+                self._held = {name: {} for name in CHANNELS}
 
 
 #: NeXus description of a step's datasets (NXdata base class): (units, long_name)
@@ -277,10 +304,21 @@ class RunWriter:
         _keep_metadata_until_flush(self.file)
         self.failure: str | None = None
         self._chunks: ChunkWriter | None = None
+        #: None: frames are stored in the file. Otherwise the file keeps each step's metadata and timestamps
+        #: only, and each committed step's frames go to this sink (a null replica, observed as it is made:
+        #: labctl/reconcile/null.py), so that nothing of them reaches the disk
+        self.frame_sink: FrameSink | None = None
+
+    def hand_frames_to(self, sink: FrameSink) -> None:
+        """From now on the file keeps no frames: each committed step's go to ``sink`` (:attr:`frame_sink`). The
+        file says so in its ``frames_kept`` attribute, and :class:`RunReader` refuses it."""
+        with self.guarded("marking the run file as keeping no frames"):
+            self.file.attrs[FRAMES_KEPT] = False
+        self.frame_sink = sink
 
     def chunk_writer(self) -> ChunkWriter | None:
         """The compression threads of this file's frames (started on first use), None for ``compression = "none"``."""
-        if self.compression == "none":
+        if self.compression == "none" or self.frame_sink is not None:
             return None
         if self._chunks is None:
             self._chunks = ChunkWriter(self.compression)
@@ -460,9 +498,11 @@ class RunWriter:
         what = f"step {step.step_id} ({step.frames} frames)"
         raw = step.frames * frame_bytes(camera.width, camera.height, camera.confidence_dtype)
         self._drop_queued_chunks()  # of a step begun before and abandoned
-        ensure_free(self.path, raw, what)
+        if self.frame_sink is None:
+            ensure_free(self.path, raw, what)
         chunks = step.frames * (len(CHANNELS) + 1)
-        self._reserve(raw + 8 * step.frames + chunks * CHUNK_OVERHEAD + METADATA_ALLOWANCE, what)
+        frames = 0 if self.frame_sink is not None else raw + chunks * CHUNK_OVERHEAD
+        self._reserve(frames + 8 * step.frames + METADATA_ALLOWANCE, what)
         with self.guarded(f"the start of step {step.step_id}"):
             return self._create_step(step, stage_position_mm, camera)
 
@@ -488,7 +528,9 @@ class RunWriter:
         compression = self.compression
         for name in CHANNELS:
             dtype = camera.confidence_dtype if name == "confidence" else "float32"
-            if compression == "none":
+            if self.frame_sink is not None:  # never written: no chunk is allocated
+                g.create_dataset(name, shape=(n, h, w), dtype=dtype, chunks=(1, h, w))
+            elif compression == "none":
                 g.create_dataset(
                     name, shape=(n, h, w), dtype=dtype, chunks=(1, h, w),
                     dcpl=_early_alloc_dcpl(), fill_time="never",
@@ -641,6 +683,9 @@ class RunReader:
                              f"(is a run still writing it, or is it damaged?): {exc}") from None
         try:
             _check_format(self.file, self.path)
+            if not self.file.attrs.get(FRAMES_KEPT, True):
+                raise InputError(f"{self.path} keeps no frames: they went to a reader as each step was made (as a "
+                                 "reconcile's null replica's do), so there is nothing in it to evaluate")
         except InputError:
             self.file.close()
             raise
