@@ -45,6 +45,9 @@ from metrics.stack import RoiMean, central_roi
 from procedures.targets import confirm_mounted_prompt
 
 T = TypeVar("T")
+#: the procedures whose frames the run itself reads back from its file: the slanted edge, whose sharpness gives the
+#: best-focus distance of later steps (``_resolved_distance``)
+READ_BACK = frozenset({"slanted_edge"})
 
 
 def bring_to_safe_state(lab: Lab, report: Callable[[str], None]) -> None:
@@ -248,7 +251,7 @@ class Runner:
         self._retry("camera configure", lambda: lab.camera.configure(step.exposure_us, settings), faults)
         info = lab.camera.info()
         while True:
-            writer = self.run.begin_step(step, position)
+            writer = self.run.begin_step(step, position, read_back=step.procedure in READ_BACK)
             roi = RoiMean(central_roi(info.height, info.width), step.frames) if step.role == "offset" else None
             before = self._camera_temperatures()
             self._capture(writer, faults, roi, settings)

@@ -174,7 +174,7 @@ def _early_alloc_dcpl() -> h5py.h5p.PropDCID:
 class StepWriter:
     """Writes the frames of one step, then commits it."""
 
-    def __init__(self, run: RunWriter, group: h5py.Group, step: Step, camera: CameraInfo) -> None:
+    def __init__(self, run: RunWriter, group: h5py.Group, step: Step, camera: CameraInfo, held: bool) -> None:
         self.run = run
         self.group = group
         self.step = step
@@ -184,8 +184,7 @@ class StepWriter:
         self._timestamps = group["timestamp"]
         self._chunks = run.chunk_writer()
         #: the frames by channel, where the run hands them to its frame sink instead of the file
-        self._held: dict[str, dict[int, np.ndarray]] | None = (
-            None if run.frame_sink is None else {name: {} for name in CHANNELS})
+        self._held: dict[str, dict[int, np.ndarray]] | None = {name: {} for name in CHANNELS} if held else None
 
     def write(self, k: int, frame: Frame) -> None:
         """Store frame ``k`` of the stack; FrameError if its arrays do not fit, RunFileError if the write fails,
@@ -249,11 +248,12 @@ class StepWriter:
             self.run.index_step(self.step.index, self.group)
             _fsync(self.run.file)
             release(self.run.file.id.get_vfd_handle())
-        if self._held is not None and self.run.frame_sink is not None:
+        if self.run.frame_sink is not None:
+            stack = self._held_stack if self._held is not None else self.stack
             try:
-                self.run.frame_sink(StepRecord(self.step.step_id, _attrs(self.group), self.group), self._held_stack)
+                self.run.frame_sink(StepRecord(self.step.step_id, _attrs(self.group), self.group), stack)
             finally:
-                self._held = {name: {} for name in CHANNELS}
+                self._held = None if self._held is None else {name: {} for name in CHANNELS}
 
 
 #: NeXus description of a step's datasets (NXdata base class): (units, long_name)
@@ -318,7 +318,7 @@ class RunWriter:
 
     def chunk_writer(self) -> ChunkWriter | None:
         """The compression threads of this file's frames (started on first use), None for ``compression = "none"``."""
-        if self.compression == "none" or self.frame_sink is not None:
+        if self.compression == "none":
             return None
         if self._chunks is None:
             self._chunks = ChunkWriter(self.compression)
@@ -491,22 +491,26 @@ class RunWriter:
             _fsync(self.file)
 
     # ------------------------------------------------------------------ steps
-    def begin_step(self, step: Step, stage_position_mm: float | None) -> StepWriter:
+    def begin_step(self, step: Step, stage_position_mm: float | None, read_back: bool = False) -> StepWriter:
         """Create the step's group and datasets, marked incomplete; DiskSpaceLow (before anything
-        is written) if the disk has no room for the step's raw size, or cannot reserve its worst-case size."""
+        is written) if the disk has no room for the step's raw size, or cannot reserve its worst-case size.
+        ``read_back``: the run reads the step's frames from the file later, so the file keeps them even where
+        its frames go to a frame sink (:meth:`hand_frames_to`; the sink then has them as well)."""
         camera = self.camera_info()
         what = f"step {step.step_id} ({step.frames} frames)"
         raw = step.frames * frame_bytes(camera.width, camera.height, camera.confidence_dtype)
         self._drop_queued_chunks()  # of a step begun before and abandoned
-        if self.frame_sink is None:
+        held = self.frame_sink is not None and not read_back
+        if not held:
             ensure_free(self.path, raw, what)
         chunks = step.frames * (len(CHANNELS) + 1)
-        frames = 0 if self.frame_sink is not None else raw + chunks * CHUNK_OVERHEAD
+        frames = 0 if held else raw + chunks * CHUNK_OVERHEAD
         self._reserve(frames + 8 * step.frames + METADATA_ALLOWANCE, what)
         with self.guarded(f"the start of step {step.step_id}"):
-            return self._create_step(step, stage_position_mm, camera)
+            return self._create_step(step, stage_position_mm, camera, held)
 
-    def _create_step(self, step: Step, stage_position_mm: float | None, camera: CameraInfo) -> StepWriter:
+    def _create_step(self, step: Step, stage_position_mm: float | None, camera: CameraInfo,
+                     held: bool) -> StepWriter:
         steps = self.file["steps"]
         if step.step_id in steps:
             del steps[step.step_id]
@@ -528,7 +532,7 @@ class RunWriter:
         compression = self.compression
         for name in CHANNELS:
             dtype = camera.confidence_dtype if name == "confidence" else "float32"
-            if self.frame_sink is not None:  # never written: no chunk is allocated
+            if held:  # never written: no chunk is allocated
                 g.create_dataset(name, shape=(n, h, w), dtype=dtype, chunks=(1, h, w))
             elif compression == "none":
                 g.create_dataset(
@@ -541,7 +545,7 @@ class RunWriter:
         g.create_dataset("timestamp", shape=(n,), dtype="float64", dcpl=_early_alloc_dcpl(), fill_time="never")
         _nexus_step(g)
         _fsync(self.file)
-        return StepWriter(self, g, step, camera)
+        return StepWriter(self, g, step, camera, held)
 
     def close(self) -> None:
         """Stop the compression threads (chunks still queued are dropped: their step is not committed) and
