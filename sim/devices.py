@@ -25,6 +25,7 @@ from drivers.errors import (
 )
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame, RobotPose
 from drivers.timing import CAPTURE_SETUP_S, LASER_READING_S, ROBOT_SETTLE_S
+from sim import shared_renders
 from sim.effects import warm_up_s
 from sim.seeding import stream
 from sim.stereo import StereoSensor
@@ -178,6 +179,8 @@ class SimCamera(SimDevice, CameraDevice):
         self._settings: dict[str, Any] = {}
         self._cache_key: tuple[Any, ...] | None = None
         self._prepared: Any = None
+        #: what a step's noise-free maps depend on besides the step (sim/shared_renders.py)
+        self._model_key = repr((profile, sorted(world.effects.items()), world.lab))
 
     def connect(self) -> None:
         """Capture works until :meth:`close` or a simulated disconnect."""
@@ -223,11 +226,17 @@ class SimCamera(SimDevice, CameraDevice):
         key = (world.step_index, world.target, repr(sorted(world.target_params.items())), pose.key(),
                world.camera_distance_mm(), self.exposure_us, self.projector)
         if key != self._cache_key:
-            args = (scene, pose, self.exposure_us, world.seed, world.step_index)
-            if isinstance(self.sensor, StereoSensor):
-                self._prepared = self.sensor.prepare(*args, projector=self.projector)
-            else:
-                self._prepared = self.sensor.prepare(*args)
+            shared = (self._model_key, *key) if shared_renders.active() else None
+            prepared = shared_renders.take(shared, world.seed) if shared is not None else None
+            if prepared is None:
+                args = (scene, pose, self.exposure_us, world.seed, world.step_index)
+                if isinstance(self.sensor, StereoSensor):
+                    prepared = self.sensor.prepare(*args, projector=self.projector)
+                else:
+                    prepared = self.sensor.prepare(*args)
+                if shared is not None:
+                    shared_renders.keep(shared, prepared)
+            self._prepared = prepared
             self._cache_key = key
         return self._prepared
 

@@ -59,6 +59,8 @@ from labctl.reconcile.observe import MAX_FRAMES
 from labctl.reconcile.results import CalibrationSection, NullJudgement, ValueRange
 from labctl.reconcile.score import Fit
 from sim.model import SimModel
+from sim.shared_renders import forget as forget_renders
+from sim.shared_renders import shared_renders
 
 #: the false-positive rate each decision is held to (a conventional 5 %); with K null runs the smallest
 #: attainable p-value is 1 / (K + 1), so K must be at least 19 for a decision to reach it
@@ -69,6 +71,10 @@ DEFAULT_NULL_RUNS = 19
 #: above the seeds the project's campaigns and tests use, so that no replica repeats a simulated measurement
 NULL_SEED_BASE = 1_000_003
 WORST = "worst_step_ratio"
+#: the noise-free step maps a process running null replicas keeps for the next replica (sim/shared_renders.py):
+#: the complete campaign's 205 steps at 640 x 480 take about 0.5 GB (time-of-flight: range and amplitude in
+#: float32) to 0.8 GB (stereo: disparity, its spread, validity, infrared), so all of them fit
+REPLICA_RENDER_BYTES = 1 << 30
 
 
 @dataclass(frozen=True)
@@ -316,8 +322,9 @@ def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[
     run = Path(directory) / f"null-{seed}.h5"
     observer = StepObserver(info["bin_px"], step_ids)
     try:
-        run_campaign(campaign, text, simulated_lab(campaign, model_text, seed=seed, source="null replica model"),
-                     run, reporter=Reporter(quiet=True), frame_sink=observer)
+        with shared_renders(REPLICA_RENDER_BYTES):  # the same steps of the same model in every replica
+            run_campaign(campaign, text, simulated_lab(campaign, model_text, seed=seed, source="null replica model"),
+                         run, reporter=Reporter(quiet=True), frame_sink=observer)
     finally:
         run.unlink(missing_ok=True)
     good, fits, cell_rss, maps = compare(observer.observations(), info, parse_model(model_text, "null replica model"))
@@ -356,9 +363,12 @@ def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any]
     directory = tempfile.mkdtemp(prefix="labctl-null-")
     try:
         if workers == 1:
-            for i, seed in enumerate(missing):
-                say(f"null replica {i + 1} of {len(missing)} (seed {seed})")
-                keep(null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare))
+            try:
+                for i, seed in enumerate(missing):
+                    say(f"null replica {i + 1} of {len(missing)} (seed {seed})")
+                    keep(null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare))
+            finally:
+                forget_renders()  # the replicas' maps, in this process
         else:
             from distributed import as_completed
 

@@ -246,7 +246,7 @@ class StepWriter:
             if not (isinstance(default, str) and default in steps):  # a NeXus viewer shows the first complete step
                 steps.attrs["default"] = self.step.step_id
             self.run.index_step(self.step.index, self.group)
-            _fsync(self.run.file)
+            self.run.make_durable()
             release(self.run.file.id.get_vfd_handle())
         if self.run.frame_sink is not None:
             stack = self._held_stack if self._held is not None else self.stack
@@ -315,6 +315,14 @@ class RunWriter:
         with self.guarded("marking the run file as keeping no frames"):
             self.file.attrs[FRAMES_KEPT] = False
         self.frame_sink = sink
+
+    def make_durable(self) -> None:
+        """Flush the file and fsync it; a file whose frames go to a frame sink is only flushed (it holds no frames
+        to keep, and is deleted after: a null replica's fsync of every step cost seconds)."""
+        if self.frame_sink is None:
+            _fsync(self.file)
+        else:
+            self.file.flush()
 
     def chunk_writer(self) -> ChunkWriter | None:
         """The compression threads of this file's frames (started on first use), None for ``compression = "none"``."""
@@ -544,7 +552,7 @@ class RunWriter:
                                  **codecs.dataset_options(compression))
         g.create_dataset("timestamp", shape=(n,), dtype="float64", dcpl=_early_alloc_dcpl(), fill_time="never")
         _nexus_step(g)
-        _fsync(self.file)
+        self.make_durable()
         return StepWriter(self, g, step, camera, held)
 
     def close(self) -> None:
