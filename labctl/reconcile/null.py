@@ -264,14 +264,19 @@ def _range(values: list[float]) -> ValueRange:
     return ValueRange(min=round(min(finite), 4), median=round(stats.median(finite), 4), max=round(max(finite), 4))
 
 
-def replica_campaign(campaign_toml: str, seed: int) -> str:
+def replica_campaign(campaign_toml: str, seed: int, best_focus_mm: float | None = None) -> str:
     """The measured campaign as a null replica runs it: seed ``seed``, no injected faults, at most ``MAX_FRAMES``
-    frames per stack (the comparison reads no more)."""
+    frames per stack (the comparison reads no more), and its ``distance_mm = "best_focus"`` steps where the
+    measured run placed them (``best_focus_mm``, ``observe.measured_best_focus``), not where the replica's own
+    slanted edge would: that sharpest distance moves with the noise (one replica of the complete campaign put
+    the checkerboard at 806 mm, the next at 706 mm)."""
     data = tomllib.loads(campaign_toml)
     data["sim"] = {"seed": seed}
     for procedure in data.get("procedure", []):
         if isinstance(procedure.get("frames"), int):
             procedure["frames"] = min(procedure["frames"], MAX_FRAMES)
+        if best_focus_mm is not None and procedure.get("distance_mm") == "best_focus":
+            procedure["distance_mm"] = best_focus_mm
     return tomli_w.dumps(data)
 
 
@@ -317,7 +322,7 @@ def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[
     from sim.model import parse_model
 
     start = time.monotonic()
-    text = replica_campaign(campaign_toml, seed)
+    text = replica_campaign(campaign_toml, seed, info.get("best_focus_mm"))
     campaign = parse_campaign(text, "null replica campaign")
     run = Path(directory) / f"null-{seed}.h5"
     observer = StepObserver(info["bin_px"], step_ids)
@@ -344,7 +349,8 @@ def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any]
     keys: dict[int, str] = {}
     done: dict[int, Replica] = {}
     if cache is not None:  # the keys fingerprint labctl's source: only where a cache is kept
-        keys = {seed: replica_cache.replica_key(model_text, replica_campaign(campaign_toml, seed), step_ids, info)
+        keys = {seed: replica_cache.replica_key(model_text, replica_campaign(campaign_toml, seed, info.get("best_focus_mm")),
+                                               step_ids, info)
                 for seed in seeds}
         done = {seed: replica for seed, key in keys.items()
                 if isinstance(replica := replica_cache.load(cache, key), Replica)}

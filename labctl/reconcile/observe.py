@@ -39,10 +39,12 @@ from typing import Any
 
 import numpy as np
 
+from labctl.errors import InputError
 from labctl.evaluation.read_ahead import read_ahead
 from labctl.kernel_threads import serial_kernels
 from labctl.reconcile.bin_noise import bin_noise
 from labctl.reconcile.results import ExcludedStep
+from labctl.run.config import parse_campaign
 from labctl.run.store import RunReader, StepRecord, finite_or_none
 from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
@@ -238,6 +240,22 @@ class StepObserver:
         return [self._observed[step_id] for step_id in sorted(self._observed)]
 
 
+def measured_best_focus(run: RunReader) -> float | None:
+    """The best-focus distance the run placed its ``distance_mm = "best_focus"`` steps at: such a step's recorded
+    distance less the offset its campaign gives it (a Boehler star's gap); None without such a step."""
+    text = run.attrs.get("campaign_toml", "")
+    try:
+        steps = {step.step_id: step for step in parse_campaign(text, f"{run.path} (stored campaign)").steps()}
+    except InputError:
+        return None
+    for record in run.steps():
+        step = steps.get(record.step_id)
+        distance = float(record.attrs.get("distance_mm", math.nan))
+        if step is not None and step.distance_from is not None and math.isfinite(distance):
+            return distance - step.distance_offset_mm
+    return None
+
+
 def observe_run(path: str | Path, bin_px: int | None = None,
                 max_frames: int = MAX_FRAMES) -> tuple[list[Observation], dict[str, Any], list[str]]:
     """Observations of every re-creatable step, the camera description (``skipped``: the steps left out, with
@@ -268,6 +286,7 @@ def observe_run(path: str | Path, bin_px: int | None = None,
             "bin_px": bin_px, "backend": run.devices.get("camera", {}).get("backend", ""),
             "model": run.devices.get("camera", {}).get("model", ""),
             "campaign_toml": run.attrs.get("campaign_toml", ""),
+            "best_focus_mm": measured_best_focus(run),
             "skipped": skipped,
         }
     return observations, info, notes

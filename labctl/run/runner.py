@@ -46,7 +46,7 @@ from procedures.targets import confirm_mounted_prompt
 
 T = TypeVar("T")
 #: the procedures whose frames the run itself reads back from its file: the slanted edge, whose sharpness gives the
-#: best-focus distance of later steps (``_resolved_distance``)
+#: best-focus distance of later steps (``_resolved_distance``), in a campaign that has such steps
 READ_BACK = frozenset({"slanted_edge"})
 
 
@@ -114,6 +114,8 @@ class Runner:
         self.observer = observer or RunObserver()
         self._watched = observer is not None
         self._focus_mm: float | None = None
+        #: the slanted edge's frames are read back from the file only where a later step stands at its best focus
+        self._read_back = READ_BACK if any(s.distance_from is not None for s in campaign.steps()) else frozenset()
         self._confirm_target = resumed
 
     # ------------------------------------------------------------------ driver
@@ -251,7 +253,7 @@ class Runner:
         self._retry("camera configure", lambda: lab.camera.configure(step.exposure_us, settings), faults)
         info = lab.camera.info()
         while True:
-            writer = self.run.begin_step(step, position, read_back=step.procedure in READ_BACK)
+            writer = self.run.begin_step(step, position, read_back=step.procedure in self._read_back)
             roi = RoiMean(central_roi(info.height, info.width), step.frames) if step.role == "offset" else None
             before = self._camera_temperatures()
             self._capture(writer, faults, roi, settings)
