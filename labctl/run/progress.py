@@ -79,6 +79,9 @@ class Reporter:
         self._plan: list[PlannedStep] = []
         self._done: set[str] = set()
         self._current: PlannedStep | None = None
+        #: the planned time of the steps neither done nor current, and what it was summed for
+        self._rest_key: tuple[int, str | None] | None = None
+        self._rest_s = 0.0
         self._captured = 0
         self._frames_done = 0
         self.observer: RunObserver | None = None
@@ -88,6 +91,7 @@ class Reporter:
         """Begin a run of ``plan`` whose steps ``done`` are already complete (resume)."""
         self._plan = list(plan)
         self._done = {p.step.step_id for p in self._plan} & set(done)
+        self._rest_key = None
         self._frames_done = sum(p.step.frames for p in self._plan if p.step.step_id in self._done)
         total = sum(p.step.frames for p in self._plan)
         self.progress.start()
@@ -97,16 +101,18 @@ class Reporter:
                          f"lab time left {self._left_text()}")
 
     def lab_time_left_s(self) -> float:
-        """Planned lab time of the steps not done: the current one pro rata of its frames, the rest in full."""
-        left = 0.0
-        for p in self._plan:
-            if p.step.step_id in self._done:
-                continue
-            if self._current is not None and p.step.step_id == self._current.step.step_id:
-                left += p.duration_s * (1.0 - min(self._captured, p.step.frames) / max(p.step.frames, 1))
-            else:
-                left += p.duration_s
-        return left
+        """Planned lab time of the steps not done: the current one pro rata of its frames, the rest in full (their
+        sum taken again only when a step starts: this is asked at every frame)."""
+        current = None if self._current is None or self._current.step.step_id in self._done else self._current
+        key = (len(self._done), None if current is None else current.step.step_id)
+        if key != self._rest_key:
+            self._rest_key = key
+            self._rest_s = sum(p.duration_s for p in self._plan
+                               if p.step.step_id not in self._done and p.step.step_id != key[1])
+        if current is None:
+            return self._rest_s
+        return self._rest_s + current.duration_s * (1.0 - min(self._captured, current.step.frames)
+                                                    / max(current.step.frames, 1))
 
     def _left_text(self) -> str:
         return format_duration(self.lab_time_left_s())
