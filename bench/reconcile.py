@@ -16,11 +16,11 @@ silicone plates on the robot, 10 frames, blaze-101 at 160 x 120, nothing
 hidden) reconciled with the default 19 null replicas on a local Dask cluster of
 one worker per core, against the same with one worker (serial).
 
-One null replica of the complete campaign (``reconcile_replica``): what each of
-a reconcile's K null replicas of the measured run costs (simulated from the
-reconcile's model as the run's campaign, observed as it is made, compared), on
-one core as a cluster's worker runs it, within 20 s; the floor is the same
-reading as above.
+The null replicas of the complete campaign (``reconcile_replica``): what each of
+a reconcile's K null replicas of the measured run costs on average (simulated
+from the reconcile's model as the run's campaign, observed as it is made,
+compared), on one core as a cluster's worker runs them, within 20 s; the floor
+is the same reading as above.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ from labctl.reconcile.observe import MAX_FRAMES, observe_run
 from labctl.reconcile.workflow import base_model, first_round, reconcile
 from sim.effects import default_effects
 from sim.profiles import get_profile
+from sim.shared_renders import forget as forget_renders
 from tests.reconcile.runs import simulated_run
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -127,14 +128,22 @@ def _full(measured: Path, floor: float) -> Result:
 
 @one_blas_thread
 def _replica(measured: Path, floor: float, directory: Path) -> Result:
-    """One null replica of the complete campaign on one thread, as a worker of the replicas' cluster makes it
-    (labctl/batch/cluster.py: one thread, numba on one)."""
+    """Null replicas of the complete campaign on one thread, as a worker of the replicas' cluster makes them
+    (labctl/batch/cluster.py: one thread, numba on one): the first, then a second, which takes the first's
+    noise-free step maps (sim/shared_renders.py). A worker's K-th replica costs the second's time, so the mean
+    over a reconcile's default K replicas on one worker is (first + (K - 1) second) / K."""
     observations, info, _ = observe_run(measured)
     model_text = replica_model(base_model(info), info)
     step_ids = [o.scene.step_id for o in observations]
-    seed = seeds_for(info["campaign_toml"], 1)[0]
-    with serial_kernels():
-        replica = null_replica(info["campaign_toml"], model_text, seed, step_ids, info, str(directory), first_round)
-    return Result("reconcile_replica", f"{replica.seconds:.1f} s for one null replica of the {len(step_ids)} "
-                  "compared steps on one core", f"reading {floor:.1f} s", replica.seconds / REPLICA_BUDGET_S,
-                  f"<= {REPLICA_BUDGET_S:.0f} s", replica.seconds <= REPLICA_BUDGET_S)
+    try:
+        with serial_kernels():
+            first, second = (null_replica(info["campaign_toml"], model_text, seed, step_ids, info, str(directory),
+                                          first_round) for seed in seeds_for(info["campaign_toml"], 2))
+    finally:
+        forget_renders()
+    k = DEFAULT_NULL_RUNS
+    mean = (first.seconds + (k - 1) * second.seconds) / k
+    return Result("reconcile_replica", f"{mean:.1f} s per null replica of the {len(step_ids)} compared steps on one "
+                  f"core, over {k} replicas (the first {first.seconds:.1f} s, each further one {second.seconds:.1f} s)",
+                  f"reading {floor:.1f} s", mean / REPLICA_BUDGET_S, f"<= {REPLICA_BUDGET_S:.0f} s",
+                  mean <= REPLICA_BUDGET_S)
