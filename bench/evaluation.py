@@ -4,8 +4,9 @@ evaluates within 1.2x the time it takes just to read those arrays (docs/benchmar
 The run file holds synthetic wall stacks (x, y and z written: depth figures
 read z, surface texture x, y, z at 2000 mm, x/y repeatability and precision
 x and y of every wall step; intensity and confidence are allocated but never
-touched). The floor reads exactly the arrays the evaluation reads; both are
-timed in the same run, best of two, alternating.
+touched), with its SHA-256 kept beside it as ``labctl run`` leaves a complete
+run. The floor reads exactly the arrays the evaluation reads; both are timed
+in the same run, best of two, alternating.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 from bench.common import Result, best_of, scratch_dir
 from drivers.protocols import CameraInfo, DeviceIdentity
 from labctl.evaluation.evaluate import evaluate_runs
+from labctl.run.digest import write_digest
 from labctl.run.store import RunWriter
 from procedures.steps import Step
 
@@ -52,6 +54,7 @@ def make_run(path: Path, width: int = WIDTH, height: int = HEIGHT, frames: int =
         writer.commit({"reference_distance_mm": float(d)})
     run.set_status("complete")
     run.close()
+    write_digest(path)  # as labctl run leaves a complete run: its SHA-256 beside it (labctl/run/digest.py)
 
 
 def _read_floor(path: Path) -> None:

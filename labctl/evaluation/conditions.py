@@ -6,7 +6,6 @@ the steps of each sensor's readings before and after every stack).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import threading
@@ -15,10 +14,8 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import NotRequired, TypedDict
 
+from labctl.run.digest import kept_digest, sha256_of
 from labctl.run.store import RunReader, StepRecord
-
-#: the bytes :func:`sha256_of` reads at a time (large reads let hashlib work without the GIL)
-CHUNK_BYTES = 8 * 1024 * 1024
 
 
 class DeviceRecord(TypedDict):
@@ -48,27 +45,23 @@ class RunConditions(TypedDict):
     camera_temperatures_c: NotRequired[dict[str, list[float]]]  # from layout 1.1 on
 
 
-def sha256_of(path: Path, stop: threading.Event | None = None) -> str:
-    """The SHA-256 (FIPS 180-4) of a file's bytes, in hexadecimal; "" when ``stop`` is set before the end."""
-    digest = hashlib.sha256()
-    buffer = bytearray(CHUNK_BYTES)  # one buffer read into again and again: no new 8 MB object (mapped afresh) a chunk
-    view = memoryview(buffer)
-    with open(path, "rb", buffering=0) as f:
-        while size := f.readinto(buffer):
-            if stop is not None and stop.is_set():
-                return ""
-            digest.update(view[:size])
-    return digest.hexdigest()
-
-
 class BackgroundHashes:
-    """The SHA-256 of files, computed on a thread of its own beside the evaluation (the hash reads the whole file,
-    the evaluation mostly computes). A context manager: leaving it stops a hash still running."""
+    """The SHA-256 of run files: the one kept beside a file where it still holds (labctl/run/digest.py), else
+    computed on a thread of its own beside the evaluation (the hash reads the whole file, the evaluation mostly
+    computes). A context manager: leaving it stops a hash still running."""
 
     def __init__(self, paths: Sequence[Path]) -> None:
         self._stop = threading.Event()
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sha256")
-        self._futures: list[Future[str]] = [self._pool.submit(sha256_of, Path(p), self._stop) for p in paths]
+        self._futures: list[Future[str]] = [self._kept_or_computed(Path(p)) for p in paths]
+
+    def _kept_or_computed(self, path: Path) -> Future[str]:
+        kept = kept_digest(path)
+        if kept is None:
+            return self._pool.submit(sha256_of, path, self._stop)
+        future: Future[str] = Future()
+        future.set_result(kept)
+        return future
 
     def results(self) -> list[str]:
         """Every file's hash, waiting for those still running."""

@@ -17,6 +17,7 @@ from pathlib import Path
 from drivers.protocols import CameraInfo
 from labctl.errors import InputError
 from labctl.run.config import Campaign, parse_campaign
+from labctl.run.digest import digest_path, write_digest
 from labctl.run.diskspace import ensure_free, format_bytes
 from labctl.run.lab import Lab, build_real_lab, simulated_lab
 from labctl.run.observer import RunObserver
@@ -99,9 +100,12 @@ def run_campaign(
         close_all(lab, reporter.message)
         raise
     try:
-        return _execute(campaign, lab, writer, reporter, operator, observer=observer)
+        result = _execute(campaign, lab, writer, reporter, operator, observer=observer)
     finally:
         writer.close()
+    if frame_sink is None:
+        _keep_digest(result, reporter)
+    return result
 
 
 def resume_run(
@@ -138,36 +142,54 @@ def resume_run(
         if writer.attrs.get("status") == "complete":
             reporter.message(f"{run_file} is already complete; nothing to resume")
             done = len(writer.completed())
-            return RunResult(run_file, "complete", done, done, 0, simulated, tuple(dropped))
-        new = list(overrides)
-        if new and simulated:
-            raise InputError(f"{run_file} is a simulated run: --port and --host apply to runs on real hardware")
-        config = parse_campaign(_stored_text(writer, "/", "campaign_toml"), f"{run_file} (stored campaign)")
-        done_ids = writer.completed()
-        _ensure_room(run_file, config, writer.compression, [s for s in config.steps() if s.step_id not in done_ids],
-                     writer.camera_info())
-        history = recorded_overrides(writer.attrs, str(run_file))
-        config = apply_overrides(config, [(e["role"], e["field"], e["value"]) for e in history], str(run_file))
-        stored, config = config, apply_overrides(config, new, str(run_file))
-        history += history_entries(stored, new, now_iso())
-        if simulated:
-            model_text, seed = _stored_text(writer, "sim", "model_toml"), int(_stored_text(writer, "sim", "seed"))
-            lab = simulated_lab(config, model_text, seed=seed, source=f"{run_file} (stored model)")
+            result = RunResult(run_file, "complete", done, done, 0, simulated, tuple(dropped))
         else:
-            lab = build_real_lab(config)
-        operator = operator or default_operator(lab, reporter, interactive, remote, observer)
-        connect_lab(lab, reporter.message, operator)
-        if new:
-            writer.attrs[OVERRIDES_ATTRIBUTE] = encode_history(history)
-        for role, field, value in new:
-            reporter.message(f"{role} {field}: {value} (recorded in {run_file})")
-        if dropped:
-            reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
-        writer.set_status("running")
-        return _execute(config, lab, writer, reporter, operator, resumed=True, discarded=tuple(dropped),
-                        observer=observer)
+            result = _continue(writer, simulated, list(overrides), dropped, reporter, operator, interactive, remote,
+                               observer)
     finally:
         writer.close()
+    _keep_digest(result, reporter)  # a complete file opened for writing is newer than its kept hash
+    return result
+
+
+def _continue(writer: RunWriter, simulated: bool, new: list[Override], dropped: list[str], reporter: Reporter,
+              operator: Operator | None, interactive: bool, remote: RemoteAnswers | None,
+              observer: RunObserver | None) -> RunResult:
+    """The steps of ``writer``'s run that are not complete, on its lab (see :func:`resume_run`)."""
+    run_file = writer.path
+    if new and simulated:
+        raise InputError(f"{run_file} is a simulated run: --port and --host apply to runs on real hardware")
+    config = parse_campaign(_stored_text(writer, "/", "campaign_toml"), f"{run_file} (stored campaign)")
+    done_ids = writer.completed()
+    _ensure_room(run_file, config, writer.compression, [s for s in config.steps() if s.step_id not in done_ids],
+                 writer.camera_info())
+    history = recorded_overrides(writer.attrs, str(run_file))
+    config = apply_overrides(config, [(e["role"], e["field"], e["value"]) for e in history], str(run_file))
+    stored, config = config, apply_overrides(config, new, str(run_file))
+    history += history_entries(stored, new, now_iso())
+    if simulated:
+        model_text, seed = _stored_text(writer, "sim", "model_toml"), int(_stored_text(writer, "sim", "seed"))
+        lab = simulated_lab(config, model_text, seed=seed, source=f"{run_file} (stored model)")
+    else:
+        lab = build_real_lab(config)
+    operator = operator or default_operator(lab, reporter, interactive, remote, observer)
+    connect_lab(lab, reporter.message, operator)
+    if new:
+        writer.attrs[OVERRIDES_ATTRIBUTE] = encode_history(history)
+    for role, field, value in new:
+        reporter.message(f"{role} {field}: {value} (recorded in {run_file})")
+    if dropped:
+        reporter.message(f"discarded unfinished step(s): {', '.join(dropped)}")
+    writer.set_status("running")
+    return _execute(config, lab, writer, reporter, operator, resumed=True, discarded=tuple(dropped),
+                    observer=observer)
+
+
+def _keep_digest(result: RunResult, reporter: Reporter) -> None:
+    """A complete run's file hashed once, the hash kept beside it for its evaluations (labctl/run/digest.py)."""
+    if result.status == "complete":
+        hexdigest = write_digest(result.run_file)
+        reporter.message(f"SHA-256 {hexdigest} (kept in {digest_path(result.run_file)})")
 
 
 def default_operator(lab: Lab, reporter: Reporter, interactive: bool = False, remote: RemoteAnswers | None = None,

@@ -16,9 +16,9 @@ import h5py
 import jsonschema
 import pytest
 
-from labctl.evaluation.conditions import sha256_of
 from labctl.evaluation.keyfigures import SCHEMA_VERSION, read_keyfigures
 from labctl.evaluation.schema import SCHEMA_FILE, schema_text
+from labctl.run.digest import sha256_of
 
 
 def validator() -> jsonschema.Draft202012Validator:
