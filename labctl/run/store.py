@@ -94,14 +94,14 @@ METADATA_ALLOWANCE = 2**20
 STEP_INDEX = "step_index"
 """Root dataset: element i holds an object reference to step i's group once the step is committed (docs/runfile.md)."""
 CHUNK_OVERHEAD = 16 + 64
+"""Worst-case bytes a compressed chunk takes beyond its raw size (Blosc's header, BLOSC_MAX_OVERHEAD = 16)
+plus its share of the chunk index."""
 
 #: where a run that keeps no frames in its file hands each committed step (:attr:`RunWriter.frame_sink`): the
 #: step's record, and a function giving a channel's (N, H, W) stack as it was recorded
 FrameSink = Callable[["StepRecord", Callable[[str], np.ndarray]], None]
 #: the root attribute of a run file whose frames went to a frame sink: False (absent: the file keeps its frames)
 FRAMES_KEPT = "frames_kept"
-"""Worst-case bytes a compressed chunk takes beyond its raw size (Blosc's header, BLOSC_MAX_OVERHEAD = 16)
-plus its share of the chunk index."""
 
 
 class DamagedRunFile(InputError):
