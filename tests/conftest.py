@@ -53,6 +53,31 @@ height = {height}
 """
 
 
+#: a slanted edge near the camera, then a checkerboard and a Boehler star at its best focus (the lens of
+#: ``focused_model`` is sharp on the edge's grid)
+BEST_FOCUS_PROCEDURES = """
+[[procedure]]
+kind = "slanted_edge"
+start_mm = 300
+stop_mm = 900
+step_mm = 100
+frames = 4
+exposure_table = [[100, 60], [200, 250], [400, 1000]]
+
+[[procedure]]
+kind = "checkerboard"
+distance_mm = "best_focus"
+frames = 4
+
+[[procedure]]
+kind = "boehler_star"
+distance_mm = "best_focus"
+segments = [72]
+gap_mm = 250
+frames = 4
+"""
+
+
 def campaign_text(
     *,
     backend: str = "blaze",
@@ -116,6 +141,18 @@ def small_model(tmp_path: Path):
     def write(camera: str = "blaze101", width: int = 48, height: int = 36) -> Path:
         path = tmp_path / f"model_{camera}_{width}x{height}.toml"
         path.write_text(SMALL_MODEL.format(camera=camera, width=width, height=height))
+        return path
+
+    return write
+
+
+@pytest.fixture
+def focused_model(small_model):
+    """A blaze-101 model at 192 x 144 whose lens is sharp from 400 mm on: a slanted edge finds its best focus."""
+    def write() -> Path:
+        path = small_model(width=192, height=144)
+        path.write_text(path.read_text().replace("[camera_overrides]", "[effects.defocus]\nhyperfocal_mm = 400\n"
+                                                                          "[camera_overrides]"))
         return path
 
     return write

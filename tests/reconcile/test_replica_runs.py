@@ -20,6 +20,7 @@ from labctl.run.config import load_campaign, parse_campaign
 from labctl.run.lab import simulated_lab
 from labctl.run.progress import Reporter
 from labctl.run.store import RunReader
+from tests.conftest import BEST_FOCUS_PROCEDURES
 from tests.reconcile.runs import simulated_run
 
 
@@ -43,39 +44,14 @@ def test_observed_as_made_equals_observed_from_the_file(tmp_path: Path) -> None:
                 assert a == b, (mine.scene.step_id, field.name)
 
 
-FOCUSED = """
-[[procedure]]
-kind = "slanted_edge"
-start_mm = 300
-stop_mm = 900
-step_mm = 100
-frames = 4
-exposure_table = [[100, 60], [200, 250], [400, 1000]]
-
-[[procedure]]
-kind = "checkerboard"
-distance_mm = "best_focus"
-frames = 4
-
-[[procedure]]
-kind = "boehler_star"
-distance_mm = "best_focus"
-segments = [72]
-gap_mm = 250
-frames = 4
-"""
-
-
-def test_a_replica_places_best_focus_steps_where_the_measured_run_did(tmp_path, write_campaign, small_model,
+def test_a_replica_places_best_focus_steps_where_the_measured_run_did(tmp_path, write_campaign, focused_model,
                                                                         capsys) -> None:
     """The sharpest distance is found on the run's own slanted edge, so it moves with the noise; a replica takes
     the measured run's (the distance it logged), the star its gap beyond."""
-    model = small_model(width=192, height=144)
-    model.write_text(model.read_text().replace("[camera_overrides]", "[effects.defocus]\nhyperfocal_mm = 400\n"
-                                                                      "[camera_overrides]"))
+    model = focused_model()
     out = tmp_path / "measured.h5"
     with pytest.raises(SystemExit) as code:
-        main(["run", str(write_campaign(procedures=FOCUSED)), "--sim", "--model", str(model), "-o", str(out)])
+        main(["run", str(write_campaign(procedures=BEST_FOCUS_PROCEDURES)), "--sim", "--model", str(model), "-o", str(out)])
     assert code.value.code == 0
     logged = re.search(r"best focus: (\d+) mm", "".join(capsys.readouterr()))
     assert logged is not None

@@ -19,6 +19,7 @@ from labctl.run.config import load_campaign
 from labctl.run.lab import simulated_lab
 from labctl.run.progress import Reporter
 from labctl.run.store import CHANNELS, RunReader, StepRecord
+from tests.conftest import BEST_FOCUS_PROCEDURES
 
 PROCEDURES = """
 [[procedure]]
@@ -36,21 +37,7 @@ start_mm = 1000
 stop_mm = 2000
 step_mm = 500
 frames = 4
-
-[[procedure]]
-kind = "slanted_edge"
-start_mm = 300
-stop_mm = 900
-step_mm = 100
-frames = 4
-exposure_table = [[100, 60], [200, 250], [400, 1000]]
-
-[[procedure]]
-kind = "checkerboard"
-distance_mm = "best_focus"
-tile_mm = 19
-frames = 4
-"""
+""" + BEST_FOCUS_PROCEDURES
 
 
 def _run(campaign_path: Path, model_path: Path, out: Path, sink=None) -> None:
@@ -59,10 +46,8 @@ def _run(campaign_path: Path, model_path: Path, out: Path, sink=None) -> None:
     run_campaign(campaign, text, lab, out, reporter=Reporter(quiet=True), frame_sink=sink)
 
 
-def test_the_sink_receives_the_stacks_the_file_would_hold(tmp_path, write_campaign, small_model):
-    campaign, model = write_campaign(procedures=PROCEDURES), small_model(width=192, height=144)
-    model.write_text(model.read_text().replace("[camera_overrides]", "[effects.defocus]\nhyperfocal_mm = 400\n"
-                                                                      "[camera_overrides]"))
+def test_the_sink_receives_the_stacks_the_file_would_hold(tmp_path, write_campaign, focused_model):
+    campaign, model = write_campaign(procedures=PROCEDURES), focused_model()
     _run(campaign, model, tmp_path / "kept.h5")
     handed: dict[str, dict[str, np.ndarray]] = {}
     attrs: dict[str, dict] = {}
