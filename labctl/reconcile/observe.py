@@ -40,10 +40,10 @@ import numpy as np
 
 from labctl.evaluation.read_ahead import read_ahead
 from labctl.kernel_threads import serial_kernels
+from labctl.reconcile.bin_moments import binned_stack_stats
 from labctl.reconcile.bin_noise import bin_noise
 from labctl.reconcile.results import ExcludedStep
 from labctl.run.store import RunReader, StepRecord, finite_or_none
-from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
 
 #: frames of each stack read (the first ones), set by hand: enough for the bin means and the noise statistics of
@@ -184,21 +184,18 @@ def read_stack(step: StepRecord, max_frames: int = MAX_FRAMES) -> StepStack:
 
 
 def observe(scene: StepScene, stack: StepStack, bin_px: int) -> Observation:
-    """Binned stack statistics of one step from its frames ``stack`` (``read_stack``)."""
+    """Binned stack statistics of one step from its frames ``stack`` (``read_stack``): the bin means of
+    ``metrics.stack.stack_stats``' per-pixel means and variances of the mean (``binned_stack_stats``, the numbers
+    of ``bin_mean`` over ``stack_stats``' arrays), and the depth noise's statistics (``noise_statistics``)."""
     n = stack.z.shape[0]
-    z_stats = stack_stats(stack.z)
-    i_stats = stack_stats(stack.intensity)
-    z_mean, count = bin_mean(z_stats.mean, bin_px)
-    per_pixel_var = np.where(z_stats.valid, z_stats.std**2 / np.maximum(z_stats.count, 1), np.nan)
-    var_sum, _ = bin_mean(per_pixel_var, bin_px)
+    z_mean, count, var_sum = binned_stack_stats(stack.z, bin_px)
     valid_fraction = count / float(bin_px * bin_px)
     keep = valid_fraction >= 0.5
     noise, dof, valid_rate, correlation, between, independent = noise_statistics(stack.z, bin_px)
     pooled = _pooled_ratio(between, independent)
     with np.errstate(invalid="ignore", divide="ignore"):
         z_var = np.where(keep, var_sum / np.maximum(count, 1) * pooled, np.nan)
-    i_mean, i_count = bin_mean(np.where(i_stats.valid, i_stats.mean, np.nan), bin_px)
-    i_var_sum, _ = bin_mean(np.where(i_stats.valid, i_stats.std**2 / np.maximum(i_stats.count, 1), np.nan), bin_px)
+    i_mean, i_count, i_var_sum = binned_stack_stats(stack.intensity, bin_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         i_var = i_var_sum / np.maximum(i_count, 1)
     return Observation(scene, np.where(keep, z_mean, np.nan), z_var, i_mean, i_var, valid_fraction, stack.times_s,
