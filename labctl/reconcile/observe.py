@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from labctl.evaluation.read_ahead import read_ahead
+from labctl.evaluation.read_ahead import SLOTS, read_ahead
 from labctl.kernel_threads import serial_kernels
 from labctl.reconcile.bin_moments import binned_stack_stats
 from labctl.reconcile.bin_noise import bin_noise
@@ -176,11 +176,26 @@ class StepStack:
     times_s: np.ndarray  # (n,) device time, s (empty when the step has none)
 
 
-def read_stack(step: StepRecord, max_frames: int = MAX_FRAMES) -> StepStack:
-    """The step's first ``max_frames`` frames of z and intensity and their times."""
+def _read_frames(step: StepRecord, channel: str, n: int, buffers: dict[str, np.ndarray]) -> np.ndarray:
+    """The first ``n`` frames of the step's ``channel``, read into ``buffers[channel]`` (a fresh buffer only when
+    the shape or type differs from the last step's: reading into a used one spares the kernel zeroing the fresh
+    pages of a new array for every stack)."""
+    dataset = step.group[channel]
+    shape = (n, *dataset.shape[1:])
+    out = buffers.get(channel)
+    if out is None or out.shape != shape or out.dtype != dataset.dtype:
+        out = buffers[channel] = np.empty(shape, dataset.dtype)
+    dataset.read_direct(out, source_sel=np.s_[:n])
+    return out
+
+
+def read_stack(step: StepRecord, buffers: dict[str, np.ndarray], max_frames: int = MAX_FRAMES) -> StepStack:
+    """The step's first ``max_frames`` frames of z and intensity (read into ``buffers``, which the next read into
+    them overwrites) and their times."""
     n = min(int(step.group["z"].shape[0]), max_frames)
     times = np.asarray(step.group["timestamp"][:n], float) if "timestamp" in step.group else np.zeros(0)
-    return StepStack(step.group["z"][:n], step.group["intensity"][:n].astype(np.float32), times)
+    return StepStack(_read_frames(step, "z", n, buffers),
+                     _read_frames(step, "intensity", n, buffers).astype(np.float32, copy=False), times)
 
 
 def observe(scene: StepScene, stack: StepStack, bin_px: int) -> Observation:
@@ -214,8 +229,8 @@ def observe_run(path: str | Path, bin_px: int | None = None,
                 max_frames: int = MAX_FRAMES) -> tuple[list[Observation], dict[str, Any], list[str]]:
     """Observations of every re-creatable step, the camera description (``skipped``: the steps left out, with
     the reason), and notes on skipped steps. Each step's frames are read while the one before is reduced
-    (``read_ahead``: HDF5's reading and decompression on one core, the compiled statistics on one thread on the
-    other: ``serial_kernels``)."""
+    (``read_ahead``: HDF5's reading and decompression on one core, into one set of buffers per read-ahead slot,
+    the compiled statistics on one thread on the other: ``serial_kernels``)."""
     notes: list[str] = []
     with RunReader(path) as run:
         camera = run.camera
@@ -232,9 +247,10 @@ def observe_run(path: str | Path, bin_px: int | None = None,
                 continue
             scenes[step.step_id] = scene
             comparable.append(step)
+        buffers: list[dict[str, np.ndarray]] = [{} for _ in range(SLOTS)]
         with serial_kernels():
-            observations = [observe(scenes[step.step_id], stack, bin_px)
-                            for step, stack in read_ahead(comparable, lambda step, _slot: read_stack(step, max_frames))]
+            observations = [observe(scenes[step.step_id], stack, bin_px) for step, stack in
+                            read_ahead(comparable, lambda step, slot: read_stack(step, buffers[slot], max_frames))]
         info = {
             "width": camera.width, "height": camera.height, "fov_deg": list(camera.fov_deg),
             "bin_px": bin_px, "backend": run.devices.get("camera", {}).get("backend", ""),
