@@ -43,54 +43,73 @@ def _take(value: float, ref: float, c: float, s: float, ss: float) -> tuple[floa
     return c + (1.0 if ok else 0.0), s + d, ss + d * d
 
 
+@njit(cache=True, nogil=True)
+def row_moments(stack: np.ndarray, i: int, count: np.ndarray, mean: np.ndarray,
+                m2: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Row ``i`` of an (n, H, W) stack in one pass: each pixel's valid count, mean and sum of squared deviations
+    into ``count``, ``mean`` and ``m2`` (length W; NaN mean and m2 where no frame is valid).
+
+    The frame loop is vectorized over columns, four frames at a time: each
+    pixel's sums are loaded and stored once per four frames (the loads and
+    stores, not the arithmetic, bound the pass), the frames still taken in one
+    by one, in order. Values are shifted by the pixel's first valid value and
+    accumulated in float64, so the sum of squares does not cancel.
+
+    Examples
+    --------
+    A row of two pixels over three frames: one seen as 1, 2, 3 (mean 2, squared deviations 2), one valid in none.
+
+    >>> stack = np.array([[[1.0, np.nan]], [[2.0, np.nan]], [[3.0, np.nan]]])
+    >>> count, mean, m2 = np.zeros(2, np.int64), np.zeros(2), np.zeros(2)
+    >>> row_moments(stack, 0, count, mean, m2)
+    >>> count.tolist(), mean.tolist(), m2.tolist()
+    ([3, 0], [2.0, nan], [2.0, nan])
+    """
+    n, _, w = stack.shape
+    c = np.zeros(w)
+    s = np.zeros(w)
+    ss = np.zeros(w)
+    ref = np.zeros(w)
+    for j in range(w):
+        for k in range(n):  # the first valid frame (almost always frame 0)
+            v0 = np.float64(stack[k, i, j])
+            if v0 == v0:
+                ref[j] = v0
+                break
+    k = 0
+    while k + 4 <= n:
+        f0, f1, f2, f3 = stack[k, i], stack[k + 1, i], stack[k + 2, i], stack[k + 3, i]
+        for j in range(w):
+            r = ref[j]
+            cj, sj, ssj = _take(np.float64(f0[j]), r, c[j], s[j], ss[j])
+            cj, sj, ssj = _take(np.float64(f1[j]), r, cj, sj, ssj)
+            cj, sj, ssj = _take(np.float64(f2[j]), r, cj, sj, ssj)
+            c[j], s[j], ss[j] = _take(np.float64(f3[j]), r, cj, sj, ssj)
+        k += 4
+    for rest in range(k, n):
+        f0 = stack[rest, i]
+        for j in range(w):
+            c[j], s[j], ss[j] = _take(np.float64(f0[j]), ref[j], c[j], s[j], ss[j])
+    for j in range(w):
+        count[j] = np.int64(c[j])
+        if c[j] > 0:
+            mean[j] = ref[j] + s[j] / c[j]
+            m2[j] = max(ss[j] - s[j] * s[j] / c[j], 0.0)
+        else:
+            mean[j] = np.nan
+            m2[j] = np.nan
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def _moments(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """One pass over the stack: per-pixel valid count, mean and sum of squared deviations.
-
-    Rows run in parallel; within a row the frame loop is vectorized over
-    columns, four frames at a time: each pixel's sums are loaded and stored
-    once per four frames (the loads and stores, not the arithmetic, bound the
-    pass), the frames still taken in one by one, in order.
-    Values are shifted by the pixel's first valid value and accumulated in
-    float64, so the sum of squares does not cancel.
-    """
+    """One pass over the stack: per-pixel valid count, mean and sum of squared deviations, rows in parallel
+    (:func:`row_moments`)."""
     n, h, w = stack.shape
     count = np.zeros((h, w), np.int64)
     mean = np.empty((h, w))
     m2 = np.empty((h, w))
     for i in prange(h):
-        c = np.zeros(w)
-        s = np.zeros(w)
-        ss = np.zeros(w)
-        ref = np.zeros(w)
-        for j in range(w):
-            for k in range(n):  # the first valid frame (almost always frame 0)
-                v0 = np.float64(stack[k, i, j])
-                if v0 == v0:
-                    ref[j] = v0
-                    break
-        k = 0
-        while k + 4 <= n:
-            f0, f1, f2, f3 = stack[k, i], stack[k + 1, i], stack[k + 2, i], stack[k + 3, i]
-            for j in range(w):
-                r = ref[j]
-                cj, sj, ssj = _take(np.float64(f0[j]), r, c[j], s[j], ss[j])
-                cj, sj, ssj = _take(np.float64(f1[j]), r, cj, sj, ssj)
-                cj, sj, ssj = _take(np.float64(f2[j]), r, cj, sj, ssj)
-                c[j], s[j], ss[j] = _take(np.float64(f3[j]), r, cj, sj, ssj)
-            k += 4
-        for rest in range(k, n):
-            f0 = stack[rest, i]
-            for j in range(w):
-                c[j], s[j], ss[j] = _take(np.float64(f0[j]), ref[j], c[j], s[j], ss[j])
-        for j in range(w):
-            count[i, j] = np.int64(c[j])
-            if c[j] > 0:
-                mean[i, j] = ref[j] + s[j] / c[j]
-                m2[i, j] = max(ss[j] - s[j] * s[j] / c[j], 0.0)
-            else:
-                mean[i, j] = np.nan
-                m2[i, j] = np.nan
+        row_moments(stack, i, count[i], mean[i], m2[i])
     return count, mean, m2
 
 

@@ -13,8 +13,6 @@ eight partial sums (``_pairwise_sum``).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
@@ -50,13 +48,15 @@ def _block_sum(a: np.ndarray, start: int, n: int) -> float:  # pragma: no cover 
     return res
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _pairwise_sum(a: np.ndarray, start: int, n: int, nodes: np.ndarray,
                   left: np.ndarray) -> float:  # pragma: no cover - compiled
     """Sum of ``a[start:start + n]`` in numpy's pairwise order (``pairwise_sum`` of numpy's loops_utils.h: halves,
     each cut to a multiple of eight, down to blocks of at most ``PAIRWISE_BLOCK``). The recursion runs on an
     explicit stack (``nodes``: start, length and stage of each open half; ``left``: its first half's sum), as
-    numba's cache does not keep recursive functions."""
+    numba's cache does not keep recursive functions. Inlined: a call costs as much as a block's sum."""
+    if n <= PAIRWISE_BLOCK:  # one block: no stack to set up
+        return _block_sum(a, start, n)
     top = 0
     nodes[0, 0], nodes[0, 1], nodes[0, 2] = start, n, 0
     returned = 0.0
@@ -91,59 +91,67 @@ def bin_noise(z: np.ndarray, bin_px: int) -> tuple[np.ndarray, np.ndarray, np.nd
                                                      np.ndarray]:  # pragma: no cover - compiled
     """Per bin of an (n, H, W) stack (cropped to whole bins): the pixels valid in every frame (m), the mean of
     their sample variances (NaN where m is 0), the variance over the frames of their mean deviation from their
-    own stack means (n - 1 in both denominators, at least 1), and the fraction of valid pixel-frames."""
+    own stack means (n - 1 in both denominators, at least 1), and the fraction of valid pixel-frames.
+
+    A row of bins at a time: the per-pixel sums over the frames run along the strip's whole rows (vectorized over
+    the columns, each pixel's frames still added one after the other), then each bin's pixels are gathered in
+    their order (row after row of the bin) for numpy's pairwise sums."""
     n, height, width = z.shape
     h, w = height // bin_px, width // bin_px
     m_px = bin_px * bin_px
+    cols = w * bin_px
     full_count = np.zeros((h, w), np.int64)
     mean_var = np.empty((h, w))
     between = np.empty((h, w))
     valid_rate = np.empty((h, w))
     denominator = max(n - 1, 1)
     for by in prange(h):
-        pixels = np.empty((n, m_px))
-        full = np.empty(m_px, np.bool_)
-        deviation = np.empty((n, m_px))
-        pixel_var = np.empty(m_px)
-        frame_mean = np.empty(n)
+        finite = np.zeros((bin_px, cols), np.int64)
+        total = np.zeros((bin_px, cols))
+        full = np.empty((bin_px, cols), np.bool_)
+        centre = np.empty((bin_px, cols))
+        squares = np.zeros((bin_px, cols))
+        gathered = np.empty((w, m_px))
+        frame_squares = np.zeros(w)
         nodes = np.empty((STACK_DEPTH, 3), np.int64)
         left = np.empty(STACK_DEPTH)
+        for k in range(n):
+            for dy in range(bin_px):
+                row = z[k, by * bin_px + dy]
+                for x in range(cols):
+                    v = np.float64(row[x])
+                    finite[dy, x] += 1 if v - v == 0.0 else 0
+                    total[dy, x] += v
+        for dy in range(bin_px):
+            for x in range(cols):
+                full[dy, x] = finite[dy, x] == n
+                centre[dy, x] = total[dy, x] / n
+        m = np.zeros(w, np.int64)
         for bx in range(w):
-            finite = 0
-            for k in range(n):
-                for dy in range(bin_px):
+            counted = 0
+            for dy in range(bin_px):
+                for dx in range(bin_px):
+                    counted += finite[dy, bx * bin_px + dx]
+                    m[bx] += 1 if full[dy, bx * bin_px + dx] else 0
+            full_count[by, bx] = m[bx]
+            valid_rate[by, bx] = counted / (n * m_px)
+        for k in range(n):
+            for dy in range(bin_px):
+                row = z[k, by * bin_px + dy]
+                for bx in range(w):
                     for dx in range(bin_px):
-                        v = np.float64(z[k, by * bin_px + dy, bx * bin_px + dx])
-                        pixels[k, dy * bin_px + dx] = v
-                        finite += 1 if math.isfinite(v) else 0
-            m = 0
-            for p in range(m_px):
-                ok = True
-                for k in range(n):
-                    ok = ok and math.isfinite(pixels[k, p])
-                full[p] = ok
-                m += 1 if ok else 0
-            for p in range(m_px):
-                if full[p]:
-                    total = 0.0
-                    for k in range(n):
-                        total += pixels[k, p]
-                    centre = total / n
-                    for k in range(n):
-                        deviation[k, p] = pixels[k, p] - centre
-                else:
-                    for k in range(n):
-                        deviation[k, p] = 0.0
-                squares = 0.0
-                for k in range(n):
-                    squares += deviation[k, p] * deviation[k, p]
-                pixel_var[p] = squares / denominator
-            mean_var[by, bx] = _pairwise_sum(pixel_var, 0, m_px, nodes, left) / m if m > 0 else np.nan
-            squares = 0.0
-            for k in range(n):
-                frame_mean[k] = _pairwise_sum(deviation[k], 0, m_px, nodes, left) / m if m > 0 else np.nan
-                squares += frame_mean[k] * frame_mean[k]
-            between[by, bx] = squares / denominator
-            full_count[by, bx] = m
-            valid_rate[by, bx] = finite / (n * m_px)
+                        x = bx * bin_px + dx
+                        deviation = np.float64(row[x]) - centre[dy, x] if full[dy, x] else 0.0
+                        squares[dy, x] += deviation * deviation
+                        gathered[bx, dy * bin_px + dx] = deviation
+            for bx in range(w):
+                frame_mean = _pairwise_sum(gathered[bx], 0, m_px, nodes, left) / m[bx] if m[bx] > 0 else np.nan
+                frame_squares[bx] += frame_mean * frame_mean
+        for dy in range(bin_px):
+            for bx in range(w):
+                for dx in range(bin_px):
+                    gathered[bx, dy * bin_px + dx] = squares[dy, bx * bin_px + dx] / denominator
+        for bx in range(w):
+            mean_var[by, bx] = _pairwise_sum(gathered[bx], 0, m_px, nodes, left) / m[bx] if m[bx] > 0 else np.nan
+            between[by, bx] = frame_squares[bx] / denominator
     return full_count, mean_var, between, valid_rate

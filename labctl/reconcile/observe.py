@@ -40,13 +40,13 @@ from typing import Any
 import numpy as np
 
 from labctl.errors import InputError
-from labctl.evaluation.read_ahead import read_ahead
+from labctl.evaluation.read_ahead import SLOTS, read_ahead
 from labctl.kernel_threads import serial_kernels
+from labctl.reconcile.bin_moments import binned_stack_stats
 from labctl.reconcile.bin_noise import bin_noise
 from labctl.reconcile.results import ExcludedStep
 from labctl.run.config import parse_campaign
 from labctl.run.store import RunReader, StepRecord, finite_or_none
-from metrics.stack import stack_stats
 from sim.scenes.targets import PLATE_MATERIALS, STAGE_TARGETS
 
 #: frames of each stack read (the first ones), set by hand: enough for the bin means and the noise statistics of
@@ -179,32 +179,53 @@ class StepStack:
     times_s: np.ndarray  # (n,) device time, s (empty when the step has none)
 
 
-def read_stack(step: StepRecord, max_frames: int = MAX_FRAMES,
-               held: Callable[[str], np.ndarray] | None = None) -> StepStack:
-    """The step's first ``max_frames`` frames of z and intensity and their times; ``held``: a channel's stack as
-    a run that keeps no frames in its file hands it over (``RunWriter.frame_sink``), instead of the file's."""
+def _read_frames(step: StepRecord, channel: str, n: int, buffers: dict[str, np.ndarray]) -> np.ndarray:
+    """The first ``n`` frames of the step's ``channel``, read into ``buffers[channel]`` (a fresh buffer only when
+    the shape or type differs from the last step's: reading into a used one spares the kernel zeroing the fresh
+    pages of a new array for every stack)."""
+    dataset = step.group[channel]
+    shape = (n, *dataset.shape[1:])
+    out = buffers.get(channel)
+    if out is None or out.shape != shape or out.dtype != dataset.dtype:
+        out = buffers[channel] = np.empty(shape, dataset.dtype)
+    dataset.read_direct(out, source_sel=np.s_[:n])
+    return out
+
+
+def _frames_and_times(step: StepRecord, max_frames: int) -> tuple[int, np.ndarray]:
+    """How many of the step's frames are used (its first ``max_frames``), and their times."""
     n = min(int(step.group["z"].shape[0]), max_frames)
-    times = np.asarray(step.group["timestamp"][:n], float) if "timestamp" in step.group else np.zeros(0)
-    stack = held or step.group.__getitem__
-    return StepStack(stack("z")[:n], stack("intensity")[:n].astype(np.float32), times)
+    return n, np.asarray(step.group["timestamp"][:n], float) if "timestamp" in step.group else np.zeros(0)
+
+
+def read_stack(step: StepRecord, buffers: dict[str, np.ndarray], max_frames: int = MAX_FRAMES) -> StepStack:
+    """The step's first ``max_frames`` frames of z and intensity (read into ``buffers``, which the next read into
+    them overwrites) and their times."""
+    n, times = _frames_and_times(step, max_frames)
+    return StepStack(_read_frames(step, "z", n, buffers),
+                     _read_frames(step, "intensity", n, buffers).astype(np.float32, copy=False), times)
+
+
+def held_stack(step: StepRecord, held: Callable[[str], np.ndarray], max_frames: int = MAX_FRAMES) -> StepStack:
+    """What :func:`read_stack` reads of a step, from its stacks as a run that keeps no frames in its file hands
+    them over (``held``: a channel's stack; ``RunWriter.frame_sink``)."""
+    n, times = _frames_and_times(step, max_frames)
+    return StepStack(held("z")[:n], held("intensity")[:n].astype(np.float32, copy=False), times)
 
 
 def observe(scene: StepScene, stack: StepStack, bin_px: int) -> Observation:
-    """Binned stack statistics of one step from its frames ``stack`` (``read_stack``)."""
+    """Binned stack statistics of one step from its frames ``stack`` (``read_stack``): the bin means of
+    ``metrics.stack.stack_stats``' per-pixel means and variances of the mean (``binned_stack_stats``, the numbers
+    of ``bin_mean`` over ``stack_stats``' arrays), and the depth noise's statistics (``noise_statistics``)."""
     n = stack.z.shape[0]
-    z_stats = stack_stats(stack.z)
-    i_stats = stack_stats(stack.intensity)
-    z_mean, count = bin_mean(z_stats.mean, bin_px)
-    per_pixel_var = np.where(z_stats.valid, z_stats.std**2 / np.maximum(z_stats.count, 1), np.nan)
-    var_sum, _ = bin_mean(per_pixel_var, bin_px)
+    z_mean, count, var_sum = binned_stack_stats(stack.z, bin_px)
     valid_fraction = count / float(bin_px * bin_px)
     keep = valid_fraction >= 0.5
     noise, dof, valid_rate, correlation, between, independent = noise_statistics(stack.z, bin_px)
     pooled = _pooled_ratio(between, independent)
     with np.errstate(invalid="ignore", divide="ignore"):
         z_var = np.where(keep, var_sum / np.maximum(count, 1) * pooled, np.nan)
-    i_mean, i_count = bin_mean(np.where(i_stats.valid, i_stats.mean, np.nan), bin_px)
-    i_var_sum, _ = bin_mean(np.where(i_stats.valid, i_stats.std**2 / np.maximum(i_stats.count, 1), np.nan), bin_px)
+    i_mean, i_count, i_var_sum = binned_stack_stats(stack.intensity, bin_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         i_var = i_var_sum / np.maximum(i_count, 1)
     return Observation(scene, np.where(keep, z_mean, np.nan), z_var, i_mean, i_var, valid_fraction, stack.times_s,
@@ -233,7 +254,7 @@ class StepObserver:
     def __call__(self, step: StepRecord, held: Callable[[str], np.ndarray]) -> None:
         if step.step_id not in self.wanted or (scene := step_scene(step)) is None:
             return
-        self._observed[step.step_id] = observe(scene, read_stack(step, self.max_frames, held), self.bin_px)
+        self._observed[step.step_id] = observe(scene, held_stack(step, held, self.max_frames), self.bin_px)
 
     def observations(self) -> list[Observation]:
         """The steps observed, in the order a run file lists them (``RunReader.steps``)."""
@@ -260,8 +281,8 @@ def observe_run(path: str | Path, bin_px: int | None = None,
                 max_frames: int = MAX_FRAMES) -> tuple[list[Observation], dict[str, Any], list[str]]:
     """Observations of every re-creatable step, the camera description (``skipped``: the steps left out, with
     the reason), and notes on skipped steps. Each step's frames are read while the one before is reduced
-    (``read_ahead``: HDF5's reading and decompression on one core, the compiled statistics on one thread on the
-    other: ``serial_kernels``)."""
+    (``read_ahead``: HDF5's reading and decompression on one core, into one set of buffers per read-ahead slot,
+    the compiled statistics on one thread on the other: ``serial_kernels``)."""
     notes: list[str] = []
     with RunReader(path) as run:
         camera = run.camera
@@ -278,9 +299,10 @@ def observe_run(path: str | Path, bin_px: int | None = None,
                 continue
             scenes[step.step_id] = scene
             comparable.append(step)
+        buffers: list[dict[str, np.ndarray]] = [{} for _ in range(SLOTS)]
         with serial_kernels():
-            observations = [observe(scenes[step.step_id], stack, bin_px)
-                            for step, stack in read_ahead(comparable, lambda step, _slot: read_stack(step, max_frames))]
+            observations = [observe(scenes[step.step_id], stack, bin_px) for step, stack in
+                            read_ahead(comparable, lambda step, slot: read_stack(step, buffers[slot], max_frames))]
         info = {
             "width": camera.width, "height": camera.height, "fov_deg": list(camera.fov_deg),
             "bin_px": bin_px, "backend": run.devices.get("camera", {}).get("backend", ""),
