@@ -43,6 +43,9 @@ def _take(value: float, ref: float, c: float, s: float, ss: float) -> tuple[floa
     return c + (1.0 if ok else 0.0), s + d, ss + d * d
 
 
+# numba's cache notices a change to a compiled function only in its own file: after changing this one, delete the
+# cache of the kernels in labctl/reconcile/bin_moments.py that call it (__pycache__/*.nbi, *.nbc there), or they
+# keep the old code
 @njit(cache=True, nogil=True)
 def row_moments(stack: np.ndarray, i: int, count: np.ndarray, mean: np.ndarray,
                 m2: np.ndarray) -> None:  # pragma: no cover - compiled

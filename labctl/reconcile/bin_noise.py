@@ -48,6 +48,9 @@ def _block_sum(a: np.ndarray, start: int, n: int) -> float:  # pragma: no cover 
     return res
 
 
+# numba's cache notices a change to a compiled function only in its own file: after changing this one, delete the
+# cache of the kernels in labctl/reconcile/bin_moments.py that call it (__pycache__/*.nbi, *.nbc there), or they
+# keep the old code
 @njit(cache=True, nogil=True, inline="always")
 def _pairwise_sum(a: np.ndarray, start: int, n: int, nodes: np.ndarray,
                   left: np.ndarray) -> float:  # pragma: no cover - compiled
