@@ -177,6 +177,15 @@ class Layout:
         s_rows = np.zeros(len(s_root)) if s_rows is None else s_rows
         return np.concatenate([self.profile_z(z_rows) * z_root, self.profile_i(i_rows) * i_root, s_rows * s_root])
 
+    def shared_nuisance(self) -> np.ndarray:
+        """The whitened design of the nuisance that steps share (the depth offset of each reference group, the wall's
+        tilt) over every row of ``profiled``, zero on the rows it does not touch, its unused columns left out. The
+        per-step intensity gains are not in it: each belongs to one step, so leaving a step out takes its gain with
+        it and the profiled rows already are what the other steps see."""
+        design = np.zeros((len(self.row_steps()), self.z_nuisance.shape[1]))
+        design[:len(self.z_step)] = self.z_nuisance * self._whitening[0][:, None]
+        return design[:, np.any(design != 0, axis=0)]
+
     def row_steps(self) -> np.ndarray:
         """Step number of every row of ``profiled``."""
         return np.concatenate([self.z_step, self.i_step, *(self.s_step.get(f, np.zeros(0, int)) for f in STATISTICS)])

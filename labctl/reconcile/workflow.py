@@ -302,13 +302,23 @@ def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim
     return optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev), build
 
 
-def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_steps: int) -> np.ndarray:
+def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_steps: int,
+                     shared: np.ndarray | None = None) -> np.ndarray:
     """Covariance of least-squares parameters with the steps as the independent replications: the
     delete-one-step jackknife (CR3; MacKinnon & White 1985, Bell & McCaffrey 2002), (n - 1) / n B (sum_s
     c_s c_s') B with B = (J'J)^-1 and c_s = J'J (J'J - J_s'J_s)^-1 J_s' f_s, the score of step s as the fit
     without that step would see it (the cluster-robust sandwich of Liang & Zeger 1986 uses J_s' f_s itself,
-    and understates the scatter where a few precise steps carry the fit)."""
+    and understates the scatter where a few precise steps carry the fit).
+
+    ``jac`` is the Jacobian of the residual with ``shared`` (the whitened design of a nuisance the steps share,
+    ``Layout.shared_nuisance``) profiled out, ``fun`` that residual. Leaving a step out re-estimates that
+    nuisance too, so the jackknife is taken over the parameters and the nuisance together ([shared, jac]: the
+    same fit and residual, Frisch-Waugh-Lovell) and the parameters' block returned; over ``jac`` alone a step
+    that carries the nuisance (the nearest, most precise wall carries the depth offset) would count only its
+    leverage on the parameters."""
     k = jac.shape[1]
+    if shared is not None and shared.shape[1]:
+        jac = np.hstack([shared, jac])
     info = jac.T @ jac
     bread = np.linalg.pinv(info)
     rows = step_rows(steps, n_steps)
@@ -321,11 +331,11 @@ def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_step
         if not np.any(gs):
             continue
         scores.append(info @ np.linalg.pinv(info - js.T @ js) @ gs)
-    used = max(len(scores), k + 1)
-    meat = np.zeros((k, k))
+    used = max(len(scores), jac.shape[1] + 1)
+    meat = np.zeros(info.shape)
     for c in scores:
         meat += np.outer(c, c)
-    return bread @ meat @ bread * (used - 1) / used
+    return (bread @ meat @ bread * (used - 1) / used)[-k:, -k:]
 
 
 def determination(candidate: Candidate, params: Parameters, x: np.ndarray, cov: np.ndarray,
@@ -385,7 +395,7 @@ def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
     rss = float(result.fun @ result.fun)
     hint = capture_hint(candidate.name, params, sim.observations, sim.t0_s)
     try:
-        cov = _step_covariance(result.jac, result.fun, lay.row_steps(), lay.n_steps)
+        cov = _step_covariance(result.jac, result.fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
         stderr, info = determination(candidate, params, result.x, cov, hint)
     except (np.linalg.LinAlgError, ValueError, OverflowError):  # overflow: an error beyond any parameter's range
         stderr, info = {}, Determination(well_determined=False, problems=["no covariance"], capture=hint)
