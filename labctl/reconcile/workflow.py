@@ -277,10 +277,38 @@ class Simulation:
         return self.predictor(model).predict_run(self.observations, self.t0_s)
 
 
+@dataclass
+class _Fitted:
+    """A least-squares fit of named effects: the solver's result, the map from its parameter vector to the model, the
+    whitened residual it minimized (``Layout.profiled``) and the parameters' bounds."""
+
+    result: optimize.OptimizeResult
+    build: Callable[[np.ndarray], SimModel]
+    residual: Callable[[np.ndarray], np.ndarray]
+    bounds: tuple[np.ndarray, np.ndarray]
+
+    def secant_jacobian(self, steps: np.ndarray) -> np.ndarray:
+        """The residual's slope in each parameter over +-``steps`` around the fit (central differences; one-sided
+        where a bound is nearer than the step). The prediction is piecewise constant at the solver's own finite
+        difference (a relative 1.5e-8: the camera's roundings are averaged over finitely many positions on their
+        grids, ``noise_model``), so a derivative taken there reads a rounding's jump as a slope; over the
+        parameter's own uncertainty the jumps average out, and that slope is the one its error propagates by."""
+        x, (lo, hi) = self.result.x, self.bounds
+        f0 = self.result.fun
+        jac = np.zeros((len(f0), len(x)))
+        for i, h in enumerate(steps):
+            up, down = x.copy(), x.copy()
+            up[i], down[i] = min(x[i] + h, hi[i]), max(x[i] - h, lo[i])
+            f_up = self.residual(up) if up[i] > x[i] else f0
+            f_down = self.residual(down) if down[i] < x[i] else f0
+            if up[i] > down[i]:
+                jac[:, i] = (f_up - f_down) / (up[i] - down[i])
+        return jac
+
+
 def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout,
-                 max_nfev: int) -> tuple[optimize.OptimizeResult, Callable[[np.ndarray], SimModel]]:
-    """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations;
-    returns the solver's result and the map from its parameter vector to the model."""
+                 max_nfev: int) -> _Fitted:
+    """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations."""
     vectors = [c.vector(p) for c, p in found]
     x0 = np.concatenate([v[0] for v in vectors])
     lo = np.concatenate([v[1][0] for v in vectors])
@@ -299,7 +327,8 @@ def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim
         dz, di = raw_residuals(sim.observations, preds)
         return np.nan_to_num(lay.profiled(dz, di, raw_statistics(sim.observations, preds)))
 
-    return optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev), build
+    result = optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev)
+    return _Fitted(result, build, residual, (lo, hi))
 
 
 def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_steps: int,
@@ -390,12 +419,18 @@ def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
     Returns the parameters, their standard errors (steps as replications), how well the run determines them
     (``determination``) and the whitened RSS.
     """
-    result, _ = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
+    fitted = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
+    result = fitted.result
     params = candidate.from_vector(result.x)
     rss = float(result.fun @ result.fun)
     hint = capture_hint(candidate.name, params, sim.observations, sim.t0_s)
     try:
-        cov = _step_covariance(result.jac, result.fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
+        # the slope over each parameter's standard error with the others held (1 / sqrt of the solver's J'J
+        # diagonal: the change that moves the whitened RSS by 1), ``_Fitted.secant_jacobian``
+        with np.errstate(divide="ignore"):
+            step = 1.0 / np.sqrt(np.sum(result.jac**2, axis=0))
+        jac = fitted.secant_jacobian(np.where(np.isfinite(step), step, 1e-8 * np.maximum(1.0, np.abs(result.x))))
+        cov = _step_covariance(jac, result.fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
         stderr, info = determination(candidate, params, result.x, cov, hint)
     except (np.linalg.LinAlgError, ValueError, OverflowError):  # overflow: an error beyond any parameter's range
         stderr, info = {}, Determination(well_determined=False, problems=["no covariance"], capture=hint)
@@ -406,8 +441,8 @@ def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, s
                    lay: Layout) -> SimModel:
     """All effects named in this reconcile refitted together (an effect fitted while another was still
     missing carries some of the other's residual)."""
-    result, build = _fit_effects(found, model, sim, lay, max_nfev=20)
-    return build(result.x)
+    fitted = _fit_effects(found, model, sim, lay, max_nfev=20)
+    return fitted.build(fitted.result.x)
 
 
 def _comparable_steps(lay: Layout) -> int:

@@ -12,9 +12,10 @@ held it in 62 %, since two or three precise steps carry the fit.
 from __future__ import annotations
 
 import numpy as np
+from scipy import optimize
 
 from labctl.reconcile.residuals import GROUPS, Layout
-from labctl.reconcile.workflow import _step_covariance
+from labctl.reconcile.workflow import _Fitted, _step_covariance
 
 
 def test_stated_intervals_cover_the_true_slope_when_a_few_precise_steps_carry_the_fit():
@@ -63,3 +64,22 @@ def test_stated_intervals_cover_the_true_slope_with_the_shared_offset_profiled_o
         profiled_only += abs(fitted) <= 1.96 * np.sqrt(_step_covariance(slope, residual, steps, n_steps)[0, 0])
     assert 0.90 <= covered / draws <= 0.99
     assert profiled_only / draws < 0.75  # what the intervals held before the shared nuisance was counted
+
+
+def test_the_slope_an_error_propagates_by_is_taken_over_the_rounding_steps_not_across_one():
+    """A prediction that averages a rounding over finitely many grid positions (as the stereo depth's is,
+    labctl/reconcile/noise_model.py) is piecewise constant: at the solver's finite difference its derivative is 0
+    or a jump divided by 1e-8. Over a step of the parameter's uncertainty the slope is the true one."""
+    z = np.linspace(500.0, 3000.0, 400)
+    positions = (np.arange(8) + 0.5) / 8
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        return -np.mean(np.rint(z[:, None] * (1 + x[0]) + positions[None, :]), axis=1)
+
+    x = np.array([0.01])
+    fitted = _Fitted(optimize.OptimizeResult(x=x, fun=residual(x)), lambda v: v, residual,
+                     (np.array([-0.1]), np.array([0.1])))
+    tiny = fitted.secant_jacobian(np.array([1.5e-10]))[:, 0]
+    secant = fitted.secant_jacobian(np.array([0.01]))[:, 0]
+    assert np.max(np.abs(tiny)) > 1e6 or not np.any(tiny)  # a jump or nothing, not the slope
+    assert np.all(np.abs(secant + z) <= 1 / len(positions) / 0.02 + 1e-9)  # within one position's jump over 2 h
