@@ -367,6 +367,15 @@ def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_step
     return (bread @ meat @ bread * (used - 1) / used)[-k:, -k:]
 
 
+def _floor_covariance(jac: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """The parameters' covariance from the approximation the prediction is granted in each compared bin (its
+    family's floor, ``Layout.floor_variance``, as a share of the whitened row's variance), propagated as a Type B
+    component (JCGM 100:2008, 4.3 and 5.1): B J' diag(floor) J B, each bin's approximation independent of the
+    others'. The steps' scatter cannot show it where the approximation repeats from step to step."""
+    bread = np.linalg.pinv(jac.T @ jac)
+    return bread @ (jac.T @ (floor[:, None] * jac)) @ bread
+
+
 def determination(candidate: Candidate, params: Parameters, x: np.ndarray, cov: np.ndarray,
                   capture: str) -> tuple[dict[str, float], Determination]:
     """Standard errors of the named parameters, 95 % intervals, correlations, and whether the run determines
@@ -430,7 +439,8 @@ def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
         with np.errstate(divide="ignore"):
             step = 1.0 / np.sqrt(np.sum(result.jac**2, axis=0))
         jac = fitted.secant_jacobian(np.where(np.isfinite(step), step, 1e-8 * np.maximum(1.0, np.abs(result.x))))
-        cov = _step_covariance(jac, result.fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
+        cov = (_step_covariance(jac, result.fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
+               + _floor_covariance(jac, lay.floor_variance()))
         stderr, info = determination(candidate, params, result.x, cov, hint)
     except (np.linalg.LinAlgError, ValueError, OverflowError):  # overflow: an error beyond any parameter's range
         stderr, info = {}, Determination(well_determined=False, problems=["no covariance"], capture=hint)

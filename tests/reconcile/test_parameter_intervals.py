@@ -15,7 +15,7 @@ import numpy as np
 from scipy import optimize
 
 from labctl.reconcile.residuals import GROUPS, Layout
-from labctl.reconcile.workflow import _Fitted, _step_covariance
+from labctl.reconcile.workflow import _Fitted, _floor_covariance, _step_covariance
 
 
 def test_stated_intervals_cover_the_true_slope_when_a_few_precise_steps_carry_the_fit():
@@ -83,3 +83,17 @@ def test_the_slope_an_error_propagates_by_is_taken_over_the_rounding_steps_not_a
     secant = fitted.secant_jacobian(np.array([0.01]))[:, 0]
     assert np.max(np.abs(tiny)) > 1e6 or not np.any(tiny)  # a jump or nothing, not the slope
     assert np.all(np.abs(secant + z) <= 1 / len(positions) / 0.02 + 1e-9)  # within one position's jump over 2 h
+
+
+def test_the_floor_component_is_the_scatter_the_granted_approximations_give():
+    """Each compared bin's prediction is granted an approximation of its family's floor (``Layout.floor_variance``,
+    the floor's share of the whitened row's variance); drawn independently per bin at exactly that size, the
+    fitted parameters scatter as ``_floor_covariance`` states (2000 draws, within 10 % in variance)."""
+    rng = np.random.default_rng(20261128)
+    rows = 600
+    floor_share = rng.uniform(0.05, 0.95, rows)  # floor^2 / (sampling variance + floor^2), row by row
+    jac = np.stack([rng.normal(0.0, 1.0, rows), np.linspace(-1.0, 1.0, rows) ** 2], axis=1)
+    fits = np.array([np.linalg.lstsq(jac, rng.normal(0.0, 1.0, rows) * np.sqrt(floor_share), rcond=None)[0]
+                     for _ in range(2000)])
+    stated = np.diag(_floor_covariance(jac, floor_share))
+    assert np.allclose(fits.var(axis=0), stated, rtol=0.10), (fits.var(axis=0), stated)
