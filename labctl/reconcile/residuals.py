@@ -86,7 +86,8 @@ class Layout:
     s_masks: dict[str, list[np.ndarray]] = field(default_factory=dict)  # per statistics family (``STATISTICS``)
     s_step: dict[str, np.ndarray] = field(default_factory=dict)
     s_weight: dict[str, np.ndarray] = field(default_factory=dict)
-    i_floor: np.ndarray = field(default_factory=lambda: np.zeros(0))  # each intensity row's floor (LOG_I_FLOOR...)
+    #: each step's reference variance of its own (mm^2, ``StepScene.reference_uncertainty_mm``), shared by its bins
+    reference_var: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n_steps(self) -> int:
@@ -187,12 +188,18 @@ class Layout:
         design[:len(self.z_step)] = self.z_nuisance * self._whitening[0][:, None]
         return design[:, np.any(design != 0, axis=0)]
 
-    def floor_variance(self) -> np.ndarray:
-        """Per row of ``profiled``: the share of its whitened variance that is its family's floor (``Z_FLOOR_MM``,
-        the intensity row's floor, ``STAT_FLOORS``), the approximation the prediction is granted in each bin."""
-        i_floor = self.i_floor if len(self.i_floor) == len(self.i_step) else np.full(len(self.i_step), LOG_I_FLOOR)
-        return np.concatenate([Z_FLOOR_MM**2 * self.z_weight, i_floor**2 * self.i_weight,
-                               *(STAT_FLOORS[f] ** 2 * self.s_weight.get(f, np.zeros(0)) for f in STATISTICS)])
+    def reference_directions(self) -> list[tuple[float, np.ndarray]]:
+        """Per step with a reference uncertainty of its own (``reference_var``): that variance and the whitened
+        rows (over every row of ``profiled``) an error of 1 mm in the step's reference moves, its depth rows by
+        sqrt(weight) (the wall moves with its reference; the nuisance profiled out of the Jacobian the rows are
+        taken against, Frisch-Waugh-Lovell)."""
+        out = []
+        for s in np.flatnonzero(self.reference_var > 0) if len(self.reference_var) == self.n_steps else ():
+            rows = np.zeros(len(self.row_steps()))
+            on = self.z_step == s
+            rows[:len(self.z_step)][on] = self._whitening[0][on]
+            out.append((float(self.reference_var[s]), rows))
+        return out
 
     def row_steps(self) -> np.ndarray:
         """Step number of every row of ``profiled``."""
@@ -245,7 +252,7 @@ def step_rows(steps: np.ndarray, n_steps: int) -> list[np.ndarray]:
 
 def layout(observations: list[Observation], predictions: list[Prediction], technology: str = "tof") -> Layout:
     """Usable bins, weights and nuisance design for a run (the masks fixed by the base model)."""
-    z_masks, i_masks, z_step, i_step, rows, zw, iw, i_floor = [], [], [], [], [], [], [], []
+    z_masks, i_masks, z_step, i_step, rows, zw, iw, reference_var = [], [], [], [], [], [], [], []
     for s, (obs, pred) in enumerate(zip(observations, predictions, strict=True)):
         ok = (np.isfinite(obs.z) & np.isfinite(obs.z_var) & (obs.valid_fraction >= MIN_VALID_FRACTION)
               & ~pred.edge & ~measured_edges(obs.z) & np.isfinite(pred.z))
@@ -258,7 +265,7 @@ def layout(observations: list[Observation], predictions: list[Prediction], techn
         zw.append(1.0 / (obs.z_var[ok] + Z_FLOOR_MM**2))
         floor = LOG_I_FLOOR_PROJECTOR if technology == "stereo" and obs.scene.projector else LOG_I_FLOOR
         iw.append(1.0 / (obs.intensity_var[iok] / obs.intensity[iok] ** 2 + floor**2))
-        i_floor.append(np.full(int(iok.sum()), floor))
+        reference_var.append(obs.scene.reference_uncertainty_mm**2)
         design = np.zeros((int(ok.sum()), len(GROUPS) + 2))
         design[:, GROUPS.index(obs.scene.reference)] = 1.0
         if obs.scene.reference != "robot":  # the wall's tilt: z grows along the ray slopes
@@ -275,7 +282,7 @@ def layout(observations: list[Observation], predictions: list[Prediction], techn
                   np.concatenate(i_step).astype(int) if i_step else np.zeros(0, int),
                   np.concatenate(used) if used else np.zeros((0, len(GROUPS) + 2)),
                   np.concatenate(zw) if zw else np.zeros(0), np.concatenate(iw) if iw else np.zeros(0),
-                  s_masks, s_step, s_weight, np.concatenate(i_floor) if i_floor else np.zeros(0))
+                  s_masks, s_step, s_weight, np.array(reference_var, dtype=float))
 
 
 def statistics_masks(obs: Observation, pred: Prediction) -> dict[str, np.ndarray]:
