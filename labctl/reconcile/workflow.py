@@ -444,8 +444,9 @@ def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
            lay: Layout) -> tuple[Parameters, dict[str, float], Determination, float]:
     """The candidate's parameters refined on full re-simulations, starting from its linear fit.
 
-    Returns the parameters, their standard errors (steps as replications), how well the run determines them
-    (``determination``) and the whitened RSS.
+    Returns the parameters, their standard errors (the larger of the delete-one-step jackknife's and the declared
+    errors', docs/reconcile.md *Parameter uncertainty*), how well the run determines them (``determination``)
+    and the whitened RSS.
     """
     fitted = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
     result = fitted.result
