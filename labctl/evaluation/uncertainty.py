@@ -60,6 +60,14 @@ def _repeatability(n: int) -> float:
     return from_multiple(REPEATABILITY_2SIGMA_MM, 2.0) / math.sqrt(n)
 
 
+def laser_step_uncertainty(attrs: Mapping[str, Any]) -> float:
+    """Standard uncertainty (mm) a laser-referenced step's reference has of its own, the laser's repeatability on
+    the mean of its readings (0 without laser readings): what differs from step to step, where the offset
+    calibration's components are the same for every step of the run."""
+    n = laser_readings(attrs)
+    return _repeatability(n) if n else 0.0
+
+
 def offset_calibration(step: StepRecord) -> tuple[Component, ...]:
     """The components (mm) of the camera-laser offset an ``offset_calibration`` step measured: the laser
     repeatability of its readings and the camera's mean depth over the central 10 % x 10 % (s / sqrt(N) of the

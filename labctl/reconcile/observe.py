@@ -41,6 +41,7 @@ import numpy as np
 
 from labctl.errors import InputError
 from labctl.evaluation.read_ahead import SLOTS, read_ahead
+from labctl.evaluation.uncertainty import laser_step_uncertainty
 from labctl.kernel_threads import serial_kernels
 from labctl.reconcile.bin_moments import binned_stack_stats
 from labctl.reconcile.bin_noise import bin_noise
@@ -73,6 +74,9 @@ class StepScene:
     applied_offset_mm: float | None = None
     #: an offset calibration: the camera's own mean depth over its central region set ``applied_offset_mm``
     sets_offset: bool = False
+    #: laser-referenced steps: the standard uncertainty (mm) of the reference of this step alone, the laser's
+    #: repeatability on the mean of its readings (``laser_step_uncertainty``; 0 for other steps)
+    reference_uncertainty_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -130,6 +134,7 @@ def step_scene(step: StepRecord) -> StepScene | None:
         applied_offset_mm=reference - laser if group == "laser" and reference is not None and laser is not None
         else None,
         sets_offset=finite_or_none(a.get("camera_laser_offset_mm")) is not None,
+        reference_uncertainty_mm=laser_step_uncertainty(a) if group == "laser" else 0.0,
     )
 
 

@@ -86,6 +86,8 @@ class Layout:
     s_masks: dict[str, list[np.ndarray]] = field(default_factory=dict)  # per statistics family (``STATISTICS``)
     s_step: dict[str, np.ndarray] = field(default_factory=dict)
     s_weight: dict[str, np.ndarray] = field(default_factory=dict)
+    #: each step's reference variance of its own (mm^2, ``StepScene.reference_uncertainty_mm``), shared by its bins
+    reference_var: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n_steps(self) -> int:
@@ -177,6 +179,28 @@ class Layout:
         s_rows = np.zeros(len(s_root)) if s_rows is None else s_rows
         return np.concatenate([self.profile_z(z_rows) * z_root, self.profile_i(i_rows) * i_root, s_rows * s_root])
 
+    def shared_nuisance(self) -> np.ndarray:
+        """The whitened design of the nuisance that steps share (the depth offset of each reference group, the wall's
+        tilt) over every row of ``profiled``, zero on the rows it does not touch, its unused columns left out. The
+        per-step intensity gains are not in it: each belongs to one step, so leaving a step out takes its gain with
+        it and the profiled rows already are what the other steps see."""
+        design = np.zeros((len(self.row_steps()), self.z_nuisance.shape[1]))
+        design[:len(self.z_step)] = self.z_nuisance * self._whitening[0][:, None]
+        return design[:, np.any(design != 0, axis=0)]
+
+    def reference_directions(self) -> list[tuple[float, np.ndarray]]:
+        """Per step with a reference uncertainty of its own (``reference_var``): that variance and the whitened
+        rows (over every row of ``profiled``) an error of 1 mm in the step's reference moves, its depth rows by
+        sqrt(weight) (the wall moves with its reference; the nuisance profiled out of the Jacobian the rows are
+        taken against, Frisch-Waugh-Lovell)."""
+        out = []
+        for s in np.flatnonzero(self.reference_var > 0) if len(self.reference_var) == self.n_steps else ():
+            rows = np.zeros(len(self.row_steps()))
+            on = self.z_step == s
+            rows[:len(self.z_step)][on] = self._whitening[0][on]
+            out.append((float(self.reference_var[s]), rows))
+        return out
+
     def row_steps(self) -> np.ndarray:
         """Step number of every row of ``profiled``."""
         return np.concatenate([self.z_step, self.i_step, *(self.s_step.get(f, np.zeros(0, int)) for f in STATISTICS)])
@@ -228,7 +252,7 @@ def step_rows(steps: np.ndarray, n_steps: int) -> list[np.ndarray]:
 
 def layout(observations: list[Observation], predictions: list[Prediction], technology: str = "tof") -> Layout:
     """Usable bins, weights and nuisance design for a run (the masks fixed by the base model)."""
-    z_masks, i_masks, z_step, i_step, rows, zw, iw = [], [], [], [], [], [], []
+    z_masks, i_masks, z_step, i_step, rows, zw, iw, reference_var = [], [], [], [], [], [], [], []
     for s, (obs, pred) in enumerate(zip(observations, predictions, strict=True)):
         ok = (np.isfinite(obs.z) & np.isfinite(obs.z_var) & (obs.valid_fraction >= MIN_VALID_FRACTION)
               & ~pred.edge & ~measured_edges(obs.z) & np.isfinite(pred.z))
@@ -241,6 +265,7 @@ def layout(observations: list[Observation], predictions: list[Prediction], techn
         zw.append(1.0 / (obs.z_var[ok] + Z_FLOOR_MM**2))
         floor = LOG_I_FLOOR_PROJECTOR if technology == "stereo" and obs.scene.projector else LOG_I_FLOOR
         iw.append(1.0 / (obs.intensity_var[iok] / obs.intensity[iok] ** 2 + floor**2))
+        reference_var.append(obs.scene.reference_uncertainty_mm**2)
         design = np.zeros((int(ok.sum()), len(GROUPS) + 2))
         design[:, GROUPS.index(obs.scene.reference)] = 1.0
         if obs.scene.reference != "robot":  # the wall's tilt: z grows along the ray slopes
@@ -257,7 +282,7 @@ def layout(observations: list[Observation], predictions: list[Prediction], techn
                   np.concatenate(i_step).astype(int) if i_step else np.zeros(0, int),
                   np.concatenate(used) if used else np.zeros((0, len(GROUPS) + 2)),
                   np.concatenate(zw) if zw else np.zeros(0), np.concatenate(iw) if iw else np.zeros(0),
-                  s_masks, s_step, s_weight)
+                  s_masks, s_step, s_weight, np.array(reference_var, dtype=float))
 
 
 def statistics_masks(obs: Observation, pred: Prediction) -> dict[str, np.ndarray]:

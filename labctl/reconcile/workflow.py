@@ -277,10 +277,38 @@ class Simulation:
         return self.predictor(model).predict_run(self.observations, self.t0_s)
 
 
+@dataclass
+class _Fitted:
+    """A least-squares fit of named effects: the solver's result, the map from its parameter vector to the model, the
+    whitened residual it minimized (``Layout.profiled``) and the parameters' bounds."""
+
+    result: optimize.OptimizeResult
+    build: Callable[[np.ndarray], SimModel]
+    residual: Callable[[np.ndarray], np.ndarray]
+    bounds: tuple[np.ndarray, np.ndarray]
+
+    def secant_jacobian(self, steps: np.ndarray) -> np.ndarray:
+        """The residual's slope in each parameter over +-``steps`` around the fit (central differences; one-sided
+        where a bound is nearer than the step). The prediction is piecewise constant at the solver's own finite
+        difference (a relative 1.5e-8: the camera's roundings are averaged over finitely many positions on their
+        grids, ``noise_model``), so a derivative taken there reads a rounding's jump as a slope; over the
+        parameter's own uncertainty the jumps average out, and that slope is the one its error propagates by."""
+        x, (lo, hi) = self.result.x, self.bounds
+        f0 = self.result.fun
+        jac = np.zeros((len(f0), len(x)))
+        for i, h in enumerate(steps):
+            up, down = x.copy(), x.copy()
+            up[i], down[i] = min(x[i] + h, hi[i]), max(x[i] - h, lo[i])
+            f_up = self.residual(up) if up[i] > x[i] else f0
+            f_down = self.residual(down) if down[i] < x[i] else f0
+            if up[i] > down[i]:
+                jac[:, i] = (f_up - f_down) / (up[i] - down[i])
+        return jac
+
+
 def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout,
-                 max_nfev: int) -> tuple[optimize.OptimizeResult, Callable[[np.ndarray], SimModel]]:
-    """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations;
-    returns the solver's result and the map from its parameter vector to the model."""
+                 max_nfev: int) -> _Fitted:
+    """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations."""
     vectors = [c.vector(p) for c, p in found]
     x0 = np.concatenate([v[0] for v in vectors])
     lo = np.concatenate([v[1][0] for v in vectors])
@@ -299,16 +327,27 @@ def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim
         dz, di = raw_residuals(sim.observations, preds)
         return np.nan_to_num(lay.profiled(dz, di, raw_statistics(sim.observations, preds)))
 
-    return optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev), build
+    result = optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev)
+    return _Fitted(result, build, residual, (lo, hi))
 
 
-def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_steps: int) -> np.ndarray:
+def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_steps: int,
+                     shared: np.ndarray | None = None) -> np.ndarray:
     """Covariance of least-squares parameters with the steps as the independent replications: the
     delete-one-step jackknife (CR3; MacKinnon & White 1985, Bell & McCaffrey 2002), (n - 1) / n B (sum_s
     c_s c_s') B with B = (J'J)^-1 and c_s = J'J (J'J - J_s'J_s)^-1 J_s' f_s, the score of step s as the fit
     without that step would see it (the cluster-robust sandwich of Liang & Zeger 1986 uses J_s' f_s itself,
-    and understates the scatter where a few precise steps carry the fit)."""
+    and understates the scatter where a few precise steps carry the fit).
+
+    ``jac`` is the Jacobian of the residual with ``shared`` (the whitened design of a nuisance the steps share,
+    ``Layout.shared_nuisance``) profiled out, ``fun`` that residual. Leaving a step out re-estimates that
+    nuisance too, so the jackknife is taken over the parameters and the nuisance together ([shared, jac]: the
+    same fit and residual, Frisch-Waugh-Lovell) and the parameters' block returned; over ``jac`` alone a step
+    that carries the nuisance (the nearest, most precise wall carries the depth offset) would count only its
+    leverage on the parameters."""
     k = jac.shape[1]
+    if shared is not None and shared.shape[1]:
+        jac = np.hstack([shared, jac])
     info = jac.T @ jac
     bread = np.linalg.pinv(info)
     rows = step_rows(steps, n_steps)
@@ -321,11 +360,39 @@ def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_step
         if not np.any(gs):
             continue
         scores.append(info @ np.linalg.pinv(info - js.T @ js) @ gs)
-    used = max(len(scores), k + 1)
-    meat = np.zeros((k, k))
+    used = max(len(scores), jac.shape[1] + 1)
+    meat = np.zeros(info.shape)
     for c in scores:
         meat += np.outer(c, c)
-    return bread @ meat @ bread * (used - 1) / used
+    return (bread @ meat @ bread * (used - 1) / used)[-k:, -k:]
+
+
+def _reference_covariance(jac: np.ndarray, directions: list[tuple[float, np.ndarray]]) -> np.ndarray:
+    """The parameters' covariance from each step's reference uncertainty of its own (``Layout.reference_directions``:
+    a laser-referenced wall's, the laser's repeatability on its readings), a Type B component (JCGM 100:2008, 4.3.3
+    and 5.1): B (sum_s u_s^2 a_s a_s') B with a_s = J' e_s, e_s the whitened rows 1 mm of step s's reference moves.
+    The jackknife over the steps counts the same errors as they happened to fall; where a few near walls carry
+    the fit its estimate rests on few effective replications and scatters (on four d455 draws 0.25 to 4 times this
+    component), while this one is known from the instrument."""
+    bread = np.linalg.pinv(jac.T @ jac)
+    middle = np.zeros(bread.shape)
+    for var, rows in directions:
+        a = jac.T @ rows
+        middle += var * np.outer(a, a)
+    return bread @ middle @ bread
+
+
+def _combined_covariance(external: np.ndarray, internal: np.ndarray) -> np.ndarray:
+    """The larger of the external and the internal standard error of each parameter (Birge 1932; the scale factor
+    of the Particle Data Group's averages): ``external`` the jackknife's scatter over the steps, ``internal`` what
+    the declared errors give (the weights' variances, floors included, and each step's reference uncertainty).
+    The jackknife's correlations are kept, each parameter's row and column scaled up where the internal error is
+    the larger; where the jackknife sees no scatter at all, the internal covariance."""
+    ext, inner = np.sqrt(np.maximum(np.diag(external), 0.0)), np.sqrt(np.maximum(np.diag(internal), 0.0))
+    if not np.all(ext > 0):
+        return internal
+    scale = np.maximum(1.0, inner / ext)
+    return external * np.outer(scale, scale)
 
 
 def determination(candidate: Candidate, params: Parameters, x: np.ndarray, cov: np.ndarray,
@@ -377,15 +444,24 @@ def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
            lay: Layout) -> tuple[Parameters, dict[str, float], Determination, float]:
     """The candidate's parameters refined on full re-simulations, starting from its linear fit.
 
-    Returns the parameters, their standard errors (steps as replications), how well the run determines them
-    (``determination``) and the whitened RSS.
+    Returns the parameters, their standard errors (the larger of the delete-one-step jackknife's and the declared
+    errors', docs/reconcile.md *Parameter uncertainty*), how well the run determines them (``determination``)
+    and the whitened RSS.
     """
-    result, _ = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
+    fitted = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
+    result = fitted.result
     params = candidate.from_vector(result.x)
     rss = float(result.fun @ result.fun)
     hint = capture_hint(candidate.name, params, sim.observations, sim.t0_s)
     try:
-        cov = _step_covariance(result.jac, result.fun, lay.row_steps(), lay.n_steps)
+        # the slope over each parameter's standard error with the others held (1 / sqrt of the solver's J'J
+        # diagonal: the change that moves the whitened RSS by 1), ``_Fitted.secant_jacobian``
+        with np.errstate(divide="ignore"):
+            step = 1.0 / np.sqrt(np.sum(result.jac**2, axis=0))
+        jac = fitted.secant_jacobian(np.where(np.isfinite(step), step, 1e-8 * np.maximum(1.0, np.abs(result.x))))
+        external = _step_covariance(jac, result.fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
+        internal = np.linalg.pinv(jac.T @ jac) + _reference_covariance(jac, lay.reference_directions())
+        cov = _combined_covariance(external, internal)
         stderr, info = determination(candidate, params, result.x, cov, hint)
     except (np.linalg.LinAlgError, ValueError, OverflowError):  # overflow: an error beyond any parameter's range
         stderr, info = {}, Determination(well_determined=False, problems=["no covariance"], capture=hint)
@@ -396,8 +472,8 @@ def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, s
                    lay: Layout) -> SimModel:
     """All effects named in this reconcile refitted together (an effect fitted while another was still
     missing carries some of the other's residual)."""
-    result, build = _fit_effects(found, model, sim, lay, max_nfev=20)
-    return build(result.x)
+    fitted = _fit_effects(found, model, sim, lay, max_nfev=20)
+    return fitted.build(fitted.result.x)
 
 
 def _comparable_steps(lay: Layout) -> int:
