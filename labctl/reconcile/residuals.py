@@ -194,8 +194,9 @@ class Layout:
         sqrt(weight) (the wall moves with its reference; the nuisance profiled out of the Jacobian the rows are
         taken against, Frisch-Waugh-Lovell)."""
         out = []
+        n_rows = len(self.row_steps())
         for s in np.flatnonzero(self.reference_var > 0) if len(self.reference_var) == self.n_steps else ():
-            rows = np.zeros(len(self.row_steps()))
+            rows = np.zeros(n_rows)
             on = self.z_step == s
             rows[:len(self.z_step)][on] = self._whitening[0][on]
             out.append((float(self.reference_var[s]), rows))
