@@ -266,15 +266,16 @@ class StepObserver:
         return [self._observed[step_id] for step_id in sorted(self._observed)]
 
 
-def measured_best_focus(run: RunReader) -> float | None:
+def measured_best_focus(run: RunReader, records: list[StepRecord] | None = None) -> float | None:
     """The best-focus distance the run placed its ``distance_mm = "best_focus"`` steps at: such a step's recorded
-    distance less the offset its campaign gives it (a Boehler star's gap); None without such a step."""
+    distance less the offset its campaign gives it (a Boehler star's gap); None without such a step. ``records``:
+    the run's steps, where they are listed already (``run.steps()`` reads every step's attributes)."""
     text = run.attrs.get("campaign_toml", "")
     try:
         steps = {step.step_id: step for step in parse_campaign(text, f"{run.path} (stored campaign)").steps()}
     except InputError:
         return None
-    for record in run.steps():
+    for record in run.steps() if records is None else records:
         step = steps.get(record.step_id)
         distance = float(record.attrs.get("distance_mm", math.nan))
         if step is not None and step.distance_from is not None and math.isfinite(distance):
@@ -295,7 +296,8 @@ def observe_run(path: str | Path, bin_px: int | None = None,
         scenes: dict[str, StepScene] = {}
         comparable = []
         skipped = []
-        for step in run.steps():
+        records = run.steps()
+        for step in records:
             scene = step_scene(step)
             if scene is None:
                 why = f"target {step.attrs.get('target')!r} has no simulated scene"
@@ -313,7 +315,7 @@ def observe_run(path: str | Path, bin_px: int | None = None,
             "bin_px": bin_px, "backend": run.devices.get("camera", {}).get("backend", ""),
             "model": run.devices.get("camera", {}).get("model", ""),
             "campaign_toml": run.attrs.get("campaign_toml", ""),
-            "best_focus_mm": measured_best_focus(run),
+            "best_focus_mm": measured_best_focus(run, records),
             "skipped": skipped,
         }
     return observations, info, notes
