@@ -35,6 +35,22 @@ def test_stated_intervals_cover_the_true_slope_when_a_few_precise_steps_carry_th
     assert covered / draws >= 0.90
 
 
+def _laser_walls(n_steps: int, noise_per_m2: float, bins: int = 40,
+                 reference_var: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, Layout]:
+    """``n_steps`` laser-referenced walls 0.6-4 m of ``bins`` depth bins each, noise ``noise_per_m2`` z^2 (mm, z in
+    m), the laser group's offset their shared nuisance: the walls' distances, each bin's noise and step, and
+    their layout (``reference_var``: each step's own reference variance)."""
+    distance = np.linspace(0.6, 4.0, n_steps)
+    noise = noise_per_m2 * distance**2
+    steps = np.repeat(np.arange(n_steps), bins)
+    nuisance = np.zeros((steps.size, len(GROUPS) + 2))
+    nuisance[:, GROUPS.index("laser")] = 1.0
+    extra = {} if reference_var is None else {"reference_var": reference_var}
+    lay = Layout([np.ones(bins, bool)] * n_steps, [np.zeros(bins, bool)] * n_steps, steps, np.zeros(0, int),
+                 nuisance, 1.0 / noise[steps] ** 2, np.zeros(0), **extra)
+    return distance, noise, steps, lay
+
+
 def test_stated_intervals_cover_the_true_slope_with_the_shared_offset_profiled_out():
     """The same walls as reconcile fits them: the offset the steps share (the laser group's depth offset) profiled
     out before the fit (``Layout.profiled_rows``), the slope fitted on what is left. Leaving a step out must
@@ -42,14 +58,8 @@ def test_stated_intervals_cover_the_true_slope_with_the_shared_offset_profiled_o
     the draws (the nearest walls carry the offset, and their leverage on it went uncounted); over the slope and
     ``Layout.shared_nuisance`` together in about 94 %."""
     rng = np.random.default_rng(20261127)
-    n_steps, bins, draws = 12, 40, 2000
-    distance = np.linspace(0.6, 4.0, n_steps)
-    noise = 0.1 * distance**2
-    steps = np.repeat(np.arange(n_steps), bins)
-    nuisance = np.zeros((steps.size, len(GROUPS) + 2))
-    nuisance[:, GROUPS.index("laser")] = 1.0
-    lay = Layout([np.ones(bins, bool)] * n_steps, [np.zeros(bins, bool)] * n_steps, steps, np.zeros(0, int),
-                 nuisance, 1.0 / noise[steps] ** 2, np.zeros(0))
+    n_steps, draws = 12, 2000
+    distance, noise, steps, lay = _laser_walls(n_steps, 0.1)
     nothing = np.zeros(0)
     slope = lay.profiled_rows(distance[steps], nothing)[:, None]
     shared = lay.shared_nuisance()
@@ -92,14 +102,8 @@ def test_a_known_reference_error_per_step_bounds_the_interval_from_below_where_f
     in about 87 % of the draws); the larger of it and the declared errors' (``_combined_covariance``, Birge 1932)
     in at least 93 %."""
     rng = np.random.default_rng(20261129)
-    n_steps, bins, draws = 3, 40, 2000
-    distance = np.linspace(0.6, 4.0, n_steps)
-    noise = 0.02 * distance**2
-    steps = np.repeat(np.arange(n_steps), bins)
-    nuisance = np.zeros((steps.size, len(GROUPS) + 2))
-    nuisance[:, GROUPS.index("laser")] = 1.0
-    lay = Layout([np.ones(bins, bool)] * n_steps, [np.zeros(bins, bool)] * n_steps, steps, np.zeros(0, int),
-                 nuisance, 1.0 / noise[steps] ** 2, np.zeros(0), reference_var=np.full(n_steps, 0.07**2))
+    n_steps, draws = 3, 2000
+    distance, noise, steps, lay = _laser_walls(n_steps, 0.02, reference_var=np.full(n_steps, 0.07**2))
     nothing = np.zeros(0)
     slope = lay.profiled_rows(distance[steps], nothing)[:, None]
     internal = np.linalg.pinv(slope.T @ slope) + _reference_covariance(slope, lay.reference_directions())
