@@ -222,8 +222,7 @@ class StepWriter:
     def _held_stack(self, channel: str) -> np.ndarray:
         """A held channel's (N, H, W) stack, zero where no frame was given (as the file's fill value reads)."""
         assert self._held is not None
-        dtype = self.confidence_dtype if channel == "confidence" else np.float32
-        stack = np.zeros((self.step.frames, *self.shape), dtype)
+        stack = np.zeros((self.step.frames, *self.shape), self._datasets[channel].dtype)
         for k, data in self._held[channel].items():
             stack[k] = data
         return stack
