@@ -13,11 +13,12 @@ import pytest
 from labctl.reconcile.candidates import SIGNATURE_NODES
 from metrics.sfr import edge_sfr
 from sim.effects import EFFECTS
+from sim.effects.base import valid_range
 from sim.effects.diffuse_floor_multipath import bounce_phasor
 from sim.effects.fixed_pattern import Params, cell_average, offset_map_mm
 from sim.geometry import Pose
 from sim.materials import get_material
-from sim.model import default_model_text, parse_model
+from sim.model import ModelError, default_model_text, parse_model
 from sim.scenes.targets import build_scene, plate_scene
 from sim.sensor import default_coc_px
 from sim.sensor import edge_sfr as analytic_sfr
@@ -258,6 +259,24 @@ def test_radial_distortion_moves_image_points_by_the_formula(k1):
     shift = np.linalg.norm(predicted - undistorted, axis=1)
     assert shift.max() > 2.0
     assert np.median(d) < 0.1 and d.max() < 0.3  # agreement an order of magnitude below the effect
+
+
+def test_radial_distortion_every_pixel_sees_a_ray_down_to_the_bound():
+    """At the lowest k1 the effect admits, each pixel has an undistorted position r_u with
+    r_u (1 + k1 (r_u / R)^2) = r_d on the rising branch (r_u < R / sqrt(-3 k1)); a k1 below -4/27, where the
+    image corner lies beyond the fold of r_d(r_u), is refused by name."""
+    k1 = valid_range(EFFECTS["radial_distortion"].params, "k1")[0]
+    assert -4 / 27 < k1 < 0
+    optics = make(effects=f"[effects.radial_distortion]\nk1 = {k1}\n").geometry.optics
+    u, v = optics.pixel_grid()
+    uu, vv = optics.undistort(u, v)
+    big_r = optics.half_diagonal_px
+    r_u = np.hypot(uu - optics.pinhole.cx, vv - optics.pinhole.cy) / big_r
+    r_d = np.hypot(u - optics.pinhole.cx, v - optics.pinhole.cy) / big_r
+    assert np.all(r_u < 1 / math.sqrt(-3 * k1))
+    np.testing.assert_allclose(r_u * (1 + k1 * r_u**2), r_d, atol=1e-9)
+    with pytest.raises(ModelError, match="k1"):
+        make(effects="[effects.radial_distortion]\nk1 = -0.15\n")
 
 
 def test_radial_distortion_cloud_flag():
