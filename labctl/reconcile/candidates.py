@@ -187,6 +187,9 @@ class Candidate:
     from_vector: Callable[[np.ndarray], Parameters]
     applies: Callable[[Context], bool] = field(default=lambda ctx: True)
     bind: Callable[[Context], Candidate] | None = None  # builds the candidate from the run (its signatures)
+    #: the linear coefficients as the fit may take them (``score``): a single coefficient beyond its bound held at
+    #: the bound, which for one parameter is the least-squares optimum within the bounds
+    clip: Callable[[np.ndarray], np.ndarray] = field(default=lambda c: c)
 
 
 def _none(_: Context) -> list[float | None]:
@@ -209,17 +212,20 @@ def _wrap(angle: float) -> float:
     return float((angle + math.pi) % (2 * math.pi) - math.pi)
 
 
-# one linear parameter: the fitted coefficient is the parameter (within its bounds), ``fixed`` set beside it
+# one linear parameter: the fitted coefficient is the parameter, held within its bounds (a signature linearized at
+# zero can overshoot a bound it would not reach on full re-simulation: a strong barrel distortion's corners), and
+# ``fixed`` set beside it; held at a bound of zero it is no effect at all, and no fit
 def _linear(effect: Effect, columns: Callable[[Context, Any], list[Column]],
             applies: Callable[[Context], bool] = lambda ctx: True) -> Candidate:
     key, fixed = effect.observed.fitted[0], dict(effect.observed.fixed)
     lo, hi = bounds(effect, key)
     return Candidate(
         effect.name, effect.technologies, 1, _none, columns,
-        lambda ctx, c, _: {key: float(c[0]), **fixed} if lo <= c[0] <= hi else None,
+        lambda ctx, c, _: {key: float(c[0]), **fixed} if lo <= c[0] <= hi and c[0] != 0 else None,
         lambda p: (np.array([p[key]]), (np.array([lo]), np.array([hi]))),
         lambda x: {key: float(x[0]), **fixed},
         applies=applies,
+        clip=lambda c: np.clip(c, lo, hi),
     )
 
 

@@ -103,7 +103,8 @@ def loso_gain(columns: np.ndarray, r: np.ndarray, steps: np.ndarray, n_steps: in
 
 
 def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray) -> Fit | None:
-    """The candidate at its best grid point (None when no physically valid fit exists)."""
+    """The candidate at its best grid point (None when no physically valid fit exists), its linear coefficients as
+    the candidate may take them (``Candidate.clip``)."""
     n = lay.n_steps
     steps = lay.row_steps()
     cells = lay.row_cells()  # (step, family): each family's residuals of a step have their own scale
@@ -114,7 +115,7 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray) -> Fit
         a, b = columns.T @ columns, columns.T @ r
         if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
             continue
-        coef = np.linalg.solve(a, b)
+        coef = candidate.clip(np.linalg.solve(a, b))
         params = candidate.to_params(ctx, coef, nonlinear)
         if params is None:
             continue
