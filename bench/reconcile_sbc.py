@@ -67,10 +67,17 @@ PERIODIC: dict[str, Callable[[str], float]] = {
 
 
 def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: int) -> dict[str, Any]:
-    """Simulate and reconcile one draw (a Dask task): what was named, fitted and covered, the verdict and gaps."""
+    """Simulate and reconcile one draw (a Dask task): what was named, fitted and covered, the verdict and gaps;
+    a draw whose simulation or reconcile raises is an outcome too (verdict ``failed``, the error named), so that
+    one failing draw neither stops the others nor drops out of the rates."""
     start = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="labctl-sbc-") as tmp:
-        result = reconcile(simulated_run(Path(tmp), camera, hidden, seed=seed))
+    try:
+        with tempfile.TemporaryDirectory(prefix="labctl-sbc-") as tmp:
+            result = reconcile(simulated_run(Path(tmp), camera, hidden, seed=seed))
+    except Exception as exc:  # noqa: BLE001 - any failure of a draw is reported with it, not raised
+        return {"label": label, "seed": seed, "hidden": sorted(hidden), "named": [], "verdict": "failed",
+                "error": f"{type(exc).__name__}: {exc}", "parameters": hidden, "covered": [], "errors": [],
+                "within_floor": False, "seconds": time.monotonic() - start}
     named = {e.name: e for e in result.named}
     covered: list[bool] = []
     errors: list[tuple[str, float]] = []  # (effect.parameter, (estimate - truth) / standard error)
@@ -121,15 +128,16 @@ def _share(hits: int, n: int) -> str:
 
 def table(outcomes: list[dict[str, Any]]) -> str:
     """Per effect (and the pairs): named right and nothing else, interval coverage, gap after within the floor."""
-    lines = ["| hidden | draws | named right, nothing else | 95 % intervals covering | gap after within floor |",
-             "|---|---|---|---|---|"]
+    lines = ["| hidden | draws | named right, nothing else | 95 % intervals covering | gap after within floor "
+             "| failed |", "|---|---|---|---|---|---|"]
     for label in sorted({o["label"] for o in outcomes}):
         rows = [o for o in outcomes if o["label"] == label]
         right = sum(o["named"] == o["hidden"] for o in rows)
         covered = [c for o in rows for c in o["covered"]]
         within = sum(o["within_floor"] for o in rows)
+        failed = sum(o["verdict"] == "failed" for o in rows)
         lines.append(f"| {label} | {len(rows)} | {_share(right, len(rows))} | {_share(sum(covered), len(covered))} "
-                     f"| {_share(within, len(rows))} |")
+                     f"| {_share(within, len(rows))} | {failed} |")
     return "\n".join(lines)
 
 
@@ -158,6 +166,9 @@ def main(draws: int, pairs: int, seed: int, cluster: Cluster, only: list[str] | 
         for future in futures:
             o = future.result()
             outcomes.append(o)
+            if o["verdict"] == "failed":
+                print(f"{o['label']} seed {o['seed']}: FAILED {o['error']} (hidden {o['parameters']})", flush=True)
+                continue
             print(f"{o['label']} seed {o['seed']}: verdict {o['verdict']}, named {o['named'] or 'nothing'} "
                   f"(hidden {o['hidden']}), intervals covering {sum(o['covered'])}/{len(o['covered'])}, "
                   f"{o['seconds']:.0f} s", flush=True)
