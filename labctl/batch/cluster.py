@@ -66,7 +66,7 @@ class Cluster:
 
 
 @contextmanager
-def _workers_block_ctrl_c() -> Iterator[None]:
+def block_ctrl_c() -> Iterator[None]:
     """Threads and processes started inside never receive SIGINT: Ctrl-C at a terminal signals the whole
     foreground process group, and the local cluster's workers would each die with a traceback.
 
@@ -129,7 +129,7 @@ def open_client(cluster: Cluster) -> Iterator[Client]:
         finally:
             client.close()
         return
-    with _workers_block_ctrl_c(), _worker_environment(), dask.config.set(NANNY_ENVIRONMENT):
+    with block_ctrl_c(), _worker_environment(), dask.config.set(NANNY_ENVIRONMENT):
         local = LocalCluster(n_workers=cluster.workers or machine_workers(), threads_per_worker=1, processes=True,
                              dashboard_address=":0", silence_logs=CLUSTER_LOG_LEVEL)
     try:

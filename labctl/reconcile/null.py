@@ -39,6 +39,7 @@ slightly lenient towards "consistent".
 
 from __future__ import annotations
 
+import functools
 import math
 import shutil
 import statistics as stats
@@ -336,10 +337,17 @@ def null_replica(campaign_toml: str, model_text: str, seed: int, step_ids: list[
     return Replica(seed, good.steps, {f.name: f.score for f in fits}, cell_rss, time.monotonic() - start, maps)
 
 
+def _replica_of_seed(campaign_toml: str, model_text: str, step_ids: list[str], info: dict[str, Any], directory: str,
+                     compare: Compare, seed: int) -> Replica:
+    """``null_replica`` with the seed last, for a ``functools.partial`` that a cluster's worker can unpickle."""
+    return null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare)
+
+
 def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any], step_ids: list[str], k: int,
                        workers: int, say: Callable[[str], None], compare: Compare) -> NullCalibration:
-    """K null replicas of the measured campaign from ``model``, on a local Dask cluster of ``workers`` processes
-    (labctl/batch/cluster.py), or one after the other for a single worker. Replicas kept from an earlier reconcile
+    """K null replicas of the measured campaign from ``model``, made by this process and a local Dask cluster of
+    ``workers - 1`` processes started beside it (labctl/batch/here_and_cluster.py), or one after the other for a
+    single worker. Replicas kept from an earlier reconcile
     of the same campaign against the same model are taken from the cache (labctl/reconcile/replica_cache.py),
     and those made here are kept there, each as soon as it is made."""
     model_text = replica_model(model, info)
@@ -366,28 +374,25 @@ def simulate_null_runs(campaign_toml: str, model: SimModel, info: dict[str, Any]
         if cache is not None:
             replica_cache.store(cache, keys[replica.seed], replica)
 
+    taken = len(done)
     directory = tempfile.mkdtemp(prefix="labctl-null-")
+    make = functools.partial(_replica_of_seed, campaign_toml, model_text, step_ids, info, directory, compare)
     try:
         if workers == 1:
-            try:
-                for i, seed in enumerate(missing):
-                    say(f"null replica {i + 1} of {len(missing)} (seed {seed})")
-                    keep(null_replica(campaign_toml, model_text, seed, step_ids, info, directory, compare))
-            finally:
-                forget_renders()  # the replicas' maps, in this process
+            for i, seed in enumerate(missing):
+                say(f"null replica {i + 1} of {len(missing)} (seed {seed})")
+                keep(make(seed))
         else:
-            from distributed import as_completed
+            from labctl.batch.here_and_cluster import make_here_and_on_cluster
 
-            from labctl.batch.cluster import Cluster, open_client
-
-            say(f"{len(missing)} null replicas on {workers} workers")
-            n = len(missing)
-            with open_client(Cluster(workers=workers)) as client:
-                futures = client.map(null_replica, [campaign_toml] * n, [model_text] * n, missing, [step_ids] * n,
-                                     [info] * n, [directory] * n, [compare] * n, pure=False)
-                for future in as_completed(futures):
-                    keep(future.result())
+            say(f"{len(missing)} null replicas here and on {workers - 1} more worker(s)")
+            problems = make_here_and_on_cluster(
+                make, missing, workers, lambda _, replica: keep(replica),
+                here=lambda seed: say(f"null replicas: {len(done) - taken} of {len(missing)} made; seed {seed} here"))
+            for problem in problems:
+                say(f"the cluster's replicas were made here instead: {problem}")
     finally:
+        forget_renders()  # the replicas' maps, in this process
         shutil.rmtree(directory, ignore_errors=True)
     return NullCalibration([done[seed] for seed in seeds], seconds=time.monotonic() - start, workers=workers,
                            cached=k - len(missing))

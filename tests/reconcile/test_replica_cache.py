@@ -5,12 +5,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from labctl.reconcile import null
 from labctl.reconcile.replica_cache import cache_directory
 from labctl.reconcile.workflow import reconcile
 from sim.model import default_model_text, parse_model
+from tests.conftest import REALTIME_GROUP
 from tests.reconcile.runs import simulated_run
 
 
@@ -73,3 +75,22 @@ def test_an_empty_cache_directory_setting_switches_the_cache_off(monkeypatch: py
     monkeypatch.delenv("LABCTL_CACHE_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", "/somewhere")
     assert cache_directory() == Path("/somewhere/labctl/null-replicas")
+
+
+@pytest.mark.xdist_group(REALTIME_GROUP)  # a local Dask cluster: never beside a realtime test
+def test_replicas_made_here_and_on_a_cluster_are_those_made_one_after_the_other(tmp_path: Path,
+                                                                               monkeypatch: pytest.MonkeyPatch):
+    """With two workers this process makes replicas while a cluster of one more worker makes the others
+    (labctl/batch/here_and_cluster.py): each seed's replica is the one the serial path makes."""
+    monkeypatch.setenv("LABCTL_CACHE_DIR", "")
+    run = simulated_run(tmp_path / "run", "blaze101", sweep_step_mm=900, robot=False)
+    serial = reconcile(run, null_runs=4, workers=1).rule.replicas
+    shared = reconcile(run, null_runs=4, workers=2).rule.replicas
+    assert [r.seed for r in shared] == [r.seed for r in serial]
+    for a, b in zip(serial, shared, strict=True):
+        assert a.delta_bic == b.delta_bic and a.steps == b.steps
+        np.testing.assert_array_equal(a.cell_rss, b.cell_rss)
+        assert a.maps.keys() == b.maps.keys()
+        for family, by_step in a.maps.items():
+            for step, values in by_step.items():
+                np.testing.assert_array_equal(values, b.maps[family][step])
