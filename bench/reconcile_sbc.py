@@ -27,6 +27,7 @@ draws and seeds the whole plan gives them. Not a budget benchmark.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import tempfile
@@ -104,7 +105,11 @@ def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: i
             "seconds": time.monotonic() - start}
 
 
-def plan(draws: int, pairs: int, seed: int) -> list[tuple[str, str, dict[str, dict[str, Any]], int]]:
+#: one draw: its label (effect-camera, or pairs), the camera, the hidden effects' parameters and the run's seed
+Task = tuple[str, str, dict[str, dict[str, Any]], int]
+
+
+def plan(draws: int, pairs: int, seed: int) -> list[Task]:
     """The draws: ``draws`` per effect and ``pairs`` random pairs of two effects one camera can show."""
     rng = np.random.default_rng(seed)
     tasks = []
@@ -156,25 +161,54 @@ def error_table(outcomes: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def main(draws: int, pairs: int, seed: int, cluster: Cluster, only: list[str] | None = None) -> int:
-    tasks = [t for t in plan(draws, pairs, seed) if not only or t[0] in only]
+def interleaved(tasks: list[Task]) -> list[Task]:
+    """The plan's tasks in the order they are run: the first draw of every label (effect, or the pairs), then the
+    second of each, ..., so that a look stopped early has about as many draws of every label."""
+    rank: dict[str, int] = {}
+    ranked = []
+    for task in tasks:
+        rank[task[0]] = rank.get(task[0], -1) + 1
+        ranked.append((rank[task[0]], task))
+    return [task for _, task in sorted(ranked, key=lambda rt: rt[0])]  # stable: the labels in the plan's order
+
+
+def _line(o: dict[str, Any]) -> str:
+    if o["verdict"] == "failed":
+        return f"{o['label']} seed {o['seed']}: FAILED {o['error']} (hidden {o['parameters']})"
+    return (f"{o['label']} seed {o['seed']}: verdict {o['verdict']}, named {o['named'] or 'nothing'} "
+            f"(hidden {o['hidden']}), intervals covering {sum(o['covered'])}/{len(o['covered'])}, "
+            f"gap after {'within' if o['within_floor'] else 'above'} the floor, {o['seconds']:.0f} s")
+
+
+def main(draws: int, pairs: int, seed: int, cluster: Cluster, only: list[str] | None = None,
+         record: Path | None = None) -> int:
+    tasks = interleaved([t for t in plan(draws, pairs, seed) if not only or t[0] in only])
     start = time.monotonic()
     outcomes = []
     with open_client(cluster) as client:
+        from distributed import as_completed
+
         workers = len(client.scheduler_info()["workers"])
         futures = [client.submit(one_draw, *task, pure=False) for task in tasks]
-        for future in futures:
+        for future in as_completed(futures):
             o = future.result()
             outcomes.append(o)
-            if o["verdict"] == "failed":
-                print(f"{o['label']} seed {o['seed']}: FAILED {o['error']} (hidden {o['parameters']})", flush=True)
-                continue
-            print(f"{o['label']} seed {o['seed']}: verdict {o['verdict']}, named {o['named'] or 'nothing'} "
-                  f"(hidden {o['hidden']}), intervals covering {sum(o['covered'])}/{len(o['covered'])}, "
-                  f"{o['seconds']:.0f} s", flush=True)
+            print(_line(o), flush=True)
+            if record is not None:
+                with record.open("a") as f:
+                    f.write(json.dumps(o) + "\n")
     print(table(outcomes))
     print(error_table(outcomes))
     print(f"{len(outcomes)} draws on {workers} workers in {time.monotonic() - start:.0f} s (seed {seed})")
+    return 0
+
+
+def tables_of(record: Path) -> int:
+    """The tables of the outcomes a look (``--record``) has written so far, finished or not."""
+    outcomes = [json.loads(line) for line in record.read_text().splitlines() if line.strip()]
+    print(table(outcomes))
+    print(error_table(outcomes))
+    print(f"{len(outcomes)} draws recorded in {record}")
     return 0
 
 
@@ -187,5 +221,10 @@ if __name__ == "__main__":
                         help="run only these labels of the plan (effect-camera, or pairs), drawn as in the whole plan")
     parser.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a local cluster)")
     parser.add_argument("--workers", type=int, help="worker processes of the local cluster (default: one per core)")
+    parser.add_argument("--record", type=Path, help="append each draw's outcome to this file (JSON lines)")
+    parser.add_argument("--tables-of", type=Path, metavar="RECORD",
+                        help="print the tables of a record (finished or not) and exit")
     args = parser.parse_args()
-    sys.exit(main(args.draws, args.pairs, args.seed, Cluster(args.scheduler, args.workers), args.only))
+    if args.tables_of is not None:
+        sys.exit(tables_of(args.tables_of))
+    sys.exit(main(args.draws, args.pairs, args.seed, Cluster(args.scheduler, args.workers), args.only, args.record))
