@@ -132,6 +132,17 @@ def test_two_hidden_effects_are_both_named(tmp_path):
     assert result.gap_after <= 0.5 * result.gap_before
 
 
+def test_an_effect_is_not_contradicted_by_contrasts_another_hidden_effect_makes_beside_it(tmp_path):
+    """A multipath and a material bias hidden together (flexx2): the material bias makes contrasts between the
+    PTFE and silicone plates at each robot angle, the multipath others; the multipath's own contrasts fit them
+    worse than none, but with the material bias's beside both they fit better, so the multipath is named."""
+    hidden = {"multipath": {"strength": 0.09, "extra_path_mm": 994.0}, "material_bias": {"scale": 2.8}}
+    result = reconcile(measured_run(tmp_path, "flexx2", hidden, seed=69547))
+    assert "multipath" in [e.name for e in result.named], (result.notes, result.candidates)
+    assert not any(note.startswith("multipath not named") for note in result.notes)
+    _recovered("multipath", {e.name: e.parameters for e in result.named}["multipath"], hidden["multipath"], 0.0)
+
+
 @pytest.mark.parametrize("camera,seed", [(c, s) for c in sorted(SIZES) for s in (5, 6)])
 def test_nothing_hidden_names_nothing(camera, seed, tmp_path):
     result = reconcile(measured_run(tmp_path, camera, {}, seed=seed))
