@@ -21,6 +21,7 @@ linear fit: theta_-s = (A - A_s)^-1 (b - b_s) with A = S'S, b = S'r).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,9 +103,11 @@ def loso_gain(columns: np.ndarray, r: np.ndarray, steps: np.ndarray, n_steps: in
     return 1.0 - held_out / total if total > 0 else 0.0
 
 
-def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray) -> Fit | None:
+def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray,
+          free: Callable[[np.ndarray], np.ndarray] | None = None) -> Fit | None:
     """The candidate at its best grid point (None when no physically valid fit exists), its linear coefficients as
-    the candidate may take them (``Candidate.clip``)."""
+    the candidate may take them (``Candidate.clip``); ``free`` takes out of its columns what effects already named
+    could take up, refitted beside it (``r`` already has it taken out)."""
     n = lay.n_steps
     steps = lay.row_steps()
     cells = lay.row_cells()  # (step, family): each family's residuals of a step have their own scale
@@ -112,6 +115,8 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray) -> Fit
     best: tuple[float, np.ndarray, np.ndarray, Parameters] | None = None
     for nonlinear in candidate.grid(ctx):
         columns = np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, nonlinear)])
+        if free is not None:
+            columns = free(columns)
         a, b = columns.T @ columns, columns.T @ r
         if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
             continue

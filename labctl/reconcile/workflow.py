@@ -441,39 +441,51 @@ def capture_hint(name: str, params: Parameters, obs: list[Observation], t0_s: fl
 
 
 def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
-           lay: Layout) -> tuple[Parameters, dict[str, float], Determination, float]:
+           lay: Layout) -> tuple[Parameters, dict[str, float], Determination, float, np.ndarray | None]:
     """The candidate's parameters refined on full re-simulations, starting from its linear fit.
 
     Returns the parameters, their standard errors (the larger of the delete-one-step jackknife's and the declared
-    errors', docs/reconcile.md *Parameter uncertainty*), how well the run determines them (``determination``)
-    and the whitened RSS.
+    errors', docs/reconcile.md *Parameter uncertainty*), how well the run determines them (``determination``),
+    the whitened RSS and the residual's slope in each parameter there (``_Fitted.secant_jacobian``; None where it
+    could not be taken).
     """
     fitted = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
     result = fitted.result
     params = candidate.from_vector(result.x)
     rss = float(result.fun @ result.fun)
     hint = capture_hint(candidate.name, params, sim.observations, sim.t0_s)
+    jac = None
     try:
-        # the slope over each parameter's standard error with the others held (1 / sqrt of the solver's J'J
-        # diagonal: the change that moves the whitened RSS by 1), ``_Fitted.secant_jacobian``
-        with np.errstate(divide="ignore"):
-            step = 1.0 / np.sqrt(np.sum(result.jac**2, axis=0))
-        jac = fitted.secant_jacobian(np.where(np.isfinite(step), step, 1e-8 * np.maximum(1.0, np.abs(result.x))))
+        jac = _slopes(fitted)
         external = _step_covariance(jac, result.fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
         internal = np.linalg.pinv(jac.T @ jac) + _reference_covariance(jac, lay.reference_directions())
         cov = _combined_covariance(external, internal)
         stderr, info = determination(candidate, params, result.x, cov, hint)
     except (np.linalg.LinAlgError, ValueError, OverflowError):  # overflow: an error beyond any parameter's range
         stderr, info = {}, Determination(well_determined=False, problems=["no covariance"], capture=hint)
-    return params, stderr, info, rss
+    return params, stderr, info, rss, jac
+
+
+def _slopes(fitted: _Fitted) -> np.ndarray:
+    """The residual's slope in each parameter over its standard error with the others held (1 / sqrt of the
+    solver's J'J diagonal: the change that moves the whitened RSS by 1), ``_Fitted.secant_jacobian``."""
+    result = fitted.result
+    with np.errstate(divide="ignore"):
+        step = 1.0 / np.sqrt(np.sum(result.jac**2, axis=0))
+    return fitted.secant_jacobian(np.where(np.isfinite(step), step, 1e-8 * np.maximum(1.0, np.abs(result.x))))
 
 
 def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation,
-                   lay: Layout) -> SimModel:
+                   lay: Layout) -> tuple[SimModel, np.ndarray | None]:
     """All effects named in this reconcile refitted together (an effect fitted while another was still
-    missing carries some of the other's residual)."""
+    missing carries some of the other's residual); the model, and the residual's slope in each of their
+    parameters there (``_slopes``; None where it could not be taken)."""
     fitted = _fit_effects(found, model, sim, lay, max_nfev=20)
-    return fitted.build(fitted.result.x)
+    try:
+        slopes = _slopes(fitted)
+    except (ValueError, OverflowError):
+        slopes = None
+    return fitted.build(fitted.result.x), slopes
 
 
 def _comparable_steps(lay: Layout) -> int:
@@ -498,6 +510,9 @@ class _State:
 
     def __init__(self, sim: Simulation, lay: Layout, model: SimModel) -> None:
         self.sim, self.lay = sim, lay
+        #: the whitened residual's slope in the named effects' parameters at ``model`` (one column each): the
+        #: candidates are scored with the named effects free to move along it (``scored_residual``)
+        self.named_slopes: np.ndarray | None = None
         self.set(model)
 
     def set(self, model: SimModel) -> None:
@@ -519,6 +534,17 @@ class _State:
 
     def whitened(self) -> np.ndarray:
         return np.nan_to_num(self.lay.profiled(self.dz, self.di, self.stats))
+
+    def named_free(self) -> Callable[[np.ndarray], np.ndarray]:
+        """Rows (a vector, or columns) with the named effects' linearized change taken out (least squares on
+        ``named_slopes``, Frisch-Waugh-Lovell): a candidate scored on them is credited only with what the named
+        effects, refitted beside it, leave. An effect fitted while another was missing carries some of that
+        other's residual, and the other would otherwise be judged on what is left of it."""
+        slopes = self.named_slopes
+        if slopes is None or not slopes.size or not np.all(np.isfinite(slopes)):
+            return lambda rows: rows
+        inverse = np.linalg.pinv(slopes)
+        return lambda rows: rows - slopes @ (inverse @ rows)
 
 
 def _add_empirical(state: _State, carrying: str | None, rule: FixedThresholds | NullCalibration,
@@ -619,12 +645,13 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
 
 def _scored(state: _State, say: Callable[[str], None]) -> list[tuple[Fit, Candidate]]:
     """Every candidate not yet in the model scored against the current residual, best first."""
-    r = state.whitened()
+    free = state.named_free()
+    r = free(state.whitened())
     ctx = state.context()
     fits = []
     for candidate in candidates_for(ctx):
         say(f"scoring {candidate.name}")
-        fit = score(candidate, ctx, state.lay, r)
+        fit = score(candidate, ctx, state.lay, r, free)
         if fit is not None:
             fits.append((fit, candidate))
     fits.sort(key=lambda fc: -fc[0].score)
@@ -733,7 +760,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         if rule.consistent(state.good):
             iteration.decision = "consistent with noise"
             break
-        separation = Separation(lay, captures, state.whitened())
+        separation = Separation(lay, captures, state.named_free()(state.whitened()))
         scored = [f for f, _ in fits]
         contradicted, confound = screen(scored, separation, rule.threshold({f.name for f in scored}), MARGIN)
         notes += [f"{c.winner} not named: {c.reason}" for c in contradicted]
@@ -758,14 +785,21 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             iteration.decision = "ambiguous"
             break
         say(f"fitting {best.name}")
-        params, stderr, info_det, rss = refine(candidate, best, state.model, sim, lay)
-        before, previous = state.good, state.model
+        params, stderr, info_det, rss, slopes = refine(candidate, best, state.model, sim, lay)
+        before, previous, previous_slopes = state.good, state.model, state.named_slopes
         state.set(with_effect(state.model, best.name, params))
+        joint_slopes: np.ndarray | None | bool = False  # False: the named effects not refitted with it yet
+        if found and not rule.material(before, state.good):  # scored with the named effects free: judged so too
+            say(f"refitting the named effects with {best.name}")
+            joint, joint_slopes = refine_jointly([*found, (candidate, params)], start_model, sim, lay)
+            state.set(joint)
         if not rule.material(before, state.good):
             iteration.decision = (f"{best.name} not material (gap {before.gap_mm:.3f} -> {state.good.gap_mm:.3f} mm, "
                                   f"floor {before.gap_floor_mm:.3f} mm)")
             state.set(previous)
             break
+        state.named_slopes = slopes if previous_slopes is None or slopes is None else np.hstack([previous_slopes,
+                                                                                                  slopes])
         found.append((candidate, params))
         named.append(NamedEffect(name=best.name, parameters=params, evidence=Evidence(
             delta_bic=round(best.score, 2), loso_gain=round(best.loso_gain, 4),
@@ -778,8 +812,11 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             p_value=iteration.significance_p, null_runs=rule.null_runs or None)))
         iteration.decision = f"added {best.name}"
         if len(found) > 1:  # before the next round: what one effect carried of another's residual is not left over
-            say("refitting the named effects together")
-            state.set(refine_jointly(found, start_model, sim, lay))
+            if joint_slopes is False:
+                say("refitting the named effects together")
+                joint, joint_slopes = refine_jointly(found, start_model, sim, lay)
+                state.set(joint)
+            state.named_slopes = joint_slopes if isinstance(joint_slopes, np.ndarray) else None
             found = [(c, dict(state.model.effects[c.name])) for c, _ in found]
     for effect in named:
         effect.parameters = dict(state.model.effects[effect.name])
