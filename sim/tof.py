@@ -36,6 +36,7 @@ import numpy as np
 from sim.effects import (
     EFFECTS,
     EffectParams,
+    PhasorStage,
     RangeStage,
     acting,
     background_level,
@@ -127,6 +128,14 @@ class ToFSensor:
         """The factor the effects' ``shading`` puts on the light after the blur (1 without)."""
         return shading_factor(self.effects, self.geometry.cos_alpha)
 
+    def returns(self, r: Rendered, exposure_us: float) -> np.ndarray:
+        """Per pixel, the correlation phasor of every return reaching it (each sub-pixel's surface at its own
+        range) through the optical PSF, in amplitude units; needs a render that kept the phasors
+        (``mixes_returns``)."""
+        assert r.phasor_fine is not None
+        scale = self.a_ref * (exposure_us / self.profile.exposure_us) / IRRADIANCE_REF
+        return self.geometry.blur(r.phasor_fine, centre_distance_mm(r), r.oversample) * scale * self.shading()
+
     def expected(self, r: Rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float]:
         """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render."""
         p = self.profile
@@ -136,13 +145,15 @@ class ToFSensor:
         light = self.geometry.blur(r.irradiance_fine, focus_distance_mm, r.oversample) * scale
         shading = self.shading()
         amplitude = np.maximum(light * shading, 0.0)
-        phasor = None
+        phasor, stage = None, None
         if r.phasor is not None:
-            if self.mixed_pixels:  # every return reaching the pixel, through the optical PSF
-                phasor = self.geometry.blur(r.phasor_fine, focus_distance_mm, r.oversample) * scale * shading
+            returns = self.returns(r, exposure_us)
+            stage = PhasorStage(self, complex(returns.mean()))
+            if self.mixed_pixels:
+                phasor = returns
             else:  # the dominant surface alone
                 phasor = amplitude * np.exp(1j * self.wavenumber * np.nan_to_num(r.range_dom))
-        range_mm = self._measured_range(r.range_dom, phasor, light)
+        range_mm = self._measured_range(r.range_dom, phasor, light, stage)
         in_range = (r.hit_fraction > 0) & (range_mm >= p.min_range_mm) & (range_mm <= p.max_range_mm)
         valid = in_range & np.isfinite(range_mm)
         ambient = (p.ambient_ratio + background_level(self.effects)) * self.a_ref * gain
@@ -159,16 +170,18 @@ class ToFSensor:
             step_index=step_index,
         )
 
-    def _measured_range(self, range_dom: np.ndarray, phasor: np.ndarray | None, light: np.ndarray) -> np.ndarray:
+    def _measured_range(self, range_dom: np.ndarray, phasor: np.ndarray | None, light: np.ndarray,
+                        stage: PhasorStage | None = None) -> np.ndarray:
         """Range per pixel before temporal noise: dominant or mixed return, then the effects' range hooks.
 
         ``phasor`` (when an effect ``mixes_returns``) is the pixel's correlation phasor, which the effects'
-        ``phasor`` hooks act on first; ``light`` the returned light before vignetting.
+        ``phasor`` hooks act on first (with ``stage``: the scene's mean return); ``light`` the returned light
+        before vignetting.
         """
         range_mm = range_dom
-        if phasor is not None:
+        if phasor is not None and stage is not None:
             for hook, params in acting(self.effects, "phasor"):
-                phasor = hook(phasor, params, self)
+                phasor = hook(phasor, params, stage)
             ref = np.nan_to_num(range_dom)
             residual = np.angle(phasor * np.exp(-1j * self.wavenumber * ref))
             range_mm = np.where(np.isfinite(range_dom), ref + residual / self.wavenumber, np.nan)

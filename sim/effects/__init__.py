@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from sim.effects.base import Corners, Effect, EffectParams, Observed, RangeStage, valid_range
+from sim.effects.base import Corners, Effect, EffectParams, Observed, PhasorStage, RangeStage, valid_range
 
-__all__ = ["EFFECTS", "Corners", "Effect", "EffectParams", "Observed", "RangeStage", "acting", "background_level",
+__all__ = ["EFFECTS", "Corners", "Effect", "EffectParams", "Observed", "PhasorStage", "RangeStage", "acting", "background_level",
            "default_effects", "frame_offset_mm", "output_step_mm", "parse_effects", "plate_placement_mm", "registered",
            "valid_range", "warm_up_s"]
 

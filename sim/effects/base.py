@@ -78,6 +78,16 @@ class RangeStage:
 
 
 @dataclass(frozen=True)
+class PhasorStage:
+    """What a phasor hook may use: the :class:`~sim.tof.ToFSensor` it acts in (``wavenumber``) and the mean over
+    the image of every return reaching the pixels (the blurred phasor of all sub-pixel returns: the light the
+    whole scene sends back, each surface at its own range)."""
+
+    sensor: Any
+    scene_mean: complex
+
+
+@dataclass(frozen=True)
 class Corners:
     """How the checkerboard corner comparison fits the effect (labctl/reconcile/corners.py, docs/reconcile.md).
 
@@ -154,7 +164,7 @@ class Effect:
       ``mixed_pixels``: the depth comes from the blurred phasor of every return
       (else from the dominant surface's own);
     * ``shading(cos_alpha, p)``: factor on the light after the blur (amplitude, IR image);
-    * ``phasor(phasor, p, sensor)``: the ToF pixel's phasor before its phase gives the range;
+    * ``phasor(phasor, p, stage)``: the ToF pixel's phasor before its phase gives the range (``PhasorStage``);
     * ``on_range(values, p, stage)``: the noise-free ToF range or stereo depth map, in increasing ``order``;
     * ``background(p)``: background light the pixels collect besides the camera's own signal (ambient light),
       in units of the reference signal (ToF: A_ref, the amplitude of the 90 % wall at 2 m; stereo: the
@@ -175,7 +185,7 @@ class Effect:
     mixes_returns: bool = False
     mixed_pixels: bool = False
     shading: Callable[[np.ndarray, Any], np.ndarray] | None = None
-    phasor: Callable[[np.ndarray, Any, Any], np.ndarray] | None = None
+    phasor: Callable[[np.ndarray, Any, PhasorStage], np.ndarray] | None = None
     on_range: Callable[[np.ndarray, Any, RangeStage], np.ndarray] | None = None
     background: Callable[[Any], float] | None = None
     frame_offset_mm: Callable[[float, Any], float] | None = None
