@@ -511,7 +511,7 @@ class _State:
     def __init__(self, sim: Simulation, lay: Layout, model: SimModel) -> None:
         self.sim, self.lay = sim, lay
         #: the whitened residual's slope in the named effects' parameters at ``model`` (one column each): the
-        #: candidates are scored with the named effects free to move along it (``scored_residual``)
+        #: candidates are scored with the named effects free to move along it (``named_free``)
         self.named_slopes: np.ndarray | None = None
         self.set(model)
 
@@ -788,11 +788,11 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         params, stderr, info_det, rss, slopes = refine(candidate, best, state.model, sim, lay)
         before, previous, previous_slopes = state.good, state.model, state.named_slopes
         state.set(with_effect(state.model, best.name, params))
-        joint_slopes: np.ndarray | None | bool = False  # False: the named effects not refitted with it yet
+        joint: tuple[SimModel, np.ndarray | None] | None = None  # the named effects refitted with it
         if found and not rule.material(before, state.good):  # scored with the named effects free: judged so too
             say(f"refitting the named effects with {best.name}")
-            joint, joint_slopes = refine_jointly([*found, (candidate, params)], start_model, sim, lay)
-            state.set(joint)
+            joint = refine_jointly([*found, (candidate, params)], start_model, sim, lay)
+            state.set(joint[0])
         if not rule.material(before, state.good):
             iteration.decision = (f"{best.name} not material (gap {before.gap_mm:.3f} -> {state.good.gap_mm:.3f} mm, "
                                   f"floor {before.gap_floor_mm:.3f} mm)")
@@ -812,11 +812,11 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             p_value=iteration.significance_p, null_runs=rule.null_runs or None)))
         iteration.decision = f"added {best.name}"
         if len(found) > 1:  # before the next round: what one effect carried of another's residual is not left over
-            if joint_slopes is False:
+            if joint is None:
                 say("refitting the named effects together")
-                joint, joint_slopes = refine_jointly(found, start_model, sim, lay)
-                state.set(joint)
-            state.named_slopes = joint_slopes if isinstance(joint_slopes, np.ndarray) else None
+                joint = refine_jointly(found, start_model, sim, lay)
+                state.set(joint[0])
+            state.named_slopes = joint[1]
             found = [(c, dict(state.model.effects[c.name])) for c, _ in found]
     for effect in named:
         effect.parameters = dict(state.model.effects[effect.name])
