@@ -99,7 +99,7 @@ def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: i
                     estimate = value + math.remainder(estimate - value, PERIODIC[key](camera))
                 errors.append((f"{name}.{key}", (estimate - value) / stderr))
     after = result.goodness_physical or result.goodness_after  # the named effects', before any empirical correction
-    return {"label": label, "seed": seed, "hidden": sorted(hidden), "named": sorted(named),
+    return {"label": label, "seed": seed, "hidden": sorted(hidden), "parameters": hidden, "named": sorted(named),
             "verdict": result.verdict, "covered": covered, "errors": errors,
             "within_floor": bool(after is not None and result.rule.consistent(after)),
             "seconds": time.monotonic() - start}
