@@ -44,6 +44,7 @@ from labctl.reconcile.noise_model import (
     stereo_statistics,
     stored_depth_bias,
     tof_statistics,
+    tof_stored_bias,
 )
 from labctl.reconcile.observe import Observation, StepScene, bin_mean
 from metrics.stack import central_roi
@@ -62,7 +63,7 @@ from sim.render import centre_distance_mm, render
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
 from sim.sensor import SensorOptics, blur_diameter_px
 from sim.stereo import StereoSensor, dot_pattern
-from sim.tof import ToFSensor, surface_properties
+from sim.tof import ToFSensor, range_noise_mm, surface_properties
 
 #: two steps carry the offset of the same calibration when their offsets (reference - laser, each formed from the
 #: same float) agree to far below the laser's 0.1 mm resolution
@@ -278,14 +279,24 @@ class Predictor:
         shifts = self.wall_shifts(observations, t0_s)
         return [self.predict(o.scene, o.times_s - t0_s, shifts.get(o.scene.step_id, 0.0)) for o in observations]
 
+    def _tof_stored(self, z: np.ndarray, amplitude: np.ndarray, ambient: float) -> np.ndarray:
+        """The ToF bins' expected stored depth: ``z`` (drift included) plus ``tof_stored_bias`` of the camera's
+        output steps, its pixels' depth noise before the rounding from their ``amplitude``."""
+        step = output_step_mm(self.effects)
+        if step <= 0:
+            return z
+        seen = amplitude > 0
+        sigma = np.where(seen, range_noise_mm(self.sensor.profile, np.where(seen, amplitude, 1.0), ambient), np.nan)
+        return z + tof_stored_bias(z, sigma * self.z_per_range, step, self.bin_px)
+
     def central_depth(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> float:
         """The mean predicted depth over the central 10 % x 10 % region of the measured camera (metrics.stack
         central_roi), each bin weighted by the region's pixels in it; NaN when none is reported there."""
         rendered = self._render(step, shift_mm)
         drift = self.drift_mm(times_s)
         if isinstance(self.sensor, ToFSensor):
-            range_mm, _, _ = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
-            z = (range_mm + drift) * self.z_per_range
+            range_mm, amplitude, ambient = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
+            z = self._tof_stored((range_mm + drift) * self.z_per_range, amplitude, ambient)
         else:
             exposure = step.exposure_us or self.profile.exposure_us
             lit = stereo_light(self.sensor, rendered, exposure, step.projector)
@@ -320,7 +331,7 @@ class Predictor:
             light = amplitude / centre
             amplitude = self.shade(light)
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
-            z = range_mm * self.z_per_range
+            z = self._tof_stored(range_mm * self.z_per_range, amplitude, ambient)
             noise, valid = tof_statistics(self.sensor, amplitude, ambient, np.broadcast_to(self.z_per_range, z.shape))
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,

@@ -23,7 +23,7 @@ import pytest
 import tomli_w
 
 from labctl.reconcile.goodness import statistics_goodness
-from labctl.reconcile.noise_model import stored_depth_bias
+from labctl.reconcile.noise_model import stored_depth_bias, tof_stored_bias
 from labctl.reconcile.observe import observe_run
 from labctl.reconcile.predict import Predictor
 from labctl.reconcile.residuals import STATISTICS, layout, raw_statistics
@@ -165,3 +165,28 @@ def test_the_wall_means_of_a_plain_stereo_run_follow_the_prediction_step_by_step
              if o.scene.procedure == "depth_sweep" and np.isfinite(o.z - p.z).any()]
     assert len(means) == 10
     assert max(means) - min(means) < 0.1  # 0.045 mm measured; 0.45 mm before the roundings were predicted
+
+
+def _rounded_bias_by_fourier(mu: float, sigma: float, step: float, terms: int = 4000) -> float:
+    """E[round_step(mu + sigma n)] - mu for standard normal n from the sawtooth's Fourier series,
+    round(x) - x = sum_m (-1)^m sin(2 pi m x) / (pi m) (x in steps), each term damped by the normal
+    characteristic function exp(-2 pi^2 m^2 sigma^2 / step^2)."""
+    m = np.arange(1, terms + 1)
+    x, s = mu / step, sigma / step
+    return float(step * np.sum((-1.0) ** m * np.sin(2 * np.pi * m * x) / (np.pi * m) * np.exp(-2 * np.pi**2 * m**2 * s**2)))
+
+
+@pytest.mark.parametrize(("z_mm", "sigma_mm", "slope_mm_px"), [
+    (400.3, 0.05, 0.0), (400.8, 0.05, 0.0), (597.45, 0.2, 0.0), (1203.1, 0.5, 0.0), (806.37, 0.1, 0.06)])
+def test_stored_tof_depth_mean_is_that_of_the_output_step(z_mm, sigma_mm, slope_mm_px):
+    """An amt100-like camera storing whole millimetres, its depth noise small against the step at near range: a
+    bin's expected stored depth minus the noise-free depth (``tof_stored_bias``) against the sawtooth's Fourier
+    series (a wall: every pixel at z) and, for a surface sloping along the rows, the mean of that series over the
+    bin's pixels; up to 0.3 mm where the noise-free depth alone is taken."""
+    b = 4
+    z = np.full((5, 5), z_mm) + slope_mm_px * b * np.arange(5)[None, :]
+    bias = tof_stored_bias(z, np.full_like(z, sigma_mm), 1.0, b)
+    pixels = z[2, 2] + slope_mm_px * (np.arange(b) - (b - 1) / 2)
+    expected = np.mean([_rounded_bias_by_fourier(p, sigma_mm, 1.0) for p in pixels])
+    assert bias[2, 2] == pytest.approx(expected, abs=0.005)
+    assert abs(_rounded_bias_by_fourier(400.3, 0.05, 1.0)) > 0.25  # what the noise-free depth would miss
