@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -84,9 +82,6 @@ SURFACE_GROUPS = 10
 SURFACE_COMPONENT = "frames: delete-a-group jackknife of the stack (Type A)"
 #: the threads busy beside the depth sweep's compiled kernels: the read-ahead and the run files' hash
 SWEEP_BACKGROUND_THREADS = 2
-#: threads decompressing the frames the read-ahead reads (labctl/run/chunk_read.py): one per core, so that
-#: decompression takes whatever core the evaluation's figures leave
-DECOMPRESS_THREADS = os.cpu_count() or 1
 
 
 @dataclass(frozen=True)
@@ -187,7 +182,7 @@ def evaluate_depth_sweep(
     Each step's arrays are read once, one step ahead of their evaluation (labctl/evaluation/read_ahead.py): z
     where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
     frames, the stacks into the buffers of the step two before (nothing of a step's arrays is kept past its turn
-    but what is computed from them), each frame's chunk decompressed by a pool of worker threads, one per core
+    but what is computed from them), each frame's chunk as stored, decompressed by Blosc
     (labctl/run/chunk_read.py); the read-ahead's thread then takes the stacks' statistics (``stack_stats``, on one
     thread), so that the figures of a step run beside the reading and statistics of the next. The compiled kernels
     leave a core each to the read-ahead and the run files' hash (labctl/kernel_threads.py)."""
@@ -209,7 +204,7 @@ def evaluate_depth_sweep(
         whole = xy_noise or rec is key
 
         def stack(channel: str) -> np.ndarray:
-            buffers[slot][channel] = rec.read(channel, buffers[slot].get(channel), decompress)
+            buffers[slot][channel] = rec.read(channel, buffers[slot].get(channel), by_chunk=True)
             return buffers[slot][channel]
 
         arrays = {c: stack(c) if whole else rec.group[c][:1] for c in ("x", "y")}
@@ -221,32 +216,31 @@ def evaluate_depth_sweep(
 
     noise: list[tuple[str, float, XYPrecision]] | None = [] if xy_noise else None
     surface: _SurfaceInputs | None = None
-    with ThreadPoolExecutor(DECOMPRESS_THREADS, thread_name_prefix="decompress") as decompress:
-        for rec, (arrays, all_stats) in read_ahead(steps if xy_noise else usable, load):
-            progress(rec.step_id)
-            if id(rec) in with_z:
-                z = arrays["z"]
-                first_xy = (arrays["x"][0], arrays["y"][0])
-                _detect_quantization(evaluation.quantization_mm, z, first_xy)
-                stats = all_stats["z"]
-                errors = depth_errors(stats, z[0], rec.attrs["reference_distance_mm"])
-                if rec is key:
-                    reference_u = combined_standard_uncertainty(calibrated_reference(rec.attrs, offset))
-                    key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"], reference_u)
-                    frames = z.shape[0]
-                    surface = _SurfaceInputs(
-                        {"x": all_stats["x"], "y": all_stats["y"], "z": stats},
-                        leave_group_out_means(z, contiguous_groups(frames, min(SURFACE_GROUPS, frames)))
-                        if frames >= 2 else None)
-                evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
-                position = vendor_position(rec, z, first_xy, reader.camera, evaluation.camera.model)
-                if rec.step_id in vendor_keys:  # the steps the vendor key figures come from: their uncertainties too
-                    position = with_uncertainties(position, rec, z, first_xy, reader.camera, evaluation.camera.model)
-                evaluation.vendor.append(position)
-            if noise is not None:
-                progress(f"{rec.step_id} x/y noise")
-                noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key, (all_stats["x"], all_stats["y"])))
-            del arrays, all_stats
+    for rec, (arrays, all_stats) in read_ahead(steps if xy_noise else usable, load):
+        progress(rec.step_id)
+        if id(rec) in with_z:
+            z = arrays["z"]
+            first_xy = (arrays["x"][0], arrays["y"][0])
+            _detect_quantization(evaluation.quantization_mm, z, first_xy)
+            stats = all_stats["z"]
+            errors = depth_errors(stats, z[0], rec.attrs["reference_distance_mm"])
+            if rec is key:
+                reference_u = combined_standard_uncertainty(calibrated_reference(rec.attrs, offset))
+                key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"], reference_u)
+                frames = z.shape[0]
+                surface = _SurfaceInputs(
+                    {"x": all_stats["x"], "y": all_stats["y"], "z": stats},
+                    leave_group_out_means(z, contiguous_groups(frames, min(SURFACE_GROUPS, frames)))
+                    if frames >= 2 else None)
+            evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
+            position = vendor_position(rec, z, first_xy, reader.camera, evaluation.camera.model)
+            if rec.step_id in vendor_keys:  # the steps the vendor key figures come from: their uncertainties too
+                position = with_uncertainties(position, rec, z, first_xy, reader.camera, evaluation.camera.model)
+            evaluation.vendor.append(position)
+        if noise is not None:
+            progress(f"{rec.step_id} x/y noise")
+            noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key, (all_stats["x"], all_stats["y"])))
+        del arrays, all_stats
     _depth_figures(evaluation, key, key_u, surface, offset, progress)
     return noise
 

@@ -67,7 +67,6 @@ import json
 import math
 import os
 from collections.abc import Callable, Iterator, Mapping
-from concurrent.futures import Executor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -613,19 +612,19 @@ class StepRecord:
     attrs: dict[str, Any]
     group: h5py.Group
 
-    def read(self, channel: str, out: np.ndarray | None = None, pool: Executor | None = None) -> np.ndarray:
+    def read(self, channel: str, out: np.ndarray | None = None, by_chunk: bool = False) -> np.ndarray:
         """The whole (N, H, W) stack of one channel (or (N,) timestamps).
 
         ``out``: a buffer of the same shape and dtype to read into (reused
         across steps, it saves allocating and page-faulting every stack).
-        ``pool``: worker threads that decompress the frames' chunks side by
-        side (:func:`labctl.run.chunk_read.read_stack`), else HDF5 reads.
+        ``by_chunk``: each frame's chunk read as stored and decompressed by
+        Blosc (:func:`labctl.run.chunk_read.read_stack`), else HDF5 reads.
         """
         dataset = self.group[channel]
-        if pool is not None:
+        if by_chunk:
             if out is None or out.shape != dataset.shape or out.dtype != dataset.dtype:
                 out = np.empty(dataset.shape, dataset.dtype)
-            return read_stack(dataset, out, pool)
+            return read_stack(dataset, out)
         if out is not None and out.shape == dataset.shape and out.dtype == dataset.dtype:
             dataset.read_direct(out)
             return out

@@ -1,8 +1,6 @@
-"""Stacks read chunk by chunk and decompressed in worker threads (labctl.run.chunk_read) are the arrays h5py reads,
+"""Stacks read chunk by chunk and decompressed by Blosc (labctl.run.chunk_read) are the arrays h5py reads,
 bit for bit, for every layout: the writer's (Blosc or none, frames missing, chunks stored unfiltered) through the
 direct path, anything else through h5py."""
-
-from concurrent.futures import ThreadPoolExecutor
 
 import h5py
 import hdf5plugin
@@ -16,12 +14,6 @@ from labctl.run.store import CHANNELS, RunWriter
 from procedures.steps import Step
 
 H, W = 37, 53  # odd frame sizes
-
-
-@pytest.fixture(scope="module")
-def pool():
-    with ThreadPoolExecutor(2) as workers:
-        yield workers
 
 
 def frames(n: int) -> list[Frame]:
@@ -47,7 +39,7 @@ def same(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 @pytest.mark.parametrize("compression", COMPRESSIONS)
-def test_the_writers_stacks_read_chunk_by_chunk_are_h5pys(tmp_path, pool, compression):
+def test_the_writers_stacks_read_chunk_by_chunk_are_h5pys(tmp_path, compression):
     """A complete step and one with only half of its frames written (the rest never allocated: h5py gives the fill
     value), every channel, read into fresh and reused buffers."""
     path = tmp_path / "run.h5"
@@ -68,8 +60,8 @@ def test_the_writers_stacks_read_chunk_by_chunk_are_h5pys(tmp_path, pool, compre
                 expected = dataset[()]
                 out = np.full(dataset.shape, 7, dataset.dtype)
                 assert direct_readable(dataset, out)
-                assert same(read_stack(dataset, out, pool), expected)
-                assert same(read_stack(dataset, out, pool), expected)  # into the same buffer again
+                assert same(read_stack(dataset, out), expected)
+                assert same(read_stack(dataset, out), expected)  # into the same buffer again
 
 
 LAYOUTS = {
@@ -85,7 +77,7 @@ LAYOUTS = {
 
 @pytest.mark.parametrize("layout", list(LAYOUTS))
 @pytest.mark.parametrize("dtype", [np.float32, np.uint16, ">f4"])
-def test_every_layout_reads_as_h5py_reads_it(tmp_path, pool, layout, dtype):
+def test_every_layout_reads_as_h5py_reads_it(tmp_path, layout, dtype):
     """Datasets written through h5py's filter pipeline in layouts the writer does not make (they go through h5py)
     and in those it makes (read chunk by chunk), frames 2 and 4 of 5 never written (fill value)."""
     rng = np.random.default_rng(5)
@@ -101,10 +93,10 @@ def test_every_layout_reads_as_h5py_reads_it(tmp_path, pool, layout, dtype):
         out = np.empty(dataset.shape, dataset.dtype)
         assert direct_readable(dataset, out) == (layout in ("blosc, frame chunks", "blosc zstd, frame chunks",
                                                             "none, frame chunks"))
-        assert same(read_stack(dataset, out, pool), expected)
+        assert same(read_stack(dataset, out), expected)
 
 
-def test_a_buffer_of_another_type_is_read_into_by_h5py(tmp_path, pool):
+def test_a_buffer_of_another_type_is_read_into_by_h5py(tmp_path):
     """An output array of another type (h5py converts) is not read chunk by chunk."""
     path = tmp_path / "stack.h5"
     data = np.arange(3 * H * W, dtype=np.float32).reshape(3, H, W)
@@ -114,4 +106,4 @@ def test_a_buffer_of_another_type_is_read_into_by_h5py(tmp_path, pool):
         dataset = f["stack"]
         as_double = np.empty(data.shape, np.float64)
         assert not direct_readable(dataset, as_double)
-        assert same(read_stack(dataset, as_double, pool), dataset[()].astype(np.float64))
+        assert same(read_stack(dataset, as_double), dataset[()].astype(np.float64))
