@@ -211,10 +211,12 @@ def off_axis_pixels(shape: tuple[int, int]) -> tuple[tuple[int, int], tuple[int,
     return (row, col + shape[1] // 4), (row + shape[0] // 4, col)
 
 
-def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray, q90_uncertainty: bool = False) -> XYPrecision:
+def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray, q90_uncertainty: bool = False,
+                 stats: tuple[StackStats, StackStats] | None = None) -> XYPrecision:
     """Repeatability (centre and off-axis pixels) and precision (median, Q90) of x and y over an (N, H, W)
     wall stack, with the repeatabilities' uncertainties; with ``q90_uncertainty`` the precision Q90s' too (a
-    jackknife over the frames: time enough only for the steps whose figures become key figures).
+    jackknife over the frames: time enough only for the steps whose figures become key figures). ``stats``: the
+    two stacks' :func:`~metrics.stack.stack_stats` where the caller has them already.
 
     Examples
     --------
@@ -228,14 +230,14 @@ def xy_precision(x_stack: np.ndarray, y_stack: np.ndarray, q90_uncertainty: bool
     >>> [round(u, 3) for u in p.repeatability_center_u_mm]  # s / sqrt(2 (3 - 1)): 1 / 2 and 2 / 2
     [0.5, 1.0]
     """
-    sx, sy = stack_stats(np.asarray(x_stack)), stack_stats(np.asarray(y_stack))
+    sx, sy = stats if stats is not None else (stack_stats(np.asarray(x_stack)), stack_stats(np.asarray(y_stack)))
     centre = center_pixel(sx.std.shape)
     at_x, at_y = off_axis_pixels(sx.std.shape)
     mx, qx = median_q90_abs(sx.std)
     my, qy = median_q90_abs(sy.std)
     invalid = float(np.mean(~(sx.valid & sy.valid)))
-    def u(stats: StackStats, pixel: tuple[int, int]) -> float:
-        return standard_error_of_std(float(stats.std[pixel]), int(stats.count[pixel])) if stats.valid[pixel] else math.nan
+    def u(s: StackStats, pixel: tuple[int, int]) -> float:
+        return standard_error_of_std(float(s.std[pixel]), int(s.count[pixel])) if s.valid[pixel] else math.nan
 
     return XYPrecision(float(sx.std[centre]), float(sy.std[centre]), float(sx.std[at_x]), float(sy.std[at_y]),
                        (float(sx.mean[centre]), float(sy.mean[centre])), (float(sx.mean[at_x]), float(sy.mean[at_y])),

@@ -49,7 +49,7 @@ from labctl.evaluation.suitability import (
 from labctl.evaluation.uncertainty import calibrated_reference, fov_components, offset_calibration, scaled
 from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
-from labctl.kernel_threads import kernel_threads_beside
+from labctl.kernel_threads import kernel_threads_beside, serial_kernels
 from labctl.run.store import RunReader, StepRecord
 from metrics.depth import (
     DepthErrors,
@@ -182,8 +182,10 @@ def evaluate_depth_sweep(
     Each step's arrays are read once, one step ahead of their evaluation (labctl/evaluation/read_ahead.py): z
     where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
     frames, the stacks into the buffers of the step two before (nothing of a step's arrays is kept past its turn
-    but what is computed from them). The compiled kernels leave a core each to the read-ahead and the run files'
-    hash (labctl/kernel_threads.py)."""
+    but what is computed from them), each frame's chunk as stored, decompressed by Blosc
+    (labctl/run/chunk_read.py); the read-ahead's thread then takes the stacks' statistics (``stack_stats``, on one
+    thread), so that the figures of a step run beside the reading and statistics of the next. The compiled kernels
+    leave a core each to the read-ahead and the run files' hash (labctl/kernel_threads.py)."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
         evaluation.notes.append(
@@ -198,34 +200,36 @@ def evaluate_depth_sweep(
 
     buffers: list[dict[str, np.ndarray]] = [{} for _ in range(SLOTS)]  # per read-ahead slot, the stacks read
 
-    def load(rec: StepRecord, slot: int) -> dict[str, np.ndarray]:
+    def load(rec: StepRecord, slot: int) -> tuple[dict[str, np.ndarray], dict[str, StackStats]]:
         whole = xy_noise or rec is key
 
         def stack(channel: str) -> np.ndarray:
-            buffers[slot][channel] = rec.read(channel, buffers[slot].get(channel))
+            buffers[slot][channel] = rec.read(channel, buffers[slot].get(channel), by_chunk=True)
             return buffers[slot][channel]
 
         arrays = {c: stack(c) if whole else rec.group[c][:1] for c in ("x", "y")}
         if id(rec) in with_z:
             arrays["z"] = stack("z")
-        return arrays
+        with serial_kernels():  # one thread: the figures of the step before have the other core
+            stats = {c: stack_stats(a) for c, a in arrays.items() if c == "z" or whole}
+        return arrays, stats
 
     noise: list[tuple[str, float, XYPrecision]] | None = [] if xy_noise else None
     surface: _SurfaceInputs | None = None
-    for rec, arrays in read_ahead(steps if xy_noise else usable, load):
+    for rec, (arrays, all_stats) in read_ahead(steps if xy_noise else usable, load):
         progress(rec.step_id)
         if id(rec) in with_z:
             z = arrays["z"]
             first_xy = (arrays["x"][0], arrays["y"][0])
             _detect_quantization(evaluation.quantization_mm, z, first_xy)
-            stats = stack_stats(z)
+            stats = all_stats["z"]
             errors = depth_errors(stats, z[0], rec.attrs["reference_distance_mm"])
             if rec is key:
                 reference_u = combined_standard_uncertainty(calibrated_reference(rec.attrs, offset))
                 key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"], reference_u)
                 frames = z.shape[0]
                 surface = _SurfaceInputs(
-                    {"x": stack_stats(arrays["x"]), "y": stack_stats(arrays["y"]), "z": stats},
+                    {"x": all_stats["x"], "y": all_stats["y"], "z": stats},
                     leave_group_out_means(z, contiguous_groups(frames, min(SURFACE_GROUPS, frames)))
                     if frames >= 2 else None)
             evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
@@ -235,8 +239,8 @@ def evaluate_depth_sweep(
             evaluation.vendor.append(position)
         if noise is not None:
             progress(f"{rec.step_id} x/y noise")
-            noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key))
-        del arrays
+            noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key, (all_stats["x"], all_stats["y"])))
+        del arrays, all_stats
     _depth_figures(evaluation, key, key_u, surface, offset, progress)
     return noise
 

@@ -43,7 +43,7 @@ from metrics.distortion import (
     distortion,
     refined_distortion,
 )
-from metrics.stack import leave_group_out_means, stack_stats
+from metrics.stack import StackStats, leave_group_out_means, stack_stats
 from metrics.uncertainty import Component, contiguous_groups, delete_a_group_jackknife
 from metrics.xy_error import (
     XYErrors,
@@ -273,10 +273,12 @@ def precision_key(walls: Sequence[StepRecord]) -> StepRecord | None:
     return min(walls, key=lambda s: abs(_distance(s) - KEY_DISTANCE_MM), default=None)
 
 
-def wall_noise(step: StepRecord, x: np.ndarray, y: np.ndarray, key: StepRecord | None) -> tuple[str, float, XYPrecision]:
+def wall_noise(step: StepRecord, x: np.ndarray, y: np.ndarray, key: StepRecord | None,
+               stats: tuple[StackStats, StackStats] | None = None) -> tuple[str, float, XYPrecision]:
     """The x/y noise of one wall step from its (N, H, W) ``x`` and ``y`` stacks (the precision Q90s' uncertainties
-    at the ``key`` step of :func:`precision_key`), as :attr:`GeometryResult.precision` lists it."""
-    return step.step_id, _distance(step), xy_precision(x, y, q90_uncertainty=step is key)
+    at the ``key`` step of :func:`precision_key`), as :attr:`GeometryResult.precision` lists it; ``stats``: the
+    stacks' :func:`~metrics.stack.stack_stats` where already computed."""
+    return step.step_id, _distance(step), xy_precision(x, y, q90_uncertainty=step is key, stats=stats)
 
 
 def _xy_figures(xy: XYErrors, u: XYUncertainty | None, tile_mm: float, src: list[str]) -> dict[str, FigureValue]:

@@ -79,6 +79,7 @@ import numpy as np
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.errors import InputError
 from labctl.run import compression as codecs
+from labctl.run.chunk_read import read_stack
 from labctl.run.chunks import ChunkWriter, CompressionFailed
 from labctl.run.diskspace import DiskSpaceLow, ensure_free, frame_bytes, mount_point, release, reserve
 from labctl.run.filekind import describe, is_binary_data, not_a_run_file
@@ -611,13 +612,19 @@ class StepRecord:
     attrs: dict[str, Any]
     group: h5py.Group
 
-    def read(self, channel: str, out: np.ndarray | None = None) -> np.ndarray:
+    def read(self, channel: str, out: np.ndarray | None = None, by_chunk: bool = False) -> np.ndarray:
         """The whole (N, H, W) stack of one channel (or (N,) timestamps).
 
         ``out``: a buffer of the same shape and dtype to read into (reused
         across steps, it saves allocating and page-faulting every stack).
+        ``by_chunk``: each frame's chunk read as stored and decompressed by
+        Blosc (:func:`labctl.run.chunk_read.read_stack`), else HDF5 reads.
         """
         dataset = self.group[channel]
+        if by_chunk:
+            if out is None or out.shape != dataset.shape or out.dtype != dataset.dtype:
+                out = np.empty(dataset.shape, dataset.dtype)
+            return read_stack(dataset, out)
         if out is not None and out.shape == dataset.shape and out.dtype == dataset.dtype:
             dataset.read_direct(out)
             return out

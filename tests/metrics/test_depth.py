@@ -137,3 +137,28 @@ def test_the_q90_uncertainties_of_a_quantized_stack_cover_their_spread_over_repe
         assert (u > 0).all(), name
         assert covered >= 90, f"{name}: U covers {covered} of {seeds} (spread {spread:.4g}, u {u.mean():.4g})"
         assert 0.5 <= u.mean() / spread <= 2.0, f"{name}: mean u {u.mean():.4g}, spread {spread:.4g}"
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_median_and_q90_are_numpys_bit_for_bit(dtype):
+    """median_q90_abs (selected among the values its sample brackets, metrics.depth._abs_quantiles) equals
+    np.quantile of the finite |values| exactly: any size, ties, NaN and infinities, and values whose evenly spaced
+    sample misleads the bracket (every sampled value 0, the others not)."""
+    from metrics.depth import SAMPLE, median_q90_abs
+
+    rng = np.random.default_rng(11)
+    for trial in range(120):
+        n = int(rng.integers(0, 50)) if trial % 4 == 0 else int(rng.integers(2 * SAMPLE, 40 * SAMPLE))
+        values = rng.normal(size=n).astype(dtype)
+        if trial % 5 == 1:
+            values = np.round(values * 3).astype(dtype)
+        if trial % 5 == 2:
+            values[rng.random(n) < 0.3] = np.nan
+            values[rng.random(n) < 0.01] = np.inf
+        if trial % 5 == 3:
+            values[:: max(1, n // SAMPLE)] = 0
+        qs = ((0.5, 0.9), (0.9,), (0.0, 1.0, 0.37))[trial % 3]
+        finite = np.abs(values[np.isfinite(values)])
+        expected = np.quantile(finite, qs) if finite.size else np.full(len(qs), np.nan)
+        got = median_q90_abs(values, qs)
+        assert [float(g).hex() for g in got] == [float(e).hex() for e in expected]
