@@ -21,7 +21,6 @@ linear fit: theta_-s = (A - A_s)^-1 (b - b_s) with A = S'S, b = S'r).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,11 +102,29 @@ def loso_gain(columns: np.ndarray, r: np.ndarray, steps: np.ndarray, n_steps: in
     return 1.0 - held_out / total if total > 0 else 0.0
 
 
-def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray,
-          free: Callable[[np.ndarray], np.ndarray] | None = None) -> Fit | None:
+@dataclass(frozen=True)
+class Beside:
+    """Effects already named, free to move beside a candidate: their residual's slopes S (rows x parameters) and
+    (S'S)^+. What they could take up is taken out of the candidate's columns by least squares (Frisch-Waugh-Lovell),
+    from the products C'S alone: a candidate is credited only with what it explains once they are refitted with
+    it."""
+
+    slopes: np.ndarray
+    gram_inverse: np.ndarray
+
+    @classmethod
+    def of(cls, slopes: np.ndarray) -> Beside:
+        return cls(slopes, np.linalg.pinv(slopes.T @ slopes))
+
+    def out_of(self, rows: np.ndarray) -> np.ndarray:
+        """``rows`` (a vector, or columns) less their least-squares fit by the slopes."""
+        return rows - self.slopes @ (self.gram_inverse @ (self.slopes.T @ rows))
+
+
+def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside: Beside | None = None) -> Fit | None:
     """The candidate at its best grid point (None when no physically valid fit exists), its linear coefficients as
-    the candidate may take them (``Candidate.clip``); ``free`` takes out of its columns what effects already named
-    could take up, refitted beside it (``r`` already has it taken out)."""
+    the candidate may take them (``Candidate.clip``); with ``beside``, the named effects refitted beside it (``r``
+    already has their slopes taken out, ``Beside.out_of``)."""
     n = lay.n_steps
     steps = lay.row_steps()
     cells = lay.row_cells()  # (step, family): each family's residuals of a step have their own scale
@@ -115,9 +132,10 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray,
     best: tuple[float, np.ndarray, np.ndarray, Parameters] | None = None
     for nonlinear in candidate.grid(ctx):
         columns = np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, nonlinear)])
-        if free is not None:
-            columns = free(columns)
-        a, b = columns.T @ columns, columns.T @ r
+        a, b = columns.T @ columns, columns.T @ r  # C'r = (C less its fit by S)'r: r is orthogonal to S
+        if beside is not None:
+            cs = columns.T @ beside.slopes
+            a = a - cs @ beside.gram_inverse @ cs.T
         if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
             continue
         coef = candidate.clip(np.linalg.solve(a, b))
@@ -125,8 +143,10 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray,
         if params is None:
             continue
         fitted = columns @ coef
+        if beside is not None:
+            fitted = fitted - beside.slopes @ (beside.gram_inverse @ (cs.T @ coef))
         if np.all(np.isfinite(coef)):
-            rss1 = cell_rss(r, fitted, columns, rss0, lay, steps)
+            rss1 = cell_rss(r, fitted, fitted[:, None], rss0, lay, steps)
         else:  # 0 times an infinite coefficient is NaN: every row changes
             rss1 = np.bincount(cells, (r - fitted) ** 2, lay.n_cells)
         value = delta_bic(rss0, rss1, candidate.n_params, n)
@@ -135,6 +155,8 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray,
     if best is None:
         return None
     value, coef, columns, params = best
+    if beside is not None:
+        columns = beside.out_of(columns)
     rest = r - columns @ coef
     rss1 = float(rest @ rest)
     dof = max(len(r) - columns.shape[1], 1)

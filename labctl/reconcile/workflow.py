@@ -115,7 +115,7 @@ from labctl.reconcile.results import (
     SignificanceRule,
     Unexplained,
 )
-from labctl.reconcile.score import MARGIN, Fit, competing, score
+from labctl.reconcile.score import MARGIN, Beside, Fit, competing, score
 from sim.effects import EFFECTS, default_effects
 from sim.model import SimModel, parse_model
 from sim.profiles import PROFILES, get_profile
@@ -511,7 +511,7 @@ class _State:
     def __init__(self, sim: Simulation, lay: Layout, model: SimModel) -> None:
         self.sim, self.lay = sim, lay
         #: the whitened residual's slope in the named effects' parameters at ``model`` (one column each): the
-        #: candidates are scored with the named effects free to move along it (``named_free``)
+        #: candidates are scored with the named effects free to move along it (``beside``)
         self.named_slopes: np.ndarray | None = None
         self.set(model)
 
@@ -535,16 +535,19 @@ class _State:
     def whitened(self) -> np.ndarray:
         return np.nan_to_num(self.lay.profiled(self.dz, self.di, self.stats))
 
-    def named_free(self) -> Callable[[np.ndarray], np.ndarray]:
-        """Rows (a vector, or columns) with the named effects' linearized change taken out (least squares on
-        ``named_slopes``, Frisch-Waugh-Lovell): a candidate scored on them is credited only with what the named
-        effects, refitted beside it, leave. An effect fitted while another was missing carries some of that
-        other's residual, and the other would otherwise be judged on what is left of it."""
+    def beside(self) -> Beside | None:
+        """The named effects as the candidates are scored beside them (``score.Beside``; None before any is named):
+        an effect fitted while another was missing carries some of that other's residual, and the other would
+        otherwise be judged on what is left of it."""
         slopes = self.named_slopes
         if slopes is None or not slopes.size or not np.all(np.isfinite(slopes)):
-            return lambda rows: rows
-        inverse = np.linalg.pinv(slopes)
-        return lambda rows: rows - slopes @ (inverse @ rows)
+            return None
+        return Beside.of(slopes)
+
+    def scored_residual(self, beside: Beside | None) -> np.ndarray:
+        """The whitened residual the candidates are scored on: with the named effects' slopes taken out."""
+        r = self.whitened()
+        return beside.out_of(r) if beside is not None else r
 
 
 def _add_empirical(state: _State, carrying: str | None, rule: FixedThresholds | NullCalibration,
@@ -645,13 +648,13 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
 
 def _scored(state: _State, say: Callable[[str], None]) -> list[tuple[Fit, Candidate]]:
     """Every candidate not yet in the model scored against the current residual, best first."""
-    free = state.named_free()
-    r = free(state.whitened())
+    beside = state.beside()
+    r = state.scored_residual(beside)
     ctx = state.context()
     fits = []
     for candidate in candidates_for(ctx):
         say(f"scoring {candidate.name}")
-        fit = score(candidate, ctx, state.lay, r, free)
+        fit = score(candidate, ctx, state.lay, r, beside)
         if fit is not None:
             fits.append((fit, candidate))
     fits.sort(key=lambda fc: -fc[0].score)
@@ -760,7 +763,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         if rule.consistent(state.good):
             iteration.decision = "consistent with noise"
             break
-        separation = Separation(lay, captures, state.named_free()(state.whitened()))
+        separation = Separation(lay, captures, state.scored_residual(state.beside()))
         scored = [f for f, _ in fits]
         contradicted, confound = screen(scored, separation, rule.threshold({f.name for f in scored}), MARGIN)
         notes += [f"{c.winner} not named: {c.reason}" for c in contradicted]
