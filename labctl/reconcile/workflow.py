@@ -646,9 +646,9 @@ def _corner_stage(comparison: CornerComparison, model: SimModel,
     return stage, model
 
 
-def _scored(state: _State, say: Callable[[str], None]) -> list[tuple[Fit, Candidate]]:
-    """Every candidate not yet in the model scored against the current residual, best first."""
-    beside = state.beside()
+def _scored(state: _State, say: Callable[[str], None], beside: Beside | None = None) -> list[tuple[Fit, Candidate]]:
+    """Every candidate not yet in the model scored against the current residual, best first; with ``beside``, the
+    named effects refitted beside each (``score.Beside``)."""
     r = state.scored_residual(beside)
     ctx = state.context()
     fits = []
@@ -751,7 +751,9 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     minimum_detectable = None
     captures = run_captures(observations, sim.t0_s)
     for _ in range(MAX_EFFECTS):
-        fits = _scored(state, say)
+        # beside the named effects where a candidate may be named; a round already consistent with the noise only
+        # reports the candidates' scores against what is left
+        fits = _scored(state, say, None if rule.consistent(state.good) else state.beside())
         if isinstance(rule, NullCalibration) and not iterations:
             say("minimum detectable amplitudes")
             minimum_detectable = detectable(state.context(), lay, rule)
