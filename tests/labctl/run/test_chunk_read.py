@@ -7,31 +7,14 @@ import hdf5plugin
 import numpy as np
 import pytest
 
-from drivers.protocols import CameraInfo, DeviceIdentity, Frame
+from drivers.protocols import CameraInfo, DeviceIdentity
 from labctl.run.chunk_read import direct_readable, read_stack
 from labctl.run.compression import COMPRESSIONS
 from labctl.run.store import CHANNELS, RunWriter
 from procedures.steps import Step
+from tests.labctl.run.test_compressed_chunks import frames
 
 H, W = 37, 53  # odd frame sizes
-
-
-def frames(n: int) -> list[Frame]:
-    """Depth with NaN holes, a frame without any valid pixel, a constant one, and an intensity of random bits (it
-    does not compress: the filter stores it unfiltered)."""
-    rng = np.random.default_rng(3)
-    out = []
-    for k in range(n):
-        z = (1500 + rng.standard_normal((H, W))).astype(np.float32)
-        z[rng.random((H, W)) < 0.2] = np.nan
-        if k == 1:
-            z[:] = np.nan
-        if k == 2:
-            z[:] = 800.0
-        intensity = rng.integers(0, 2**32, (H, W), dtype=np.uint32).view(np.float32)
-        confidence = rng.integers(0, 65536, (H, W), dtype=np.uint16)
-        out.append(Frame(z * 0.1, z * -0.2, z, intensity, confidence, timestamp=k / 30))
-    return out
 
 
 def same(a: np.ndarray, b: np.ndarray) -> bool:
@@ -48,7 +31,7 @@ def test_the_writers_stacks_read_chunk_by_chunk_are_h5pys(tmp_path, compression)
                            devices={"camera": (DeviceIdentity("t", "cam", "S1", "1"), {})})
     for index, written in ((0, 6), (1, 3)):
         writer = run.begin_step(Step(index=index, procedure="depth_sweep", target="wall", frames=6), None)
-        for k, frame in enumerate(frames(6)[:written]):
+        for k, frame in enumerate(frames("uint16", 6, (H, W))[:written]):
             writer.write(k, frame)
         if written == 6:
             writer.commit({})

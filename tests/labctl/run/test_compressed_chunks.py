@@ -31,25 +31,26 @@ def make_run(path, confidence_dtype="uint16", compression="blosc-lz4", steps=2):
     )
 
 
-def frames(confidence_dtype: str, n: int = 6) -> list[Frame]:
+def frames(confidence_dtype: str, n: int = 6, size: tuple[int, int] = (H, W)) -> list[Frame]:
     """Noisy depth with NaN holes, a frame without any valid pixel, a constant one, and noise that does not
-    compress (stored unfiltered by the filter): every kind of chunk the filter makes."""
+    compress (stored unfiltered by the filter): every kind of chunk the filter makes, frames of ``size``."""
+    h, w = size
     rng = np.random.default_rng(7)
     out = []
     for k in range(n):
-        z = (1500 + rng.standard_normal((H, W))).astype(np.float32)
-        z[rng.random((H, W)) < 0.2] = np.nan
+        z = (1500 + rng.standard_normal((h, w))).astype(np.float32)
+        z[rng.random((h, w)) < 0.2] = np.nan
         if k == 1:
             z[:] = np.nan
         if k == 2:
             z[:] = 800.0
-        intensity = rng.random((H, W), np.float32) if k != 2 else np.zeros((H, W), np.float32)
+        intensity = rng.random((h, w), np.float32) if k != 2 else np.zeros((h, w), np.float32)
         if k == 3:
-            intensity = rng.integers(0, 2**32, (H, W), dtype=np.uint32).view(np.float32)
+            intensity = rng.integers(0, 2**32, (h, w), dtype=np.uint32).view(np.float32)
         if confidence_dtype == "uint16":
-            confidence = rng.integers(0, 65536, (H, W), dtype=np.uint16)
+            confidence = rng.integers(0, 65536, (h, w), dtype=np.uint16)
         else:
-            confidence = rng.random((H, W), np.float32)
+            confidence = rng.random((h, w), np.float32)
         out.append(Frame(z * 0.1, z * -0.2, z, intensity, confidence, timestamp=k / 30))
     return out
 
