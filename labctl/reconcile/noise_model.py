@@ -60,6 +60,8 @@ draws its frames with (sim/tof.py, sim/stereo.py, sim/kernels.py):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -250,6 +252,48 @@ def disparity_noise_px(sensor: StereoSensor, rendered, light: StereoLight) -> np
     return p.noise_mm_at_2m * sensor.matching_focal_baseline / 2000.0**2 * angle_term * contrast_term
 
 
+@dataclass(frozen=True)
+class _BinPoints:
+    """A bin grid's depth (0 where NaN) and its slope per pixel along rows (``gy``) and columns (``gx``): a bin's
+    expectation is taken at its centre where it is flat, else at ``SUB_SAMPLES`` x ``SUB_SAMPLES`` points (at
+    most one per pixel) spread over it along the slope."""
+
+    z: np.ndarray
+    gy: np.ndarray
+    gx: np.ndarray
+    bin_px: int
+
+    @classmethod
+    def of(cls, z: np.ndarray, bin_px: int) -> _BinPoints:
+        gy, gx = (np.nan_to_num(g) for g in np.gradient(z, bin_px)) if min(z.shape) > 1 else (np.zeros_like(z),) * 2
+        return cls(np.where(np.isfinite(z), z, 0.0), gy, gx, bin_px)
+
+    @property
+    def span_mm(self) -> np.ndarray:
+        """How far the depth changes across a bin (mm, along both axes)."""
+        return (np.abs(self.gx) + np.abs(self.gy)) * self.bin_px
+
+    def points(self, mask: np.ndarray) -> np.ndarray:
+        """The points of the bins of ``mask``: (bins, points)."""
+        n = min(SUB_SAMPLES, self.bin_px)
+        offsets = ((np.arange(n) + 0.5) * self.bin_px / n - self.bin_px / 2.0)  # pixels from the bin centre
+        sub = (self.z[mask][:, None, None] + self.gy[mask][:, None, None] * offsets[:, None]
+               + self.gx[mask][:, None, None] * offsets[None, :])
+        return sub.reshape(int(mask.sum()), -1)
+
+    def expect(self, out: np.ndarray, exact: np.ndarray, spread: np.ndarray,
+               mean: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
+        """``out`` with the bins of ``exact`` set to ``mean(points, mask)`` (a bin's mean over its points),
+        a bin whose depth spans at most ``FLAT_LEVELS`` (``spread``, in the rounding's levels) at its centre."""
+        flat = exact & (spread <= FLAT_LEVELS)  # one point stands for the bin
+        sloped = exact & ~flat
+        if flat.any():
+            out[flat] = mean(self.z[flat][:, None], flat)
+        if sloped.any():
+            out[sloped] = mean(self.points(sloped), sloped)
+        return out
+
+
 def stored_depth_bias(z: np.ndarray, sigma_d: np.ndarray, step_d: float, focal_baseline: float, step_mm: float,
                       drift_mm: float, bin_px: int) -> np.ndarray:
     """Per bin: the mean of its pixels' expected stored depth, sum_j P_j round(f b / d_j + drift) over the
@@ -259,26 +303,16 @@ def stored_depth_bias(z: np.ndarray, sigma_d: np.ndarray, step_d: float, focal_b
     finite = np.isfinite(z)
     if not finite.any() or step_d <= 0:
         return np.zeros_like(z)
-    zz = np.where(finite, z, 0.0)
-    gy, gx = (np.nan_to_num(g) for g in np.gradient(z, bin_px)) if min(z.shape) > 1 else (np.zeros_like(z),) * 2
-    n = min(SUB_SAMPLES, bin_px)
-    offsets = ((np.arange(n) + 0.5) * bin_px / n - bin_px / 2.0)  # pixels from the bin centre
-    sub = zz[..., None, None] + gy[..., None, None] * offsets[:, None] + gx[..., None, None] * offsets[None, :]
+    grid = _BinPoints.of(z, bin_px)
+    zz = grid.z
     with np.errstate(divide="ignore", invalid="ignore"):
         level_mm = zz**2 * step_d / focal_baseline  # depth between two disparity levels
-        spread = (np.abs(gx) + np.abs(gy)) * bin_px / level_mm
+        spread = grid.span_mm / level_mm
         sd = np.nan_to_num(sigma_d, nan=0.0, posinf=0.0)
         jensen = zz**3 * (sd**2 + step_d**2 / 12.0) / focal_baseline**2
     exact = finite & (spread <= SPAN_LEVELS) & (zz > 0) & (sd <= LATTICE_RATIO * step_d)
-    flat = exact & (spread <= FLAT_LEVELS)  # one point stands for the bin
-    sloped = exact & ~flat
-    bias = np.where(finite, jensen, 0.0)
-    if flat.any():
-        bias[flat] = _stored_mean(zz[flat][:, None], sd[flat], step_d, focal_baseline, step_mm, drift_mm)
-    if sloped.any():
-        bias[sloped] = _stored_mean(sub[sloped].reshape(int(sloped.sum()), -1), sd[sloped], step_d, focal_baseline,
-                                    step_mm, drift_mm)
-    return bias
+    return grid.expect(np.where(finite, jensen, 0.0), exact, spread,
+                       lambda points, mask: _stored_mean(points, sd[mask], step_d, focal_baseline, step_mm, drift_mm))
 
 
 def tof_stored_bias(z: np.ndarray, sigma_z: np.ndarray, step_mm: float, bin_px: int) -> np.ndarray:
@@ -289,22 +323,12 @@ def tof_stored_bias(z: np.ndarray, sigma_z: np.ndarray, step_mm: float, bin_px: 
     finite = np.isfinite(z)
     if step_mm <= 0 or not finite.any():
         return np.zeros_like(z)
-    zz = np.where(finite, z, 0.0)
-    gy, gx = (np.nan_to_num(g) for g in np.gradient(z, bin_px)) if min(z.shape) > 1 else (np.zeros_like(z),) * 2
-    n = min(SUB_SAMPLES, bin_px)
-    offsets = ((np.arange(n) + 0.5) * bin_px / n - bin_px / 2.0)  # pixels from the bin centre
-    spread = (np.abs(gx) + np.abs(gy)) * bin_px / step_mm
+    grid = _BinPoints.of(z, bin_px)
+    spread = grid.span_mm / step_mm
     sd = np.nan_to_num(sigma_z, nan=0.0, posinf=0.0)
     exact = finite & (spread <= SPAN_LEVELS) & (sd <= LATTICE_RATIO * step_mm)
-    flat = exact & (spread <= FLAT_LEVELS)
-    sloped = exact & ~flat
-    bias = np.zeros_like(zz)
-    if flat.any():
-        bias[flat] = _rounded_mean(zz[flat][:, None], sd[flat], step_mm)
-    if sloped.any():
-        sub = zz[..., None, None] + gy[..., None, None] * offsets[:, None] + gx[..., None, None] * offsets[None, :]
-        bias[sloped] = _rounded_mean(sub[sloped].reshape(int(sloped.sum()), -1), sd[sloped], step_mm)
-    return bias
+    return grid.expect(np.zeros_like(grid.z), exact, spread,
+                       lambda points, mask: _rounded_mean(points, sd[mask], step_mm))
 
 
 @njit(cache=True, nogil=True)
