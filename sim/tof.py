@@ -132,22 +132,28 @@ class ToFSensor:
         """Per pixel, the correlation phasor of every return reaching it (each sub-pixel's surface at its own
         range) through the optical PSF, in amplitude units; needs a render that kept the phasors
         (``mixes_returns``)."""
+        return self._returns(r, self._scale(exposure_us), self.shading())
+
+    def _scale(self, exposure_us: float) -> float:
+        """Amplitude units per unit of rendered irradiance at ``exposure_us``."""
+        return self.a_ref * (exposure_us / self.profile.exposure_us) / IRRADIANCE_REF
+
+    def _returns(self, r: Rendered, scale: float, shading: np.ndarray | float) -> np.ndarray:
         assert r.phasor_fine is not None
-        scale = self.a_ref * (exposure_us / self.profile.exposure_us) / IRRADIANCE_REF
-        return self.geometry.blur(r.phasor_fine, centre_distance_mm(r), r.oversample) * scale * self.shading()
+        return self.geometry.blur(r.phasor_fine, centre_distance_mm(r), r.oversample) * scale * shading
 
     def expected(self, r: Rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float]:
         """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render."""
         p = self.profile
         focus_distance_mm = centre_distance_mm(r)
         gain = exposure_us / p.exposure_us
-        scale = self.a_ref * gain / IRRADIANCE_REF
+        scale = self._scale(exposure_us)
         light = self.geometry.blur(r.irradiance_fine, focus_distance_mm, r.oversample) * scale
         shading = self.shading()
         amplitude = np.maximum(light * shading, 0.0)
         phasor, stage = None, None
         if r.phasor is not None:
-            returns = self.returns(r, exposure_us)
+            returns = self._returns(r, scale, shading)
             stage = PhasorStage(self, complex(returns.mean()))
             if self.mixed_pixels:
                 phasor = returns
