@@ -21,14 +21,14 @@ from __future__ import annotations
 import threading
 from collections import deque
 from collections.abc import Callable, Hashable, Sequence
+from queue import Empty, SimpleQueue
 from typing import Any, TypeVar
 
 from labctl.batch.cluster import Cluster, block_ctrl_c, open_client
+from labctl.batch.interrupt import POLL_S
 from labctl.kernel_threads import kernel_threads_beside
 
 Item = TypeVar("Item", bound=Hashable)
-#: seconds between the background thread's looks at the stop flag while its tasks run
-POLL_S = 0.2
 
 
 class _Queue:
@@ -67,22 +67,22 @@ def make_here_and_on_cluster(make: Callable[[Any], Any], items: Sequence[Item], 
 
     def cluster_side() -> None:
         running: dict[Any, Item] = {}
+        finished: SimpleQueue[Any] = SimpleQueue()  # the futures done, put there by the client's thread
         try:
-            from distributed import wait
-
             with open_client(Cluster(workers=workers - 1)) as client:
                 while not queue.stop.is_set():
                     while len(running) < workers - 1 and (item := queue.take()) is not None:
-                        running[client.submit(make, item, pure=False)] = item
+                        future = client.submit(make, item, pure=False)
+                        future.add_done_callback(finished.put)
+                        running[future] = item
                     if not running:
                         return
                     try:
-                        finished = wait(list(running), timeout=POLL_S, return_when="FIRST_COMPLETED").done
-                    except TimeoutError:  # none finished yet: look at the stop flag again
+                        future = finished.get(timeout=POLL_S)
+                    except Empty:  # none finished yet: look at the stop flag again
                         continue
-                    for future in finished:
-                        result = future.result()  # a task's error: its item is given back, and raises here
-                        keep_one(running.pop(future), result)
+                    result = future.result()  # a task's error: its item is given back, and raises here
+                    keep_one(running.pop(future), result)
                 client.cancel(list(running))
         except Exception as exc:  # noqa: BLE001 - what the cluster could not make is made in this process
             failures.append(f"{type(exc).__name__}: {exc}")
