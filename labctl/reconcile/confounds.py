@@ -21,7 +21,9 @@ its group's mean, is the group's *contrast*. Before an effect is named
   signature's exceeds chi^2 against no effect at all by the margin, also
   when any one other candidate's contrasts, scaled to fit, stand beside both
   (``Separation.excess``: two effects hidden together make contrasts
-  together);
+  together), and still when the signature is the change of the candidate's
+  full re-simulation at its refined parameters rather than its linearization
+  (``screen``);
 * it is *not separated* from a competitor on another of the axes a sweep moves
   together (``SWEEP_AXES``; every scored candidate, those below the naming
   threshold included), when the run holds no steps that separate those axes
@@ -48,7 +50,7 @@ campaign before it runs, from its planned steps.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -444,16 +446,25 @@ def check(best: Fit, others: Sequence[Fit], separation: Separation, margin: floa
                     f"do not tell them apart (evidence {evidence:.1f}, needed {margin:g})")
 
 
-def screen(fits: Sequence[Fit], separation: Separation, threshold: float,
-           margin: float) -> tuple[list[Confound], Confound | None]:
+def screen(fits: Sequence[Fit], separation: Separation, threshold: float, margin: float,
+           resimulated: Callable[[Fit], Fit | None] | None = None) -> tuple[list[Confound], Confound | None]:
     """The candidates best first: those the separating steps contradict (not to be named), and why the first
-    one above ``threshold`` that they do not contradict must not be named either (None: it may be)."""
+    one above ``threshold`` that they do not contradict must not be named either (None: it may be).
+
+    A candidate's signature is its linear change, taken at a small strength; where that is contradicted, the
+    contradiction is judged again on the change its full re-simulation makes (``resimulated``: the fit with that
+    signature, None where there is none), since an effect that is not linear in its strength (a multipath on
+    weak returns) can predict contrasts at one strength that it does not make at its fitted one."""
     contradicted = []
     for fit in fits:
         if fit.score < threshold or fit.loso_gain <= 0:
             break
-        confound = check(fit, [f for f in fits if f.name not in {c.winner for c in contradicted}], separation,
-                         margin)
+        others = [f for f in fits if f.name not in {c.winner for c in contradicted}]
+        confound = check(fit, others, separation, margin)
+        if confound is not None and confound.competitor is None and resimulated is not None:
+            full = resimulated(fit)
+            if full is not None:
+                confound = check(full, others, separation, margin)
         if confound is None or confound.competitor is not None:
             return contradicted, confound
         contradicted.append(confound)

@@ -440,8 +440,11 @@ def capture_hint(name: str, params: Parameters, obs: list[Observation], t0_s: fl
     return "more steps of the procedure where the effect shows most"
 
 
-def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation,
-           lay: Layout) -> tuple[Parameters, dict[str, float], Determination, float, np.ndarray | None]:
+#: a candidate refined (``refine``): its parameters, standard errors, determination, whitened RSS and slopes
+Refinement = tuple[Parameters, dict[str, float], Determination, float, np.ndarray | None]
+
+
+def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay: Layout) -> Refinement:
     """The candidate's parameters refined on full re-simulations, starting from its linear fit.
 
     Returns the parameters, their standard errors (the larger of the delete-one-step jackknife's and the declared
@@ -535,6 +538,12 @@ class _State:
     def whitened(self) -> np.ndarray:
         return np.nan_to_num(self.lay.profiled(self.dz, self.di, self.stats))
 
+    def whitened_of(self, model: SimModel) -> np.ndarray:
+        """The whitened residual another model would leave (``whitened``), the model under test kept."""
+        preds = self.sim.predict(model)
+        dz, di = raw_residuals(self.sim.observations, preds)
+        return np.nan_to_num(self.lay.profiled(dz, di, raw_statistics(self.sim.observations, preds)))
+
     def beside(self) -> Beside | None:
         """The named effects as the candidates are scored beside them (``score.Beside``; None before any is named):
         an effect fitted while another was missing carries some of that other's residual, and the other would
@@ -548,6 +557,28 @@ class _State:
         """The whitened residual the candidates are scored on: with the named effects' slopes taken out."""
         r = self.whitened()
         return beside.out_of(r) if beside is not None else r
+
+
+def _resimulated(state: _State, fit: Fit, candidate: Candidate, beside: Beside | None) -> tuple[Fit, Refinement]:
+    """``fit`` with the change of its full re-simulation as its signature: the candidate refined (``refine``) and
+    the whitened residual its model leaves taken from the one it is scored on (the named effects' slopes taken out
+    of both, ``_State.scored_residual``); and the refinement, for naming it."""
+    refinement = refine(candidate, fit, state.model, state.sim, state.lay)
+    change = state.whitened() - state.whitened_of(with_effect(state.model, fit.name, refinement[0]))
+    if beside is not None:
+        change = beside.out_of(change)
+    left = state.scored_residual(beside) - change
+    return replace(fit, params=refinement[0], rss1=float(left @ left), signature=change), refinement
+
+
+def _resimulating(state: _State, fits: list[tuple[Fit, Candidate]], beside: Beside | None,
+                  refined: dict[str, Refinement], say: Callable[[str], None]) -> Callable[[Fit], Fit]:
+    """``_resimulated`` for the screen of a round's ``fits``, keeping each refinement in ``refined``."""
+    def resimulated(fit: Fit) -> Fit:
+        say(f"re-simulating {fit.name} at its fitted strength")
+        full, refined[fit.name] = _resimulated(state, fit, next(c for f, c in fits if f is fit), beside)
+        return full
+    return resimulated
 
 
 def _add_empirical(state: _State, carrying: str | None, rule: FixedThresholds | NullCalibration,
@@ -765,9 +796,12 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         if rule.consistent(state.good):
             iteration.decision = "consistent with noise"
             break
-        separation = Separation(lay, captures, state.scored_residual(state.beside()))
+        beside = state.beside()
+        separation = Separation(lay, captures, state.scored_residual(beside))
         scored = [f for f, _ in fits]
-        contradicted, confound = screen(scored, separation, rule.threshold({f.name for f in scored}), MARGIN)
+        refined: dict[str, Refinement] = {}  # candidates re-simulated to judge a contradiction, by name
+        contradicted, confound = screen(scored, separation, rule.threshold({f.name for f in scored}), MARGIN,
+                                        _resimulating(state, fits, beside, refined, say))
         notes += [f"{c.winner} not named: {c.reason}" for c in contradicted]
         fits = [fc for fc in fits if fc[0].name not in {c.winner for c in contradicted}]
         if not fits:
@@ -790,7 +824,8 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             iteration.decision = "ambiguous"
             break
         say(f"fitting {best.name}")
-        params, stderr, info_det, rss, slopes = refine(candidate, best, state.model, sim, lay)
+        params, stderr, info_det, rss, slopes = refined.get(best.name) or refine(candidate, best, state.model, sim,
+                                                                                  lay)
         before, previous, previous_slopes = state.good, state.model, state.named_slopes
         state.set(with_effect(state.model, best.name, params))
         joint: tuple[SimModel, np.ndarray | None] | None = None  # the named effects refitted with it
