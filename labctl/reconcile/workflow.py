@@ -11,7 +11,9 @@
    (scipy.optimize.least_squares), added to the model if it is material
    (``material``: on the steps it moves, it reduces their gap in units of
    their noise floors by at least ``MATERIAL_FRACTION`` of it and by at
-   least ``FLOOR_FRACTION``), the named effects refitted together once there are two
+   least ``FLOOR_FRACTION``; a winner that is not is passed over and the next
+   candidate tried on the same residual, at most ``MAX_EFFECTS`` times), the
+   named effects refitted together once there are two
    (``refine_jointly``), and the run re-simulated; repeat until nothing passes,
    the residual is consistent with the noise (labctl/reconcile/goodness.py)
    or ``MAX_EFFECTS`` are named.
@@ -781,10 +783,14 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     found: list[tuple[Candidate, Parameters]] = []
     minimum_detectable = None
     captures = run_captures(observations, sim.t0_s)
-    for _ in range(MAX_EFFECTS):
+    retry: list[tuple[Fit, Candidate]] | None = None  # a round's other candidates, after its winner was not material
+    immaterial = 0
+    while len(found) < MAX_EFFECTS:
         # beside the named effects where a candidate may be named; a round already consistent with the noise only
         # reports the candidates' scores against what is left
-        fits = _scored(state, say, None if rule.consistent(state.good) else state.beside())
+        fits = retry if retry is not None else _scored(state, say, None if rule.consistent(state.good)
+                                                       else state.beside())
+        retry = None
         if isinstance(rule, NullCalibration) and not iterations:
             say("minimum detectable amplitudes")
             minimum_detectable = detectable(state.context(), lay, rule)
@@ -837,7 +843,11 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             iteration.decision = (f"{best.name} not material (gap {before.gap_mm:.3f} -> {state.good.gap_mm:.3f} mm, "
                                   f"floor {before.gap_floor_mm:.3f} mm)")
             state.set(previous)
-            break
+            immaterial += 1
+            if immaterial > MAX_EFFECTS:
+                break
+            retry = fits[1:]  # the next candidate, on the same residual: the winner's score may come from another
+            continue          # hidden effect's residual that its form cannot follow
         state.named_slopes = slopes if previous_slopes is None or slopes is None else np.hstack([previous_slopes,
                                                                                                   slopes])
         found.append((candidate, params))
