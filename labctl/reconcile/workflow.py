@@ -462,13 +462,18 @@ def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay
     jac = None
     try:
         jac = _slopes(fitted)
-        external = _step_covariance(jac, result.fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
-        internal = np.linalg.pinv(jac.T @ jac) + _reference_covariance(jac, lay.reference_directions())
-        cov = _combined_covariance(external, internal)
-        stderr, info = determination(candidate, params, result.x, cov, hint)
+        stderr, info = determination(candidate, params, result.x, _covariance(jac, result.fun, lay), hint)
     except (np.linalg.LinAlgError, ValueError, OverflowError):  # overflow: an error beyond any parameter's range
         stderr, info = {}, Determination(well_determined=False, problems=["no covariance"], capture=hint)
     return params, stderr, info, rss, jac
+
+
+def _covariance(jac: np.ndarray, fun: np.ndarray, lay: Layout) -> np.ndarray:
+    """The fitted parameters' covariance from the residual ``fun`` and its slopes ``jac`` there (``_slopes``): the
+    larger of the steps' jackknife and the declared errors' (docs/reconcile.md *Parameter uncertainty*)."""
+    external = _step_covariance(jac, fun, lay.row_steps(), lay.n_steps, lay.shared_nuisance())
+    internal = np.linalg.pinv(jac.T @ jac) + _reference_covariance(jac, lay.reference_directions())
+    return _combined_covariance(external, internal)
 
 
 def _slopes(fitted: _Fitted) -> np.ndarray:
@@ -480,17 +485,40 @@ def _slopes(fitted: _Fitted) -> np.ndarray:
     return fitted.secant_jacobian(np.where(np.isfinite(step), step, 1e-8 * np.maximum(1.0, np.abs(result.x))))
 
 
-def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation,
-                   lay: Layout) -> tuple[SimModel, np.ndarray | None]:
+@dataclass
+class Joint:
+    """The named effects refitted together (``refine_jointly``)."""
+
+    model: SimModel
+    slopes: np.ndarray | None  # the residual's slope in each of their parameters (``_slopes``; None: not taken)
+    #: each effect's standard errors and determination from the joint covariance (its block: what it shares with
+    #: the others included), in the order fitted; None where the covariance could not be taken
+    determinations: list[tuple[dict[str, float], Determination]] | None
+
+
+def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout) -> Joint:
     """All effects named in this reconcile refitted together (an effect fitted while another was still
-    missing carries some of the other's residual); the model, and the residual's slope in each of their
-    parameters there (``_slopes``; None where it could not be taken)."""
+    missing carries some of the other's residual), each one's errors taken from their joint covariance: an
+    effect's interval then holds what trading off with the others leaves uncertain, which its own fit, the
+    others held, does not."""
     fitted = _fit_effects(found, model, sim, lay, max_nfev=20)
+    x = fitted.result.x
     try:
         slopes = _slopes(fitted)
     except (ValueError, OverflowError):
-        slopes = None
-    return fitted.build(fitted.result.x), slopes
+        return Joint(fitted.build(x), None, None)
+    try:
+        cov = _covariance(slopes, fitted.result.fun, lay)
+    except (np.linalg.LinAlgError, ValueError, OverflowError):
+        return Joint(fitted.build(x), slopes, None)
+    determinations = []
+    sizes = np.cumsum([0] + [len(candidate.vector(params)[0]) for candidate, params in found])
+    for i, (candidate, _) in enumerate(found):
+        block = slice(sizes[i], sizes[i + 1])
+        params = candidate.from_vector(x[block])
+        hint = capture_hint(candidate.name, params, sim.observations, sim.t0_s)
+        determinations.append(determination(candidate, params, x[block], cov[block, block], hint))
+    return Joint(fitted.build(x), slopes, determinations)
 
 
 def _comparable_steps(lay: Layout) -> int:
@@ -784,6 +812,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     minimum_detectable = None
     captures = run_captures(observations, sim.t0_s)
     retry: list[tuple[Fit, Candidate]] | None = None  # a round's other candidates, after its winner was not material
+    joint_errors: list[tuple[dict[str, float], Determination]] | None = None  # the named effects' from their joint fit
     immaterial = 0
     while len(found) < MAX_EFFECTS:
         # beside the named effects where a candidate may be named; a round already consistent with the noise only
@@ -834,11 +863,11 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
                                                                                   lay)
         before, previous, previous_slopes = state.good, state.model, state.named_slopes
         state.set(with_effect(state.model, best.name, params))
-        joint: tuple[SimModel, np.ndarray | None] | None = None  # the named effects refitted with it
+        joint: Joint | None = None  # the named effects refitted with it
         if found and not rule.material(before, state.good):  # scored with the named effects free: judged so too
             say(f"refitting the named effects with {best.name}")
             joint = refine_jointly([*found, (candidate, params)], start_model, sim, lay)
-            state.set(joint[0])
+            state.set(joint.model)
         if not rule.material(before, state.good):
             iteration.decision = (f"{best.name} not material (gap {before.gap_mm:.3f} -> {state.good.gap_mm:.3f} mm, "
                                   f"floor {before.gap_floor_mm:.3f} mm)")
@@ -865,11 +894,14 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             if joint is None:
                 say("refitting the named effects together")
                 joint = refine_jointly(found, start_model, sim, lay)
-                state.set(joint[0])
-            state.named_slopes = joint[1]
+                state.set(joint.model)
+            state.named_slopes = joint.slopes
             found = [(c, dict(state.model.effects[c.name])) for c, _ in found]
-    for effect in named:
+            joint_errors = joint.determinations
+    for i, effect in enumerate(named):
         effect.parameters = dict(state.model.effects[effect.name])
+        if joint_errors is not None and effect.evidence is not None:
+            effect.evidence.stderr, effect.evidence.determination = joint_errors[i]
     good_physical = state.good
     residual_physical = depth_residual_maps(lay, state.dz)
     unexplained, empirical = None, []

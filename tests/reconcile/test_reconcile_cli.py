@@ -184,6 +184,23 @@ def test_the_second_effect_is_scored_with_the_first_refitted_beside_it(tmp_path)
     assert lo <= hidden["temperature_drift"]["tau_s"] <= hi, (lo, hi)
 
 
+def test_two_effects_refitted_together_state_their_intervals_from_the_joint_fit(tmp_path):
+    """An intensity-related error and a material bias hidden together (flexx2): each is named in its round, then
+    both are refitted together, which moves them. Their intervals are those of the joint fit, around the reported
+    parameters, holding what trading off with the other leaves uncertain: the truths inside them (the intervals
+    of each effect's own fit were around its first estimate, and missed both truths)."""
+    hidden = {"intensity_related_error": {"error_at_reference_mm": -2.2623}, "material_bias": {"scale": 1.7256}}
+    result = reconcile(measured_run(tmp_path, "flexx2", hidden, seed=42930))
+    assert result.verdict == "effect_found", (result.notes, result.candidates)
+    assert sorted(e.name for e in result.named) == sorted(hidden)
+    for effect in result.named:
+        (key, truth), = hidden[effect.name].items()
+        lo, hi = effect.evidence.determination.interval_95[key]
+        assert lo <= effect.parameters[key] <= hi, (effect.name, lo, effect.parameters[key], hi)
+        assert lo <= truth <= hi, (effect.name, lo, truth, hi)
+        assert effect.evidence.stderr[key] == pytest.approx((hi - lo) / (2 * 1.96), rel=0.05)
+
+
 def test_a_winner_that_is_not_material_is_passed_over_for_the_next_candidate(tmp_path):
     """A camera axis offset of 35 mm and a warm-up drift hidden together (amt100): the drift scores first (dBIC
     78.6 against the offset's 77.8), its linear form following part of the offset's residual; refined, it closes
