@@ -12,8 +12,9 @@
    (``material``: on the steps it moves, it reduces their gap in units of
    their noise floors by at least ``MATERIAL_FRACTION`` of it and by at
    least ``FLOOR_FRACTION``; a winner that is not is passed over and the next
-   candidate tried on the same residual, at most ``MAX_EFFECTS`` times), the
-   named effects refitted together once there are two
+   candidate tried on the same residual, at most ``MAX_EFFECTS`` times; where
+   no candidate passes alone, two that each pass beside the other are named
+   together, labctl/reconcile/pairs.py), the named effects refitted together once there are two
    (``refine_jointly``), and the run re-simulated; repeat until nothing passes,
    the residual is consistent with the noise (labctl/reconcile/goodness.py)
    or ``MAX_EFFECTS`` are named.
@@ -80,6 +81,7 @@ from labctl.reconcile.goodness import (
 )
 from labctl.reconcile.null import ALPHA, DEFAULT_NULL_RUNS, FixedThresholds, NullCalibration, simulate_null_runs
 from labctl.reconcile.observe import Observation, observe_run
+from labctl.reconcile.pairs import masked_pair
 from labctl.reconcile.power import detectable, detectable_message
 from labctl.reconcile.predict import Prediction, Predictor
 from labctl.reconcile.residuals import (
@@ -611,6 +613,45 @@ def _resimulating(state: _State, fits: list[tuple[Fit, Candidate]], beside: Besi
     return resimulated
 
 
+def _add_masked_pair(state: _State, fits: list[tuple[Fit, Candidate]], rule: FixedThresholds | NullCalibration,
+                     found: list[tuple[Candidate, Parameters]], named: list[NamedEffect], iteration: Iteration,
+                     start_model: SimModel, say: Callable[[str], None]) -> Joint | None:
+    """Two candidates of a round none of whose candidates is significant alone, each significant beside the other
+    (``pairs.masked_pair``), refitted together with the named effects ``found`` and named when material; the joint
+    fit (None: no such pair, ``state`` as it was). ``found``, ``named`` and ``iteration`` take the pair."""
+    in_play = {f.name for f, _ in fits}
+    pair = masked_pair(fits, state.context(), state.lay, state.whitened(), state.named_slopes,
+                       lambda fit: rule.significance(fit, in_play)[0], say)
+    if pair is None:
+        return None
+    (a, a_candidate), (b, b_candidate) = pair.first, pair.second
+    say(f"fitting {a.name} and {b.name} together")
+    before, previous, rss_before = state.good, state.model, float(state.whitened() @ state.whitened())
+    joint = refine_jointly([*found, (a_candidate, a.params), (b_candidate, b.params)], start_model, state.sim,
+                           state.lay)
+    state.set(joint.model)
+    if not rule.material(before, state.good):
+        iteration.decision = (f"{a.name} and {b.name} together not material (gap {before.gap_mm:.3f} -> "
+                              f"{state.good.gap_mm:.3f} mm)")
+        state.set(previous)
+        return None
+    rss_after = float(state.whitened() @ state.whitened())
+    for i, (fit, _) in enumerate((pair.first, pair.second)):
+        stderr, info = joint.determinations[len(found) + i] if joint.determinations is not None else \
+            ({}, Determination(well_determined=False, problems=["no covariance"]))
+        named.append(NamedEffect(name=fit.name, parameters=dict(state.model.effects[fit.name]), evidence=Evidence(
+            delta_bic=round(fit.score, 2), loso_gain=round(fit.loso_gain, 4), runner_up=None, runner_up_delta_bic=None,
+            stderr=stderr, determination=info, rss_before=rss_before, rss_after=rss_after,
+            gap_before_mm=before.gap_mm, gap_after_mm=state.good.gap_mm,
+            intensity_gap_before_pct=before.intensity_gap_pct, intensity_gap_after_pct=state.good.intensity_gap_pct,
+            steps=state.lay.n_steps, p_value=rule.significance(fit, in_play)[1], null_runs=rule.null_runs or None)))
+    found[:] = [(c, dict(state.model.effects[c.name])) for c in [*(c for c, _ in found), a_candidate, b_candidate]]
+    state.named_slopes = joint.slopes
+    iteration.decision = (f"added {a.name} and {b.name} together: neither significant alone, each beside the other "
+                          f"(dBIC {a.score:.1f} and {b.score:.1f})")
+    return joint
+
+
 def _add_empirical(state: _State, carrying: str | None, rule: FixedThresholds | NullCalibration,
                    say: Callable[[str], None]) -> list[EmpiricalCorrection]:
     """Empirical corrections added to ``state`` while each is material (the carrying axis's form first)."""
@@ -843,7 +884,12 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             break
         significant, iteration.significance_p = rule.significance(fits[0][0], {f.name for f, _ in fits})
         if not significant or fits[0][0].loso_gain <= 0:
-            break
+            joint = _add_masked_pair(state, fits, rule, found, named, iteration, start_model, say) \
+                if len(found) + 2 <= MAX_EFFECTS else None
+            if joint is None:
+                break
+            joint_errors = joint.determinations
+            continue
         best, candidate = fits[0]
         runner = fits[1][0] if len(fits) > 1 else None
         if runner is not None and runner.score > best.score - MARGIN and competing(best, runner):
