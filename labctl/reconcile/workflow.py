@@ -884,11 +884,11 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             break
         significant, iteration.significance_p = rule.significance(fits[0][0], {f.name for f, _ in fits})
         if not significant or fits[0][0].loso_gain <= 0:
-            joint = _add_masked_pair(state, fits, rule, found, named, iteration, start_model, say) \
+            together = _add_masked_pair(state, fits, rule, found, named, iteration, start_model, say) \
                 if len(found) + 2 <= MAX_EFFECTS else None
-            if joint is None:
+            if together is None:
                 break
-            joint_errors = joint.determinations
+            joint_errors = together.determinations
             continue
         best, candidate = fits[0]
         runner = fits[1][0] if len(fits) > 1 else None
