@@ -20,7 +20,8 @@ Per pixel the renderer returns, averaged over its samples i:
   correlation phasor (b_i: the material's sub-surface bias when that effect is on);
 * ``range_dom``, ``z_dom``, ``cos_dom`` — range, camera-frame depth and
   incidence cosine of the dominant surface (the one returning most light into
-  the pixel);
+  the pixel), and ``bias_dom``, its material's sub-surface bias, which
+  ``range_dom`` includes;
 * ``passive`` = mean(rho_i cos_i^m) — reflectance seen under ambient light.
 
 The light quantities are also returned per sub-pixel (``*_fine``), for the
@@ -51,6 +52,7 @@ class Rendered:
     z_dom: np.ndarray
     cos_dom: np.ndarray
     surface_dom: np.ndarray
+    bias_dom: np.ndarray  # the dominant surface's sub-surface bias (mm, in ``range_dom``; 0 where nothing is hit)
     passive: np.ndarray
     hit_fraction: np.ndarray
     edge: np.ndarray
@@ -165,8 +167,12 @@ def sub_pixel_directions(optics: CameraOptics, k: int) -> np.ndarray:
     return rays
 
 
+#: sub-pixels per pixel side at which every pixel is sampled (``render``)
+OVERSAMPLE = 2
+
+
 def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfaceProperties,
-           modulation_mhz: float | None = None, supersample: int = 4, oversample: int = 2) -> Rendered:
+           modulation_mhz: float | None = None, supersample: int = 4, oversample: int = OVERSAMPLE) -> Rendered:
     """Per-pixel light quantities of ``scene`` seen by a camera at ``pose`` through ``optics``.
 
     Every pixel is sampled at the centres of its ``oversample`` x ``oversample``
@@ -220,6 +226,7 @@ def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfacePropert
         z_dom=maps["z_dom"],
         cos_dom=maps["cos_dom"],
         surface_dom=maps["surface_dom"],
+        bias_dom=np.where(maps["surface_dom"] >= 0, props.bias_mm[np.maximum(maps["surface_dom"], 0)], 0.0),
         passive=maps["passive"],
         hit_fraction=maps["hit_fraction"],
         edge=edge,

@@ -30,7 +30,7 @@ import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import Any
 
 import numpy as np
@@ -58,8 +58,9 @@ from sim.effects import (
 )
 from sim.geometry import Pose
 from sim.model import SimModel
+from sim.optics import CameraOptics
 from sim.profiles import CameraProfile
-from sim.render import centre_distance_mm, render
+from sim.render import OVERSAMPLE, centre_distance_mm, render, sub_pixel_directions
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
 from sim.sensor import SensorOptics, blur_diameter_px
 from sim.stereo import StereoSensor, dot_pattern
@@ -279,6 +280,28 @@ class Predictor:
         shifts = self.wall_shifts(observations, t0_s)
         return [self.predict(o.scene, o.times_s - t0_s, shifts.get(o.scene.step_id, 0.0)) for o in observations]
 
+    @cached_property
+    def _reported_pixels(self) -> np.ndarray:
+        """Per bin: the reported centre ray's z / range over the true centre ray's (they differ where a lens
+        distortion bends the rays but the camera reports undistorted ones), times the mean over the measured
+        camera's pixels in the bin of their own range-sampling excess (``range_excess``)."""
+        true_centre = self.sensor.geometry.optics.directions(*self.sensor.geometry.optics.pixel_grid())[2]
+        pixels, _ = bin_mean(range_excess(SensorOptics(self.full, self.full_effects).optics), self.bin_px)
+        return self.z_per_range / true_centre * pixels
+
+    def depth_per_range(self, rendered: Any) -> np.ndarray:
+        """Per bin, the factor from its rendered range to the mean depth of the measured camera's pixels in it: the
+        render's depth over its geometric range, each averaged along the rays sampling the bin (``z_dom`` over
+        ``range_dom`` less the surface's sub-surface bias), with
+        ``_reported_pixels``; the centre ray's z / range (``z_per_range``) where nothing is hit. The centre ray's
+        factor alone misses the spread of 1 / cos over the bin: on a wall square to the axis (z = D) the rays' mean
+        range exceeds D / cos(theta) by D w^2 (1 + 2 tan^2 theta) / 24 for a bin w rad wide at field angle theta
+        (3e-5 of D for the 4-pixel bins of the amt100 at its test size), an error growing with the distance,
+        which a warm-up drift fitted over a sweep takes up."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = rendered.z_dom / (rendered.range_dom - rendered.bias_dom) * self._reported_pixels
+        return np.where(np.isfinite(ratio) & (ratio > 0), ratio, self.z_per_range)
+
     def _tof_stored(self, z: np.ndarray, amplitude: np.ndarray, ambient: float) -> np.ndarray:
         """The ToF bins' expected stored depth: ``z`` (drift included) plus ``tof_stored_bias`` of the camera's
         output steps, its pixels' depth noise before the rounding from their ``amplitude``."""
@@ -296,7 +319,7 @@ class Predictor:
         drift = self.drift_mm(times_s)
         if isinstance(self.sensor, ToFSensor):
             range_mm, amplitude, ambient = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
-            z = self._tof_stored((range_mm + drift) * self.z_per_range, amplitude, ambient)
+            z = self._tof_stored((range_mm + drift) * self.depth_per_range(rendered), amplitude, ambient)
         else:
             exposure = step.exposure_us or self.profile.exposure_us
             lit = stereo_light(self.sensor, rendered, exposure, step.projector)
@@ -331,7 +354,7 @@ class Predictor:
             light = amplitude / centre
             amplitude = self.shade(light)
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
-            z = self._tof_stored(range_mm * self.z_per_range, amplitude, ambient)
+            z = self._tof_stored(range_mm * self.depth_per_range(rendered), amplitude, ambient)
             noise, valid = tof_statistics(self.sensor, amplitude, ambient, np.broadcast_to(self.z_per_range, z.shape))
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
@@ -364,6 +387,13 @@ def _overlap(region: slice, bins: int, bin_px: int) -> np.ndarray:
 def _independent(noise: np.ndarray) -> np.ndarray:
     """The correlation ratio of the simulator's noise: 1 (every pixel drawn independently) where it is predicted."""
     return np.where(np.isfinite(noise), 1.0, np.nan)
+
+
+def range_excess(optics: CameraOptics) -> np.ndarray:
+    """Per pixel of ``optics``: the mean over the rays the render samples it with (``OVERSAMPLE`` x ``OVERSAMPLE``)
+    of cos(centre ray) / cos(ray), the range they average over the centre ray's on a wall square to the axis."""
+    centre = optics.directions(*optics.pixel_grid())[2]
+    return (centre[..., None] / sub_pixel_directions(optics, OVERSAMPLE)[2]).mean(axis=-1)
 
 
 def bin_curvature(z: np.ndarray, bin_px: int) -> np.ndarray:
