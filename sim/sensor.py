@@ -92,19 +92,30 @@ def _filter(field: np.ndarray, sigma_px: float, disc_px: float) -> np.ndarray:
     return out[pad : pad + field.shape[0], pad : pad + field.shape[1]]
 
 
+def _distortion(effects: dict[str, EffectParams]) -> tuple[float, bool]:
+    """The effects' lens distortion k1 (0: none) and whether the reported cloud follows the distorted rays."""
+    k1, in_cloud = 0.0, True
+    for hook, params in acting(effects, "lens_distortion"):
+        k1, in_cloud = hook(params)
+    return k1, in_cloud
+
+
+def camera_optics(profile: CameraProfile, effects: dict[str, EffectParams]) -> CameraOptics:
+    """The true optics of a camera under its model's effects: its true field of view and lens distortion."""
+    fov: tuple[float, float] = (profile.fov_h_deg, profile.fov_v_deg)
+    for hook, params in acting(effects, "true_fov_deg"):
+        fov = hook(params)
+    return CameraOptics(Pinhole(profile.width, profile.height, *fov), _distortion(effects)[0])
+
+
 class SensorOptics:
     """True and reported geometry of a camera under its model's effects, and its blur."""
 
     def __init__(self, profile: CameraProfile, effects: dict[str, EffectParams]) -> None:
         self.profile = profile
         self.effects = effects
-        fov: tuple[float, float] = (profile.fov_h_deg, profile.fov_v_deg)
-        for hook, params in acting(effects, "true_fov_deg"):
-            fov = hook(params)
-        k1, in_cloud = 0.0, True
-        for hook, params in acting(effects, "lens_distortion"):
-            k1, in_cloud = hook(params)
-        self.optics = CameraOptics(Pinhole(profile.width, profile.height, *fov), k1)
+        self.optics = camera_optics(profile, effects)
+        k1, in_cloud = _distortion(effects)
         pin = self.optics.pinhole
         if k1 != 0.0 and not in_cloud:
             u, v = self.optics.undistort(*self.optics.pixel_grid())

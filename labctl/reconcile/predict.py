@@ -62,7 +62,7 @@ from sim.optics import CameraOptics
 from sim.profiles import CameraProfile
 from sim.render import OVERSAMPLE, centre_distance_mm, render, sub_pixel_directions
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
-from sim.sensor import SensorOptics, blur_diameter_px
+from sim.sensor import SensorOptics, blur_diameter_px, camera_optics
 from sim.stereo import StereoSensor, dot_pattern
 from sim.tof import ToFSensor, range_noise_mm, surface_properties
 
@@ -285,9 +285,8 @@ class Predictor:
         """Per bin: the reported centre ray's z / range over the true centre ray's (they differ where a lens
         distortion bends the rays but the camera reports undistorted ones), times the mean over the measured
         camera's pixels in the bin of their own range-sampling excess (``range_excess``)."""
-        true_centre = self.sensor.geometry.optics.directions(*self.sensor.geometry.optics.pixel_grid())[2]
-        pixels, _ = bin_mean(range_excess(SensorOptics(self.full, self.full_effects).optics), self.bin_px)
-        return self.z_per_range / true_centre * pixels
+        return self.z_per_range * _true_centre_pixels(self.sensor.geometry.optics,
+                                                      camera_optics(self.full, self.full_effects), self.bin_px)
 
     def depth_per_range(self, rendered: Any) -> np.ndarray:
         """Per bin, the factor from its rendered range to the mean depth of the measured camera's pixels in it: the
@@ -387,6 +386,17 @@ def _overlap(region: slice, bins: int, bin_px: int) -> np.ndarray:
 def _independent(noise: np.ndarray) -> np.ndarray:
     """The correlation ratio of the simulator's noise: 1 (every pixel drawn independently) where it is predicted."""
     return np.where(np.isfinite(noise), 1.0, np.nan)
+
+
+@lru_cache(maxsize=8)
+def _true_centre_pixels(binned: CameraOptics, full: CameraOptics, bin_px: int) -> np.ndarray:
+    """Per bin of ``binned``: 1 / cos of its true centre ray times the mean of ``range_excess`` over the pixels of
+    ``full`` in it (once per optics: every model a fit tries builds a predictor)."""
+    true_centre = binned.directions(*binned.pixel_grid())[2]
+    pixels, _ = bin_mean(range_excess(full), bin_px)
+    out = pixels / true_centre
+    out.flags.writeable = False
+    return out
 
 
 def range_excess(optics: CameraOptics) -> np.ndarray:
