@@ -197,8 +197,7 @@ def main(draws: int, pairs: int, seed: int, cluster: Cluster, only: list[str] | 
             if record is not None:
                 with record.open("a") as f:
                     f.write(json.dumps(o) + "\n")
-    print(table(outcomes))
-    print(error_table(outcomes))
+    print(table(outcomes), error_table(outcomes), sep="\n\n")  # two Markdown tables: a blank line between
     print(f"{len(outcomes)} draws on {workers} workers in {time.monotonic() - start:.0f} s (seed {seed})")
     return 0
 
@@ -206,8 +205,7 @@ def main(draws: int, pairs: int, seed: int, cluster: Cluster, only: list[str] | 
 def tables_of(record: Path) -> int:
     """The tables of the outcomes a look (``--record``) has written so far, finished or not."""
     outcomes = [json.loads(line) for line in record.read_text().splitlines() if line.strip()]
-    print(table(outcomes))
-    print(error_table(outcomes))
+    print(table(outcomes), error_table(outcomes), sep="\n\n")
     print(f"{len(outcomes)} draws recorded in {record}")
     return 0
 
