@@ -50,12 +50,11 @@ def _beside(named: np.ndarray | None, change: np.ndarray) -> Beside:
     return Beside.of(change[:, None] if named is None else np.hstack([named, change[:, None]]))
 
 
-def _conditional(candidate: Candidate, ctx: Context, lay: Layout, residual: np.ndarray, named: np.ndarray | None,
-                 other: Fit, significant: Callable[[Fit], bool]) -> Fit | None:
-    """``candidate`` scored beside ``other``'s fitted change and the named effects; None unless it is significant
-    there and predicts held-out steps."""
-    beside = _beside(named, other.signature)
-    fit = score(candidate, ctx, lay, beside.out_of(residual), beside)
+def _conditional(candidate: Candidate, ctx: Context, lay: Layout, beside: Beside, residual: np.ndarray,
+                 significant: Callable[[Fit], bool]) -> Fit | None:
+    """``candidate`` scored beside ``beside`` (another candidate's fitted change and the named effects; ``residual``
+    has them taken out); None unless it is significant there and predicts held-out steps."""
+    fit = score(candidate, ctx, lay, residual, beside)
     return fit if fit is not None and fit.loso_gain > 0 and significant(fit) else None
 
 
@@ -69,13 +68,17 @@ def masked_pair(fits: Sequence[tuple[Fit, Candidate]], ctx: Context, lay: Layout
         if not np.any(partner.signature):
             continue
         say(f"scoring the candidates beside {partner.name}")
+        beside_partner = _beside(named, partner.signature)
+        left = beside_partner.out_of(residual)
         for _, candidate in fits:
             if candidate is partner_candidate:
                 continue
-            second = _conditional(candidate, ctx, lay, residual, named, partner, significant)
+            second = _conditional(candidate, ctx, lay, beside_partner, left, significant)
             if second is None:
                 continue
-            first = _conditional(partner_candidate, ctx, lay, residual, named, second, significant)
+            beside_second = _beside(named, second.signature)
+            first = _conditional(partner_candidate, ctx, lay, beside_second, beside_second.out_of(residual),
+                                 significant)
             if first is None:
                 continue
             pair = MaskedPair((first, partner_candidate), (second, candidate))
