@@ -291,8 +291,8 @@ class Predictor:
     def depth_per_range(self, rendered: Any) -> np.ndarray:
         """Per bin, the factor from its rendered range to the mean depth of the measured camera's pixels in it: the
         render's depth over its geometric range, each averaged along the rays sampling the bin (``z_dom`` over
-        ``range_dom`` less the surface's sub-surface bias), with
-        ``_reported_pixels``; the centre ray's z / range (``z_per_range``) where nothing is hit. The centre ray's
+        ``range_dom`` less the surface's sub-surface bias), with ``_reported_pixels``; the centre ray's z / range
+        (``z_per_range``) where nothing is hit. The centre ray's
         factor alone misses the spread of 1 / cos over the bin: on a wall square to the axis (z = D) the rays' mean
         range exceeds D / cos(theta) by D w^2 (1 + 2 tan^2 theta) / 24 for a bin w rad wide at field angle theta
         (3e-5 of D for the 4-pixel bins of the amt100 at its test size), an error growing with the distance,

@@ -290,6 +290,7 @@ class _Fitted:
     build: Callable[[np.ndarray], SimModel]
     residual: Callable[[np.ndarray], np.ndarray]
     bounds: tuple[np.ndarray, np.ndarray]
+    blocks: list[slice]  # each effect's parameters in the vector, in the order fitted
 
     def secant_jacobian(self, steps: np.ndarray) -> np.ndarray:
         """The residual's slope in each parameter over +-``steps`` around the fit (central differences; one-sided
@@ -322,17 +323,22 @@ def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim
 
     def build(x: np.ndarray) -> SimModel:
         trial = model
-        for i, (candidate, _) in enumerate(found):
-            trial = with_effect(trial, candidate.name, candidate.from_vector(x[sizes[i]:sizes[i + 1]]))
+        for (candidate, _), a, b in zip(found, sizes[:-1], sizes[1:], strict=True):
+            trial = with_effect(trial, candidate.name, candidate.from_vector(x[a:b]))
         return trial
 
     def residual(x: np.ndarray) -> np.ndarray:
-        preds = sim.predict(build(x))
-        dz, di = raw_residuals(sim.observations, preds)
-        return np.nan_to_num(lay.profiled(dz, di, raw_statistics(sim.observations, preds)))
+        return whitened_residual(sim, lay, build(x))
 
     result = optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev)
-    return _Fitted(result, build, residual, (lo, hi))
+    return _Fitted(result, build, residual, (lo, hi), [slice(a, b) for a, b in zip(sizes[:-1], sizes[1:])])
+
+
+def whitened_residual(sim: Simulation, lay: Layout, model: SimModel) -> np.ndarray:
+    """The whitened residual ``model`` leaves on the run (``Layout.profiled``, every family)."""
+    preds = sim.predict(model)
+    dz, di = raw_residuals(sim.observations, preds)
+    return np.nan_to_num(lay.profiled(dz, di, raw_statistics(sim.observations, preds)))
 
 
 def _step_covariance(jac: np.ndarray, fun: np.ndarray, steps: np.ndarray, n_steps: int,
@@ -514,9 +520,7 @@ def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, s
     except (np.linalg.LinAlgError, ValueError, OverflowError):
         return Joint(fitted.build(x), slopes, None)
     determinations = []
-    sizes = np.cumsum([0] + [len(candidate.vector(params)[0]) for candidate, params in found])
-    for i, (candidate, _) in enumerate(found):
-        block = slice(sizes[i], sizes[i + 1])
+    for (candidate, _), block in zip(found, fitted.blocks, strict=True):
         params = candidate.from_vector(x[block])
         hint = capture_hint(candidate.name, params, sim.observations, sim.t0_s)
         determinations.append(determination(candidate, params, x[block], cov[block, block], hint))
@@ -558,6 +562,7 @@ class _State:
         self.good = goodness(self.lay, self.sim.observations, self.dz, self.di, model.profile().technology,
                              self.preds, self.stats)
         self._context: Context | None = None
+        self._whitened: np.ndarray | None = None
 
     def context(self) -> Context:
         """The signatures' context of the model under test, one per model: what it caches (the rows' points, a
@@ -568,13 +573,11 @@ class _State:
         return self._context
 
     def whitened(self) -> np.ndarray:
-        return np.nan_to_num(self.lay.profiled(self.dz, self.di, self.stats))
-
-    def whitened_of(self, model: SimModel) -> np.ndarray:
-        """The whitened residual another model would leave (``whitened``), the model under test kept."""
-        preds = self.sim.predict(model)
-        dz, di = raw_residuals(self.sim.observations, preds)
-        return np.nan_to_num(self.lay.profiled(dz, di, raw_statistics(self.sim.observations, preds)))
+        """The whitened residual of the model under test (``Layout.profiled``), once per model, read-only."""
+        if self._whitened is None:
+            self._whitened = np.nan_to_num(self.lay.profiled(self.dz, self.di, self.stats))
+            self._whitened.flags.writeable = False
+        return self._whitened
 
     def beside(self) -> Beside | None:
         """The named effects as the candidates are scored beside them (``score.Beside``; None before any is named):
@@ -596,7 +599,8 @@ def _resimulated(state: _State, fit: Fit, candidate: Candidate, beside: Beside |
     the whitened residual its model leaves taken from the one it is scored on (the named effects' slopes taken out
     of both, ``_State.scored_residual``); and the refinement, for naming it."""
     refinement = refine(candidate, fit, state.model, state.sim, state.lay)
-    change = state.whitened() - state.whitened_of(with_effect(state.model, fit.name, refinement[0]))
+    change = state.whitened() - whitened_residual(state.sim, state.lay,
+                                                  with_effect(state.model, fit.name, refinement[0]))
     if beside is not None:
         change = beside.out_of(change)
     left = state.scored_residual(beside) - change
@@ -626,7 +630,8 @@ def _add_masked_pair(state: _State, fits: list[tuple[Fit, Candidate]], rule: Fix
         return None
     (a, a_candidate), (b, b_candidate) = pair.first, pair.second
     say(f"fitting {a.name} and {b.name} together")
-    before, previous, rss_before = state.good, state.model, float(state.whitened() @ state.whitened())
+    r = state.whitened()
+    before, previous, rss_before = state.good, state.model, float(r @ r)
     joint = refine_jointly([*found, (a_candidate, a.params), (b_candidate, b.params)], start_model, state.sim,
                            state.lay)
     state.set(joint.model)
@@ -635,7 +640,8 @@ def _add_masked_pair(state: _State, fits: list[tuple[Fit, Candidate]], rule: Fix
                               f"{state.good.gap_mm:.3f} mm)")
         state.set(previous)
         return None
-    rss_after = float(state.whitened() @ state.whitened())
+    r = state.whitened()
+    rss_after = float(r @ r)
     for i, (fit, _) in enumerate((pair.first, pair.second)):
         stderr, info = joint.determinations[len(found) + i] if joint.determinations is not None else \
             ({}, Determination(well_determined=False, problems=["no covariance"]))

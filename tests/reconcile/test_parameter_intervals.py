@@ -88,7 +88,7 @@ def test_the_slope_an_error_propagates_by_is_taken_over_the_rounding_steps_not_a
 
     x = np.array([0.01])
     fitted = _Fitted(optimize.OptimizeResult(x=x, fun=residual(x)), lambda v: v, residual,
-                     (np.array([-0.1]), np.array([0.1])))
+                     (np.array([-0.1]), np.array([0.1])), [slice(0, 1)])
     tiny = fitted.secant_jacobian(np.array([1.5e-10]))[:, 0]
     secant = fitted.secant_jacobian(np.array([0.01]))[:, 0]
     assert np.max(np.abs(tiny)) > 1e6 or not np.any(tiny)  # a jump or nothing, not the slope
