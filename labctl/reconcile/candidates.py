@@ -295,6 +295,9 @@ def _on_robot(o: Observation) -> bool:
 #: which steps show an effect (``Observed.steps``)
 STEPS: dict[str, Callable[[Observation], bool]] = {
     "all": lambda o: True, "translucent": _translucent, "robot_plates": _on_robot}
+#: those steps as the notes name them
+STEP_NAMES = {"all": "steps", "translucent": "steps of translucent targets",
+              "robot_plates": "steps of the material plates on the robot"}
 
 
 def _resimulated(effect: Effect) -> Candidate:
@@ -718,12 +721,44 @@ def candidate(effect: Effect) -> Candidate:
     return FORMS[effect.observed.signature](effect)
 
 
+def _testable(ctx: Context) -> Iterator[Effect]:
+    """The effects with a signature that the camera's technology shows and the model does not hold yet."""
+    for effect in list(EFFECTS.values()):
+        if effect.observed is not None and effect.observed.signature is not None \
+                and ctx.technology in effect.technologies and effect.name not in ctx.model.effects:
+            yield effect
+
+
 def candidates_for(ctx: Context) -> Iterator[Candidate]:
     """The candidates that apply to this run and are not yet in the model."""
-    for effect in list(EFFECTS.values()):
-        if effect.observed is None or effect.observed.signature is None:
-            continue
-        if ctx.technology in effect.technologies and effect.name not in ctx.model.effects:
-            c = candidate(effect)
-            if c.applies(ctx):
-                yield c.bind(ctx) if c.bind is not None else c
+    for effect in _testable(ctx):
+        c = candidate(effect)
+        if c.applies(ctx):
+            yield c.bind(ctx) if c.bind is not None else c
+
+
+def too_few_steps(ctx: Context) -> dict[str, str]:
+    """The effects this run cannot test for want of the steps that show them (``Observed.min_steps``), and why."""
+    out = {}
+    for effect in _testable(ctx):
+        if not candidate(effect).applies(ctx):
+            seen = effect.observed
+            held = sum(STEPS[seen.steps](o) for o in ctx.observations)
+            out[effect.name] = (f"it needs {seen.min_steps} or more {STEP_NAMES[seen.steps]}"
+                                + (f" (procedure {seen.procedure})" if seen.procedure else "")
+                                + f"; the run holds {held}")
+    return out
+
+
+def why_unseen(name: str) -> str:
+    """Why a candidate that ``changes_nothing`` is not tested, for the notes."""
+    steps = EFFECTS[name].observed.steps
+    where = "" if steps == "all" else f" (the {STEP_NAMES[steps]})"
+    return f"it changes no compared bin of this run: the steps that show it{where} hold none away from edges"
+
+
+def changes_nothing(candidate: Candidate, ctx: Context) -> bool:
+    """Whether the candidate's signature leaves every compared row of this run unchanged once the lab's nuisance
+    is profiled out (at its first grid point): e.g. the steps that show it hold no compared bin, a plate narrower
+    than a bin away from its edges."""
+    return not any(np.any(ctx.lay.profiled_rows(*column)) for column in candidate.columns(ctx, candidate.grid(ctx)[0]))

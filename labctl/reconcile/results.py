@@ -5,7 +5,7 @@ an ambiguity, a not-comparable run's needs, and ``reconcile.json`` itself (docs/
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from labctl.jsondoc import inline, optional
 
@@ -473,6 +473,7 @@ class ReconcileDocument:
     significance_rule: SignificanceRule
     empirical_corrections: list[EmpiricalCorrection]
     notes: list[str]
+    not_tested: dict[str, str] = field(default_factory=dict)  # effect -> why this run cannot test it
     calibration: str = "fixed thresholds"  # or "null runs" (labctl/reconcile/null.py)
     null_calibration: CalibrationSection | None = optional()
     minimum_detectable: dict[str, float | None] | None = optional()  # effect -> amplitude named with 90 % probability

@@ -56,7 +56,15 @@ from scipy import optimize
 
 from labctl.blas import one_blas_thread
 from labctl.errors import InputError
-from labctl.reconcile.candidates import NOT_IDENTIFIABLE, Candidate, Context, candidates_for
+from labctl.reconcile.candidates import (
+    NOT_IDENTIFIABLE,
+    Candidate,
+    Context,
+    candidates_for,
+    changes_nothing,
+    too_few_steps,
+    why_unseen,
+)
 from labctl.reconcile.characterize import characterize, describe_statistics
 from labctl.reconcile.confounds import Holdings, Separation, run_captures, screen, separating_capture
 from labctl.reconcile.corners import (
@@ -214,6 +222,7 @@ class ReconcileResult:
     not_comparable: NotComparable | None = None
     corners: CornerStage | None = None
     excluded: list[ExcludedStep] = field(default_factory=list)
+    not_tested: dict[str, str] = field(default_factory=dict)  # effect -> why this run cannot test it
 
     def model_toml(self) -> str:
         """The corrected model as a model file."""
@@ -552,6 +561,8 @@ class _State:
         #: the whitened residual's slope in the named effects' parameters at ``model`` (one column each): the
         #: candidates are scored with the named effects free to move along it (``beside``)
         self.named_slopes: np.ndarray | None = None
+        #: the candidates whose signature changes no compared row of this run (``candidates.changes_nothing``)
+        self.unseen: set[str] = set()
         self.set(model)
 
     def set(self, model: SimModel) -> None:
@@ -765,6 +776,8 @@ def _scored(state: _State, say: Callable[[str], None], beside: Beside | None = N
         fit = score(candidate, ctx, state.lay, r, beside)
         if fit is not None:
             fits.append((fit, candidate))
+        elif changes_nothing(candidate, ctx):
+            state.unseen.add(candidate.name)
     fits.sort(key=lambda fc: -fc[0].score)
     return fits
 
@@ -987,13 +1000,14 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     if verdict == "none" and minimum_detectable:
         notes.append(detectable_message(minimum_detectable))
     corner_names = {c.name for c in corner_candidates()} if corners is not None else set()
-    notes += [f"{name} is not tested: {why}" for name, why in NOT_IDENTIFIABLE.items() if name not in corner_names]
+    not_tested = {name: why for name, why in NOT_IDENTIFIABLE.items() if name not in corner_names}
+    not_tested |= too_few_steps(state.context()) | {name: why_unseen(name) for name in sorted(state.unseen)}
+    notes += [f"{name} is not tested: {why}" for name, why in not_tested.items()]
     excluded = info.get("skipped", []) + excluded_steps(observations, state.preds, lay)
     return ReconcileResult(verdict, named, first_candidates, gap_before, gap_after, igap_before, igap_after,
                            state.model, observations, iterations, depth_residual_maps(lay, state.dz), notes, ambiguity,
                            good_before, state.good, good_physical, rule, minimum_detectable, unexplained, empirical,
-                           corners=corners,
-                           excluded=excluded)
+                           corners=corners, excluded=excluded, not_tested=not_tested)
 
 
 def _describe_family(family: str, state: _State, lay: Layout) -> FamilyDeparture:
@@ -1159,6 +1173,7 @@ def json_document(result: ReconcileResult, model_path: Path) -> ReconcileDocumen
                                            dbic_threshold=DBIC_THRESHOLD),
         empirical_corrections=result.empirical,
         notes=result.notes,
+        not_tested=result.not_tested,
         families=_families(result),
         excluded_steps=result.excluded,
         corners=corners.summary() if corners is not None else None,

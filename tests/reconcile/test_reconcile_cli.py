@@ -234,6 +234,23 @@ def test_a_winner_that_is_not_material_is_passed_over_for_the_next_candidate(tmp
         assert lo <= hidden[effect.name][key] <= hi, (effect.name, lo, hi)
 
 
+def test_an_effect_the_run_cannot_show_is_stated_as_not_tested(tmp_path):
+    """The D455 at the test size, 160 px over its 75 deg field (f = 80 px / tan 37.5 deg = 104 px), sees the
+    200 mm plates on the robot circle, 4006 mm away, 200 * 104 / 4006 = 5.2 px wide: one 4 px bin at most, and
+    that one holds the plate's edges. A 28 mm target misalignment moves only the plates, so it changes no bin the
+    comparison holds: the verdict is ``none`` with the effect stated as not tested, not passed over in silence.
+    A run without the robot's steps states the steps an effect seen on them needs."""
+    result = reconcile(measured_run(tmp_path / "plates", "d455", {"target_misalignment": {"offset_mm": 28.0}},
+                                   seed=17455))
+    assert result.verdict == "none" and not result.named
+    assert "no compared bin" in result.not_tested["target_misalignment"]
+    assert any(n.startswith("target_misalignment is not tested") for n in result.notes)
+    run = simulated_run(tmp_path / "no-robot", "blaze101", {}, seed=5, robot=False)
+    without = reconcile(run).not_tested
+    assert {"target_misalignment", "camera_axis_offset", "material_bias"} <= set(without)
+    assert "the run holds 0" in without["target_misalignment"] and "remission_angle" in without["target_misalignment"]
+
+
 @pytest.mark.parametrize("camera,seed", [(c, s) for c in sorted(SIZES) for s in (5, 6)])
 def test_nothing_hidden_names_nothing(camera, seed, tmp_path):
     result = reconcile(measured_run(tmp_path, camera, {}, seed=seed))
@@ -253,6 +270,7 @@ def test_cli_writes_the_contract_outputs(tmp_path):
     assert doc["verdict"] == "effect_found" and doc["named_effects"][0]["name"] == "range_scale"
     assert doc["gap_unit"] == "mm" and doc["gap_after"] <= 0.5 * doc["gap_before"]
     assert all({"name", "score"} <= set(c) for c in doc["candidates"])
+    assert "quantization" in doc["not_tested"]  # does not move a bin mean: no comparison of means can test it
     corrected = parse_model(Path(doc["model_toml"]).read_text())
     assert corrected.effects["range_scale"]["scale"] == pytest.approx(0.01, rel=0.05)
     page = (out / "reconcile.html").read_text()
