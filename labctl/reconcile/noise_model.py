@@ -94,6 +94,9 @@ OUTPUT_OFFSETS = 16  # where the true depth sits on the output grid
 SLOPE_SHARE = 0.5  # a light slope giving this share of the texture threshold's contrast: validity not predicted
 CONTRAST_TOLERANCE = 0.15  # relative accuracy of the modelled matching contrast
 LATTICE_RATIO = 4.0  # sigma_d / disparity step above which both roundings follow Sheppard's correction
+#: the disparity levels summed: those within this many sigma_d of the true disparity (beyond, the normal tail's
+#: probability, erfc(8.5 / sqrt 2) / 2 = 1e-17, weighs less than a double's rounding of the variance)
+TAIL_SIGMAS = 8.5
 
 
 def stored_disparity_noise(z: np.ndarray, sigma_d: np.ndarray, step_d: float, focal_baseline: float,
@@ -111,7 +114,7 @@ def stored_disparity_noise(z: np.ndarray, sigma_d: np.ndarray, step_d: float, fo
     levels = int(math.ceil(5 * LATTICE_RATIO)) + 1
     offsets = OUTPUT_OFFSETS if step_mm > 0 else 1
     std[lattice], spread[lattice] = _lattice_noise(ratio[lattice], scale[lattice], step_d, step_mm, levels,
-                                                   DISPARITY_POSITIONS, offsets)
+                                                   DISPARITY_POSITIONS, offsets, TAIL_SIGMAS)
     sigma = scale * sigma_d
     ok = np.isfinite(z) & ((step_mm <= 0) | (sigma >= step_mm / 2))
     return np.where(ok, std, np.nan), np.where(ok, spread, np.nan)
@@ -119,28 +122,32 @@ def stored_disparity_noise(z: np.ndarray, sigma_d: np.ndarray, step_d: float, fo
 
 @njit(cache=True, nogil=True, error_model="numpy")  # x / 0 is inf, as in numpy (a zero disparity noise)
 def _lattice_noise(ratio: np.ndarray, scale: np.ndarray, step_d: float, step_mm: float, levels: int,
-                   positions: int, offsets: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover (compiled)
+                   positions: int, offsets: int, tail: float) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
     """Per bin: sqrt of the mean over the grid positions (``positions`` of the disparity, ``offsets`` of the
     output grid, 1 without an output step) of the variance of the depth over the disparity levels -``levels`` ...
-    ``levels``, and the std of half its logarithm (``stored_disparity_noise``; compiled: reconcile predicts every
+    ``levels`` (those within ``tail`` sigma_d of the true disparity: the others hold no probability a double
+    resolves), and the std of half its logarithm (``stored_disparity_noise``; compiled: reconcile predicts every
     bin of every step at each evaluation of its fits)."""
     n_pos = positions * offsets
     std, spread = np.empty(ratio.size), np.empty(ratio.size)
     probs, values, half_log = np.empty(2 * levels + 1), np.empty(2 * levels + 1), np.empty(n_pos)
+    cdf = np.empty(2 * levels + 2)
     root2 = math.sqrt(2.0)
     for i in range(ratio.size):
         r, total = ratio[i], 0.0
+        reach = min(levels, int(math.ceil(tail * r + 1.0)))  # |j - delta| <= tail r, |delta| <= 1/2
+        first, count = levels - reach, 2 * reach + 1
         for d in range(positions):
             delta = (d + 0.5) / positions - 0.5
-            for k in range(2 * levels + 1):
-                j = k - levels
-                probs[k] = 0.5 * math.erfc(-(j + 0.5 - delta) / r / root2) - \
-                    0.5 * math.erfc(-(j - 0.5 - delta) / r / root2)
-                values[k] = -scale[i] * (j - delta) * step_d
+            for k in range(first, first + count + 1):  # the cumulative probability at each level's lower edge
+                cdf[k] = 0.5 * math.erfc(-(k - levels - 0.5 - delta) / r / root2)
+            for k in range(first, first + count):
+                probs[k] = cdf[k + 1] - cdf[k]
+                values[k] = -scale[i] * (k - levels - delta) * step_d
             for o in range(offsets):
                 u = (o + 0.5) / offsets * step_mm
                 m1, m2 = 0.0, 0.0
-                for k in range(2 * levels + 1):
+                for k in range(first, first + count):
                     v = np.rint((values[k] + u) / step_mm) * step_mm if step_mm > 0 else values[k]
                     m1 += probs[k] * v
                     m2 += probs[k] * v * v
