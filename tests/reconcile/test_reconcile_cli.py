@@ -219,6 +219,24 @@ def test_two_effects_that_mask_each_other_are_named_together(tmp_path):
     assert result.gap_after <= 0.1 * result.gap_before, (result.gap_before, result.gap_after)
 
 
+def test_a_disparity_bias_is_found_on_a_period_grid_that_follows_the_runs_disparity_span(tmp_path):
+    """A 0.045 px pixel locking at a 1.57 px period and a barrel distortion (k1 0.103) hidden together (D455). The
+    compared bins span 14 px of disparity, 9 cycles of the bias: a trial period 7 % off (the nearest point of an
+    octave grid, 1.68 px) slips 0.6 cycle from one end to the other and fits a fraction of it (dBIC 7.5; the
+    distortion 15.1: neither is named, and the run is ``unexplained``). On a grid of even steps in 1/P a quarter
+    cycle over the span apart, both are named, the truths inside their stated 95 % intervals."""
+    hidden = {"disparity_bias": {"amplitude_px": 0.0448, "period_px": 1.5692, "phase_rad": 2.4367},
+              "radial_distortion": {"k1": 0.10305, "cloud": True}}
+    result = reconcile(measured_run(tmp_path, "d455", hidden, seed=71634))
+    assert result.verdict == "effect_found", (result.notes, result.candidates)
+    assert sorted(e.name for e in result.named) == sorted(hidden)
+    for effect in result.named:
+        for key, truth in hidden[effect.name].items():
+            if isinstance(truth, float):
+                lo, hi = effect.evidence.determination.interval_95[key]
+                assert lo <= truth <= hi, (effect.name, key, lo, truth, hi)
+
+
 def test_a_winner_that_is_not_material_is_passed_over_for_the_next_candidate(tmp_path):
     """A camera axis offset of 35 mm and a warm-up drift hidden together (amt100): the drift scores first (dBIC
     78.6 against the offset's 77.8), its linear form following part of the offset's residual; refined, it closes
