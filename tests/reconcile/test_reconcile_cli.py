@@ -35,6 +35,15 @@ def measured_run(directory: Path, camera: str, hidden: dict, seed: int = 3) -> P
     return simulated_run(directory, camera, hidden, seed)
 
 
+def _assert_truths_inside_intervals(result, hidden: dict) -> None:
+    """Every scalar hidden parameter of every named effect inside its stated 95 % interval."""
+    for effect in result.named:
+        for key, truth in hidden[effect.name].items():
+            if isinstance(truth, float):
+                lo, hi = effect.evidence.determination.interval_95[key]
+                assert lo <= truth <= hi, (effect.name, key, lo, truth, hi)
+
+
 def _sign(rng: np.random.Generator) -> float:
     return float(rng.choice([-1.0, 1.0]))
 
@@ -211,11 +220,7 @@ def test_two_effects_that_mask_each_other_are_named_together(tmp_path):
     result = reconcile(measured_run(tmp_path, "blaze101", hidden, seed=80898))
     assert result.verdict == "effect_found", (result.notes, result.candidates)
     assert sorted(e.name for e in result.named) == sorted(hidden)
-    for effect in result.named:
-        for key, truth in hidden[effect.name].items():
-            if isinstance(truth, float):
-                lo, hi = effect.evidence.determination.interval_95[key]
-                assert lo <= truth <= hi, (effect.name, key, lo, truth, hi)
+    _assert_truths_inside_intervals(result, hidden)
     assert result.gap_after <= 0.1 * result.gap_before, (result.gap_before, result.gap_after)
 
 
@@ -230,11 +235,7 @@ def test_a_disparity_bias_is_found_on_a_period_grid_that_follows_the_runs_dispar
     result = reconcile(measured_run(tmp_path, "d455", hidden, seed=71634))
     assert result.verdict == "effect_found", (result.notes, result.candidates)
     assert sorted(e.name for e in result.named) == sorted(hidden)
-    for effect in result.named:
-        for key, truth in hidden[effect.name].items():
-            if isinstance(truth, float):
-                lo, hi = effect.evidence.determination.interval_95[key]
-                assert lo <= truth <= hi, (effect.name, key, lo, truth, hi)
+    _assert_truths_inside_intervals(result, hidden)
 
 
 def test_a_winner_that_is_not_material_is_passed_over_for_the_next_candidate(tmp_path):
