@@ -675,9 +675,8 @@ def _disparity_rows(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
 def _disparity_period_grid(ctx: Context) -> list[float]:
     """The periods searched: even steps of 1/P, 1 / (``DISPARITY_STEPS_PER_CYCLE`` D) apart, D the span of the
     compared rows' disparity, 1 px among them."""
-    focal_baseline = ctx.make_predictor(ctx.model).sensor.matching_focal_baseline
     z = ctx.z_rows("z")
-    d = focal_baseline / z[np.isfinite(z) & (z > 0)]
+    d = _disparity_rows(ctx)[0][np.isfinite(z) & (z > 0)]
     span = float(d.max() - d.min()) if d.size else 1.0
     step = 1.0 / (DISPARITY_STEPS_PER_CYCLE * max(span, 1.0))
     lo, hi = 1.0 / DISPARITY_PERIOD_RANGE_PX[1], 1.0 / DISPARITY_PERIOD_RANGE_PX[0]
