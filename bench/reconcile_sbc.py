@@ -1,13 +1,14 @@
 """Simulation-based calibration of reconcile: does it recover what the library itself hides?
 
-``python -m bench.reconcile_sbc [DRAWS] [--pairs N] [--seed S] [--only LABEL ...] [--scheduler ADDRESS]
-[--workers N]``
+``python -m bench.reconcile_sbc [DRAWS] [--pairs N] [--seed S] [--only LABEL ...] [--campaigns test|examples]
+[--scheduler ADDRESS] [--workers N] [--record FILE]``
 draws, for every library effect of the reconcile tests (the cases of
 tests/reconcile/test_reconcile_cli.py and tests/reconcile/test_library_effects.py,
 each on its camera at the test size), DRAWS parameter sets at random within
 the test ranges, and N random pairs of two effects of one camera; hides each in
 a simulated run of the reconcile test campaign (tests/reconcile/runs.py, a
-random seed) and reconciles it from the camera's built-in model with the fixed
+random seed; with ``--campaigns examples``, of one of its camera's example
+campaigns, examples/*.toml, drawn at random, 10 frames a stack) and reconciles it from the camera's built-in model with the fixed
 thresholds, one Dask task per run (Talts et al. 2018, simulation-based
 calibration: a method that recovers what it is given names the right effects,
 and its 95 % intervals cover the truth about 95 % of the time). Prints per
@@ -33,19 +34,23 @@ import math
 import sys
 import tempfile
 import time
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 
 from labctl.batch.cluster import Cluster, open_client
+from labctl.reconcile.observe import MAX_FRAMES
 from labctl.reconcile.workflow import reconcile
 from sim.effects import EFFECTS
 from sim.profiles import get_profile
-from tests.reconcile.runs import simulated_run
+from tests.reconcile.runs import BACKENDS, simulated_run
 from tests.reconcile.test_reconcile_cli import CASES
 
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 Draw = Callable[[np.random.Generator], dict[str, Any]]
 #: the newer library effects at the test's value (tests/reconcile/test_library_effects.py), drawn around it
 NEWER: dict[str, tuple[str, str, Draw]] = {
@@ -68,18 +73,37 @@ PERIODIC: dict[str, Callable[[str], float]] = {
     "extra_path_mm": lambda camera: 299792458e3 / (2e6 * get_profile(camera).modulation_mhz)}
 
 
-def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: int) -> dict[str, Any]:
-    """Simulate and reconcile one draw (a Dask task): what was named, fitted and covered, the verdict and gaps;
-    a draw whose simulation or reconcile raises is an outcome too (verdict ``failed``, the error named), so that
-    one failing draw neither stops the others nor drops out of the rates."""
+def example_campaigns(camera: str) -> list[str]:
+    """The example campaigns (examples/*.toml) of ``camera``'s backend, by file name."""
+    return sorted(path.name for path in EXAMPLES.glob("*.toml")
+                  if tomllib.loads(path.read_text())["devices"]["camera"]["backend"] == BACKENDS[camera])
+
+
+def example_campaign(name: str, seed: int) -> str:
+    """An example campaign's text with the reconcile's frames per stack (``MAX_FRAMES``: it reads no more) and the
+    draw's simulation seed."""
+    campaign = tomllib.loads((EXAMPLES / name).read_text())
+    for procedure in campaign["procedure"]:
+        procedure["frames"] = MAX_FRAMES
+    campaign["sim"] = {**campaign.get("sim", {}), "seed": seed}
+    return tomli_w.dumps(campaign)
+
+
+def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: int,
+             campaign: str | None = None) -> dict[str, Any]:
+    """Simulate and reconcile one draw (a Dask task) on the test campaign or the example ``campaign``: what was
+    named, fitted and covered, the verdict and gaps; a draw whose simulation or reconcile raises is an outcome too
+    (verdict ``failed``, the error named), so that one failing draw neither stops the others nor drops out of the
+    rates."""
     start = time.monotonic()
     try:
         with tempfile.TemporaryDirectory(prefix="labctl-sbc-") as tmp:
-            result = reconcile(simulated_run(Path(tmp), camera, hidden, seed=seed))
+            text = example_campaign(campaign, seed) if campaign else None
+            result = reconcile(simulated_run(Path(tmp), camera, hidden, seed=seed, campaign=text))
     except Exception as exc:  # noqa: BLE001 - any failure of a draw is reported with it, not raised
-        return {"label": label, "seed": seed, "hidden": sorted(hidden), "named": [], "verdict": "failed",
-                "error": f"{type(exc).__name__}: {exc}", "parameters": hidden, "covered": [], "errors": [],
-                "not_tested": [], "within_floor": False, "seconds": time.monotonic() - start}
+        return {"label": label, "seed": seed, "campaign": campaign, "hidden": sorted(hidden), "named": [],
+                "verdict": "failed", "error": f"{type(exc).__name__}: {exc}", "parameters": hidden, "covered": [],
+                "errors": [], "not_tested": [], "within_floor": False, "seconds": time.monotonic() - start}
     named = {e.name: e for e in result.named}
     covered: list[bool] = []
     errors: list[tuple[str, float]] = []  # (effect.parameter, (estimate - truth) / standard error)
@@ -100,19 +124,31 @@ def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: i
                     estimate = value + math.remainder(estimate - value, PERIODIC[key](camera))
                 errors.append((f"{name}.{key}", (estimate - value) / stderr))
     after = result.goodness_physical or result.goodness_after  # the named effects', before any empirical correction
-    return {"label": label, "seed": seed, "hidden": sorted(hidden), "parameters": hidden, "named": sorted(named),
+    return {"label": label, "seed": seed, "campaign": campaign, "hidden": sorted(hidden), "parameters": hidden,
+            "named": sorted(named),
             "verdict": result.verdict, "covered": covered, "errors": errors,
             "not_tested": sorted(set(hidden) & set(result.not_tested)),
             "within_floor": bool(after is not None and result.rule.consistent(after)),
             "seconds": time.monotonic() - start}
 
 
-#: one draw: its label (effect-camera, or pairs), the camera, the hidden effects' parameters and the run's seed
-Task = tuple[str, str, dict[str, dict[str, Any]], int]
+#: one draw: its label (effect-camera, or pairs), the camera, the hidden effects' parameters, the run's seed and
+#: its example campaign (None: the test campaign)
+Task = tuple[str, str, dict[str, dict[str, Any]], int, str | None]
 
 
-def plan(draws: int, pairs: int, seed: int) -> list[Task]:
-    """The draws: ``draws`` per effect and ``pairs`` random pairs of two effects one camera can show."""
+def plan(draws: int, pairs: int, seed: int, examples: bool = False) -> list[Task]:
+    """The draws: ``draws`` per effect and ``pairs`` random pairs of two effects one camera can show; with
+    ``examples``, each on one of its camera's example campaigns drawn at random (by a generator of its own, so
+    that the parameters and seeds are those of the test campaign's plan)."""
+    tasks = _plan(draws, pairs, seed)
+    if not examples:
+        return [(*task, None) for task in tasks]
+    choose = np.random.default_rng([seed, 1])
+    return [(*task, str(choose.choice(example_campaigns(task[1])))) for task in tasks]
+
+
+def _plan(draws: int, pairs: int, seed: int) -> list[tuple[str, str, dict[str, dict[str, Any]], int]]:
     rng = np.random.default_rng(seed)
     tasks = []
     for label, (camera, effect, draw) in sorted(DRAWS.items()):
@@ -183,17 +219,18 @@ def interleaved(tasks: list[Task]) -> list[Task]:
 
 
 def _line(o: dict[str, Any]) -> str:
+    where = f"{o['label']} seed {o['seed']}" + (f" on {o['campaign']}" if o.get("campaign") else "")
     if o["verdict"] == "failed":
-        return f"{o['label']} seed {o['seed']}: FAILED {o['error']} (hidden {o['parameters']})"
-    return (f"{o['label']} seed {o['seed']}: verdict {o['verdict']}, named {o['named'] or 'nothing'} "
+        return f"{where}: FAILED {o['error']} (hidden {o['parameters']})"
+    return (f"{where}: verdict {o['verdict']}, named {o['named'] or 'nothing'} "
             f"(hidden {o['hidden']}{', not tested ' + str(o['not_tested']) if o.get('not_tested') else ''}), "
             f"intervals covering {sum(o['covered'])}/{len(o['covered'])}, "
             f"gap after {'within' if o['within_floor'] else 'above'} the floor, {o['seconds']:.0f} s")
 
 
 def main(draws: int, pairs: int, seed: int, cluster: Cluster, only: list[str] | None = None,
-         record: Path | None = None) -> int:
-    tasks = interleaved([t for t in plan(draws, pairs, seed) if not only or t[0] in only])
+         record: Path | None = None, examples: bool = False) -> int:
+    tasks = interleaved([t for t in plan(draws, pairs, seed, examples) if not only or t[0] in only])
     start = time.monotonic()
     outcomes = []
     with open_client(cluster) as client:
@@ -230,10 +267,14 @@ if __name__ == "__main__":
                         help="run only these labels of the plan (effect-camera, or pairs), drawn as in the whole plan")
     parser.add_argument("--scheduler", help="address of an existing Dask scheduler (default: a local cluster)")
     parser.add_argument("--workers", type=int, help="worker processes of the local cluster (default: one per core)")
+    parser.add_argument("--campaigns", choices=["test", "examples"], default="test",
+                        help="the reconcile test campaign (default), or for each draw one of its camera's example "
+                             "campaigns (examples/*.toml) at random, at the test size")
     parser.add_argument("--record", type=Path, help="append each draw's outcome to this file (JSON lines)")
     parser.add_argument("--tables-of", type=Path, metavar="RECORD",
                         help="print the tables of a record (finished or not) and exit")
     args = parser.parse_args()
     if args.tables_of is not None:
         sys.exit(tables_of(args.tables_of))
-    sys.exit(main(args.draws, args.pairs, args.seed, Cluster(args.scheduler, args.workers), args.only, args.record))
+    sys.exit(main(args.draws, args.pairs, args.seed, Cluster(args.scheduler, args.workers), args.only, args.record,
+                  args.campaigns == "examples"))

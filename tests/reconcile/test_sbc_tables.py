@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from bench.reconcile_sbc import named_right, table
+import tomllib
+
+from bench.reconcile_sbc import example_campaign, example_campaigns, named_right, plan, table
+from labctl.reconcile.observe import MAX_FRAMES
 
 
 def _draw(hidden: list[str], named: list[str], not_tested: list[str] | None = None) -> dict:
@@ -26,3 +29,16 @@ def test_the_table_counts_right_draws_and_those_with_an_effect_not_tested():
     draws = [_draw(["a", "b"], ["a", "b"], []), _draw(["a", "b"], ["a"], ["b"]), _draw(["a", "b"], [], [])]
     row = table(draws).splitlines()[-1]
     assert row == "| pairs | 3 | 2/3 (67%) | 3/3 (100%) | 3/3 (100%) | 1 | 0 |"
+
+
+def test_a_draw_on_an_example_campaign_takes_its_cameras_campaigns_with_the_reconciles_frames():
+    """Each draw's campaign is one of examples/ whose camera backend is the draw's camera, with every stack cut to
+    the frames reconcile reads and the draw's seed."""
+    assert example_campaigns("blaze101") == ["blaze101.toml", "depth_blaze101.toml"]
+    assert example_campaigns("d455") == ["d455.toml"]
+    campaign = tomllib.loads(example_campaign("d455.toml", 1234))
+    assert campaign["sim"]["seed"] == 1234
+    assert {p["frames"] for p in campaign["procedure"]} == {MAX_FRAMES}
+    tasks = plan(1, 2, 2, examples=True)
+    assert [t[:4] for t in tasks] == [t[:4] for t in plan(1, 2, 2)]  # the same draws as on the test campaign
+    assert all(t[4] in example_campaigns(t[1]) for t in tasks)
