@@ -231,6 +231,16 @@ class Predictor:
             self.cache[key] = (mean, *slopes)
         return self.cache[key]
 
+    def _shading_slope(self) -> np.ndarray | None:
+        """The shading's relative slope per pixel, |grad S| / S, per bin (None without shading effects): the
+        texture a vignetting adds to the IR image the matcher sees (``stereo_statistics``)."""
+        shading = self._shading()
+        if shading is None:
+            return None
+        mean, slope_v, slope_u = shading
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(mean > 0, np.hypot(slope_v, slope_u) / mean, 0.0)
+
     def blur_reach_bins(self, distance_mm: float) -> int:
         """How many bins the measured camera's blur (3 sigma of the lens PSF plus the defocus disc radius,
         Thesis 2024, eq. 2-5) reaches at ``distance_mm``."""
@@ -363,7 +373,8 @@ class Predictor:
         z = self._stereo_depth(rendered, drift, sigma_d)
         ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
-            self.sensor, z, sigma_d, lit, self._dot_stats(centre_distance_mm(recorded)), self.bin_px)
+            self.sensor, z, sigma_d, lit, self._dot_stats(centre_distance_mm(recorded)), self.bin_px,
+            self._shading_slope())
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
 
