@@ -300,10 +300,11 @@ def write_reconcile(result: ReconcileResult, measured: Path, output: Path) -> tu
         for e in result.named)
     rounds = "".join(
         f"<h3>Round {i + 1}: {html.escape(it.decision)} (model effects: {html.escape(', '.join(it.model_effects) or 'none')};"
-        f" gap {it.gap_mm:.3f} mm)</h3><table><tr><th class=l>candidate</th><th>dBIC</th><th>LOSO gain</th>"
-        "<th class=l>linear fit</th></tr>"
-        + "".join(f"<tr><td class=l>{html.escape(f.name)}</td><td>{f.score:.1f}</td><td>{f.loso_gain:.3f}</td>"
-                  f"<td class=l>{_params(f.params, {})}</td></tr>" for f in it.fits) + "</table>"
+        f" gap {it.gap_mm:.3f} mm)</h3>"
+        + ("<table><tr><th class=l>candidate</th><th>dBIC</th><th>LOSO gain</th><th class=l>linear fit</th></tr>"
+           + "".join(f"<tr><td class=l>{html.escape(f.name)}</td><td>{f.score:.1f}</td><td>{f.loso_gain:.3f}</td>"
+                     f"<td class=l>{_params(f.params, {})}</td></tr>" for f in it.fits) + "</table>"
+           if it.fits else "<p>No candidate scored: the model is consistent with the noise and names nothing more.</p>")
         for i, it in enumerate(result.iterations))
     ambiguity = ""
     if result.ambiguity:

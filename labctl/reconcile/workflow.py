@@ -875,10 +875,16 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     joint_errors: list[tuple[dict[str, float], Determination]] | None = None  # the named effects' from their joint fit
     immaterial = 0
     while len(found) < MAX_EFFECTS:
-        # beside the named effects where a candidate may be named; a round already consistent with the noise only
-        # reports the candidates' scores against what is left
-        fits = retry if retry is not None else _scored(state, say, None if rule.consistent(state.good)
-                                                       else state.beside())
+        # beside the named effects where a candidate may be named. A later round already consistent with the noise
+        # names nothing and is not scored; the first round always is: its scores are the run's candidates (and a
+        # null replica's statistics, ``first_round``)
+        consistent = rule.consistent(state.good)
+        if retry is not None:
+            fits = retry
+        elif consistent and iterations:
+            fits = []
+        else:
+            fits = _scored(state, say, None if consistent else state.beside())
         retry = None
         if isinstance(rule, NullCalibration) and not iterations:
             say("minimum detectable amplitudes")
@@ -888,7 +894,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         iterations.append(iteration)
         if not first_candidates:
             first_candidates = [CandidateScore(name=f.name, score=round(f.score, 2)) for f, _ in fits]
-        if rule.consistent(state.good):
+        if consistent:
             iteration.decision = "consistent with noise"
             break
         beside = state.beside()

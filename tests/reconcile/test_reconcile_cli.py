@@ -293,6 +293,7 @@ def test_cli_writes_the_contract_outputs(tmp_path):
     corrected = parse_model(Path(doc["model_toml"]).read_text())
     assert corrected.effects["range_scale"]["scale"] == pytest.approx(0.01, rel=0.05)
     page = (out / "reconcile.html").read_text()
+    assert "No candidate scored: the model is consistent with the noise" in page  # the round after range_scale
     for png in ("reconcile_residuals.png", "reconcile_map.png", "reconcile_candidates.png"):
         assert png in page and (out / png).stat().st_size > 10_000
     # the corrected model reconciles to "nothing missing"
