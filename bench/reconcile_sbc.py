@@ -29,6 +29,7 @@ draws and seeds the whole plan gives them. Not a budget benchmark.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import sys
@@ -73,6 +74,7 @@ PERIODIC: dict[str, Callable[[str], float]] = {
     "extra_path_mm": lambda camera: 299792458e3 / (2e6 * get_profile(camera).modulation_mhz)}
 
 
+@functools.cache
 def example_campaigns(camera: str) -> list[str]:
     """The example campaigns (examples/*.toml) of ``camera``'s backend, by file name."""
     return sorted(path.name for path in EXAMPLES.glob("*.toml")

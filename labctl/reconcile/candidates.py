@@ -292,20 +292,24 @@ def _on_robot(o: Observation) -> bool:
     return o.scene.target in PLATE_MATERIALS
 
 
-#: which steps show an effect (``Observed.steps``)
-STEPS: dict[str, Callable[[Observation], bool]] = {
-    "all": lambda o: True, "translucent": _translucent, "robot_plates": _on_robot}
-#: those steps as the notes name them
-STEP_NAMES = {"all": "steps", "translucent": "steps of translucent targets",
-              "robot_plates": "steps of the material plates on the robot"}
+#: which steps show an effect (``Observed.steps``), and those steps as the notes name them
+STEPS: dict[str, tuple[Callable[[Observation], bool], str]] = {
+    "all": (lambda o: True, "steps"), "translucent": (_translucent, "steps of translucent targets"),
+    "robot_plates": (_on_robot, "steps of the material plates on the robot")}
+
+
+def _steps_shown(effect: Effect, ctx: Context) -> int:
+    """How many of the run's steps show the effect (``Observed.steps``)."""
+    shows, _ = STEPS[effect.observed.steps]
+    return sum(shows(o) for o in ctx.observations)
 
 
 def _resimulated(effect: Effect) -> Candidate:
     seen = effect.observed
-    shows, probe = STEPS[seen.steps], {seen.fitted[0]: seen.probe, **seen.fixed}
+    (shows, _), probe = STEPS[seen.steps], {seen.fitted[0]: seen.probe, **seen.fixed}
     return _linear(
         effect, lambda ctx, _: [ctx.finite_difference(effect.name, probe, shows, seen.probe, seen.families)],
-        applies=lambda ctx: sum(shows(o) for o in ctx.observations) >= seen.min_steps,
+        applies=lambda ctx: _steps_shown(effect, ctx) >= seen.min_steps,
     )
 
 
@@ -761,17 +765,16 @@ def too_few_steps(ctx: Context) -> dict[str, str]:
     for effect in _testable(ctx):
         if not candidate(effect).applies(ctx):
             seen = effect.observed
-            held = sum(STEPS[seen.steps](o) for o in ctx.observations)
-            out[effect.name] = (f"it needs {seen.min_steps} or more {STEP_NAMES[seen.steps]}"
+            out[effect.name] = (f"it needs {seen.min_steps} or more {STEPS[seen.steps][1]}"
                                 + (f" (procedure {seen.procedure})" if seen.procedure else "")
-                                + f"; the run holds {held}")
+                                + f"; the run holds {_steps_shown(effect, ctx)}")
     return out
 
 
 def why_unseen(name: str) -> str:
     """Why a candidate that ``changes_nothing`` is not tested, for the notes."""
     steps = EFFECTS[name].observed.steps
-    where = "" if steps == "all" else f" (the {STEP_NAMES[steps]})"
+    where = "" if steps == "all" else f" (the {STEPS[steps][1]})"
     return f"it changes no compared bin of this run: the steps that show it{where} hold none away from edges"
 
 

@@ -776,7 +776,7 @@ def _scored(state: _State, say: Callable[[str], None], beside: Beside | None = N
         fit = score(candidate, ctx, state.lay, r, beside)
         if fit is not None:
             fits.append((fit, candidate))
-        elif changes_nothing(candidate, ctx):
+        elif candidate.name not in state.unseen and changes_nothing(candidate, ctx):  # once: its columns again
             state.unseen.add(candidate.name)
     fits.sort(key=lambda fc: -fc[0].score)
     return fits
