@@ -4,9 +4,10 @@ For samples i of one pixel (N rows of S samples): shading_i = rho_i cos_i^m,
 irradiance_i = shading_i / (t_i / 1 m)^2, range_i = t_i + b_i (b: the surface's
 sub-surface bias); the pixel gets the means of irradiance and shading, the
 hit fraction, the mean phasor irradiance_i exp(j k range_i) when ``wavenumber``
-> 0, and the irradiance-weighted range, camera depth and incidence cosine of
+> 0, the irradiance-weighted range, camera depth and incidence cosine of
 its dominant surface (the one returning most light; a tiny weight per hit
-decides where none returns light).
+decides where none returns light), and the plain (unweighted) means of that
+surface's range and camera depth over its samples.
 """
 
 from __future__ import annotations
@@ -28,18 +29,19 @@ def _shade(refl, c, lambert):  # pragma: no cover
 
 @njit(parallel=True, cache=True)
 def aggregate(t, cos, refl, surf, z_cam, bias, lambert, wavenumber, n_surfaces,
-              irradiance, passive, hit_fraction, phasor, range_dom, z_dom, cos_dom, surface_dom):  # pragma: no cover
+              irradiance, passive, hit_fraction, phasor, range_dom, z_dom, cos_dom, surface_dom, range_plain,
+              z_plain):  # pragma: no cover
     n, s = t.shape
     for chunk in prange((n + CHUNK - 1) // CHUNK):
         score = np.zeros(n_surfaces)
         for i in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
             _pixel(i, s, t, cos, refl, surf, z_cam, bias, lambert, wavenumber, score, irradiance, passive,
-                   hit_fraction, phasor, range_dom, z_dom, cos_dom, surface_dom)
+                   hit_fraction, phasor, range_dom, z_dom, cos_dom, surface_dom, range_plain, z_plain)
 
 
 @njit(cache=True, inline="always")
 def _pixel(i, s, t, cos, refl, surf, z_cam, bias, lambert, wavenumber, score, irradiance, passive, hit_fraction,
-           phasor, range_dom, z_dom, cos_dom, surface_dom):  # pragma: no cover
+           phasor, range_dom, z_dom, cos_dom, surface_dom, range_plain, z_plain):  # pragma: no cover
     score[:] = 0.0
     irr_sum = 0.0
     shade_sum = 0.0
@@ -67,6 +69,8 @@ def _pixel(i, s, t, cos, refl, surf, z_cam, bias, lambert, wavenumber, score, ir
     if hits == 0:
         range_dom[i] = np.nan
         z_dom[i] = np.nan
+        range_plain[i] = np.nan
+        z_plain[i] = np.nan
         cos_dom[i] = 0.0
         surface_dom[i] = -1
         return
@@ -75,6 +79,9 @@ def _pixel(i, s, t, cos, refl, surf, z_cam, bias, lambert, wavenumber, score, ir
     r_acc = 0.0
     z_acc = 0.0
     c_acc = 0.0
+    count = 0
+    r_plain = 0.0
+    z_sum = 0.0
     for j in range(s):
         if surf[i, j] != dom:
             continue
@@ -83,10 +90,15 @@ def _pixel(i, s, t, cos, refl, surf, z_cam, bias, lambert, wavenumber, score, ir
         r_acc += w * (t[i, j] + bias[dom])
         z_acc += w * z_cam[i, j]
         c_acc += w * cos[i, j]
+        count += 1
+        r_plain += t[i, j] + bias[dom]
+        z_sum += z_cam[i, j]
     range_dom[i] = r_acc / w_sum
     z_dom[i] = z_acc / w_sum
     cos_dom[i] = c_acc / w_sum
     surface_dom[i] = dom
+    range_plain[i] = r_plain / count
+    z_plain[i] = z_sum / count
 
 
 @njit(parallel=True, cache=True)

@@ -22,6 +22,9 @@ Per pixel the renderer returns, averaged over its samples i:
   incidence cosine of the dominant surface (the one returning most light into
   the pixel), and ``bias_dom``, its material's sub-surface bias, which
   ``range_dom`` includes;
+* ``range_plain``, ``z_plain`` — the dominant surface's range and depth as
+  plain means over its samples, not weighted by their light (what the mean
+  over smaller pixels sampling the same footprint tends to);
 * ``passive`` = mean(rho_i cos_i^m) — reflectance seen under ambient light.
 
 The light quantities are also returned per sub-pixel (``*_fine``), for the
@@ -53,6 +56,8 @@ class Rendered:
     cos_dom: np.ndarray
     surface_dom: np.ndarray
     bias_dom: np.ndarray  # the dominant surface's sub-surface bias (mm, in ``range_dom``; 0 where nothing is hit)
+    range_plain: np.ndarray
+    z_plain: np.ndarray
     passive: np.ndarray
     hit_fraction: np.ndarray
     edge: np.ndarray
@@ -81,13 +86,14 @@ def _aggregate(hit: Hit, z_cam: np.ndarray, props: SurfaceProperties, wavenumber
         return np.ascontiguousarray(a.reshape(-1, s), dtype=dtype)
 
     n = int(np.prod(shape))
-    out = {name: np.empty(n) for name in ("irradiance", "passive", "hit_fraction", "range_dom", "z_dom", "cos_dom")}
+    out = {name: np.empty(n) for name in ("irradiance", "passive", "hit_fraction", "range_dom", "z_dom", "cos_dom",
+                                                  "range_plain", "z_plain")}
     out["phasor"] = np.empty(n, dtype=complex)
     out["surface_dom"] = np.empty(n, dtype=np.int64)
     aggregate(rows(hit.t), rows(hit.cos), rows(hit.reflectance), rows(hit.surface, np.int64), rows(z_cam),
               np.asarray(props.bias_mm, float), np.asarray(props.lambert, float), wavenumber or 0.0, n_surfaces,
               out["irradiance"], out["passive"], out["hit_fraction"], out["phasor"], out["range_dom"],
-              out["z_dom"], out["cos_dom"], out["surface_dom"])
+              out["z_dom"], out["cos_dom"], out["surface_dom"], out["range_plain"], out["z_plain"])
     if wavenumber is None:
         del out["phasor"]
     return {name: values.reshape(shape) for name, values in out.items()}
@@ -227,6 +233,8 @@ def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfacePropert
         cos_dom=maps["cos_dom"],
         surface_dom=maps["surface_dom"],
         bias_dom=np.where(maps["surface_dom"] >= 0, props.bias_mm[np.maximum(maps["surface_dom"], 0)], 0.0),
+        range_plain=maps["range_plain"],
+        z_plain=maps["z_plain"],
         passive=maps["passive"],
         hit_fraction=maps["hit_fraction"],
         edge=edge,

@@ -148,7 +148,11 @@ class StereoSensor:
     def depth(self, left: Rendered) -> np.ndarray:
         """Noise-free depth of the left camera's dominant surface after the effects' range hooks
         (``disparity_bias``, ``range_scale``, ``range_offset``, the empirical corrections)."""
-        z, stage = left.z_dom, RangeStage(self)
+        return self.depth_of(left.z_dom)
+
+    def depth_of(self, z: np.ndarray) -> np.ndarray:
+        """The true depth ``z`` as this camera reports it: after the effects' range hooks (``depth``)."""
+        stage = RangeStage(self)
         for hook, params in acting(self.effects, "on_range"):
             z = hook(z, params, stage)
         return z

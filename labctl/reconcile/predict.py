@@ -51,6 +51,7 @@ from metrics.stack import central_roi
 from sim.effects import (
     EFFECTS,
     EffectParams,
+    acting,
     frame_offset_mm,
     output_step_mm,
     plate_placement_mm,
@@ -298,18 +299,33 @@ class Predictor:
         return self.z_per_range * _true_centre_pixels(self.sensor.geometry.optics,
                                                       camera_optics(self.full, self.full_effects), self.bin_px)
 
-    def depth_per_range(self, rendered: Any) -> np.ndarray:
-        """Per bin, the factor from its rendered range to the mean depth of the measured camera's pixels in it: the
-        render's depth over its geometric range, each averaged along the rays sampling the bin (``z_dom`` over
-        ``range_dom`` less the surface's sub-surface bias), with ``_reported_pixels``; the centre ray's z / range
-        (``z_per_range``) where nothing is hit. The centre ray's
-        factor alone misses the spread of 1 / cos over the bin: on a wall square to the axis (z = D) the rays' mean
-        range exceeds D / cos(theta) by D w^2 (1 + 2 tan^2 theta) / 24 for a bin w rad wide at field angle theta
-        (3e-5 of D for the 4-pixel bins of the amt100 at its test size), an error growing with the distance,
-        which a warm-up drift fitted over a sweep takes up."""
+    def tof_depth(self, rendered: Any, range_mm: np.ndarray) -> np.ndarray:
+        """Per bin, the mean depth of the measured camera's pixels in it, from the bin's range ``range_mm`` (its
+        rendered range after the range effects).
+
+        The render weights the bin's rays by their light (``range_dom``, ``z_dom``); each measured pixel weights
+        its own rays so, over a footprint b times smaller, and the bin is the plain mean of its pixels. Weighting
+        by 1 / r^2 pulls a mean towards the near side by about 2 var(z) / z, var(z) = z^2 tan^2(theta) w^2 / 16
+        for rays spread over w rad on a plate tilted by theta (1.3 mm at 40 deg and 3 m over the blaze-101's
+        4-pixel bins at 160 x 120), and the variance of b times smaller a footprint is b^2 times smaller. So the
+        light weighting is taken off the bin's range but for its 1 / b^2 share (``_pixel_weighted``), and the
+        depth is that range times the render's plain mean depth over its plain mean geometric range (``z_plain``
+        over ``range_plain`` less the surface's sub-surface bias) and ``_reported_pixels``; the centre ray's
+        z / range (``z_per_range``) where nothing is hit. The centre ray's factor alone misses the spread of
+        1 / cos over the bin: on a wall square to the axis (z = D) the rays' mean range exceeds D / cos(theta) by
+        D w^2 (1 + 2 tan^2 theta) / 24 at field angle theta (3e-5 of D for the amt100's 4-pixel bins at its test
+        size), an error growing with the distance, which a warm-up drift fitted over a sweep takes up."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            ratio = rendered.z_dom / (rendered.range_dom - rendered.bias_dom) * self._reported_pixels
-        return np.where(np.isfinite(ratio) & (ratio > 0), ratio, self.z_per_range)
+            ratio = rendered.z_plain / (rendered.range_plain - rendered.bias_dom) * self._reported_pixels
+            weighting = self._pixel_weighted(rendered.range_dom, rendered.range_plain) - rendered.range_dom
+            depth = (range_mm + weighting) * ratio
+        return np.where(np.isfinite(ratio) & (ratio > 0), depth, range_mm * self.z_per_range)
+
+    def _pixel_weighted(self, weighted: np.ndarray, plain: np.ndarray) -> np.ndarray:
+        """The bin's mean of a quantity as its pixels weight it by their light, from the render's light-weighted
+        (``weighted``) and plain (``plain``) means over the bin's rays: the weighting's shift scales with the
+        variance of the footprint weighted over, 1 / bin_px^2 of the bin's (``tof_depth``)."""
+        return plain + (weighted - plain) / self.bin_px**2
 
     def _tof_stored(self, z: np.ndarray, amplitude: np.ndarray, ambient: float) -> np.ndarray:
         """The ToF bins' expected stored depth: ``z`` (drift included) plus ``tof_stored_bias`` of the camera's
@@ -328,12 +344,13 @@ class Predictor:
         drift = self.drift_mm(times_s)
         if isinstance(self.sensor, ToFSensor):
             range_mm, amplitude, ambient = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
-            z = self._tof_stored((range_mm + drift) * self.depth_per_range(rendered), amplitude, ambient)
+            z = self._tof_stored(self.tof_depth(rendered, range_mm + drift), amplitude, ambient)
         else:
             exposure = step.exposure_us or self.profile.exposure_us
             lit = stereo_light(self.sensor, rendered, exposure, step.projector)
             z = self._stereo_depth(rendered, drift, disparity_noise_px(self.sensor, rendered, lit))
-        z = z + bin_curvature(z, self.bin_px)
+        if isinstance(self.sensor, ToFSensor):  # a stereo bin's depth holds its curvature (``_pixels_reported``)
+            z = z + bin_curvature(z, self.bin_px, OVERSAMPLE)
         rows, cols = central_roi(self.full.height, self.full.width)
         weight = np.outer(_overlap(rows, z.shape[0], self.bin_px), _overlap(cols, z.shape[1], self.bin_px))
         weight = np.where(np.isfinite(z), weight, 0.0)
@@ -341,9 +358,12 @@ class Predictor:
         return float((weight * np.nan_to_num(z)).sum() / total) if total > 0 else math.nan
 
     def predict(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> Prediction:
-        """The step's binned noise-free prediction (``_predict``) with each bin's curvature term added to z."""
+        """The step's binned noise-free prediction (``_predict``), a ToF bin's curvature term added to its z (a stereo
+        bin's depth holds it: ``_pixels_reported``)."""
         p = self._predict(step, times_s, shift_mm)
-        return dataclasses.replace(p, z=p.z + bin_curvature(p.z, self.bin_px))
+        if not isinstance(self.sensor, ToFSensor):  # a stereo bin's depth holds its curvature (``_pixels_reported``)
+            return p
+        return dataclasses.replace(p, z=p.z + bin_curvature(p.z, self.bin_px, OVERSAMPLE))
 
     def _predict(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> Prediction:
         """The step's binned noise-free z, intensity and the maps the candidate signatures need, its wall
@@ -363,7 +383,7 @@ class Predictor:
             light = amplitude / centre
             amplitude = self.shade(light)
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
-            z = self._tof_stored(range_mm * self.depth_per_range(rendered), amplitude, ambient)
+            z = self._tof_stored(self.tof_depth(rendered, range_mm), amplitude, ambient)
             noise, valid = tof_statistics(self.sensor, amplitude, ambient, np.broadcast_to(self.z_per_range, z.shape))
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
@@ -378,10 +398,24 @@ class Predictor:
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
 
+    def _pixels_reported(self, z: np.ndarray) -> np.ndarray:
+        """The mean over each bin's pixels of the depth the stereo camera reports (its range hooks), from the
+        bins' true depth ``z`` as rendered. The pixels of a bin on a tilted surface spread in disparity, and a
+        hook that is not linear in it (a pixel locking of period P px) averages over that spread: on the d455's
+        plates at 60 deg a bin spans about a pixel of disparity, and the hook taken at the bin's mean put the
+        plates 0.5 mm off. Each pixel's depth is the bin's (with its curvature: ``bin_curvature``) plus the slope
+        between the neighbouring bins times its offset from the bin's centre; without a hook, the bin's."""
+        z = z + bin_curvature(z, self.bin_px, OVERSAMPLE)
+        if not acting(self.sensor.effects, "on_range"):
+            return z
+        rows, cols = (np.nan_to_num(np.gradient(z, axis=axis)) for axis in (0, 1))
+        offsets = (np.arange(self.bin_px) + 0.5) / self.bin_px - 0.5  # pixel centres, in bins
+        return sum(self.sensor.depth_of(z + rows * dv + cols * du) for dv in offsets for du in offsets) / offsets.size**2
+
     def _stereo_depth(self, rendered: Any, drift_mm: float, sigma_d: np.ndarray) -> np.ndarray:
         """A stereo render's binned expected stored z (the noise-free depth plus ``stored_depth_bias`` for the
         disparity noise ``sigma_d``), NaN where nothing is hit or matched."""
-        z = self.sensor.depth(rendered)
+        z = self._pixels_reported(self._pixel_weighted(rendered.z_dom, rendered.z_plain))  # as in ``tof_depth``
         z = np.where((rendered.hit_fraction > 0) & np.isfinite(z), z, np.nan)
         p = self.profile
         return z + drift_mm + stored_depth_bias(z, sigma_d, p.disparity_step_px, self.sensor.matching_focal_baseline,
@@ -417,10 +451,16 @@ def range_excess(optics: CameraOptics) -> np.ndarray:
     return (centre[..., None] / sub_pixel_directions(optics, OVERSAMPLE)[2]).mean(axis=-1)
 
 
-def bin_curvature(z: np.ndarray, bin_px: int) -> np.ndarray:
-    """Bin mean minus centre value of a smooth surface sampled at ``bin_px`` x ``bin_px`` pixel centres:
-    (b^2 - 1) / (24 b^2) times the sum of the second differences along rows and columns over neighbouring
-    bins (0 where a neighbour is missing)."""
+def bin_curvature(z: np.ndarray, bin_px: int, oversample: int = 1) -> np.ndarray:
+    """Per bin of a smooth surface's binned values ``z``: the mean over the bin's ``bin_px`` x ``bin_px`` pixels,
+    each the mean of its own ``oversample`` x ``oversample`` sub-pixel samples, minus the mean of the bin's own
+    ``oversample`` x ``oversample`` samples (``z``, as the bin-grid render samples it; 1: its centre value).
+
+    To second order the mean of a surface over points spread with variance s^2 along an axis exceeds its
+    centre value by z'' s^2 / 2. Along each axis, in bins, the pixels' samples spread by (b^2 - 1) / (12 b^2) +
+    (k^2 - 1) / (12 k^2 b^2) and the bin's by (k^2 - 1) / (12 k^2), so the difference is z'' (b^2 - 1) /
+    (24 b^2 k^2), z'' the second difference over neighbouring bins, summed over rows and columns (0 where a
+    neighbour is missing)."""
     d2 = np.zeros_like(z)
     for axis in (0, 1):
         second = np.full_like(z, np.nan)
@@ -430,4 +470,4 @@ def bin_curvature(z: np.ndarray, bin_px: int) -> np.ndarray:
         before[axis], after[axis] = slice(None, -2), slice(2, None)
         second[tuple(inner)] = z[tuple(before)] - 2 * z[tuple(inner)] + z[tuple(after)]
         d2 += np.nan_to_num(second)
-    return d2 * (bin_px**2 - 1) / (24 * bin_px**2)
+    return d2 * (bin_px**2 - 1) / (24 * bin_px**2 * oversample**2)

@@ -24,13 +24,15 @@ import tomli_w
 
 from labctl.reconcile.goodness import statistics_goodness
 from labctl.reconcile.noise_model import stored_depth_bias, tof_stored_bias
-from labctl.reconcile.observe import observe_run
-from labctl.reconcile.predict import Predictor
+from labctl.reconcile.observe import bin_mean, observe_run
+from labctl.reconcile.predict import Predictor, scene_and_pose
 from labctl.reconcile.residuals import STATISTICS, layout, raw_statistics
 from labctl.reconcile.workflow import Simulation, base_model, with_effect
 from sim.model import parse_model
 from sim.profiles import get_profile
-from tests.reconcile.runs import BACKENDS, CAMPAIGN, SIZES, simulated_run
+from sim.stereo import StereoSensor
+from sim.tof import ToFSensor
+from tests.reconcile.runs import BACKENDS, CAMPAIGN, ROBOT, SIZES, simulated_run
 
 
 @pytest.fixture(scope="module")
@@ -192,24 +194,97 @@ def test_stored_tof_depth_mean_is_that_of_the_output_step(z_mm, sigma_mm, slope_
     assert abs(_rounded_bias_by_fourier(400.3, 0.05, 1.0)) > 0.25  # what the noise-free depth would miss
 
 
-def test_a_frontal_walls_binned_tof_depth_is_its_one_depth_at_every_distance(tmp_path):
+def _noise_free_pixels(predictor: Predictor, observation) -> tuple[np.ndarray, np.ndarray]:
+    """The bin means of the measured ToF camera's pixels without their temporal noise (the simulator's expected
+    range per pixel at the full size, which its frames average to, times the reported ray's z / range), and the
+    count of the pixels reported in each bin."""
+    camera = ToFSensor(predictor.full, predictor.full_effects)
+    tx, ty = np.broadcast_arrays(camera.geometry.tx.astype(float), camera.geometry.ty.astype(float))
+    scene, pose = scene_and_pose(observation.scene, predictor.model, predictor.full_effects,
+                                 predictor.full.wavelength_nm)
+    range_mm, _, _ = camera.expected(camera.render_scene(scene, pose), predictor.full.exposure_us)
+    return bin_mean(range_mm / np.sqrt(1.0 + tx**2 + ty**2), predictor.bin_px)
+
+
+def test_a_frontal_walls_binned_tof_depth_is_its_pixels_mean_at_every_distance(tmp_path):
     """A plain blaze-101 run (sweep 0.4-4 m in 900 mm steps, no robot) whose laser reads without noise. A wall
-    square to the optical axis is the plane z = D: every bin's predicted depth is D, whatever its field angle, up to
-    the measured pixels' own range sampling (2e-6 of D; the range averaged over a bin's rays times the centre ray's
-    z / range exceeds D by D w^2 (1 + 2 tan^2 theta) / 24: 0.08 mm of spread over the bins at 4 m at this size),
-    and the measured walls' means follow the prediction at every distance after the one offset they share."""
+    square to the optical axis is the plane z = D; its pixels read D up to their own range sampling (1.2e-6 of D
+    from bin to bin), and every bin's predicted depth is the mean of its pixels, whatever its field angle (the
+    range averaged over a bin's rays times the centre ray's z / range exceeds D by D w^2 (1 + 2 tan^2 theta) / 24:
+    0.08 mm of spread over the bins at 4 m at this size); the measured walls' means follow the prediction at every
+    distance after the one offset they share."""
     campaign = CAMPAIGN.format(backend=BACKENDS["blaze101"], seed=5, sweep_step_mm=900, robot="")
     run = simulated_run(tmp_path, "blaze101", campaign=campaign,
                         lab={"laser_noise_mm": 0.0, "laser_resolution_mm": 0.001})
     observations, info, _ = observe_run(run)
     sim = Simulation(observations, info)
+    predictor = sim.predictor(base_model(info))
     preds = sim.predict(base_model(info))
     walls = [(o, p) for o, p in zip(observations, preds, strict=True) if o.scene.procedure == "depth_sweep"]
     assert len(walls) == 5
     means = []
     for o, p in walls:
         inner = p.z[2:-2, 2:-2]  # away from the image border, where the blur's reach changes the bins
-        assert np.nanstd(inner) < 1e-6 * o.scene.wall_distance_mm, o.scene.step_id
+        alone = predictor.predict(o.scene, o.times_s - o.times_s[0]).z[2:-2, 2:-2]  # the wall where recorded
+        error = (alone - _noise_free_pixels(predictor, o)[0][2:-2, 2:-2]) / o.scene.wall_distance_mm
+        # 5e-9 and 0 here; 7e-7 and 1.4e-6 with the light-weighted render and the centre value's curvature term
+        assert np.nanstd(error) < 1e-7 and abs(np.nanmean(error)) < 1e-7, (o.scene.step_id, error)
         means.append(float(np.nanmean(o.z[2:-2, 2:-2] - inner)))
     # 0.003 mm measured; 0.1 mm with the centre ray's factor
     assert max(means) - min(means) < 0.02, means
+
+
+def test_a_tilted_plates_binned_tof_depth_is_the_plain_mean_of_its_pixels(tmp_path):
+    """The blaze-101's robot plates at -60...60 deg, 3 m away, 20 mm behind the circle's centre. A bin's
+    measured depth is the plain mean over its pixels, each a range over its own footprint times its reported
+    ray's z / range; here that measured camera's pixels are taken without their temporal noise (the
+    simulator's expected range per pixel at the full 160 x 120, which its frames average to).
+
+    The bin-grid render weights its rays by their light (1 / r^2), which pulls the mean towards a tilted
+    plate's near side by about 2 var(z) / z (var(z) = z^2 tan^2(theta) w^2 / 16 for rays spread over the
+    4-pixel bin's w = 0.029 rad): 0.06 mm at 20 deg, 1.3 mm at 40 deg. And its 2 x 2 samples per bin already
+    hold part of the bin's curvature, (k^2 - 1) / (12 k^2) of its spread (``bin_curvature``)."""
+    campaign = CAMPAIGN.format(backend=BACKENDS["blaze101"], seed=5, sweep_step_mm=1800, robot=ROBOT)
+    model = {"target_misalignment": {"offset_mm": 20.0}}
+    run = simulated_run(tmp_path, "blaze101", hidden=model, campaign=campaign)
+    observations, info, _ = observe_run(run)
+    predictor = Predictor(with_effect(base_model(info), "target_misalignment", model["target_misalignment"]),
+                          info["width"], info["height"], info["bin_px"])
+    plates = [o for o in observations if o.scene.robot_angle_deg is not None]
+    assert len(plates) == 14
+    for o in plates:
+        pixels, count = _noise_free_pixels(predictor, o)
+        predicted = predictor.predict(o.scene, o.times_s - o.times_s[0])
+        inner = (count == info["bin_px"] ** 2) & ~predicted.edge
+        error = (predicted.z - pixels)[inner]
+        # at most 0.032 mm here (at 60 deg); 2.0 mm with the light-weighted render and the centre-value curvature
+        assert inner.sum() > 300 and abs(error.mean()) < 0.05, (o.scene.step_id, error.mean())
+        if abs(o.scene.robot_angle_deg) == 40:  # what the light weighting alone would miss by
+            weighted = predictor._render(o.scene)
+            assert np.nanmean((weighted.z_dom - weighted.z_plain)[inner]) < -1.0
+
+
+def test_a_tilted_plates_binned_stereo_depth_averages_a_pixel_locking_over_its_pixels(tmp_path):
+    """The d455's robot plates at -60...60 deg with a 0.045 px pixel locking of period 1.57 px (``disparity_bias``,
+    a periodic error in each pixel's own disparity). A tilted plate's bin spreads its pixels over a range of
+    disparity, and the bin's measured depth is the mean of the error over them, not the error at the bin's mean
+    disparity. The measured camera's pixels are taken without their temporal noise (the simulator's expected
+    depth per pixel at the full 160 x 120, which its frames average to)."""
+    hidden = {"disparity_bias": {"amplitude_px": 0.0448, "period_px": 1.5692, "phase_rad": 2.4367}}
+    run = simulated_run(tmp_path, "d455", hidden=hidden, seed=71634)
+    observations, info, _ = observe_run(run)
+    predictor = Predictor(with_effect(base_model(info), "disparity_bias", hidden["disparity_bias"]),
+                          info["width"], info["height"], info["bin_px"])
+    camera = StereoSensor(predictor.full, predictor.full_effects)
+    plates = [o for o in observations if o.scene.robot_angle_deg is not None]
+    assert len(plates) == 14
+    for o in plates:
+        scene, pose = scene_and_pose(o.scene, predictor.model, predictor.full_effects, predictor.full.wavelength_nm)
+        z, valid, _, _ = camera.expected(camera.render_scene(scene, pose), predictor.full.exposure_us)
+        pixels, count = bin_mean(np.where(valid, z, np.nan), info["bin_px"])
+        rendered = predictor._render(o.scene)
+        binned = predictor._pixels_reported(predictor._pixel_weighted(rendered.z_dom, rendered.z_plain))
+        inner = (count == info["bin_px"] ** 2) & np.isfinite(binned) & ~predictor.predict(o.scene, o.times_s).edge
+        error = (binned - pixels)[inner]
+        # at most 0.003 mm from bin to bin here; 0.29 mm with the error taken at the bin's mean disparity
+        assert inner.sum() > 300 and np.abs(error).max() < 0.05, (o.scene.step_id, np.abs(error).max())
