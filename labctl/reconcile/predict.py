@@ -4,13 +4,18 @@ The reconcile workflow compares bin means, so the simulator runs the camera
 at the bin grid: ``bin_px`` x ``bin_px`` pixels become one pixel (width,
 height, lens PSF and defocus disc divided by ``bin_px``). The bin's centre
 ray is then exactly the binned pixel's ray (``Pinhole``: c = (W - 1) / 2,
-f = (W / 2) / tan(FOV / 2)), and a smooth surface's bin mean equals the
-value at that ray up to its curvature: the mean of a quadratic over the b
-pixel centres of a bin, offset by (i - (b - 1) / 2) / b bins, is the centre
-value plus f'' (b^2 - 1) / (24 b^2) per axis, with f'' the second difference
-over neighbouring bins (``bin_curvature``; 0.2 mm on a plate tilted by 60 deg
-at 850 mm in 16-pixel bins, where z'' = 2 z tan^2(tilt) / f^2). Bins that straddle a depth or reflectance
-edge are flagged (``edge``) and left out of the comparison.
+f = (W / 2) / tan(FOV / 2)). The render samples each bin at k x k rays, as the
+measured camera samples each of its pixels, and the measured bin is the plain
+mean of its pixels. So a smooth surface's bin mean is the plain mean over the
+bin's rays (``z_plain``; the render's light-weighted means kept only for the
+pixels' own 1 / b^2 share, ``Predictor.tof_depth``) plus its curvature: the
+mean of a quadratic over the pixels' samples exceeds the mean over the bin's
+by f'' (b^2 - 1) / (24 b^2 k^2) per axis, with f'' the second difference over
+neighbouring bins (``bin_curvature``; 0.05 mm on a plate tilted by 60 deg at
+850 mm in 16-pixel bins, where z'' = 2 z tan^2(tilt) / f^2). A stereo camera's
+range hooks are averaged over the bin's pixels (``Predictor._pixels_reported``).
+Bins that straddle a depth or reflectance edge are flagged (``edge``) and left
+out of the comparison.
 
 Per step the prediction also holds what a full-resolution pixel of each bin
 shows over its stack: its temporal depth noise, its valid fraction and the
@@ -345,12 +350,11 @@ class Predictor:
         if isinstance(self.sensor, ToFSensor):
             range_mm, amplitude, ambient = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
             z = self._tof_stored(self.tof_depth(rendered, range_mm + drift), amplitude, ambient)
-        else:
+            z = z + bin_curvature(z, self.bin_px, OVERSAMPLE)
+        else:  # a stereo bin's depth holds its curvature (``_pixels_reported``)
             exposure = step.exposure_us or self.profile.exposure_us
             lit = stereo_light(self.sensor, rendered, exposure, step.projector)
             z = self._stereo_depth(rendered, drift, disparity_noise_px(self.sensor, rendered, lit))
-        if isinstance(self.sensor, ToFSensor):  # a stereo bin's depth holds its curvature (``_pixels_reported``)
-            z = z + bin_curvature(z, self.bin_px, OVERSAMPLE)
         rows, cols = central_roi(self.full.height, self.full.width)
         weight = np.outer(_overlap(rows, z.shape[0], self.bin_px), _overlap(cols, z.shape[1], self.bin_px))
         weight = np.where(np.isfinite(z), weight, 0.0)
