@@ -264,6 +264,18 @@ def _frame_totals(stack: np.ndarray, pixels: np.ndarray,
     return count, total, squares
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _count_at_or_below(v: float, threshold: float, tolerance: float, counts: np.ndarray, f: int) -> None:  # pragma: no cover
+    """Count a finite ``v`` in ``counts[f]`` (used) and ``counts[2 + f]`` (at or below ``threshold``; within
+    ``tolerance`` of it, half)."""
+    if v - v == 0.0:
+        counts[f] += 1.0
+        if v < threshold - tolerance:
+            counts[2 + f] += 1.0
+        elif v <= threshold + tolerance:
+            counts[2 + f] += 0.5
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def _left_out_shares(stack: np.ndarray, pixels: np.ndarray, mean: np.ndarray, count: np.ndarray, total: np.ndarray,
                      squares: np.ndarray, reference: float, thresholds: np.ndarray,
@@ -272,32 +284,32 @@ def _left_out_shares(stack: np.ndarray, pixels: np.ndarray, mean: np.ndarray, co
     below ``thresholds`` (0 and 1), the pixels' means and sample stds without the frame from the totals less its
     values; a value within ``tolerance`` of its threshold counts half (a mid-distribution share, so that values
     equal to it but for their last bits do not count in some replicates and not in others). Among the pixels
-    with two frames or more left and a finite value; NaN where there are none."""
+    with two frames or more left and a finite value; NaN where there are none. The pixels are taken in blocks,
+    every frame of a block before the next block (the block's totals stay in the cache); the counts, whole and
+    half numbers, are exact in any order."""
     n = stack.shape[0]
     size = pixels.size
+    block = 4096
+    blocks = (size + block - 1) // block
+    counts = np.zeros((blocks, n, 4))  # per block and frame: used (0, 1), at or below (2, 3)
+    for b in prange(blocks):
+        for i in range(n):
+            here = counts[b, i]
+            for p in range(b * block, min(size, (b + 1) * block)):
+                d, seen, d2 = _frame_deviation(stack[i, pixels[p]], mean[p])
+                c = count[p] - seen
+                if not c >= 2:
+                    continue
+                s = total[p] - d
+                shift = s / c
+                var = (squares[p] - d2 - s * shift) / (c - 1)
+                _count_at_or_below(abs(mean[p] + shift - reference), thresholds[0], tolerance[0], here, 0)
+                _count_at_or_below(abs(np.sqrt(0.0 if var < 0.0 else var)), thresholds[1], tolerance[1], here, 1)
+    summed = counts.sum(axis=0)
     out = np.empty((n, 2))
-    for i in prange(n):
-        used = np.zeros(2)
-        at_or_below = np.zeros(2)
-        for p in range(size):
-            d, seen, d2 = _frame_deviation(stack[i, pixels[p]], mean[p])
-            c = count[p] - seen
-            if not c >= 2:
-                continue
-            s = total[p] - d
-            shift = s / c
-            var = (squares[p] - d2 - s * shift) / (c - 1)
-            both = (abs(mean[p] + shift - reference), abs(np.sqrt(0.0 if var < 0.0 else var)))
-            for f in range(2):
-                v = both[f]
-                if v - v == 0.0:
-                    used[f] += 1.0
-                    if v < thresholds[f] - tolerance[f]:
-                        at_or_below[f] += 1.0
-                    elif v <= thresholds[f] + tolerance[f]:
-                        at_or_below[f] += 0.5
+    for i in range(n):
         for f in range(2):
-            out[i, f] = at_or_below[f] / used[f] if used[f] > 0 else np.nan
+            out[i, f] = summed[i, 2 + f] / summed[i, f] if summed[i, f] > 0 else np.nan
     return out
 
 
