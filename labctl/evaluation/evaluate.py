@@ -183,8 +183,9 @@ def evaluate_depth_sweep(
     where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
     frames, the stacks into the buffers of the step two before (nothing of a step's arrays is kept past its turn
     but what is computed from them), each frame's chunk as stored, decompressed by Blosc
-    (labctl/run/chunk_read.py); the read-ahead's thread then takes the stacks' statistics (``stack_stats``, on one
-    thread), so that the figures of a step run beside the reading and statistics of the next. The compiled kernels
+    (labctl/run/chunk_read.py); the read-ahead's thread then takes z's statistics (``stack_stats``, on one
+    thread), so that the figures of a step, x and y's statistics first, run beside the reading of the next (the
+    work about even on the two threads). The compiled kernels
     leave a core each to the read-ahead and the run files' hash (labctl/kernel_threads.py)."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
@@ -208,16 +209,19 @@ def evaluate_depth_sweep(
             return buffers[slot][channel]
 
         arrays = {c: stack(c) if whole else rec.group[c][:1] for c in ("x", "y")}
+        stats = {}
         if id(rec) in with_z:
             arrays["z"] = stack("z")
-        with serial_kernels():  # one thread: the figures of the step before have the other core
-            stats = {c: stack_stats(a) for c, a in arrays.items() if c == "z" or whole}
+            with serial_kernels():  # one thread: the figures of the step before have the other core
+                stats["z"] = stack_stats(arrays["z"])
         return arrays, stats
 
     noise: list[tuple[str, float, XYPrecision]] | None = [] if xy_noise else None
     surface: _SurfaceInputs | None = None
     for rec, (arrays, all_stats) in read_ahead(steps if xy_noise else usable, load):
         progress(rec.step_id)
+        if xy_noise or rec is key:  # x and y's statistics here: reading and decompressing fill the read-ahead's core
+            all_stats.update((c, stack_stats(arrays[c])) for c in ("x", "y"))
         if id(rec) in with_z:
             z = arrays["z"]
             first_xy = (arrays["x"][0], arrays["y"][0])
