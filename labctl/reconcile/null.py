@@ -97,6 +97,11 @@ def p_value(observed: float, null: Sequence[float]) -> float:
     return (1 + sum(1 for v in null if v >= observed)) / (len(null) + 1)
 
 
+def p_values(rows: np.ndarray) -> np.ndarray:
+    """``p_value`` of each row's first value against the rest of its row, for an (n, K + 1) array at once."""
+    return (1 + np.sum(rows[:, 1:] >= rows[:, :1], axis=1)) / rows.shape[1]
+
+
 def critical_value(null: Sequence[float], alpha: float = ALPHA) -> float:
     """The value a statistic must exceed for p <= ``alpha``: the (K - j)-th smallest null value, j the number of
     null values allowed at or above it (inf when even exceeding them all does not reach ``alpha``)."""

@@ -62,10 +62,10 @@ from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
-from scipy.stats import norm
+from scipy.special import ndtr
 
 from labctl.reconcile.candidates import Candidate, Context, candidates_for
-from labctl.reconcile.null import NullCalibration, critical_value, p_value, standardized_max_rows
+from labctl.reconcile.null import NullCalibration, critical_value, p_values, standardized_max_rows
 from labctl.reconcile.residuals import STATISTICS, Layout
 from labctl.reconcile.results import MinimumDetectable
 from labctl.reconcile.score import COMPETING_CORRELATION, MARGIN
@@ -170,7 +170,7 @@ def _bases(candidate: Candidate, ctx: Context, lay: Layout) -> list[tuple[np.nda
     """Orthonormal bases of the candidate's whitened, profiled columns at every point of its grid where score.py
     can fit them (finite, of full rank), each on the rows the columns change (most change only the depth rows):
     (those rows' indices, the basis over them)."""
-    out = []
+    out: list[tuple[np.ndarray, np.ndarray]] = []
     for nonlinear in candidate.grid(ctx):
         columns = candidate.columns(ctx, nonlinear)
         if not columns:
@@ -178,6 +178,8 @@ def _bases(candidate: Candidate, ctx: Context, lay: Layout) -> list[tuple[np.nda
         x = np.column_stack([lay.profiled_rows(*column) for column in columns])
         if np.all(np.isfinite(x)) and np.linalg.matrix_rank(x) == x.shape[1]:
             rows = np.flatnonzero(np.any(x != 0, axis=1))
+            # the same rows as the point before: its array (``_rivalries`` gathers a signature's rows once per array)
+            rows = out[-1][0] if out and np.array_equal(out[-1][0], rows) else rows
             out.append((rows, np.linalg.qr(x[rows])[0]))
     return out
 
@@ -185,10 +187,17 @@ def _bases(candidate: Candidate, ctx: Context, lay: Layout) -> list[tuple[np.nda
 def _rivalries(signal: _Signal, bases: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> list[_Rivalry]:
     """Per other candidate, what it leaves of ``signal`` at the point of its grid that reproduces most of it."""
     out = []
+    gathered: dict[int, np.ndarray] = {}  # the signature on a basis's rows, once per rows array (``_bases``)
+
+    def on_rows(rows: np.ndarray) -> np.ndarray:
+        if id(rows) not in gathered:
+            gathered[id(rows)] = signal.u[:, rows]
+        return gathered[id(rows)]
+
     for name, found in bases.items():
         if not found:
             continue
-        rows, q = max(found, key=lambda b: float(np.sum((b[1].T @ signal.u[:, b[0]].T) ** 2)))
+        rows, q = max(found, key=lambda b: float(np.sum((b[1].T @ on_rows(b[0]).T) ** 2)))
         w = np.zeros_like(signal.u)
         w[:, rows] = (q @ (q.T @ signal.u[:, rows].T)).T
         out.append(_Rivalry(name, signal.cell_gram(signal.u - w), signal.u @ signal.u.T, w @ w.T))
@@ -251,7 +260,7 @@ class _Replicas:
         k = len(self.base)
         pools = np.concatenate([moved[:, None, :], np.broadcast_to(self.base, (k, *self.base.shape))], axis=1)
         t = standardized_max_rows(pools)
-        return np.array([p_value(row[0], row[1:]) <= self.alpha for row in t], bool)
+        return p_values(t) <= self.alpha
 
     def crossing(self, signal: _Signal) -> tuple[np.ndarray, np.ndarray]:
         """Per (step, family) of ``steps``: the signature parts' mean products over the step's bins, (steps, P, P),
@@ -329,7 +338,7 @@ class _Replicas:
         var = np.sum(4 * amplitude**2 * power[use] / (np.maximum(rows[use], 1) * rss), axis=1)
         excess = start + gain
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(var > 0, norm.cdf(excess / np.sqrt(var)), (excess > 0).astype(float))
+            return np.where(var > 0, ndtr(excess / np.sqrt(var)), (excess > 0).astype(float))  # the normal cdf
 
 
 def phases(parts: int, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarray]:
