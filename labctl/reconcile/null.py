@@ -98,7 +98,12 @@ def p_value(observed: float, null: Sequence[float]) -> float:
 
 
 def p_values(rows: np.ndarray) -> np.ndarray:
-    """``p_value`` of each row's first value against the rest of its row, for an (n, K + 1) array at once."""
+    """``p_value`` of each row's first value against the rest of its row, for an (n, K + 1) array at once.
+
+    >>> rows = np.array([[3.0, 1.0, 2.0, 4.0], [0.5, 1.0, 2.0, 4.0]])
+    >>> p_values(rows).tolist(), [p_value(r[0], r[1:]) for r in rows]
+    ([0.5, 1.0], [0.5, 1.0])
+    """
     return (1 + np.sum(rows[:, 1:] >= rows[:, :1], axis=1)) / rows.shape[1]
 
 

@@ -25,6 +25,7 @@ from labctl.reconcile.null import (
     Replica,
     critical_value,
     p_value,
+    p_values,
     replica_campaign,
     seeds_for,
     standardized_max,
@@ -49,6 +50,12 @@ def test_the_p_value_counts_the_null_runs_at_or_above_the_observed_value():
     assert p_value(10.0, null) == pytest.approx(2 / 11)  # a tie counts against the observed value
     assert p_value(5.5, null) == pytest.approx(6 / 11)
     assert p_value(0.0, null) == pytest.approx(1.0)
+
+
+def test_the_p_values_of_many_rows_at_once_count_as_the_p_value_of_each():
+    null = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]
+    rows = np.array([[observed, *null] for observed in (10.5, 10.0, 5.5, 0.0, math.nan)])
+    np.testing.assert_array_equal(p_values(rows), [1 / 11, 2 / 11, 6 / 11, 1.0, 1 / 11])  # NaN: nothing at or above
 
 
 def test_the_critical_value_is_what_a_statistic_must_exceed_for_p_at_most_alpha():
