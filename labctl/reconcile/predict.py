@@ -319,12 +319,19 @@ class Predictor:
         z / range (``z_per_range``) where nothing is hit. The centre ray's factor alone misses the spread of
         1 / cos over the bin: on a wall square to the axis (z = D) the rays' mean range exceeds D / cos(theta) by
         D w^2 (1 + 2 tan^2 theta) / 24 at field angle theta (3e-5 of D for the amt100's 4-pixel bins at its test
-        size), an error growing with the distance, which a warm-up drift fitted over a sweep takes up."""
+        size), an error growing with the distance, which a warm-up drift fitted over a sweep takes up. Each part
+        gets its curvature over the bin's pixels (``bin_curvature``)."""
+        factor = self._reported_pixels
         with np.errstate(invalid="ignore", divide="ignore"):
-            ratio = rendered.z_plain / (rendered.range_plain - rendered.bias_dom) * self._reported_pixels
+            ratio = rendered.z_plain / (rendered.range_plain - rendered.bias_dom)
             weighting = self._pixel_weighted(rendered.range_dom, rendered.range_plain) - rendered.range_dom
-            depth = (range_mm + weighting) * ratio
-        return np.where(np.isfinite(ratio) & (ratio > 0), depth, range_mm * self.z_per_range)
+            rendered_depth = (range_mm + weighting) * ratio
+        rendered_depth = np.where(np.isfinite(ratio) & (ratio > 0), rendered_depth, range_mm * self.z_per_range / factor)
+        # the curvature of each part over the bin's pixels: the render's, its mean over the bin's own k x k rays;
+        # the centre rays' factor, its value at the bin's centre (on a distorted camera's wall, 1.2e-5 of the
+        # distance otherwise)
+        return (rendered_depth * factor + bin_curvature(rendered_depth, self.bin_px, OVERSAMPLE) * factor
+                + bin_curvature(factor, self.bin_px) * rendered_depth)
 
     def _pixel_weighted(self, weighted: np.ndarray, plain: np.ndarray) -> np.ndarray:
         """The bin's mean of a quantity as its pixels weight it by their light, from the render's light-weighted
@@ -350,8 +357,7 @@ class Predictor:
         if isinstance(self.sensor, ToFSensor):
             range_mm, amplitude, ambient = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
             z = self._tof_stored(self.tof_depth(rendered, range_mm + drift), amplitude, ambient)
-            z = z + bin_curvature(z, self.bin_px, OVERSAMPLE)
-        else:  # a stereo bin's depth holds its curvature (``_pixels_reported``)
+        else:
             exposure = step.exposure_us or self.profile.exposure_us
             lit = stereo_light(self.sensor, rendered, exposure, step.projector)
             z = self._stereo_depth(rendered, drift, disparity_noise_px(self.sensor, rendered, lit))
@@ -362,14 +368,6 @@ class Predictor:
         return float((weight * np.nan_to_num(z)).sum() / total) if total > 0 else math.nan
 
     def predict(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> Prediction:
-        """The step's binned noise-free prediction (``_predict``), a ToF bin's curvature term added to its z (a stereo
-        bin's depth holds it: ``_pixels_reported``)."""
-        p = self._predict(step, times_s, shift_mm)
-        if not isinstance(self.sensor, ToFSensor):  # a stereo bin's depth holds its curvature (``_pixels_reported``)
-            return p
-        return dataclasses.replace(p, z=p.z + bin_curvature(p.z, self.bin_px, OVERSAMPLE))
-
-    def _predict(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> Prediction:
         """The step's binned noise-free z, intensity and the maps the candidate signatures need, its wall
         ``shift_mm`` nearer than recorded. What only sets the comparison's bins and the dot pattern's blur
         (the edge bins, the blur's reach) is taken at the recorded distance, so that it stays the same for
