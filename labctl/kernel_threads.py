@@ -50,3 +50,12 @@ def serial_kernels() -> Iterator[int]:
     and aggregation, the stack statistics) run on one thread; the previous number is restored after."""
     with _kernel_threads(1) as threads:
         yield threads
+
+
+@contextmanager
+def every_kernel_thread() -> Iterator[int]:
+    """Inside (a ``with`` block), numba's parallel kernels launched from this thread use every thread of numba's
+    pool, whatever an enclosing ``kernel_threads_beside`` left them: for a step whose figures take far longer than
+    the reading beside them, which runs ahead until it waits (the depth sweep's key steps)."""
+    with _kernel_threads(numba.config.NUMBA_NUM_THREADS) as threads:
+        yield threads

@@ -49,7 +49,7 @@ from labctl.evaluation.suitability import (
 from labctl.evaluation.uncertainty import calibrated_reference, fov_components, offset_calibration, scaled
 from labctl.evaluation.vdi2634 import AcceptanceResult, evaluate_acceptance
 from labctl.evaluation.vdi2634 import figure_values as acceptance_figures
-from labctl.kernel_threads import kernel_threads_beside, serial_kernels
+from labctl.kernel_threads import every_kernel_thread, kernel_threads_beside
 from labctl.run.store import RunReader, StepRecord
 from metrics.depth import (
     DepthErrors,
@@ -179,14 +179,14 @@ def evaluate_depth_sweep(
     x/y noise of every step too (:func:`~labctl.evaluation.geometry.wall_noise`), returned for the geometry (else
     None).
 
-    Each step's arrays are read once, one step ahead of their evaluation (labctl/evaluation/read_ahead.py): z
-    where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
-    frames, the stacks into the buffers of the step two before (nothing of a step's arrays is kept past its turn
-    but what is computed from them), each frame's chunk as stored, decompressed by Blosc
-    (labctl/run/chunk_read.py); the read-ahead's thread then takes z's statistics (``stack_stats``, on one
-    thread), so that the figures of a step, x and y's statistics first, run beside the reading of the next (the
-    work about even on the two threads). The compiled kernels
-    leave a core each to the read-ahead and the run files' hash (labctl/kernel_threads.py)."""
+    Each step's arrays are read once, up to two steps ahead of their evaluation (labctl/evaluation/read_ahead.py):
+    z where the step has a reference, x and y whole where they give the x/y noise or the surface, else their first
+    frames, the stacks into the buffers of the step three before (nothing of a step's arrays is kept past its
+    turn but what is computed from them), each frame's chunk as stored, decompressed by Blosc
+    (labctl/run/chunk_read.py). The stacks' statistics (``stack_stats``) and the figures of a step run beside the
+    reading of the next (about 60 ms a step each on the 2 cores). The compiled kernels leave a core each to the
+    read-ahead and the run files' hash (labctl/kernel_threads.py), but for the key steps' jackknives (about a
+    second), beside which the reading runs ahead and then waits."""
     usable = [s for s in steps if math.isfinite(s.attrs.get("reference_distance_mm", math.nan))]
     if len(usable) < len(steps):
         evaluation.notes.append(
@@ -201,7 +201,7 @@ def evaluate_depth_sweep(
 
     buffers: list[dict[str, np.ndarray]] = [{} for _ in range(SLOTS)]  # per read-ahead slot, the stacks read
 
-    def load(rec: StepRecord, slot: int) -> tuple[dict[str, np.ndarray], dict[str, StackStats]]:
+    def load(rec: StepRecord, slot: int) -> dict[str, np.ndarray]:
         whole = xy_noise or rec is key
 
         def stack(channel: str) -> np.ndarray:
@@ -209,33 +209,31 @@ def evaluate_depth_sweep(
             return buffers[slot][channel]
 
         arrays = {c: stack(c) if whole else rec.group[c][:1] for c in ("x", "y")}
-        stats = {}
         if id(rec) in with_z:
             arrays["z"] = stack("z")
-            with serial_kernels():  # one thread: the figures of the step before have the other core
-                stats["z"] = stack_stats(arrays["z"])
-        return arrays, stats
+        return arrays
 
     noise: list[tuple[str, float, XYPrecision]] | None = [] if xy_noise else None
     surface: _SurfaceInputs | None = None
-    for rec, (arrays, all_stats) in read_ahead(steps if xy_noise else usable, load):
+    for rec, arrays in read_ahead(steps if xy_noise else usable, load):
         progress(rec.step_id)
-        if xy_noise or rec is key:  # x and y's statistics here: reading and decompressing fill the read-ahead's core
-            all_stats.update((c, stack_stats(arrays[c])) for c in ("x", "y"))
+        whole = ("x", "y", "z") if xy_noise or rec is key else ("z",)
+        all_stats = {c: stack_stats(arrays[c]) for c in whole if c in arrays}
         if id(rec) in with_z:
             z = arrays["z"]
             first_xy = (arrays["x"][0], arrays["y"][0])
             _detect_quantization(evaluation.quantization_mm, z, first_xy)
             stats = all_stats["z"]
             errors = depth_errors(stats, z[0], rec.attrs["reference_distance_mm"])
-            if rec is key:
+            if rec is key:  # its jackknives take about a second: every core, the reading having run ahead meanwhile
                 reference_u = combined_standard_uncertainty(calibrated_reference(rec.attrs, offset))
-                key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"], reference_u)
                 frames = z.shape[0]
-                surface = _SurfaceInputs(
-                    {"x": all_stats["x"], "y": all_stats["y"], "z": stats},
-                    leave_group_out_means(z, contiguous_groups(frames, min(SURFACE_GROUPS, frames)))
-                    if frames >= 2 else None)
+                with every_kernel_thread():
+                    key_u = depth_error_uncertainties(z, stats, rec.attrs["reference_distance_mm"], reference_u)
+                    surface = _SurfaceInputs(
+                        {"x": all_stats["x"], "y": all_stats["y"], "z": stats},
+                        leave_group_out_means(z, contiguous_groups(frames, min(SURFACE_GROUPS, frames)))
+                        if frames >= 2 else None)
             evaluation.depth.append(DepthPosition(rec.step_id, errors, center_repeatability_uncertainty(stats)))
             position = vendor_position(rec, z, first_xy, reader.camera, evaluation.camera.model)
             if rec.step_id in vendor_keys:  # the steps the vendor key figures come from: their uncertainties too
@@ -243,7 +241,8 @@ def evaluate_depth_sweep(
             evaluation.vendor.append(position)
         if noise is not None:
             progress(f"{rec.step_id} x/y noise")
-            noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key, (all_stats["x"], all_stats["y"])))
+            with every_kernel_thread() if rec is noise_key else contextlib.nullcontext():  # jackknives: as the key step's
+                noise.append(wall_noise(rec, arrays["x"], arrays["y"], noise_key, (all_stats["x"], all_stats["y"])))
         del arrays, all_stats
     _depth_figures(evaluation, key, key_u, surface, offset, progress)
     return noise

@@ -1,4 +1,4 @@
-"""Reading the next step's arrays while the caller evaluates the current one (labctl/evaluation/read_ahead.py)."""
+"""Reading the next steps' arrays while the caller evaluates the current one (labctl/evaluation/read_ahead.py)."""
 
 from __future__ import annotations
 
@@ -6,32 +6,33 @@ import threading
 
 import pytest
 
-from labctl.evaluation.read_ahead import read_ahead
+from labctl.evaluation.read_ahead import SLOTS, read_ahead
 
 
-def test_each_step_comes_with_its_own_arrays_in_order_and_the_next_is_read_meanwhile():
-    steps = ["a", "b", "c"]
-    loaded: list[str] = []
-    second_started = threading.Event()
+def test_each_step_comes_with_its_own_arrays_in_order_and_the_next_two_are_read_meanwhile():
+    steps = ["a", "b", "c", "d"]
+    loaded: list[tuple[str, int]] = []
+    third_read = threading.Event()
     done_with_first = threading.Event()
 
     def load(step, slot):
         loaded.append((step, slot))
-        if step == "b":
-            second_started.set()
-        if step == "c":  # into the first step's slot: only once the caller is done with that step
+        if step == "c":
+            third_read.set()
+        if step == "d":  # into the first step's slot: only once the caller is done with that step
             assert done_with_first.is_set()
         return step.upper()
 
     seen = []
     for step, arrays in read_ahead(steps, load):  # type: ignore[arg-type]
-        if step == "a":  # while the caller holds the first step, the second is read in the background
-            assert second_started.wait(5.0)
+        if step == "a":  # while the caller holds the first step, the next two are read in the background
+            assert third_read.wait(5.0)
         seen.append((step, arrays))
         if step == "a":
             done_with_first.set()
-    assert seen == [("a", "A"), ("b", "B"), ("c", "C")]
-    assert loaded == [("a", 0), ("b", 1), ("c", 0)]  # "c" into "a"'s buffers, read once the caller was done with "a"
+    assert SLOTS == 3
+    assert seen == [("a", "A"), ("b", "B"), ("c", "C"), ("d", "D")]
+    assert loaded == [("a", 0), ("b", 1), ("c", 2), ("d", 0)]  # "d" into "a"'s buffers, once the caller was done
 
 
 def test_no_steps_read_nothing_and_a_failed_read_surfaces_at_its_step():
