@@ -304,6 +304,12 @@ class Predictor:
         return self.z_per_range * _true_centre_pixels(self.sensor.geometry.optics,
                                                       camera_optics(self.full, self.full_effects), self.bin_px)
 
+    @cached_property
+    def _reported_pixels_curvature(self) -> np.ndarray:
+        """``_reported_pixels``' curvature over each bin's pixels about its centre value (``bin_curvature``), once
+        per predictor: ``tof_depth`` needs it for every step a fit predicts."""
+        return bin_curvature(self._reported_pixels, self.bin_px)
+
     def tof_depth(self, rendered: Any, range_mm: np.ndarray) -> np.ndarray:
         """Per bin, the mean depth of the measured camera's pixels in it, from the bin's range ``range_mm`` (its
         rendered range after the range effects).
@@ -331,7 +337,7 @@ class Predictor:
         # the centre rays' factor, its value at the bin's centre (on a distorted camera's wall, 1.2e-5 of the
         # distance otherwise)
         return (rendered_depth * factor + bin_curvature(rendered_depth, self.bin_px, OVERSAMPLE) * factor
-                + bin_curvature(factor, self.bin_px) * rendered_depth)
+                + self._reported_pixels_curvature * rendered_depth)
 
     def _pixel_weighted(self, weighted: np.ndarray, plain: np.ndarray) -> np.ndarray:
         """The bin's mean of a quantity as its pixels weight it by their light, from the render's light-weighted
