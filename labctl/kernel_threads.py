@@ -8,6 +8,8 @@ gives. Each ray, pixel or row is computed alone, so the results are the same on 
   the thread that shared a core with them: on the 2-core development machine, beside other work (load average
   3.7-5.1), the evaluation of bench/evaluation.py's sweep took 24.7 s and 26.7 s with one kernel thread against
   30.5 s and 32.5 s with two (alternating), and 11.5-11.9 s of user CPU against 14.0-15.2 s.
+* On every thread again (``every_kernel_thread``): the depth sweep's key steps, whose jackknives take about a
+  second while the read-ahead, two steps ahead, has stopped and waits for them.
 * On one thread (``serial_kernels``): a reconcile render at the bin grid has a few thousand rays, and starting
   and joining the kernels' thread team costs more than the work it shares out, the more so when other work holds
   the cores (a bin-grid render of the blaze-101 took 28 ms on 2 threads against 0.4 ms on one at a load average

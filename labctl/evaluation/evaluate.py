@@ -201,14 +201,16 @@ def evaluate_depth_sweep(
 
     buffers: list[dict[str, np.ndarray]] = [{} for _ in range(SLOTS)]  # per read-ahead slot, the stacks read
 
-    def load(rec: StepRecord, slot: int) -> dict[str, np.ndarray]:
-        whole = xy_noise or rec is key
+    def whole(rec: StepRecord) -> bool:
+        """Whether the step's x and y are read and reduced whole (the x/y noise, the surface), not their first frame."""
+        return xy_noise or rec is key
 
+    def load(rec: StepRecord, slot: int) -> dict[str, np.ndarray]:
         def stack(channel: str) -> np.ndarray:
             buffers[slot][channel] = rec.read(channel, buffers[slot].get(channel), by_chunk=True)
             return buffers[slot][channel]
 
-        arrays = {c: stack(c) if whole else rec.group[c][:1] for c in ("x", "y")}
+        arrays = {c: stack(c) if whole(rec) else rec.group[c][:1] for c in ("x", "y")}
         if id(rec) in with_z:
             arrays["z"] = stack("z")
         return arrays
@@ -217,8 +219,7 @@ def evaluate_depth_sweep(
     surface: _SurfaceInputs | None = None
     for rec, arrays in read_ahead(steps if xy_noise else usable, load):
         progress(rec.step_id)
-        whole = ("x", "y", "z") if xy_noise or rec is key else ("z",)
-        all_stats = {c: stack_stats(arrays[c]) for c in whole if c in arrays}
+        all_stats = {c: stack_stats(arrays[c]) for c in (("x", "y", "z") if whole(rec) else ("z",)) if c in arrays}
         if id(rec) in with_z:
             z = arrays["z"]
             first_xy = (arrays["x"][0], arrays["y"][0])
