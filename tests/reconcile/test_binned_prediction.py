@@ -195,13 +195,17 @@ def test_stored_tof_depth_mean_is_that_of_the_output_step(z_mm, sigma_mm, slope_
 
 
 def _noise_free_pixels(predictor: Predictor, observation) -> tuple[np.ndarray, np.ndarray]:
-    """The bin means of the measured ToF camera's pixels without their temporal noise (the simulator's expected
-    range per pixel at the full size, which its frames average to, times the reported ray's z / range), and the
-    count of the pixels reported in each bin."""
-    camera = ToFSensor(predictor.full, predictor.full_effects)
-    tx, ty = np.broadcast_arrays(camera.geometry.tx.astype(float), camera.geometry.ty.astype(float))
+    """The bin means of the measured camera's pixels without their temporal noise (the simulator's expected depth
+    per pixel at the full size, which its frames average to: a ToF camera's range times the reported ray's
+    z / range, a stereo camera's depth where valid), and the count of the pixels reported in each bin."""
     scene, pose = scene_and_pose(observation.scene, predictor.model, predictor.full_effects,
                                  predictor.full.wavelength_nm)
+    if predictor.technology == "stereo":
+        stereo = StereoSensor(predictor.full, predictor.full_effects)
+        z, valid, _, _ = stereo.expected(stereo.render_scene(scene, pose), predictor.full.exposure_us)
+        return bin_mean(np.where(valid, z, np.nan), predictor.bin_px)
+    camera = ToFSensor(predictor.full, predictor.full_effects)
+    tx, ty = np.broadcast_arrays(camera.geometry.tx.astype(float), camera.geometry.ty.astype(float))
     range_mm, _, _ = camera.expected(camera.render_scene(scene, pose), predictor.full.exposure_us)
     return bin_mean(range_mm / np.sqrt(1.0 + tx**2 + ty**2), predictor.bin_px)
 
@@ -281,13 +285,10 @@ def test_a_tilted_plates_binned_stereo_depth_averages_a_pixel_locking_over_its_p
     observations, info, _ = observe_run(run)
     predictor = Predictor(with_effect(base_model(info), "disparity_bias", hidden["disparity_bias"]),
                           info["width"], info["height"], info["bin_px"])
-    camera = StereoSensor(predictor.full, predictor.full_effects)
     plates = [o for o in observations if o.scene.robot_angle_deg is not None]
     assert len(plates) == 14
     for o in plates:
-        scene, pose = scene_and_pose(o.scene, predictor.model, predictor.full_effects, predictor.full.wavelength_nm)
-        z, valid, _, _ = camera.expected(camera.render_scene(scene, pose), predictor.full.exposure_us)
-        pixels, count = bin_mean(np.where(valid, z, np.nan), info["bin_px"])
+        pixels, count = _noise_free_pixels(predictor, o)
         rendered = predictor._render(o.scene)
         binned = predictor._pixels_reported(predictor._pixel_weighted(rendered.z_dom, rendered.z_plain))
         inner = (count == info["bin_px"] ** 2) & np.isfinite(binned) & ~predictor.predict(o.scene, o.times_s).edge
