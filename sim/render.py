@@ -133,6 +133,28 @@ def _edges(surface: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
     return edge
 
 
+def _bordered(scene: Scene, pose: Pose, optics: CameraOptics, k: int, surface: np.ndarray,
+              reflectance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fine sample grid's ``surface`` and ``reflectance`` (k samples per pixel side) inside a ring of samples
+    cast on the image's border: at the border's corners and, along each side, level with every row or column of
+    samples. Pixel (i, j) spans i +- 0.5, and its samples sit at (n + 0.5) / k - 0.5 of the fine index n."""
+    h, w = surface.shape
+    u = np.concatenate([[-0.5], (np.arange(w) + 0.5) / k - 0.5, [w / k - 0.5]])
+    v = np.concatenate([[-0.5], (np.arange(h) + 0.5) / k - 0.5, [h / k - 0.5]])
+    ring_u = np.concatenate([u, u, np.full(h, u[0]), np.full(h, u[-1])])  # top, bottom, left, right
+    ring_v = np.concatenate([np.full(w + 2, v[0]), np.full(w + 2, v[-1]), v[1:-1], v[1:-1]])
+    origin, d_world = pose.rays(optics.directions(ring_u, ring_v))
+    ring = scene.cast(origin, d_world)
+    out = []
+    for inner, outer in ((surface, ring.surface), (reflectance, ring.reflectance)):
+        a = np.empty((h + 2, w + 2), dtype=np.result_type(inner, outer))
+        a[1:-1, 1:-1] = inner
+        a[0], a[-1] = outer[:w + 2], outer[w + 2:2 * w + 4]
+        a[1:-1, 0], a[1:-1, -1] = outer[2 * w + 4:2 * w + 4 + h], outer[2 * w + 4 + h:]
+        out.append(a)
+    return out[0], out[1]
+
+
 def multi_jittered_offsets(s: int) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel offsets (px, within +-0.5) of the canonical multi-jittered pattern of s x s samples.
 
@@ -178,12 +200,17 @@ OVERSAMPLE = 2
 
 
 def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfaceProperties,
-           modulation_mhz: float | None = None, supersample: int = 4, oversample: int = OVERSAMPLE) -> Rendered:
+           modulation_mhz: float | None = None, supersample: int = 4, oversample: int = OVERSAMPLE,
+           border: bool = False) -> Rendered:
     """Per-pixel light quantities of ``scene`` seen by a camera at ``pose`` through ``optics``.
 
     Every pixel is sampled at the centres of its ``oversample`` x ``oversample``
     sub-pixels; pixels with an edge among those samples or next to them are
     re-cast with the ``supersample`` x ``supersample`` multi-jittered pattern.
+    The outer samples lie half a sub-pixel inside the image: with ``border`` an
+    edge in that margin is found too, against a ring of samples on the image's
+    border (``_bordered``; for a coarse grid whose margin is wide, such as the
+    reconcile's bins).
     Besides the per-pixel maps, the light (irradiance, passive, phasor) is
     returned per sub-pixel, so that the lens blur can act before the pixel
     integrates (``SensorOptics.blur``): blurring pixel values instead would
@@ -203,7 +230,12 @@ def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfacePropert
     light = {key: _to_fine(values, k) for key, values in _sample_light(hit, props, wavenumber).items()}
     h, w = u.shape
     if supersample > 1:
-        edge = _edges(_to_fine(hit.surface, k), _to_fine(hit.reflectance, k)).reshape(h, k, w, k).any(axis=(1, 3))
+        surface, reflectance = _to_fine(hit.surface, k), _to_fine(hit.reflectance, k)
+        if border:
+            fine = _edges(*_bordered(scene, pose, optics, k, surface, reflectance))[1:-1, 1:-1]
+        else:
+            fine = _edges(surface, reflectance)
+        edge = fine.reshape(h, k, w, k).any(axis=(1, 3))
     else:
         edge = np.zeros(u.shape, dtype=bool)
     if edge.any():

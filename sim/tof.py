@@ -119,10 +119,11 @@ class ToFSensor:
         self.mixes_returns = any(e.mixes_returns for e in present)
         self.mixed_pixels = any(e.mixed_pixels for e in present)
 
-    def render_scene(self, scene: Scene, pose: Pose) -> Rendered:
-        """The ray-cast light of a scene through this camera's optics (the expensive, geometric part)."""
+    def render_scene(self, scene: Scene, pose: Pose, border: bool = False) -> Rendered:
+        """The ray-cast light of a scene through this camera's optics (the expensive, geometric part); ``border``:
+        edges between the outer samples and the image border found too (``render``)."""
         return render(scene, pose, self.geometry.optics, surface_properties(scene, self.effects),
-                      modulation_mhz=self.profile.modulation_mhz if self.mixes_returns else None)
+                      modulation_mhz=self.profile.modulation_mhz if self.mixes_returns else None, border=border)
 
     def shading(self) -> np.ndarray | float:
         """The factor the effects' ``shading`` puts on the light after the blur (1 without)."""

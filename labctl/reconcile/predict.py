@@ -188,12 +188,15 @@ class Predictor:
         return self.cache[key]
 
     def _draw(self, step: StepScene):
-        """Ray-cast one step's scene (on one thread: ``serial_kernels``)."""
+        """Ray-cast one step's scene (on one thread: ``serial_kernels``). The bins' outer rays lie a quarter bin
+        inside the image (at 4 px bins, a full pixel): an edge in that margin, which the camera's outer pixels
+        see, is found against rays on the image border (``render``'s ``border``), so that its bins are edge bins
+        too (a chart's border in the last pixel row gives the stereo matcher texture there)."""
         scene, pose = scene_and_pose(step, self.model, self.effects, self.profile.wavelength_nm)
         with serial_kernels():
             if self.technology == "tof":
-                return self.sensor.render_scene(scene, pose)
-            return render(scene, pose, self.sensor.geometry.optics, surface_properties(scene, {}))
+                return self.sensor.render_scene(scene, pose, border=True)
+            return render(scene, pose, self.sensor.geometry.optics, surface_properties(scene, {}), border=True)
 
     def _dot_stats(self, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """The full sensor's blurred dot pattern over the matching window, per bin (``dot_window_stats``;
