@@ -1,5 +1,7 @@
 """The renderer's edge pixels: those whose footprint an edge crosses get supersampled (sim/render.py)."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -7,7 +9,7 @@ from metrics.optics import Pinhole
 from sim.geometry import Pose
 from sim.optics import CameraOptics
 from sim.render import render
-from sim.scenes.base import PlaneSurface, Scene, uniform
+from sim.scenes.base import PlaneSurface, Scene, SphereSurface, uniform
 from sim.scenes.patterns import Rect
 from sim.tof import surface_properties
 
@@ -47,3 +49,26 @@ def test_the_border_ring_finds_no_edge_where_there_is_none():
     assert not rendered.edge.any()
     assert rendered.passive == pytest.approx(render(scene, Pose.at_origin(), optics,
                                                     surface_properties(scene, {})).passive)
+
+
+def test_a_sphere_between_the_samples_is_found_by_the_ray_through_its_centre():
+    """A 5 x 5 camera over 90 deg: f = 2.5 px, principal point 2, so the axis crosses pixel (2, 2) at its
+    centre, and that pixel's 2 x 2 samples lie 0.25 px off it along each axis, 0.354 px from the centre. A dark
+    sphere of 119 mm radius 1000 mm away on the axis has an image of radius f tan(asin(119 / 1000)) = 0.300 px:
+    between the samples. Its pixel becomes an edge pixel, and nothing else does. Supersampled, the pixel holds the
+    sphere's share of its area, s = pi 0.3^2 = 0.283 (within one of its 16 samples): its passive light
+    (reflectance x cos^m) falls from the wall's by s (1 - 0.05 cos^m / 0.5), between 0.9 s and s."""
+    x, y = np.eye(3)[:2]
+    wall = PlaneSurface(np.array([0.0, 0.0, 2000.0]), x, y, uniform(WALL), "wall")
+    sphere = SphereSurface(np.array([0.0, 0.0, 1000.0]), 119.0, uniform(0.05), "chart_black")
+    optics = CameraOptics(Pinhole(5, 5, 90.0, 90.0))
+    alone = Scene().add(wall)
+    with_sphere = Scene().add(sphere).add(wall)
+    plain = render(alone, Pose.at_origin(), optics, surface_properties(alone, {}))
+    rendered = render(with_sphere, Pose.at_origin(), optics, surface_properties(with_sphere, {}))
+    expected = np.zeros((5, 5), dtype=bool)
+    expected[2, 2] = True
+    np.testing.assert_array_equal(rendered.edge, expected)
+    area = math.pi * (2.5 * math.tan(math.asin(0.119))) ** 2
+    fall = 1.0 - rendered.passive[2, 2] / plain.passive[2, 2]
+    assert 0.9 * (area - 1 / 16) <= fall <= area + 1 / 16
