@@ -22,7 +22,8 @@ draws its frames with (sim/tof.py, sim/stereo.py, sim/kernels.py):
   the depth sits on both grids. The model averages the variance over both positions (delta and the
   output grid's offset uniform) and states the spread of ln std over them (``noise_log_spread``), which
   the comparison adds to the sampling spread. A pixel is valid where it is in
-  range, the right camera sees it (its disparity keeps it inside the right image) and the local IR contrast
+  range (a bin holds the share of its pixels within it, ``in_range_share``), the right camera sees it (its true
+  disparity keeps it inside the right image) and the local IR contrast
   over the matching window, P sd_w(D) / (L + b + P mean_w(D)), reaches ``texture_threshold`` (L the lamps'
   light, P the projector's, D the dot pattern of the full sensor blurred by its optics at the step's
   distance, lens and defocus); per frame nothing else drops it. This holds where L and P are uniform over
@@ -172,6 +173,23 @@ def tof_statistics(sensor: ToFSensor, amplitude: np.ndarray, ambient: float,
     return with_output_step(sigma_z, output_step_mm(sensor.effects)), np.where(seen, valid, 0.0)
 
 
+def in_range_share(z: np.ndarray, low: float, high: float, bin_px: int) -> np.ndarray:
+    """Per bin of the depth map ``z`` (NaN: none), the share of its ``bin_px`` x ``bin_px`` pixels whose depth lies
+    within the camera's range [``low``, ``high``], the depth taken as linear across the bin with the slope between
+    the bins (``np.gradient``; flat where a neighbour has none). A surface seen nearly edge-on runs through
+    hundreds of millimetres within one bin: a bin whose mean lies just beyond the range still holds pixels within
+    it (a quarter of a D455 bin 174 mm beyond 6 m, its depth rising 174 mm a pixel), and one just inside it
+    pixels beyond."""
+    if min(z.shape) > 1:
+        gy, gx = (np.nan_to_num(g) for g in np.gradient(z, bin_px))
+    else:
+        gy = gx = np.zeros_like(z)
+    offsets = np.arange(bin_px) - (bin_px - 1) / 2.0  # the pixels' positions about the bin's centre
+    pixels = (z[..., None, None] + gy[..., None, None] * offsets[:, None]
+              + gx[..., None, None] * offsets[None, :])
+    return np.mean((pixels >= low) & (pixels <= high), axis=(-2, -1))
+
+
 def dot_window_stats(optics: SensorOptics, distance_mm: float, bin_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Mean and std over the matching window around every pixel of the full sensor's dot pattern as its optics
     blur it at ``distance_mm`` (``optics``: the full sensor's, with the model's effects; the blur acts on 2 x 2
@@ -190,15 +208,17 @@ def dot_window_stats(optics: SensorOptics, distance_mm: float, bin_px: int) -> t
     return per_bin(mean), per_bin(std)
 
 
-def stereo_statistics(sensor: StereoSensor, z: np.ndarray, sigma_d: np.ndarray, light: StereoLight,
-                      dot_stats: tuple[np.ndarray, np.ndarray], bin_px: int,
+def stereo_statistics(sensor: StereoSensor, z: np.ndarray, true_z: np.ndarray, sigma_d: np.ndarray,
+                      light: StereoLight, dot_stats: tuple[np.ndarray, np.ndarray], bin_px: int,
                       shading_slope: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                                         np.ndarray]:
     """Per bin of a binned stereo sensor with its light ``light`` (``stereo_light``) and disparity noise
     ``sigma_d`` (``disparity_noise_px``): the depth's temporal std (mm, NaN where not predicted), the spread of
     its logarithm over where the depth sits on the grids (``stored_disparity_noise``), the expected valid
     fraction of its full-resolution pixels, and that fraction's uncertainty (half the share of pixels whose
-    contrast lies within ``CONTRAST_TOLERANCE`` of the threshold).
+    contrast lies within ``CONTRAST_TOLERANCE`` of the threshold). ``z`` is the depth the camera reports (its
+    range cut, its noise), ``true_z`` the surface's true depth: where the right camera sees the point follows
+    the scene's geometry, not the camera's range error.
 
     ``shading_slope``: per bin, the relative slope per pixel, |grad S| / S, of a shading S (vignetting) that
     multiplies the IR image the matcher sees. Across the matching window S = S_0 (1 + s . x), x the pixel's offset
@@ -228,9 +248,10 @@ def stereo_statistics(sensor: StereoSensor, z: np.ndarray, sigma_d: np.ndarray, 
     # the right camera sees column u of the full sensor while u - f b / z >= 0
     u = (np.arange(w)[:, None] * bin_px + np.arange(bin_px)[None, :]).astype(float)  # (w, bin_px)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inside = np.mean(u[None, :, :] - (focal_baseline / z)[..., None] >= -0.5, axis=-1)  # u_right rounded
-        in_range = np.isfinite(z) & (z >= p.min_range_mm) & (z <= p.max_range_mm)
-    valid = np.where(in_range, textured * inside, 0.0)
+        inside = np.mean(u[None, :, :] - (focal_baseline / true_z)[..., None] >= -0.5, axis=-1)  # u_right rounded
+    share = in_range_share(z, p.min_range_mm, p.max_range_mm, bin_px)
+    in_range = share > 0
+    valid = share * textured * inside
     valid = np.where(in_range & ~(slope <= SLOPE_SHARE * p.texture_threshold), np.nan, valid)
     sigma_z, spread = stored_disparity_noise(np.where(in_range, z, np.nan), sigma_d, p.disparity_step_px,
                                              focal_baseline, output_step_mm(sensor.effects))

@@ -404,7 +404,7 @@ class Predictor:
         z = self._stereo_depth(rendered, drift, sigma_d)
         ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
-            self.sensor, z, sigma_d, lit, self._dot_stats(centre_distance_mm(recorded)), self.bin_px,
+            self.sensor, z, rendered.z_plain, sigma_d, lit, self._dot_stats(centre_distance_mm(recorded)), self.bin_px,
             self._shading_slope())
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))

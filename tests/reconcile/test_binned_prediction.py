@@ -9,6 +9,8 @@ taken from the prediction:
   D = R f b / (f b - R delta), and every step calibrated by it stood R - D nearer than recorded.
 * A stereo camera rounds its disparity d = f b / z + sigma_d n (n standard normal) to 1/32 px and stores
   f b / d + drift in whole millimetres: the mean stored depth is drawn here by Monte Carlo, pixel by pixel.
+* A bin's share of pixels within the camera's range, on a depth rising linearly across the image, counts the
+  pixels whose own depth (at their centres) lies within it.
 * A bin's mean of a shaded light is the mean over its pixels of light times shading, each pixel on its own
   ray through a pinhole with c = (W - 1) / 2 and f = (W / 2) / tan(FOV / 2).
 """
@@ -23,7 +25,7 @@ import pytest
 import tomli_w
 
 from labctl.reconcile.goodness import statistics_goodness
-from labctl.reconcile.noise_model import stored_depth_bias, tof_stored_bias
+from labctl.reconcile.noise_model import in_range_share, stored_depth_bias, tof_stored_bias
 from labctl.reconcile.observe import bin_mean, observe_run
 from labctl.reconcile.predict import Predictor, scene_and_pose
 from labctl.reconcile.residuals import STATISTICS, layout, raw_statistics
@@ -295,3 +297,19 @@ def test_a_tilted_plates_binned_stereo_depth_averages_a_pixel_locking_over_its_p
         error = (binned - pixels)[inner]
         # at most 0.003 mm from bin to bin here; 0.29 mm with the error taken at the bin's mean disparity
         assert inner.sum() > 300 and np.abs(error).max() < 0.05, (o.scene.step_id, np.abs(error).max())
+
+
+@pytest.mark.parametrize("cut_mm,at_px,slope_mm_px", [(6000.0, 10.3, 174.0), (6000.0, 13.6, -55.0),
+                                                     (600.0, 9.7, 30.0)])
+def test_a_bins_share_within_the_range_counts_its_pixels_on_a_steep_surface(cut_mm, at_px, slope_mm_px):
+    """A depth rising by ``slope_mm_px`` per pixel along the rows of a 6 x 5-bin map of 4-pixel bins, reaching an
+    end of the range [600, 6000] mm ``at_px`` pixels from the image's left edge, inside a bin: pixel column u
+    (its centre u + 1/2 from the edge) has depth cut + slope (u + 1/2 - at), each bin's mean is its pixels', and
+    its share is the count of its pixels within the range over 4; its mean alone would put it wholly in or out."""
+    bin_px, width_bins = 4, 6
+    u = np.arange(width_bins * bin_px)
+    pixel_z = cut_mm + slope_mm_px * (u + 0.5 - at_px)
+    inside = ((pixel_z >= 600.0) & (pixel_z <= 6000.0)).reshape(width_bins, bin_px).mean(axis=1)
+    assert ((inside > 0) & (inside < 1)).any()  # a bin straddles the cut
+    z = np.tile(pixel_z.reshape(width_bins, bin_px).mean(axis=1), (5, 1))
+    np.testing.assert_allclose(in_range_share(z, 600.0, 6000.0, bin_px), np.tile(inside, (5, 1)))
