@@ -143,8 +143,9 @@ class ToFSensor:
         assert r.phasor_fine is not None
         return self.geometry.blur(r.phasor_fine, centre_distance_mm(r), r.oversample) * scale * shading
 
-    def expected(self, r: Rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float]:
-        """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render."""
+    def expected(self, r: Rendered, exposure_us: float, cut: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+        """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render;
+        with ``cut`` False, the camera's range is left to the caller (invalid only where nothing was hit)."""
         p = self.profile
         focus_distance_mm = centre_distance_mm(r)
         gain = exposure_us / p.exposure_us
@@ -161,7 +162,7 @@ class ToFSensor:
             else:  # the dominant surface alone
                 phasor = amplitude * np.exp(1j * self.wavenumber * np.nan_to_num(r.range_dom))
         range_mm = self._measured_range(r.range_dom, phasor, light, stage)
-        in_range = (r.hit_fraction > 0) & (range_mm >= p.min_range_mm) & (range_mm <= p.max_range_mm)
+        in_range = (r.hit_fraction > 0) & ((range_mm >= p.min_range_mm) & (range_mm <= p.max_range_mm) if cut else True)
         valid = in_range & np.isfinite(range_mm)
         ambient = (p.ambient_ratio + background_level(self.effects)) * self.a_ref * gain
         return np.where(valid, range_mm, np.nan), np.where(valid, amplitude, 0.0), ambient

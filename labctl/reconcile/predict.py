@@ -45,6 +45,7 @@ from labctl.kernel_threads import serial_kernels
 from labctl.reconcile.noise_model import (
     disparity_noise_px,
     dot_window_stats,
+    in_range_share,
     stereo_light,
     stereo_statistics,
     stored_depth_bias,
@@ -358,13 +359,21 @@ class Predictor:
         sigma = np.where(seen, range_noise_mm(self.sensor.profile, np.where(seen, amplitude, 1.0), ambient), np.nan)
         return z + tof_stored_bias(z, sigma * self.z_per_range, step, self.bin_px)
 
+    def _tof_expected(self, rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+        """The ToF bins' noise-free range (mm, NaN where none of their pixels is within the camera's range),
+        amplitude (0 there) and ambient light, and each bin's share of pixels within the range
+        (``in_range_share``: the camera cuts pixel by pixel, not by the bin's mean)."""
+        range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure_us, cut=False)
+        share = in_range_share(range_mm, self.profile.min_range_mm, self.profile.max_range_mm, self.bin_px)
+        return np.where(share > 0, range_mm, np.nan), np.where(share > 0, amplitude, 0.0), ambient, share
+
     def central_depth(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> float:
         """The mean predicted depth over the central 10 % x 10 % region of the measured camera (metrics.stack
         central_roi), each bin weighted by the region's pixels in it; NaN when none is reported there."""
         rendered = self._render(step, shift_mm)
         drift = self.drift_mm(times_s)
         if isinstance(self.sensor, ToFSensor):
-            range_mm, amplitude, ambient = self.sensor.expected(rendered, step.exposure_us or self.profile.exposure_us)
+            range_mm, amplitude, ambient, _ = self._tof_expected(rendered, step.exposure_us or self.profile.exposure_us)
             z = self._tof_stored(self.tof_depth(rendered, range_mm + drift), amplitude, ambient)
         else:
             exposure = step.exposure_us or self.profile.exposure_us
@@ -389,13 +398,14 @@ class Predictor:
         edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
         centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
-            range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure)
+            range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
             range_mm = range_mm + drift
             light = amplitude / centre
             amplitude = self.shade(light)
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = self._tof_stored(self.tof_depth(rendered, range_mm), amplitude, ambient)
             noise, valid = tof_statistics(self.sensor, amplitude, ambient, np.broadcast_to(self.z_per_range, z.shape))
+            valid = valid * share
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
                               np.zeros_like(z), _independent(noise))

@@ -313,3 +313,28 @@ def test_a_bins_share_within_the_range_counts_its_pixels_on_a_steep_surface(cut_
     assert ((inside > 0) & (inside < 1)).any()  # a bin straddles the cut
     z = np.tile(pixel_z.reshape(width_bins, bin_px).mean(axis=1), (5, 1))
     np.testing.assert_allclose(in_range_share(z, 600.0, 6000.0, bin_px), np.tile(inside, (5, 1)))
+
+
+def test_a_tof_bins_valid_share_is_that_of_its_pixels_within_the_range(tmp_path):
+    """The blaze-101's wall at 2200 mm, seen by a camera whose range ends at 2500 mm (``max_range_mm``): a pixel's
+    range is the wall's distance over the cosine of its field angle, 2200 mm on the axis and 2850 mm in the
+    corners, so the range's end runs through the image on a ring. The camera cuts pixel by pixel; each bin's
+    predicted valid fraction is the share of its pixels the measured camera (the simulator's expected range per
+    pixel at the full 160 x 120) reports, to within one of its 16 pixels where the ring curves within the bin
+    (its mean alone would put a bin wholly in or out)."""
+    campaign = CAMPAIGN.format(backend=BACKENDS["blaze101"], seed=5, sweep_step_mm=1800, robot="")
+    observations, info, _ = observe_run(simulated_run(tmp_path, "blaze101", campaign=campaign))
+    plain = base_model(info)
+    model = plain.model_copy(update={"camera_overrides": plain.camera_overrides.model_copy(
+        update={"max_range_mm": 2500.0})})
+    predictor = Predictor(model, info["width"], info["height"], info["bin_px"])
+    wall = next(o for o in observations if o.scene.procedure == "depth_sweep" and o.scene.wall_distance_mm
+                and abs(o.scene.wall_distance_mm - 2200) < 50)
+    _, count = _noise_free_pixels(predictor, wall)
+    predicted = predictor.predict(wall.scene, wall.times_s - wall.times_s[0])
+    share = count / info["bin_px"] ** 2
+    inner = ~predicted.edge
+    straddling = (share > 0) & (share < 1) & inner
+    assert straddling.sum() > 40
+    error = predicted.valid_rate[inner] - share[inner]
+    assert np.abs(error).max() <= 1 / 16 + 1e-9 and abs(error[straddling[inner]].mean()) < 0.01
