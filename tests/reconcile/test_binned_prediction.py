@@ -338,3 +338,29 @@ def test_a_tof_bins_valid_share_is_that_of_its_pixels_within_the_range(tmp_path)
     assert straddling.sum() > 40
     error = predicted.valid_rate[inner] - share[inner]
     assert np.abs(error).max() <= 1 / 16 + 1e-9 and abs(error[straddling[inner]].mean()) < 0.01
+
+
+@pytest.mark.parametrize("camera", ["blaze101", "flexx2"])
+def test_a_face_masks_compared_bins_hold_their_pixels_mean_light(tmp_path, camera):
+    """The silicone face mask 300 mm before the wall at 700 mm. A bin's measured intensity is the mean of its
+    pixels' light (the simulator's expected amplitude at the full size, which the frames average to, lens blur
+    included). The bin-grid render samples each bin with 2 x 2 rays: where the light bends within the bin, the
+    rays miss its mean by the curvature (``bin_curvature``, put back), and where the mask folds (the nose hiding
+    part of the cheek: the light of neighbouring rays bends by up to 140 %) no parabola holds it: such bins are
+    left out (``light_folds``; 10-16 % off their pixels' mean on the blaze-101). Every compared bin's light is
+    its pixels' mean within 1.5 % (the flexx2's lens blur, which the bins do not model, the most of it), after
+    the one gain they share."""
+    campaign = CAMPAIGN.format(backend=BACKENDS[camera], seed=5, sweep_step_mm=3600, robot="").replace(
+        "[sim]", '[[procedure]]\nkind = "face_mask"\ndistance_mm = 700\nframes = 10\n[sim]')
+    observations, info, _ = observe_run(simulated_run(tmp_path, camera, campaign=campaign))
+    mask = next(o for o in observations if o.scene.procedure == "face_mask")
+    predictor = Predictor(base_model(info), info["width"], info["height"], info["bin_px"])
+    predicted = predictor.predict(mask.scene, mask.times_s - mask.times_s[0])
+    scene, pose = scene_and_pose(mask.scene, predictor.model, predictor.full_effects, predictor.full.wavelength_nm)
+    full = ToFSensor(predictor.full, predictor.full_effects)
+    _, amplitude, _ = full.expected(full.render_scene(scene, pose), predictor.full.exposure_us)
+    pixels = bin_mean(np.where(amplitude > 0, amplitude, np.nan), predictor.bin_px)[0]
+    compared = ~predicted.edge & np.isfinite(pixels) & (predicted.intensity > 0)
+    ratio = np.log(pixels[compared] / predicted.intensity[compared])
+    assert compared.sum() > 500
+    assert np.max(np.abs(ratio - np.median(ratio))) < 0.015
