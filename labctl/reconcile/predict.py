@@ -24,7 +24,7 @@ and what the candidate effects' signatures are built from: the range and the z /
 light before vignetting, the pixel's dominant-return phasor mean (multipath),
 and the frames' mean drift factor. Renders are cached per step and per
 setting of the effects that change what the render sees
-(``Effect.changes_render``), so that effects acting after the render
+(``Effect.changes_render``; the last ``RENDERS_PER_STEP`` per step), so that effects acting after the render
 re-simulate a whole run in milliseconds per step.
 """
 
@@ -81,6 +81,10 @@ OFFSET_MATCH_MM = 1e-6
 #: face mask's nose hiding part of the cheek bends it by up to 140 % (binned 10-16 % off its pixels' mean). The
 #: smooth light of the robot's plates bends by at most 23 %, seen nearly edge-on at 80 deg.
 FOLD_LIGHT = 0.5
+#: renders kept per step for as many settings of the effects that change them: a fit of a lens distortion tries a
+#: new one at every step it takes, and a complete campaign's 205 steps hold about 1 MB each at the bin grid (a
+#: fit of 50 tries kept them all: 10 GB). The plain model's and a fit's current and previous settings.
+RENDERS_PER_STEP = 3
 
 
 @dataclass(frozen=True)
@@ -171,16 +175,19 @@ class Predictor:
         self.cache = render_cache if render_cache is not None else {}
 
     def geometry_key(self, step: StepScene) -> str:
-        """The effect settings that change what this step's render sees."""
+        """The effect settings that change what this step's render sees (of an effect for which the render only
+        keeps the phasors, that it is on)."""
         plates = step.target in PLATE_MATERIALS
-        return json.dumps({k: v.model_dump(mode="json") for k, v in self.effects.items()
+        return json.dumps({k: v.model_dump(mode="json") if EFFECTS[k].render_follows_parameters else True
+                           for k, v in self.effects.items()
                            if (EFFECTS[k].changes_render if plates else EFFECTS[k].changes_stage_render)},
                           sort_keys=True)
 
     def _render(self, step: StepScene, shift_mm: float = 0.0):
         """The step's render, its wall ``shift_mm`` nearer than recorded (``wall_shifts``). Each step keeps one
         moved render besides the recorded one: the shift changes with every model a fit tries, and a wall's
-        render costs milliseconds at the bin grid."""
+        render costs milliseconds at the bin grid. Of the renders for other settings of the effects
+        (``geometry_key``) each step keeps the ``RENDERS_PER_STEP`` last used."""
         key = (step.step_id, self.geometry_key(step))
         if shift_mm:
             moved = self.cache.get((*key, "moved"))
@@ -189,9 +196,15 @@ class Predictor:
                 moved = (shift_mm, self._draw(dataclasses.replace(step, wall_distance_mm=step.wall_distance_mm - shift_mm)))
                 self.cache[(*key, "moved")] = moved
             return moved[1]
-        if key not in self.cache:
-            self.cache[key] = self._draw(step)
-        return self.cache[key]
+        rendered = self.cache.pop(key, None)
+        if rendered is None:
+            held = [k for k in self.cache if len(k) == 2 and k[0] == step.step_id]
+            for old in held[:max(0, len(held) - RENDERS_PER_STEP + 1)]:  # the least recently used first
+                del self.cache[old]
+                self.cache.pop((*old, "moved"), None)
+            rendered = self._draw(step)
+        self.cache[key] = rendered  # (again) the most recently used
+        return rendered
 
     def _draw(self, step: StepScene):
         """Ray-cast one step's scene (on one thread: ``serial_kernels``). The bins' outer rays lie a quarter bin

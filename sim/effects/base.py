@@ -209,3 +209,11 @@ class Effect:
     def changes_render(self) -> bool:
         """Whether the render of a step on the robot's plates changes with the effect's parameters."""
         return self.changes_stage_render or self.axis_offset_mm is not None or self.plate_offset_mm is not None
+
+    @property
+    def render_follows_parameters(self) -> bool:
+        """Whether a render the effect changes differs from one value of its parameters to another: not where the
+        render only keeps each pixel's correlation phasors for it (``mixes_returns``, ``mixed_pixels``), which its
+        parameters act on afterwards."""
+        return (self.true_fov_deg is not None or self.lens_distortion is not None or self.subsurface_scale is not None
+                or self.axis_offset_mm is not None or self.plate_offset_mm is not None)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -27,7 +28,7 @@ import tomli_w
 from labctl.reconcile.goodness import statistics_goodness
 from labctl.reconcile.noise_model import in_range_share, stored_depth_bias, tof_stored_bias
 from labctl.reconcile.observe import bin_mean, observe_run
-from labctl.reconcile.predict import Predictor, scene_and_pose
+from labctl.reconcile.predict import RENDERS_PER_STEP, Predictor, scene_and_pose
 from labctl.reconcile.residuals import STATISTICS, layout, raw_statistics
 from labctl.reconcile.workflow import Simulation, base_model, with_effect
 from sim.model import parse_model
@@ -364,3 +365,25 @@ def test_a_face_masks_compared_bins_hold_their_pixels_mean_light(tmp_path, camer
     ratio = np.log(pixels[compared] / predicted.intensity[compared])
     assert compared.sum() > 500
     assert np.max(np.abs(ratio - np.median(ratio))) < 0.015
+
+
+def test_a_fit_keeps_a_few_renders_per_step_not_one_per_try(d455_run):
+    """A fit of a lens distortion renders every step anew at each value it tries: the shared cache keeps the
+    ``RENDERS_PER_STEP`` last used per step (a complete campaign's fit of 50 tries kept all 50 sets: 10 GB),
+    and the values it comes back to render again, identical. A multipath's parameters act after the render,
+    which only keeps the phasors for it: one render serves every value."""
+    observations, info = d455_run
+    sim = Simulation(observations, info)
+    base = base_model(info)
+    first = sim.predict(with_effect(base, "radial_distortion", {"k1": 0.0}))
+    for k1 in (0.01, 0.02, 0.03, 0.04, 0.05, 0.0):
+        again = sim.predict(with_effect(base, "radial_distortion", {"k1": k1}))
+    held = Counter(key[0] for key in sim.cache if len(key) == 2 and key[0].startswith("0"))
+    assert set(held.values()) == {RENDERS_PER_STEP}
+    np.testing.assert_array_equal(again[0].z, first[0].z)
+
+    tof = parse_model('camera = "blaze101"')
+    step = observations[0].scene
+    keys = {Predictor(with_effect(tof, "multipath", {"strength": s, "extra_path_mm": 900.0 + s}), 160, 120, 4)
+            .geometry_key(step) for s in (0.05, 0.1)}
+    assert len(keys) == 1 and "multipath" in keys.pop()
