@@ -420,8 +420,6 @@ class Predictor:
             range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
             range_mm = range_mm + drift
             light = amplitude / centre
-            seen = np.where(amplitude > 0, light, np.nan)
-            light = light + np.where(amplitude > 0, bin_curvature(seen, self.bin_px, OVERSAMPLE), 0.0)
             amplitude = self.shade(light)
             dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = self._tof_stored(self.tof_depth(rendered, range_mm), amplitude, ambient)

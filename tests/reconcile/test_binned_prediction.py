@@ -345,12 +345,11 @@ def test_a_tof_bins_valid_share_is_that_of_its_pixels_within_the_range(tmp_path)
 def test_a_face_masks_compared_bins_hold_their_pixels_mean_light(tmp_path, camera):
     """The silicone face mask 300 mm before the wall at 700 mm. A bin's measured intensity is the mean of its
     pixels' light (the simulator's expected amplitude at the full size, which the frames average to, lens blur
-    included). The bin-grid render samples each bin with 2 x 2 rays: where the light bends within the bin, the
-    rays miss its mean by the curvature (``bin_curvature``, put back), and where the mask folds (the nose hiding
-    part of the cheek: the light of neighbouring rays bends by up to 140 %) no parabola holds it: such bins are
-    left out (``light_folds``; 10-16 % off their pixels' mean on the blaze-101). Every compared bin's light is
-    its pixels' mean within 1.5 % (the flexx2's lens blur, which the bins do not model, the most of it), after
-    the one gain they share."""
+    included). The bin-grid render samples each bin with 2 x 2 rays: where the mask folds (the nose hiding part
+    of the cheek: the light of neighbouring rays bends by up to 140 %) they cannot hold its mean, and such bins
+    are left out (``light_folds``; 9 % off their pixels' mean on the blaze-101). Every compared bin's light is
+    its pixels' mean within 2 %, after the one gain they share: on the flexx2's larger mask the light's smooth
+    curvature within a bin leaves up to 1.8 %, which the 2 x 2 rays miss."""
     campaign = CAMPAIGN.format(backend=BACKENDS[camera], seed=5, sweep_step_mm=3600, robot="").replace(
         "[sim]", '[[procedure]]\nkind = "face_mask"\ndistance_mm = 700\nframes = 10\n[sim]')
     observations, info, _ = observe_run(simulated_run(tmp_path, camera, campaign=campaign))
@@ -364,7 +363,7 @@ def test_a_face_masks_compared_bins_hold_their_pixels_mean_light(tmp_path, camer
     compared = ~predicted.edge & np.isfinite(pixels) & (predicted.intensity > 0)
     ratio = np.log(pixels[compared] / predicted.intensity[compared])
     assert compared.sum() > 500
-    assert np.max(np.abs(ratio - np.median(ratio))) < 0.015
+    assert np.max(np.abs(ratio - np.median(ratio))) < 0.02
 
 
 def test_a_fit_keeps_a_few_renders_per_step_not_one_per_try(d455_run):
