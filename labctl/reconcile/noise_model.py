@@ -184,10 +184,15 @@ def in_range_share(z: np.ndarray, low: float, high: float, bin_px: int) -> np.nd
         gy, gx = (np.nan_to_num(g) for g in np.gradient(z, bin_px))
     else:
         gy = gx = np.zeros_like(z)
+    half = (np.abs(gx) + np.abs(gy)) * (bin_px - 1) / 2.0  # the bin's pixels lie within z +- half
+    with np.errstate(invalid="ignore"):
+        share = ((z - half >= low) & (z + half <= high)).astype(float)  # NaN: 0
+        across = np.nonzero(~(share > 0) & (z + half >= low) & (z - half <= high))  # the bins a cut runs through
     offsets = np.arange(bin_px) - (bin_px - 1) / 2.0  # the pixels' positions about the bin's centre
-    pixels = (z[..., None, None] + gy[..., None, None] * offsets[:, None]
-              + gx[..., None, None] * offsets[None, :])
-    return np.mean((pixels >= low) & (pixels <= high), axis=(-2, -1))
+    pixels = (z[across][:, None, None] + gy[across][:, None, None] * offsets[:, None]
+              + gx[across][:, None, None] * offsets[None, :])
+    share[across] = np.mean((pixels >= low) & (pixels <= high), axis=(-2, -1))
+    return share
 
 
 def dot_window_stats(optics: SensorOptics, distance_mm: float, bin_px: int) -> tuple[np.ndarray, np.ndarray]:
