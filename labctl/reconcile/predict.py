@@ -210,12 +210,17 @@ class Predictor:
         """Ray-cast one step's scene (on one thread: ``serial_kernels``). The bins' outer rays lie a quarter bin
         inside the image (at 4 px bins, a full pixel): an edge in that margin, which the camera's outer pixels
         see, is found against rays on the image border (``render``'s ``border``), so that its bins are edge bins
-        too (a chart's border in the last pixel row gives the stereo matcher texture there)."""
+        too (a chart's border in the last pixel row gives the stereo matcher texture there); so are the bins
+        where a surface folds (``light_folds``)."""
         scene, pose = scene_and_pose(step, self.model, self.effects, self.profile.wavelength_nm)
         with serial_kernels():
             if self.technology == "tof":
-                return self.sensor.render_scene(scene, pose, border=True)
-            return render(scene, pose, self.sensor.geometry.optics, surface_properties(scene, {}), border=True)
+                rendered = self.sensor.render_scene(scene, pose, border=True)
+            else:
+                rendered = render(scene, pose, self.sensor.geometry.optics, surface_properties(scene, {}), border=True)
+        # the folds of a surface are edges the bins cannot hold either: found once per render, not per prediction
+        return dataclasses.replace(rendered, edge=rendered.edge | light_folds(rendered.irradiance_fine,
+                                                                             rendered.oversample))
 
     def _dot_stats(self, distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """The full sensor's blurred dot pattern over the matching window, per bin (``dot_window_stats``;
@@ -413,8 +418,7 @@ class Predictor:
         exposure = step.exposure_us or self.profile.exposure_us
         drift = self.drift_mm(times_s)
         reach = self.blur_reach_bins(centre_distance_mm(recorded))
-        edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0)
-                                       | light_folds(rendered.irradiance_fine, rendered.oversample), iterations=reach)
+        edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
         centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
             range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
