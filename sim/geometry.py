@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -59,9 +60,14 @@ class Pose:
         """Hashable identity (for caches)."""
         return tuple(np.round(np.concatenate([self.rotation.ravel(), self.position]), 9))
 
+    @cached_property
+    def _upright(self) -> bool:
+        """The camera frame is the world's (to numpy's closeness): its rays need no rotation."""
+        return bool(np.allclose(self.rotation, np.eye(3)))
+
     def rays(self, directions_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The camera centre (world) and the world directions of unit camera-frame directions."""
-        if np.allclose(self.rotation, np.eye(3)):
+        if self._upright:
             return self.position, directions_cam
         r = self.rotation
         d = directions_cam

@@ -133,17 +133,29 @@ def _edges(surface: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
     return edge
 
 
-def _bordered(scene: Scene, pose: Pose, optics: CameraOptics, k: int, surface: np.ndarray,
-              reflectance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The fine sample grid's ``surface`` and ``reflectance`` (k samples per pixel side) inside a ring of samples
-    cast on the image's border: at the border's corners and, along each side, level with every row or column of
-    samples. Pixel (i, j) spans i +- 0.5, and its samples sit at (n + 0.5) / k - 0.5 of the fine index n."""
-    h, w = surface.shape
+@functools.lru_cache(maxsize=4)
+def _ring_directions(optics: CameraOptics, k: int) -> np.ndarray:
+    """The rays (3, 2 (W k + 2) + 2 H k) of ``_bordered``'s ring on the border of an image of H x W pixels sampled
+    k per pixel side: the top and bottom rows (corners included), then the left and right columns; read-only.
+    Pixel (i, j) spans i +- 0.5, and its samples sit at (n + 0.5) / k - 0.5 of the fine index n. They depend on
+    the optics alone, as ``sub_pixel_directions``."""
+    h, w = optics.pinhole.height * k, optics.pinhole.width * k
     u = np.concatenate([[-0.5], (np.arange(w) + 0.5) / k - 0.5, [w / k - 0.5]])
     v = np.concatenate([[-0.5], (np.arange(h) + 0.5) / k - 0.5, [h / k - 0.5]])
     ring_u = np.concatenate([u, u, np.full(h, u[0]), np.full(h, u[-1])])  # top, bottom, left, right
     ring_v = np.concatenate([np.full(w + 2, v[0]), np.full(w + 2, v[-1]), v[1:-1], v[1:-1]])
-    origin, d_world = pose.rays(optics.directions(ring_u, ring_v))
+    rays = optics.directions(ring_u, ring_v)
+    rays.flags.writeable = False
+    return rays
+
+
+def _bordered(scene: Scene, pose: Pose, optics: CameraOptics, k: int, surface: np.ndarray,
+              reflectance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fine sample grid's ``surface`` and ``reflectance`` (k samples per pixel side) inside a ring of samples
+    cast on the image's border: at the border's corners and, along each side, level with every row or column of
+    samples (``_ring_directions``)."""
+    h, w = surface.shape
+    origin, d_world = pose.rays(_ring_directions(optics, k))
     ring = scene.cast(origin, d_world)
     out = []
     for inner, outer in ((surface, ring.surface), (reflectance, ring.reflectance)):

@@ -10,8 +10,10 @@ vectorized over rays; a ray bundle has shape (3, ...).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -59,11 +61,16 @@ class PlaneSurface:
     material: str
     shape: Shape | None = None
 
-    @property
+    @cached_property
     def normal(self) -> np.ndarray:
-        """Unit normal pointing towards the side the surface is seen from."""
-        n = np.cross(self.u_axis, self.v_axis)
-        return -n / np.linalg.norm(n)
+        """Unit normal pointing towards the side the surface is seen from (read-only; computed once: every cast
+        of a render asks for it). The cross product written out: ``np.cross`` costs 40 us for two 3-vectors, and a
+        render's scene is new at every step."""
+        (a0, a1, a2), (b0, b1, b2) = (float(x) for x in self.u_axis), (float(x) for x in self.v_axis)
+        n = np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+        normal = -n / math.sqrt(n @ n)
+        normal.flags.writeable = False
+        return normal
 
     def intersect(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, ...]:
         """(t, cos, reflectance) per ray; t = inf where the ray misses the front side or the shape.
