@@ -782,4 +782,6 @@ def changes_nothing(candidate: Candidate, ctx: Context) -> bool:
     """Whether the candidate's signature leaves every compared row of this run unchanged once the lab's nuisance
     is profiled out (at its first grid point): e.g. the steps that show it hold no compared bin, a plate narrower
     than a bin away from its edges."""
-    return not any(np.any(ctx.lay.profiled_rows(*column)) for column in candidate.columns(ctx, candidate.grid(ctx)[0]))
+    with np.errstate(over="ignore", invalid="ignore"):  # rows of +-max float (``score``) change something too
+        return not any(np.any(ctx.lay.profiled_rows(*column))
+                       for column in candidate.columns(ctx, candidate.grid(ctx)[0]))

@@ -70,6 +70,12 @@ EDGE_JUMP = 0.05  # set by hand: a relative jump of the measured depth between n
 STATISTICS = ("noise", "validity", "correlation")
 FAMILIES = ("depth", "intensity", *STATISTICS)
 STAT_FLOORS = {"noise": 0.03, "validity": 0.02, "correlation": 0.05}  # ln std, valid fraction, ln ratio
+#: the largest ln ratio of a measured to a predicted quantity (intensity, noise, correlation) a row counts with. A
+#: model a fit tries can leave a compared bin dark or noiseless (a wall moved so far that its bins see past it):
+#: the ratio is then infinite, and an infinite row turns its step's profiled rows and the fit's sum of squares
+#: into NaN and overflow. Capped, such a model is still e^50 off there, beyond any camera's range (a 16-bit
+#: amplitude spans e^11), and the solver rejects it as the poor fit it is.
+MAX_LOG_RATIO = 50.0
 
 
 @dataclass
@@ -329,18 +335,23 @@ def raw_statistics(observations: list[Observation], predictions: list[Prediction
         frames = max(obs.n_frames - 1, 1)
         mean_log_var = special.digamma(nu / 2) + np.log(2 / nu)  # E ln(chi2_nu / nu)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out["noise"].append(np.log(obs.noise_mm / pred.noise_mm) - mean_log_var / 2)
-            out["correlation"].append(np.log(obs.correlation / pred.correlation)
+            out["noise"].append(_capped(np.log(obs.noise_mm / pred.noise_mm)) - mean_log_var / 2)
+            out["correlation"].append(_capped(np.log(obs.correlation / pred.correlation))
                                       - (special.digamma(frames / 2) + math.log(2 / frames) - mean_log_var))
         out["validity"].append(obs.valid_rate - pred.valid_rate)
     return out
 
 
 def raw_residuals(observations: list[Observation], predictions: list[Prediction]) -> tuple[list, list]:
-    """Per-step maps: z_measured - z_simulated and ln I_measured - ln I_simulated."""
+    """Per-step maps: z_measured - z_simulated and ln I_measured - ln I_simulated (within +-``MAX_LOG_RATIO``)."""
     dz, di = [], []
     for obs, pred in zip(observations, predictions, strict=True):
         dz.append(obs.z - pred.z)
         with np.errstate(invalid="ignore", divide="ignore"):
-            di.append(np.log(obs.intensity) - np.log(pred.intensity))
+            di.append(_capped(np.log(obs.intensity) - np.log(pred.intensity)))
     return dz, di
+
+
+def _capped(log_ratio: np.ndarray) -> np.ndarray:
+    """``log_ratio`` within +-``MAX_LOG_RATIO`` (NaN stays NaN: a bin with nothing to compare)."""
+    return np.clip(log_ratio, -MAX_LOG_RATIO, MAX_LOG_RATIO)

@@ -131,11 +131,14 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside
     rss0 = np.bincount(cells, r * r, lay.n_cells)
     best: tuple[float, np.ndarray, np.ndarray, Parameters] | None = None
     for nonlinear in candidate.grid(ctx):
-        columns = np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, nonlinear)])
-        a, b = columns.T @ columns, columns.T @ r  # C'r = (C less its fit by S)'r: r is orthogonal to S
-        if beside is not None:
-            cs = columns.T @ beside.slopes
-            a = a - cs @ beside.gram_inverse @ cs.T
+        # a grid point whose signature sends a compared bin dark holds rows of +-max float (``finite_difference``:
+        # an infinite log ratio); its products overflow, and the point is passed over below
+        with np.errstate(over="ignore", invalid="ignore"):
+            columns = np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, nonlinear)])
+            a, b = columns.T @ columns, columns.T @ r  # C'r = (C less its fit by S)'r: r is orthogonal to S
+            if beside is not None:
+                cs = columns.T @ beside.slopes
+                a = a - cs @ beside.gram_inverse @ cs.T
         if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
             continue
         coef = candidate.clip(np.linalg.solve(a, b))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections import Counter
 
 import numpy as np
@@ -29,7 +30,7 @@ from labctl.reconcile.goodness import statistics_goodness
 from labctl.reconcile.noise_model import in_range_share, stored_depth_bias, tof_stored_bias
 from labctl.reconcile.observe import bin_mean, observe_run
 from labctl.reconcile.predict import RENDERS_PER_STEP, Predictor, scene_and_pose
-from labctl.reconcile.residuals import STATISTICS, layout, raw_statistics
+from labctl.reconcile.residuals import STATISTICS, layout, raw_residuals, raw_statistics
 from labctl.reconcile.workflow import Simulation, base_model, with_effect
 from sim.model import parse_model
 from sim.profiles import get_profile
@@ -129,6 +130,40 @@ def test_statistics_rows_a_later_model_does_not_predict_are_left_out(d455_run):
     assert {f.family for f in families} == set(STATISTICS)
     assert all(math.isfinite(f.floor) for f in families)
     assert all(math.isfinite(s.floor) for s in steps)
+
+
+def test_a_model_that_leaves_a_compared_bin_dark_is_a_finite_misfit_only_there(d455_run):
+    """A model a fit tries can leave a compared bin without light or noise (a wall moved past the bin): its ln
+    ratio is infinite. The whitened rows stay finite, without a warning, and that model is far off in that bin
+    and nowhere else; uncapped, the infinite row turned its step's intensity rows into NaN and the fit's sum of
+    squares into an overflow."""
+    observations, info = d455_run
+    sim = Simulation(observations, info)
+    preds = sim.predict(base_model(info))
+    lay = layout(observations, preds, "stereo")
+    step = next(i for i, m in enumerate(lay.i_masks) if m.sum() > 3)
+    row, col = (int(a[0]) for a in np.nonzero(lay.i_masks[step]))
+    dark = list(preds)
+    dark[step] = dataclasses.replace(preds[step], intensity=preds[step].intensity.copy(),
+                                     noise_mm=preds[step].noise_mm.copy())
+    dark[step].intensity[row, col] = 0.0
+    dark[step].noise_mm[row, col] = 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        before, after = (lay.profiled(*raw_residuals(observations, p), raw_statistics(observations, p))
+                         for p in (preds, dark))
+    assert np.isfinite(after).all()
+    changed = np.abs(after - before) > 1e-9 * (1 + np.abs(before))
+    # the dark bin's own row and, through its step's unknown gain, the rest of that step's intensity rows
+    start = sum(int(m.sum()) for m in lay.z_masks) + sum(int(m.sum()) for m in lay.i_masks[:step])
+    step_rows = slice(start, start + int(lay.i_masks[step].sum()))
+    assert changed[step_rows].all()
+    noise_changed = changed.copy()
+    noise_changed[step_rows] = False
+    assert noise_changed.sum() <= 1  # the noise row of the dark bin, where it is compared
+    ln_ratio = np.log(observations[step].intensity[row, col])  # ln(measured / 0) is infinite: counted at the cap
+    own = np.flatnonzero(lay.i_masks[step].ravel()).tolist().index(row * lay.i_masks[step].shape[1] + col)
+    assert abs(after[start + own]) > abs(before[start + own]) + 10.0 * abs(ln_ratio)
 
 
 def _stored_mean_by_monte_carlo(z: np.ndarray, sigma_d: float, step_d: float, fb: float, step_mm: float,
