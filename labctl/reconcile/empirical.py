@@ -37,12 +37,17 @@ def _hats(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
 
 
 def _solve(ctx: Context, r: np.ndarray, depth_columns: np.ndarray) -> np.ndarray:
+    """The least-squares coefficients of ``depth_columns`` (stacked depth rows x forms), profiled and whitened, for
+    the whitened residual ``r`` (``Layout.profiled``). The forms leave the intensity and the statistics alone, so
+    only the depth rows enter: a pixel map's 117 columns over every row of a complete campaign at the test size
+    took 2.7 GB, over the depth rows 0.3 GB."""
     lay = ctx.lay
-    zero_i = np.zeros(len(lay.i_step))
-    columns = np.column_stack([lay.profiled_rows(np.nan_to_num(c), zero_i) for c in depth_columns.T])
+    columns = np.empty(depth_columns.shape)
+    for j in range(depth_columns.shape[1]):
+        columns[:, j] = lay.profiled_depth(np.nan_to_num(depth_columns[:, j]))
     a = columns.T @ columns
     a += RIDGE * np.trace(a) / len(a) * np.eye(len(a))
-    return np.linalg.solve(a, columns.T @ r)
+    return np.linalg.solve(a, columns.T @ r[:len(columns)])
 
 
 def fit_range(ctx: Context, r: np.ndarray) -> Parameters:
@@ -65,7 +70,8 @@ def fit_pixel_map(ctx: Context, r: np.ndarray) -> Parameters:
     weights = [np.clip(1 - np.abs(u - i), 0, None) * np.clip(1 - np.abs(v - j), 0, None)
                for j in range(ny) for i in range(nx)]
     columns = np.column_stack([ctx.lay.stack_z([wt] * len(ctx.predictions)) for wt in weights])
-    coef = _solve(ctx, r, columns * np.nan_to_num(ctx.z_rows("z_per_range"))[:, None])
+    columns *= np.nan_to_num(ctx.z_rows("z_per_range"))[:, None]
+    coef = _solve(ctx, r, columns)
     grid = coef.reshape(ny, nx)
     return {"correction_mm": [[round(float(c), 4) for c in row] for row in grid]}
 

@@ -164,6 +164,11 @@ class Layout:
         xw, inverse = self._z_projector
         return v - self.z_nuisance @ (inverse @ (xw.T @ v))
 
+    def profiled_depth(self, z_rows: np.ndarray) -> np.ndarray:
+        """The depth rows of ``profiled_rows`` for stacked depth rows alone: what a signature that leaves the
+        intensity and the statistics alone has on the depth rows, the other rows of ``profiled_rows`` being zero."""
+        return self.profile_z(z_rows) * self._whitening[0]
+
     def profile_i(self, v: np.ndarray) -> np.ndarray:
         """``v`` minus its weighted mean per step (each step's unknown gain); rows that are all zero (a signature
         that leaves the intensity alone) are returned as they are, without the per-step sums (zero minus zero)."""
@@ -181,9 +186,9 @@ class Layout:
     def profiled_rows(self, z_rows: np.ndarray, i_rows: np.ndarray, s_rows: np.ndarray | None = None) -> np.ndarray:
         """Stacked depth, intensity and statistics rows (``stack_statistics``; zero when not given) with the
         nuisance profiled out, whitened (sqrt weight)."""
-        z_root, i_root, s_root = self._whitening
+        _, i_root, s_root = self._whitening
         s_rows = np.zeros(len(s_root)) if s_rows is None else s_rows
-        return np.concatenate([self.profile_z(z_rows) * z_root, self.profile_i(i_rows) * i_root, s_rows * s_root])
+        return np.concatenate([self.profiled_depth(z_rows), self.profile_i(i_rows) * i_root, s_rows * s_root])
 
     def shared_nuisance(self) -> np.ndarray:
         """The whitened design of the nuisance that steps share (the depth offset of each reference group, the wall's

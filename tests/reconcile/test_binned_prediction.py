@@ -166,6 +166,19 @@ def test_a_model_that_leaves_a_compared_bin_dark_is_a_finite_misfit_only_there(d
     assert abs(after[start + own]) > abs(before[start + own]) + 10.0 * abs(ln_ratio)
 
 
+def test_a_depth_signatures_profiled_rows_are_its_depth_rows_and_zeros(d455_run):
+    """The empirical forms are fitted on the depth rows alone (``Layout.profiled_depth``; a pixel map's 117
+    columns over every row took 2.7 GB): a signature that leaves the intensity and the statistics alone is zero on
+    their rows once profiled, so nothing is lost."""
+    observations, info = d455_run
+    sim = Simulation(observations, info)
+    lay = layout(observations, sim.predict(base_model(info)), "stereo")
+    depth = np.random.default_rng(5).normal(size=len(lay.z_step))
+    full = lay.profiled_rows(depth, np.zeros(len(lay.i_step)))
+    np.testing.assert_array_equal(full[:len(depth)], lay.profiled_depth(depth))
+    assert not full[len(depth):].any() and len(full) > 2 * len(depth)
+
+
 def _stored_mean_by_monte_carlo(z: np.ndarray, sigma_d: float, step_d: float, fb: float, step_mm: float,
                                 drift: float, draws: int, rng: np.random.Generator) -> float:
     """Mean over the pixels ``z`` of (stored depth - (z + drift)), each pixel's disparity drawn ``draws`` times."""
