@@ -200,20 +200,29 @@ class Effect:
     binned: Callable[[Any, int, int], Any] | None = None
 
     @property
+    def _shapes_stage_render(self) -> bool:
+        """Whether its parameters change where the rays of a stage step go or what they see (the field of view, a
+        lens distortion, the light's depth under the surface)."""
+        return self.true_fov_deg is not None or self.lens_distortion is not None or self.subsurface_scale is not None
+
+    @property
+    def _moves_plates(self) -> bool:
+        """Whether its parameters move the robot's plates relative to the camera."""
+        return self.axis_offset_mm is not None or self.plate_offset_mm is not None
+
+    @property
     def changes_stage_render(self) -> bool:
         """Whether the render of a stage step (a target on the wall) changes with the effect's parameters."""
-        return (self.true_fov_deg is not None or self.lens_distortion is not None
-                or self.subsurface_scale is not None or self.mixes_returns or self.mixed_pixels)
+        return self._shapes_stage_render or self.mixes_returns or self.mixed_pixels
 
     @property
     def changes_render(self) -> bool:
         """Whether the render of a step on the robot's plates changes with the effect's parameters."""
-        return self.changes_stage_render or self.axis_offset_mm is not None or self.plate_offset_mm is not None
+        return self.changes_stage_render or self._moves_plates
 
     @property
     def render_follows_parameters(self) -> bool:
         """Whether a render the effect changes differs from one value of its parameters to another: not where the
         render only keeps each pixel's correlation phasors for it (``mixes_returns``, ``mixed_pixels``), which its
         parameters act on afterwards."""
-        return (self.true_fov_deg is not None or self.lens_distortion is not None or self.subsurface_scale is not None
-                or self.axis_offset_mm is not None or self.plate_offset_mm is not None)
+        return self._shapes_stage_render or self._moves_plates
