@@ -314,9 +314,9 @@ def _resimulated(effect: Effect) -> Candidate:
 
 
 # periodic_range: dr = a sin(2 pi r / P) + b cos(2 pi r / P); the period searched between 3 sweep steps and the
-# range span
+# span of the ranges the camera reports
 def _range_span(ctx: Context) -> tuple[float, float]:
-    ranges = np.concatenate([p.range_mm[np.isfinite(p.range_mm)] for p in ctx.predictions])
+    ranges = np.concatenate([p.range_mm[np.isfinite(p.range_mm) & p.reported] for p in ctx.predictions])
     return float(ranges.min()), float(ranges.max())
 
 

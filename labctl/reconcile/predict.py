@@ -105,6 +105,8 @@ class Prediction:
     valid_rate: np.ndarray  # expected fraction of valid pixel-frames (NaN where not predicted)
     valid_spread: np.ndarray  # the model's uncertainty of valid_rate (stereo: pixels at the texture threshold)
     correlation: np.ndarray  # expected variance of a bin mean over the per-pixel variance / n (1: independent)
+    #: bins holding pixels within the camera's range (ToF; z and intensity continue beyond it, ``predict``)
+    reported: np.ndarray | bool = True
 
 
 def binned_profile(profile: CameraProfile, width: int, height: int, bin_px: int) -> CameraProfile:
@@ -383,12 +385,12 @@ class Predictor:
         return z + tof_stored_bias(z, sigma * self.z_per_range, step, self.bin_px)
 
     def _tof_expected(self, rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-        """The ToF bins' noise-free range (mm, NaN where none of their pixels is within the camera's range),
-        amplitude (0 there) and ambient light, and each bin's share of pixels within the range
-        (``in_range_share``: the camera cuts pixel by pixel, not by the bin's mean)."""
+        """The ToF bins' noise-free range (mm, NaN where nothing is hit), amplitude (0 there) and ambient light,
+        whatever the camera's range, and each bin's share of pixels within that range (``in_range_share``: the
+        camera cuts pixel by pixel, not by the bin's mean)."""
         range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure_us, cut=False)
-        share = in_range_share(range_mm, self.profile.min_range_mm, self.profile.max_range_mm, self.bin_px)
-        return np.where(share > 0, range_mm, np.nan), np.where(share > 0, amplitude, 0.0), ambient, share
+        return range_mm, amplitude, ambient, in_range_share(range_mm, self.profile.min_range_mm,
+                                                            self.profile.max_range_mm, self.bin_px)
 
     def central_depth(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> float:
         """The mean predicted depth over the central 10 % x 10 % region of the measured camera (metrics.stack
@@ -396,7 +398,8 @@ class Predictor:
         rendered = self._render(step, shift_mm)
         drift = self.drift_mm(times_s)
         if isinstance(self.sensor, ToFSensor):
-            range_mm, amplitude, ambient, _ = self._tof_expected(rendered, step.exposure_us or self.profile.exposure_us)
+            range_mm, amplitude, ambient, share = self._tof_expected(rendered, step.exposure_us or self.profile.exposure_us)
+            range_mm, amplitude = np.where(share > 0, range_mm, np.nan), np.where(share > 0, amplitude, 0.0)
             z = self._tof_stored(self.tof_depth(rendered, range_mm + drift), amplitude, ambient)
         else:
             exposure = step.exposure_us or self.profile.exposure_us
@@ -421,17 +424,22 @@ class Predictor:
         edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
         centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
+            # a bin's means continue across the camera's range (the mean over all its pixels, as where part of them
+            # is cut): only its valid fraction and noise know the cut, so that a model moving a bin out of range
+            # changes its comparison by the pixels it cuts, not by a jump of its depth and intensity rows
             range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
+            reported = share > 0
             range_mm = range_mm + drift
             light = amplitude / centre
-            amplitude = self.shade(light)
-            dominant = amplitude * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
+            cut_light = np.where(reported, light, 0.0)
+            amplitude, cut = self.shade(light), self.shade(cut_light)
+            dominant = cut * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = self._tof_stored(self.tof_depth(rendered, range_mm), amplitude, ambient)
-            noise, valid = tof_statistics(self.sensor, amplitude, ambient, np.broadcast_to(self.z_per_range, z.shape))
+            noise, valid = tof_statistics(self.sensor, cut, ambient, np.broadcast_to(self.z_per_range, z.shape))
             valid = valid * share
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
-                              np.zeros_like(z), _independent(noise))
+                              np.zeros_like(z), _independent(noise), reported)
         lit = stereo_light(self.sensor, rendered, exposure, step.projector)
         sigma_d = disparity_noise_px(self.sensor, rendered, lit)
         z = self._stereo_depth(rendered, drift, sigma_d)

@@ -268,7 +268,7 @@ def layout(observations: list[Observation], predictions: list[Prediction], techn
     z_masks, i_masks, z_step, i_step, rows, zw, iw, reference_var = [], [], [], [], [], [], [], []
     for s, (obs, pred) in enumerate(zip(observations, predictions, strict=True)):
         ok = (np.isfinite(obs.z) & np.isfinite(obs.z_var) & (obs.valid_fraction >= MIN_VALID_FRACTION)
-              & ~pred.edge & ~measured_edges(obs.z) & np.isfinite(pred.z))
+              & ~pred.edge & ~measured_edges(obs.z) & np.isfinite(pred.z) & pred.reported)
         iok = (ok & _uniform_light(pred) & np.isfinite(obs.intensity) & (obs.intensity > 0)
                & np.isfinite(obs.intensity_var))
         z_masks.append(ok)

@@ -1032,7 +1032,7 @@ def excluded_steps(observations: list[Observation], preds: list[Prediction], lay
     """The steps each residual family leaves out (fewer than two compared bins), with the reason."""
     out: list[ExcludedStep] = []
     for s, (o, p) in enumerate(zip(observations, preds, strict=True)):
-        seen = np.isfinite(p.z) & ~p.edge
+        seen = np.isfinite(p.z) & p.reported & ~p.edge
         n_seen = int(seen.sum())
         full = int((o.valid_fraction[seen] >= MIN_VALID_FRACTION).sum())
         fill = 100 * float(np.mean(o.valid_rate[seen])) if n_seen else 0.0

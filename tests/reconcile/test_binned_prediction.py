@@ -389,6 +389,43 @@ def test_a_tof_bins_valid_share_is_that_of_its_pixels_within_the_range(tmp_path)
     assert np.abs(error).max() <= 1 / 16 + 1e-9 and abs(error[straddling[inner]].mean()) < 0.01
 
 
+def test_a_tof_bins_depth_and_light_continue_beyond_the_range_only_its_validity_drops(tmp_path):
+    """The wall and camera of the test above. A frontal wall's depth is its distance at every pixel, and its light
+    falls smoothly with the field angle, whether the camera reports the pixel or not: the range's end cuts what
+    the camera reports, not the light or the depth the bin's pixels would read. The bins wholly beyond it keep
+    the wall's depth and a light continuing their reported neighbours' (the field angle's fall over one bin,
+    about 8 % at the corners); only their valid fraction (0) and noise (none) know the cut, and they are not
+    compared. A model that moves a bin across the range's end then changes its comparison by the pixels it cuts
+    (the validity family), not by a jump of its depth and intensity rows: such a jump made a cliff in the
+    residual that stopped a fit of a strong multipath short of the truth."""
+    campaign = CAMPAIGN.format(backend=BACKENDS["blaze101"], seed=5, sweep_step_mm=1800, robot="")
+    observations, info, _ = observe_run(simulated_run(tmp_path, "blaze101", campaign=campaign))
+    plain = base_model(info)
+    model = plain.model_copy(update={"camera_overrides": plain.camera_overrides.model_copy(
+        update={"max_range_mm": 2500.0})})
+    predictor = Predictor(model, info["width"], info["height"], info["bin_px"])
+    wall = next(o for o in observations if o.scene.procedure == "depth_sweep" and o.scene.wall_distance_mm
+                and abs(o.scene.wall_distance_mm - 2200) < 50)
+    predicted = predictor.predict(wall.scene, wall.times_s - wall.times_s[0])
+    inner = ~predicted.edge
+    beyond = inner & ~predicted.reported
+    inside = inner & predicted.reported
+    assert beyond.sum() > 10 and inside.sum() > 100
+    assert np.all(predicted.valid_rate[beyond] == 0) and np.all(np.isnan(predicted.noise_mm[beyond]))
+    assert np.abs(predicted.z[inner] - wall.scene.wall_distance_mm).max() < 5.0
+    pairs = 0
+    for axis in (0, 1):
+        for a, b in ((beyond, inside), (inside, beyond)):
+            across = np.roll(a, 1, axis=axis) & b  # a bin of one side whose neighbour before it is of the other
+            across[(0,) if axis == 0 else (slice(None), 0)] = False
+            ratio = predicted.intensity[across] / np.roll(predicted.intensity, 1, axis=axis)[across]
+            pairs += across.sum()
+            assert np.all(np.abs(np.log(ratio)) < 0.15)
+    assert pairs > 10
+    lay = layout(observations, [predictor.predict(o.scene, o.times_s - o.times_s[0]) for o in observations])
+    assert not (lay.z_masks[observations.index(wall)] & beyond).any()
+
+
 @pytest.mark.parametrize("camera", ["blaze101", "flexx2"])
 def test_a_face_masks_compared_bins_hold_their_pixels_mean_light(tmp_path, camera):
     """The silicone face mask 300 mm before the wall at 700 mm. A bin's measured intensity is the mean of its
