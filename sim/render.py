@@ -67,6 +67,15 @@ class Rendered:
     passive_fine: np.ndarray
     phasor_fine: np.ndarray | None
 
+    @functools.cached_property
+    def centre_distance_mm(self) -> float:
+        """Median range of the central 5 x 5 pixels (``centre_distance_mm``), once per render: every prediction of a
+        cached render asks for it."""
+        h, w = self.range_dom.shape
+        centre = self.range_dom[h // 2 - 2 : h // 2 + 3, w // 2 - 2 : w // 2 + 3]
+        finite = centre[np.isfinite(centre)]
+        return float(np.median(finite)) if finite.size else 1e9
+
 
 @dataclass(frozen=True)
 class SurfaceProperties:
@@ -121,9 +130,10 @@ def _edges(surface: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
     """
     s, r = surface, reflectance
     edge = np.zeros(s.shape, dtype=bool)
+    jump = 0.02 * np.maximum(np.abs(r).max(), 1e-9)
     for axis in (0, 1):
         ds = np.diff(s, axis=axis) != 0
-        dr = np.abs(np.diff(r, axis=axis)) > 0.02 * np.maximum(np.abs(r).max(), 1e-9)
+        dr = np.abs(np.diff(r, axis=axis)) > jump
         d = ds | dr
         lo = [slice(None)] * 2
         hi = [slice(None)] * 2
@@ -213,6 +223,25 @@ def _quadrant_order(s: int, k: int) -> np.ndarray:
     return np.argsort(quadrant.ravel(), kind="stable")
 
 
+@functools.lru_cache(maxsize=8)
+def _edge_offsets(s: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The s x s multi-jittered offsets (u, v) sorted into the k x k sub-pixels (``_quadrant_order``), read-only:
+    the same for every edge pixel of every render."""
+    du, dv = multi_jittered_offsets(s)
+    order = _quadrant_order(s, k)
+    du, dv = du[order], dv[order]
+    du.flags.writeable = dv.flags.writeable = False
+    return du, dv
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_centres(optics: CameraOptics) -> tuple[np.ndarray, np.ndarray]:
+    """``optics.pixel_grid()``, read-only and once per optics (every render of a run's camera)."""
+    u, v = optics.pixel_grid()
+    u.flags.writeable = v.flags.writeable = False
+    return u, v
+
+
 @functools.lru_cache(maxsize=4)
 def sub_pixel_directions(optics: CameraOptics, k: int) -> np.ndarray:
     """The rays (3, H, W, k*k) through the centres of every pixel's k x k sub-pixels (row-major), read-only.
@@ -255,7 +284,7 @@ def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfacePropert
     k = oversample
     wavenumber = 4 * math.pi * modulation_mhz * 1e6 / C_MM_PER_S if modulation_mhz else None
     n_surf = max(len(scene.surfaces), 1)
-    u, v = optics.pixel_grid()
+    u, v = _pixel_centres(optics)
     d_cam = sub_pixel_directions(optics, k)
     origin, d_world = pose.rays(d_cam)
     hit = scene.cast(origin, d_world)
@@ -273,9 +302,7 @@ def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfacePropert
     else:
         edge = np.zeros(u.shape, dtype=bool)
     if edge.any():
-        du, dv = multi_jittered_offsets(supersample)
-        order = _quadrant_order(supersample, k)
-        du, dv = du[order], dv[order]
+        du, dv = _edge_offsets(supersample, k)
         eu = u[edge][:, None] + du[None, :]
         ev = v[edge][:, None] + dv[None, :]
         sub_d = optics.directions(eu, ev)
@@ -313,7 +340,4 @@ def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfacePropert
 
 def centre_distance_mm(rendered: Rendered) -> float:
     """Median range of the central 5 x 5 pixels: what the lens is looking at (for defocus)."""
-    h, w = rendered.range_dom.shape
-    centre = rendered.range_dom[h // 2 - 2 : h // 2 + 3, w // 2 - 2 : w // 2 + 3]
-    finite = centre[np.isfinite(centre)]
-    return float(np.median(finite)) if finite.size else 1e9
+    return rendered.centre_distance_mm

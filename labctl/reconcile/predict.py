@@ -285,7 +285,7 @@ class Predictor:
 
     def drift_mm(self, times_s: np.ndarray) -> float:
         """Mean range offset of the frames taken at ``times_s`` (``temperature_drift``; 0 without such effects)."""
-        if not len(times_s):
+        if not len(times_s) or not acting(self.effects, "frame_offset_mm"):
             return 0.0
         return float(np.mean([frame_offset_mm(self.effects, float(t)) for t in times_s]))
 
@@ -508,12 +508,9 @@ def light_folds(fine: np.ndarray, k: int) -> np.ndarray:
     of itself: |L(i - 1) - 2 L(i) + L(i + 1)| / L(i) along a row or a column of rays, at a ray of the bin."""
     bent = np.zeros(fine.shape, dtype=bool)
     with np.errstate(invalid="ignore", divide="ignore"):
-        for axis in (0, 1):
-            n = fine.shape[axis]
-            before, middle, after = (np.take(fine, np.arange(i, n - 2 + i), axis=axis) for i in range(3))
-            inner = [slice(None)] * 2
-            inner[axis] = slice(1, -1)
-            bent[tuple(inner)] |= np.abs(before - 2 * middle + after) > FOLD_LIGHT * middle
+        for before, middle, after, inner in ((fine[:-2], fine[1:-1], fine[2:], np.s_[1:-1, :]),
+                                             (fine[:, :-2], fine[:, 1:-1], fine[:, 2:], np.s_[:, 1:-1])):
+            bent[inner] |= np.abs(before - 2 * middle + after) > FOLD_LIGHT * middle
     h, w = fine.shape[0] // k, fine.shape[1] // k
     return bent.reshape(h, k, w, k).any(axis=(1, 3))
 

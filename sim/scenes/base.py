@@ -221,10 +221,11 @@ class Scene:
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> Hit:
         """Nearest hit per ray: planes by the compiled caster, other surfaces in numpy."""
-        hit = Hit.empty(dirs.shape[1:])
         planes = [i for i, s in enumerate(self.surfaces) if isinstance(s, PlaneSurface)]
         if planes:
-            self._cast_planes(planes, np.asarray(origins, float).reshape(3), dirs, hit)
+            hit = self._cast_planes(planes, np.asarray(origins, float).reshape(3), dirs)
+        else:
+            hit = Hit.empty(dirs.shape[1:])
         for index, surface in enumerate(self.surfaces):
             if index in planes:
                 continue
@@ -236,7 +237,7 @@ class Scene:
             hit.surface = np.where(nearer, index, hit.surface).astype(np.int16)
         return hit
 
-    def _cast_planes(self, indices: list[int], origin: np.ndarray, dirs: np.ndarray, hit: Hit) -> None:
+    def _cast_planes(self, indices: list[int], origin: np.ndarray, dirs: np.ndarray) -> Hit:
         surfaces = [self.surfaces[i] for i in indices]
         frames = np.array([[s.origin, s.u_axis, s.v_axis, s.normal] for s in surfaces], dtype=float)
         shape_code = np.array([s.shape.code if s.shape is not None else 0 for s in surfaces], dtype=np.int64)
@@ -249,11 +250,9 @@ class Scene:
         surf = np.empty(n, dtype=np.int64)
         cast_planes(origin, flat, frames, shape_code, shape_params, texture_code, texture_params, t, cos, refl, surf)
         shape = dirs.shape[1:]
-        hit.t = t.reshape(shape)
-        hit.cos = cos.reshape(shape)
-        hit.reflectance = refl.reshape(shape)
         ids = np.asarray(indices, dtype=np.int16)
-        hit.surface = np.where(surf >= 0, ids[np.maximum(surf, 0)], -1).astype(np.int16).reshape(shape)
+        return Hit(t.reshape(shape), cos.reshape(shape), refl.reshape(shape),
+                   np.where(surf >= 0, ids[np.maximum(surf, 0)], -1).astype(np.int16).reshape(shape))
 
     def materials(self) -> list[str]:
         return [s.material for s in self.surfaces]
