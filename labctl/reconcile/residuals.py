@@ -159,11 +159,20 @@ class Layout:
         return maps
 
     def profile_z(self, v: np.ndarray) -> np.ndarray:
-        """``v`` minus its weighted least-squares fit by the depth nuisance (Frisch-Waugh-Lovell)."""
+        """``v`` minus its weighted least-squares fit by the depth nuisance (Frisch-Waugh-Lovell). A NaN row (a
+        trial model that predicts no depth at a compared bin) is left out of the fit and stays NaN: in the sums it
+        would make every row NaN, and the caller's NaN-to-zero would then read the whole depth family as fitted."""
         if not len(v):
             return v
         xw, inverse = self._z_projector
-        return v - self.z_nuisance @ (inverse @ (xw.T @ v))
+        missing = np.isnan(v)
+        if not missing.any():
+            return v - self.z_nuisance @ (inverse @ (xw.T @ v))
+        xw = np.where(missing[:, None], 0.0, xw)
+        kept = np.where(missing, 0.0, v)
+        out = kept - self.z_nuisance @ (np.linalg.pinv(self.z_nuisance.T @ xw) @ (xw.T @ kept))
+        out[missing] = np.nan
+        return out
 
     def profiled_depth(self, z_rows: np.ndarray) -> np.ndarray:
         """The depth rows of ``profiled_rows`` for stacked depth rows alone: what a signature that leaves the

@@ -179,6 +179,28 @@ def test_a_depth_signatures_profiled_rows_are_its_depth_rows_and_zeros(d455_run)
     assert not full[len(depth):].any() and len(full) > 2 * len(depth)
 
 
+def test_a_depth_row_without_a_prediction_leaves_the_others_profiled_without_it(d455_run):
+    """A trial model that predicts no depth at a compared bin gives that row NaN. The other rows are the weighted
+    least-squares residual of the depth nuisance fitted to them alone (solved here by ``np.linalg.lstsq`` on the
+    weighted design), and the row stays NaN; before, the one NaN made every depth row NaN, which the fit's residual
+    reads as zero: the whole depth family fitted perfectly."""
+    observations, info = d455_run
+    sim = Simulation(observations, info)
+    lay = layout(observations, sim.predict(base_model(info)), "stereo")
+    rng = np.random.default_rng(8)
+    depth = rng.normal(size=len(lay.z_step)) + lay.z_nuisance @ rng.normal(size=lay.z_nuisance.shape[1])
+    missing = np.zeros(len(depth), dtype=bool)
+    missing[rng.choice(len(depth), 7, replace=False)] = True
+    got = lay.profile_z(np.where(missing, np.nan, depth))
+    root = np.sqrt(lay.z_weight[~missing])
+    design = lay.z_nuisance[~missing]
+    beta = np.linalg.lstsq(design * root[:, None], depth[~missing] * root, rcond=None)[0]
+    np.testing.assert_allclose(got[~missing], depth[~missing] - design @ beta, atol=1e-9)
+    assert np.isnan(got[missing]).all()
+    np.testing.assert_allclose(lay.profile_z(depth), depth - lay.z_nuisance @ np.linalg.lstsq(
+        lay.z_nuisance * np.sqrt(lay.z_weight)[:, None], depth * np.sqrt(lay.z_weight), rcond=None)[0], atol=1e-9)
+
+
 def _stored_mean_by_monte_carlo(z: np.ndarray, sigma_d: float, step_d: float, fb: float, step_mm: float,
                                 drift: float, draws: int, rng: np.random.Generator) -> float:
     """Mean over the pixels ``z`` of (stored depth - (z + drift)), each pixel's disparity drawn ``draws`` times."""
