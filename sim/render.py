@@ -69,8 +69,8 @@ class Rendered:
 
     @functools.cached_property
     def centre_distance_mm(self) -> float:
-        """Median range of the central 5 x 5 pixels (``centre_distance_mm``), once per render: every prediction of a
-        cached render asks for it."""
+        """Median range of the central 5 x 5 pixels: what the lens is looking at (for defocus). Once per render:
+        every prediction of a cached render asks for it."""
         h, w = self.range_dom.shape
         centre = self.range_dom[h // 2 - 2 : h // 2 + 3, w // 2 - 2 : w // 2 + 3]
         finite = centre[np.isfinite(centre)]
@@ -336,8 +336,3 @@ def render(scene: Scene, pose: Pose, optics: CameraOptics, props: SurfacePropert
         passive_fine=light["passive"],
         phasor_fine=light.get("phasor"),
     )
-
-
-def centre_distance_mm(rendered: Rendered) -> float:
-    """Median range of the central 5 x 5 pixels: what the lens is looking at (for defocus)."""
-    return rendered.centre_distance_mm

@@ -45,7 +45,7 @@ from sim.geometry import Pose
 from sim.kernels import stereo_frame
 from sim.noise import NoiseBank, make_bank
 from sim.profiles import CameraProfile
-from sim.render import Rendered, centre_distance_mm, render
+from sim.render import Rendered, render
 from sim.scenes.base import Scene
 from sim.sensor import SensorOptics
 from sim.tof import IRRADIANCE_REF, REFERENCE_RANGE_MM, surface_properties
@@ -143,7 +143,7 @@ class StereoSensor:
         if projector:  # each dot covers whole pixels
             dots = np.repeat(np.repeat(self.dots, k, axis=0), k, axis=1)
             light = light + PROJECTOR_LEVEL * left.irradiance_fine / IRRADIANCE_REF * dots
-        return self.geometry.blur(light * (exposure_us / self.profile.exposure_us), centre_distance_mm(left), k)
+        return self.geometry.blur(light * (exposure_us / self.profile.exposure_us), left.centre_distance_mm, k)
 
     def depth(self, left: Rendered) -> np.ndarray:
         """Noise-free depth of the left camera's dominant surface after the effects' range hooks

@@ -49,7 +49,7 @@ from sim.kernels import tof_frame
 from sim.materials import get_material
 from sim.noise import NoiseBank, make_bank
 from sim.profiles import CameraProfile
-from sim.render import C_MM_PER_S, Rendered, SurfaceProperties, centre_distance_mm, render
+from sim.render import C_MM_PER_S, Rendered, SurfaceProperties, render
 from sim.scenes.base import Scene
 from sim.sensor import SensorOptics
 
@@ -141,13 +141,13 @@ class ToFSensor:
 
     def _returns(self, r: Rendered, scale: float, shading: np.ndarray | float) -> np.ndarray:
         assert r.phasor_fine is not None
-        return self.geometry.blur(r.phasor_fine, centre_distance_mm(r), r.oversample) * scale * shading
+        return self.geometry.blur(r.phasor_fine, r.centre_distance_mm, r.oversample) * scale * shading
 
     def expected(self, r: Rendered, exposure_us: float, cut: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
         """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render;
         with ``cut`` False, the camera's range is left to the caller (invalid only where nothing was hit)."""
         p = self.profile
-        focus_distance_mm = centre_distance_mm(r)
+        focus_distance_mm = r.centre_distance_mm
         gain = exposure_us / p.exposure_us
         scale = self._scale(exposure_us)
         light = self.geometry.blur(r.irradiance_fine, focus_distance_mm, r.oversample) * scale

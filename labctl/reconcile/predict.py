@@ -67,7 +67,7 @@ from sim.geometry import Pose
 from sim.model import SimModel
 from sim.optics import CameraOptics
 from sim.profiles import CameraProfile
-from sim.render import OVERSAMPLE, centre_distance_mm, render, sub_pixel_directions
+from sim.render import OVERSAMPLE, render, sub_pixel_directions
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
 from sim.sensor import SensorOptics, blur_diameter_px, camera_optics
 from sim.stereo import StereoSensor, dot_pattern
@@ -420,13 +420,14 @@ class Predictor:
         rendered = self._render(step, shift_mm) if shift_mm else recorded
         exposure = step.exposure_us or self.profile.exposure_us
         drift = self.drift_mm(times_s)
-        reach = self.blur_reach_bins(centre_distance_mm(recorded))
+        reach = self.blur_reach_bins(recorded.centre_distance_mm)
         edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
         centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
             # a bin's means continue across the camera's range (the mean over all its pixels, as where part of them
-            # is cut): only its valid fraction and noise know the cut, so that a model moving a bin out of range
-            # changes its comparison by the pixels it cuts, not by a jump of its depth and intensity rows
+            # is cut): only its valid fraction and noise know the cut (and, as before, the image's mean phasor the
+            # multipath's signature takes), so that a model moving a bin out of range changes its comparison by the
+            # pixels it cuts, not by a jump of its depth and intensity rows
             range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
             reported = share > 0
             range_mm = range_mm + drift
@@ -445,7 +446,7 @@ class Predictor:
         z = self._stereo_depth(rendered, drift, sigma_d)
         ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
-            self.sensor, z, rendered.z_plain, sigma_d, lit, self._dot_stats(centre_distance_mm(recorded)), self.bin_px,
+            self.sensor, z, rendered.z_plain, sigma_d, lit, self._dot_stats(recorded.centre_distance_mm), self.bin_px,
             self._shading_slope())
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
