@@ -386,21 +386,30 @@ def test_a_bins_share_within_the_range_counts_its_pixels_on_a_steep_surface(cut_
     np.testing.assert_allclose(in_range_share(z, 600.0, 6000.0, bin_px), np.tile(inside, (5, 1)))
 
 
-def test_a_tof_bins_valid_share_is_that_of_its_pixels_within_the_range(tmp_path):
-    """The blaze-101's wall at 2200 mm, seen by a camera whose range ends at 2500 mm (``max_range_mm``): a pixel's
-    range is the wall's distance over the cosine of its field angle, 2200 mm on the axis and 2850 mm in the
-    corners, so the range's end runs through the image on a ring. The camera cuts pixel by pixel; each bin's
-    predicted valid fraction is the share of its pixels the measured camera (the simulator's expected range per
-    pixel at the full 160 x 120) reports, to within one of its 16 pixels where the ring curves within the bin
-    (its mean alone would put a bin wholly in or out)."""
+@pytest.fixture(scope="module")
+def wall_beyond_range(tmp_path_factory):
+    """The blaze-101's plain test campaign without the robot (sweep in 1800 mm steps), a predictor of a camera
+    whose range ends at 2500 mm (``max_range_mm``), and the sweep's wall at 2200 mm."""
     campaign = CAMPAIGN.format(backend=BACKENDS["blaze101"], seed=5, sweep_step_mm=1800, robot="")
-    observations, info, _ = observe_run(simulated_run(tmp_path, "blaze101", campaign=campaign))
+    run = simulated_run(tmp_path_factory.mktemp("beyond_range"), "blaze101", campaign=campaign)
+    observations, info, _ = observe_run(run)
     plain = base_model(info)
     model = plain.model_copy(update={"camera_overrides": plain.camera_overrides.model_copy(
         update={"max_range_mm": 2500.0})})
     predictor = Predictor(model, info["width"], info["height"], info["bin_px"])
     wall = next(o for o in observations if o.scene.procedure == "depth_sweep" and o.scene.wall_distance_mm
                 and abs(o.scene.wall_distance_mm - 2200) < 50)
+    return observations, info, predictor, wall
+
+
+def test_a_tof_bins_valid_share_is_that_of_its_pixels_within_the_range(wall_beyond_range):
+    """The blaze-101's wall at 2200 mm, seen by a camera whose range ends at 2500 mm (``max_range_mm``): a pixel's
+    range is the wall's distance over the cosine of its field angle, 2200 mm on the axis and 2850 mm in the
+    corners, so the range's end runs through the image on a ring. The camera cuts pixel by pixel; each bin's
+    predicted valid fraction is the share of its pixels the measured camera (the simulator's expected range per
+    pixel at the full 160 x 120) reports, to within one of its 16 pixels where the ring curves within the bin
+    (its mean alone would put a bin wholly in or out)."""
+    observations, info, predictor, wall = wall_beyond_range
     _, count = _noise_free_pixels(predictor, wall)
     predicted = predictor.predict(wall.scene, wall.times_s - wall.times_s[0])
     share = count / info["bin_px"] ** 2
@@ -411,7 +420,7 @@ def test_a_tof_bins_valid_share_is_that_of_its_pixels_within_the_range(tmp_path)
     assert np.abs(error).max() <= 1 / 16 + 1e-9 and abs(error[straddling[inner]].mean()) < 0.01
 
 
-def test_a_tof_bins_depth_and_light_continue_beyond_the_range_only_its_validity_drops(tmp_path):
+def test_a_tof_bins_depth_and_light_continue_beyond_the_range_only_its_validity_drops(wall_beyond_range):
     """The wall and camera of the test above. A frontal wall's depth is its distance at every pixel, and its light
     falls smoothly with the field angle, whether the camera reports the pixel or not: the range's end cuts what
     the camera reports, not the light or the depth the bin's pixels would read. The bins wholly beyond it keep
@@ -420,14 +429,7 @@ def test_a_tof_bins_depth_and_light_continue_beyond_the_range_only_its_validity_
     compared. A model that moves a bin across the range's end then changes its comparison by the pixels it cuts
     (the validity family), not by a jump of its depth and intensity rows: such a jump made a cliff in the
     residual that stopped a fit of a strong multipath short of the truth."""
-    campaign = CAMPAIGN.format(backend=BACKENDS["blaze101"], seed=5, sweep_step_mm=1800, robot="")
-    observations, info, _ = observe_run(simulated_run(tmp_path, "blaze101", campaign=campaign))
-    plain = base_model(info)
-    model = plain.model_copy(update={"camera_overrides": plain.camera_overrides.model_copy(
-        update={"max_range_mm": 2500.0})})
-    predictor = Predictor(model, info["width"], info["height"], info["bin_px"])
-    wall = next(o for o in observations if o.scene.procedure == "depth_sweep" and o.scene.wall_distance_mm
-                and abs(o.scene.wall_distance_mm - 2200) < 50)
+    observations, info, predictor, wall = wall_beyond_range
     predicted = predictor.predict(wall.scene, wall.times_s - wall.times_s[0])
     inner = ~predicted.edge
     beyond = inner & ~predicted.reported
