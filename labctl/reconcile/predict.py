@@ -432,8 +432,8 @@ class Predictor:
             reported = share > 0
             range_mm = range_mm + drift
             light = amplitude / centre
-            cut_light = np.where(reported, light, 0.0)
-            amplitude, cut = self.shade(light), self.shade(cut_light)
+            amplitude = self.shade(light)
+            cut = amplitude if reported.all() else self.shade(np.where(reported, light, 0.0))
             dominant = cut * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = self._tof_stored(self.tof_depth(rendered, range_mm), amplitude, ambient)
             noise, valid = tof_statistics(self.sensor, cut, ambient, np.broadcast_to(self.z_per_range, z.shape))

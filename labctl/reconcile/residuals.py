@@ -71,9 +71,10 @@ STATISTICS = ("noise", "validity", "correlation")
 FAMILIES = ("depth", "intensity", *STATISTICS)
 STAT_FLOORS = {"noise": 0.03, "validity": 0.02, "correlation": 0.05}  # ln std, valid fraction, ln ratio
 #: the largest ln ratio of a measured to a predicted quantity (intensity, noise, correlation) a row counts with. A
-#: model a fit tries can leave a compared bin dark or noiseless (a strong multipath tried on dark plates puts their
-#: range outside the camera's, and the bins turn invalid): the ratio is then infinite, and an infinite row turns
-#: its step's profiled rows and the fit's sum of squares into NaN and overflow. Capped, such a model is still e^50
+#: model a fit tries can leave a compared bin dark or noiseless (a target moved off the bin's rays; before a ToF
+#: bin's means continued beyond the camera's range, also a strong multipath moving bins out of it): the ratio is
+#: then infinite, and an infinite row turns its step's profiled rows and the fit's sum of squares into NaN and
+#: overflow. Capped, such a model is still e^50
 #: off there, beyond any camera's range (a 16-bit amplitude spans e^11), and the solver rejects it as the poor fit
 #: it is.
 MAX_LOG_RATIO = 50.0

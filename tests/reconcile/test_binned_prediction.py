@@ -133,8 +133,8 @@ def test_statistics_rows_a_later_model_does_not_predict_are_left_out(d455_run):
 
 
 def test_a_model_that_leaves_a_compared_bin_dark_is_a_finite_misfit_only_there(d455_run):
-    """A model a fit tries can leave a compared bin without light or noise (a strong multipath puts a plate's range
-    outside the camera's, and its bins turn invalid): its ln ratio is infinite. The whitened rows stay finite,
+    """A model a fit tries can leave a compared bin without light or noise (a target moved off the bin's rays): its
+    ln ratio is infinite. The whitened rows stay finite,
     without a warning, and that model is far off in that bin and nowhere else; uncapped, the infinite row turned
     its step's intensity rows into NaN and the fit's sum of squares into an overflow."""
     observations, info = d455_run
