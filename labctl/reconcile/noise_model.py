@@ -179,7 +179,16 @@ def in_range_share(z: np.ndarray, low: float, high: float, bin_px: int) -> np.nd
     the bins (``np.gradient``; flat where a neighbour has none). A surface seen nearly edge-on runs through
     hundreds of millimetres within one bin: a bin whose mean lies just beyond the range still holds pixels within
     it (a quarter of a D455 bin 174 mm beyond 6 m, its depth rising 174 mm a pixel), and one just inside it
-    pixels beyond."""
+    pixels beyond.
+
+    A map whose depths all lie further inside the range than its depth span is within it whole: each gradient
+    is at most that span per bin (a difference of two of its depths over one bin, or over two bins halved), so
+    no bin's pixels spread by more. Every bin with a depth then has the share 1, found without the gradients
+    (most steps a fit predicts: a wall well inside the range)."""
+    low_z, high_z = np.fmin.reduce(z, axis=None), np.fmax.reduce(z, axis=None)  # NaN only where no bin has one
+    span = (high_z - low_z) * (1.0 + 1e-9) + 1e-9 * abs(high_z)  # a margin for the gradients' rounding
+    if low_z - span >= low and high_z + span <= high:
+        return np.isfinite(z).astype(float)
     if min(z.shape) > 1:
         gy, gx = (np.nan_to_num(g) for g in np.gradient(z, bin_px))
     else:

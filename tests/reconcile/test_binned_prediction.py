@@ -386,6 +386,24 @@ def test_a_bins_share_within_the_range_counts_its_pixels_on_a_steep_surface(cut_
     np.testing.assert_allclose(in_range_share(z, 600.0, 6000.0, bin_px), np.tile(inside, (5, 1)))
 
 
+@pytest.mark.parametrize("low_mm", [100.0, 1350.0, 1390.0])
+def test_a_bins_share_is_whole_where_its_pixels_lie_within_the_range_and_none_without_a_depth(low_mm):
+    """A plane rising 20 mm a pixel across 6 x 5 bins of 4 pixels (bin means 1410-1810 mm), two bins without a
+    depth (NaN), the range [``low_mm``, 7000] mm: the lowest pixels, column 0, lie at 1380 mm, 30 mm below the
+    lowest bin mean. From 100 mm every pixel is within the range and every bin with a depth has the share 1;
+    from 1350 mm too, though the range ends nearer the map than its span of 400 mm; from 1390 mm the first
+    column's bins hold one pixel column below the range (share 3/4). The bins without a depth have none."""
+    bin_px = 4
+    u = np.arange(6 * bin_px)
+    pixel_z = 1400.0 + 20.0 * (u + 0.5 - 1.5)
+    z = np.tile(pixel_z.reshape(6, bin_px).mean(axis=1), (5, 1))
+    z[1, 2] = z[3, 4] = np.nan
+    expected = np.tile(((pixel_z >= low_mm) & (pixel_z <= 7000.0)).reshape(6, bin_px).mean(axis=1), (5, 1))
+    expected[np.isnan(z)] = 0.0
+    assert (expected[:, 0] == (0.75 if low_mm == 1390.0 else 1.0)).all()
+    np.testing.assert_array_equal(in_range_share(z, low_mm, 7000.0, bin_px), expected)
+
+
 @pytest.fixture(scope="module")
 def wall_beyond_range(tmp_path_factory):
     """The blaze-101's plain test campaign without the robot (sweep in 1800 mm steps), a predictor of a camera
