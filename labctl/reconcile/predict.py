@@ -1,8 +1,8 @@
 """The simulation's noise-free prediction of a measured step, on the binned grid.
 
 The reconcile workflow compares bin means, so the simulator runs the camera
-at the bin grid: ``bin_px`` x ``bin_px`` pixels become one pixel (width,
-height, lens PSF and defocus disc divided by ``bin_px``). The bin's centre
+at the bin grid: ``bin_px`` x ``bin_px`` pixels become one pixel (width and
+height divided by ``bin_px``, no lens blur: ``binned_profile``). The bin's centre
 ray is then exactly the binned pixel's ray (``Pinhole``: c = (W - 1) / 2,
 f = (W / 2) / tan(FOV / 2)). The render samples each bin at k x k rays, as the
 measured camera samples each of its pixels, and the measured bin is the plain
@@ -12,7 +12,9 @@ pixels' own 1 / b^2 share, ``Predictor.tof_depth``) plus its curvature: the
 mean of a quadratic over the pixels' samples exceeds the mean over the bin's
 by f'' (b^2 - 1) / (24 b^2 k^2) per axis, with f'' the second difference over
 neighbouring bins (``bin_curvature``; 0.05 mm on a plate tilted by 60 deg at
-850 mm in 16-pixel bins, where z'' = 2 z tan^2(tilt) / f^2). A stereo camera's
+850 mm in 16-pixel bins, where z'' = 2 z tan^2(tilt) / f^2). A ToF bin's light
+gets the same term and the lens PSF's, which spreads each pixel's light where
+it curves (``Predictor.pixels_light``). A stereo camera's
 range hooks are averaged over the bin's pixels (``Predictor._pixels_reported``).
 Bins that straddle a depth or reflectance edge are flagged (``edge``) and left
 out of the comparison.
@@ -112,8 +114,10 @@ class Prediction:
 def binned_profile(profile: CameraProfile, width: int, height: int, bin_px: int) -> CameraProfile:
     """The measured camera (``width`` x ``height``) with ``bin_px`` x ``bin_px`` pixels merged into one.
 
-    The binned camera has no optical blur: blur only moves light across edges, and bins within the blur's
-    reach of an edge are left out of the comparison (``Predictor.blur_reach_bins``).
+    The binned camera has no optical blur: blur moves light across edges, and bins within the blur's reach of
+    an edge are left out of the comparison (``Predictor.blur_reach_bins``); what it does to a smooth light,
+    spreading it over the PSF's variance where the light curves, the ToF bins' light gets back
+    (``Predictor.pixels_light``).
     """
     return profile.with_overrides({"width": width // bin_px, "height": height // bin_px, "lens_sigma_px": 0.0})
 
@@ -368,6 +372,23 @@ class Predictor:
         return (rendered_depth * factor + bin_curvature(rendered_depth, self.bin_px, OVERSAMPLE) * factor
                 + self._reported_pixels_curvature * rendered_depth)
 
+    def pixels_light(self, light: np.ndarray, rendered: Any) -> np.ndarray:
+        """Per bin, the mean over its pixels of the light the lens blurs onto them, from ``light``, the mean over the
+        bin's k x k rays of ``rendered``. A light that curves within a bin differs in the two to second order (as
+        ``bin_curvature``'s surface: the pixels' samples spread by (b^2 - 1) / (12 b^2 k^2) of a bin^2 more along
+        each axis), and the lens PSF, a Gaussian of ``lens_sigma_px`` and the defocus disc (diameter D px, a
+        variance of D^2 / 16 along each axis), spreads each pixel's light over a variance s^2 px^2 more: L''
+        s^2 / (2 b^2). Without either, a lit wall's bins put the light of the amt100's corners 5e-5 below their
+        pixels' mean and its centre 5e-5 above (bins of 4 pixels), which a vignetting's exponent fitted 7e-5
+        low takes up; with the bin's curvature alone 1.7e-5. Taken only where the three bins along an axis
+        hold no edge: across one the second difference is the edge's, not the light's curvature."""
+        sigma2 = self.full.lens_sigma_px**2 + blur_diameter_px(self.full_effects, rendered.centre_distance_mm,
+                                                               self.full.lens_sigma_px) ** 2 / 16.0
+        k = rendered.oversample
+        spread = (self.bin_px**2 - 1) / (24 * self.bin_px**2 * k**2) + sigma2 / (2 * self.bin_px**2)
+        smooth = ~(rendered.edge | (rendered.hit_fraction < 1.0))
+        return light + second_differences(light, smooth) * spread
+
     def _pixel_weighted(self, weighted: np.ndarray, plain: np.ndarray) -> np.ndarray:
         """The bin's mean of a quantity as its pixels weight it by their light, from the render's light-weighted
         (``weighted``) and plain (``plain``) means over the bin's rays: the weighting's shift scales with the
@@ -431,7 +452,7 @@ class Predictor:
             range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
             reported = share > 0
             range_mm = range_mm + drift
-            light = amplitude / centre
+            light = self.pixels_light(amplitude / centre, rendered)
             amplitude = self.shade(light)
             cut = amplitude if reported.all() else self.shade(np.where(reported, light, 0.0))
             dominant = cut * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
@@ -526,6 +547,12 @@ def bin_curvature(z: np.ndarray, bin_px: int, oversample: int = 1) -> np.ndarray
     (k^2 - 1) / (12 k^2 b^2) and the bin's by (k^2 - 1) / (12 k^2), so the difference is z'' (b^2 - 1) /
     (24 b^2 k^2), z'' the second difference over neighbouring bins, summed over rows and columns (0 where a
     neighbour is missing)."""
+    return second_differences(z) * (bin_px**2 - 1) / (24 * bin_px**2 * oversample**2)
+
+
+def second_differences(z: np.ndarray, smooth: np.ndarray | None = None) -> np.ndarray:
+    """Per bin, the sum over rows and columns of ``z``'s second difference over the neighbouring bins: 0 along an
+    axis where a neighbour is missing (the border, NaN) or where one of the three bins is not ``smooth``."""
     d2 = np.zeros_like(z)
     for axis in (0, 1):
         second = np.full_like(z, np.nan)
@@ -534,5 +561,9 @@ def bin_curvature(z: np.ndarray, bin_px: int, oversample: int = 1) -> np.ndarray
         before, after = list(inner), list(inner)
         before[axis], after[axis] = slice(None, -2), slice(2, None)
         second[tuple(inner)] = z[tuple(before)] - 2 * z[tuple(inner)] + z[tuple(after)]
+        if smooth is not None:
+            held = np.zeros_like(smooth)
+            held[tuple(inner)] = smooth[tuple(before)] & smooth[tuple(inner)] & smooth[tuple(after)]
+            second[~held] = 0.0
         d2 += np.nan_to_num(second)
-    return d2 * (bin_px**2 - 1) / (24 * bin_px**2 * oversample**2)
+    return d2
