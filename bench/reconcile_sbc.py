@@ -14,7 +14,8 @@ calibration: a method that recovers what it is given names the right effects,
 and its 95 % intervals cover the truth about 95 % of the time). Prints per
 draw the outcome, then a table per effect and for the pairs: the share named
 right and nothing else (target >= 90 %; a hidden effect the run cannot show, one
-reconcile states not tested, is right unnamed, and those draws are counted), the share of the stated 95 %
+reconcile states not tested, is right unnamed, and those draws are counted; so are the draws reconcile calls
+``ambiguous`` between a hidden effect and a competitor, which name nothing), the share of the stated 95 %
 intervals covering the true parameter (target 85-99 %; the scalar parameters
 of the effects named right; a drift's amplitude at the run's first frame is
 not the hidden one and is left out), and the share whose gap after the named
@@ -105,7 +106,8 @@ def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: i
     except Exception as exc:  # noqa: BLE001 - any failure of a draw is reported with it, not raised
         return {"label": label, "seed": seed, "campaign": campaign, "hidden": sorted(hidden), "named": [],
                 "verdict": "failed", "error": f"{type(exc).__name__}: {exc}", "parameters": hidden, "covered": [],
-                "errors": [], "not_tested": [], "within_floor": False, "seconds": time.monotonic() - start}
+                "errors": [], "not_tested": [], "ambiguous": [], "within_floor": False,
+                "seconds": time.monotonic() - start}
     named = {e.name: e for e in result.named}
     covered: list[bool] = []
     errors: list[tuple[str, float]] = []  # (effect.parameter, (estimate - truth) / standard error)
@@ -130,6 +132,7 @@ def one_draw(label: str, camera: str, hidden: dict[str, dict[str, Any]], seed: i
             "named": sorted(named),
             "verdict": result.verdict, "covered": covered, "errors": errors,
             "not_tested": sorted(set(hidden) & set(result.not_tested)),
+            "ambiguous": sorted(result.ambiguity.between) if result.ambiguity is not None else [],
             "within_floor": bool(after is not None and result.rule.consistent(after)),
             "seconds": time.monotonic() - start}
 
@@ -177,20 +180,29 @@ def named_right(o: dict[str, Any]) -> bool:
     return o["named"] == sorted(set(o["hidden"]) - set(o.get("not_tested", [])))
 
 
+def ambiguous_with_hidden(o: dict[str, Any]) -> bool:
+    """The draw's verdict ``ambiguous`` between candidates one of which is a hidden effect: what reconcile answers
+    where the run cannot tell that effect from a competitor (``labctl plan`` states such pairs of a campaign)."""
+    return o["verdict"] == "ambiguous" and bool(set(o.get("ambiguous", [])) & set(o["hidden"]))
+
+
 def table(outcomes: list[dict[str, Any]]) -> str:
     """Per effect (and the pairs): named right and nothing else, interval coverage, gap after within the floor,
-    and the draws with a hidden effect stated not tested."""
+    the draws with a hidden effect stated not tested and those ``ambiguous`` with a hidden effect among the
+    candidates it could not tell apart."""
     lines = ["| hidden | draws | named right, nothing else | 95 % intervals covering | gap after within floor "
-             "| a hidden effect stated not tested | failed |", "|---|---|---|---|---|---|---|"]
+             "| a hidden effect stated not tested | ambiguous, a hidden effect among the candidates | failed |",
+             "|---|---|---|---|---|---|---|---|"]
     for label in sorted({o["label"] for o in outcomes}):
         rows = [o for o in outcomes if o["label"] == label]
         right = sum(named_right(o) for o in rows)
         covered = [c for o in rows for c in o["covered"]]
         within = sum(o["within_floor"] for o in rows)
         untested = sum(bool(o.get("not_tested")) for o in rows)
+        ambiguous = sum(ambiguous_with_hidden(o) for o in rows)
         failed = sum(o["verdict"] == "failed" for o in rows)
         lines.append(f"| {label} | {len(rows)} | {_share(right, len(rows))} | {_share(sum(covered), len(covered))} "
-                     f"| {_share(within, len(rows))} | {untested} | {failed} |")
+                     f"| {_share(within, len(rows))} | {untested} | {ambiguous} | {failed} |")
     return "\n".join(lines)
 
 

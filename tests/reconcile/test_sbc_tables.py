@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import tomllib
 
-from bench.reconcile_sbc import example_campaign, example_campaigns, named_right, plan, table
+from bench.reconcile_sbc import ambiguous_with_hidden, example_campaign, example_campaigns, named_right, plan, table
 from labctl.reconcile.observe import MAX_FRAMES
 
 
-def _draw(hidden: list[str], named: list[str], not_tested: list[str] | None = None) -> dict:
+def _draw(hidden: list[str], named: list[str], not_tested: list[str] | None = None,
+          ambiguous: list[str] | None = None) -> dict:
     draw = {"label": "pairs", "hidden": hidden, "named": named, "covered": [True], "within_floor": True,
-            "verdict": "effect_found" if named else "none"}
+            "verdict": "effect_found" if named else "ambiguous" if ambiguous else "none"}
     if not_tested is not None:  # records written before the field existed have none
         draw["not_tested"] = not_tested
+    if ambiguous is not None:  # nor this one
+        draw["ambiguous"] = ambiguous
     return draw
 
 
@@ -26,9 +29,18 @@ def test_an_unnamed_effect_is_right_only_when_stated_not_tested():
 
 
 def test_the_table_counts_right_draws_and_those_with_an_effect_not_tested():
-    draws = [_draw(["a", "b"], ["a", "b"], []), _draw(["a", "b"], ["a"], ["b"]), _draw(["a", "b"], [], [])]
+    draws = [_draw(["a", "b"], ["a", "b"], []), _draw(["a", "b"], ["a"], ["b"]), _draw(["a", "b"], [], []),
+             _draw(["a"], [], [], ["a", "c"]), _draw(["a"], [], [], ["c", "d"])]
     row = table(draws).splitlines()[-1]
-    assert row == "| pairs | 3 | 2/3 (67%) | 3/3 (100%) | 3/3 (100%) | 1 | 0 |"
+    assert row == "| pairs | 5 | 2/5 (40%) | 5/5 (100%) | 5/5 (100%) | 1 | 1 | 0 |"
+
+
+def test_an_ambiguous_draw_counts_only_with_a_hidden_effect_among_the_candidates():
+    assert ambiguous_with_hidden(_draw(["a"], [], [], ["a", "c"]))
+    assert ambiguous_with_hidden(_draw(["a", "b"], [], [], ["c", "b"]))
+    assert not ambiguous_with_hidden(_draw(["a"], [], [], ["c", "d"]))  # between two it was not given
+    assert not ambiguous_with_hidden(_draw(["a"], ["a"], []))  # named
+    assert not ambiguous_with_hidden(_draw(["a"], [], []))  # a record written before the field
 
 
 def test_a_draw_on_an_example_campaign_takes_its_cameras_campaigns_with_the_reconciles_frames():
