@@ -555,15 +555,10 @@ def second_differences(z: np.ndarray, smooth: np.ndarray | None = None) -> np.nd
     axis where a neighbour is missing (the border, NaN) or where one of the three bins is not ``smooth``."""
     d2 = np.zeros_like(z)
     for axis in (0, 1):
-        second = np.full_like(z, np.nan)
-        inner = [slice(None)] * 2
-        inner[axis] = slice(1, -1)
-        before, after = list(inner), list(inner)
-        before[axis], after[axis] = slice(None, -2), slice(2, None)
-        second[tuple(inner)] = z[tuple(before)] - 2 * z[tuple(inner)] + z[tuple(after)]
+        before, inner, after = ((slice(None),) * axis + (part,) for part in (np.s_[:-2], np.s_[1:-1], np.s_[2:]))
+        second = z[before] - 2 * z[inner] + z[after]
+        held = np.isfinite(second)
         if smooth is not None:
-            held = np.zeros_like(smooth)
-            held[tuple(inner)] = smooth[tuple(before)] & smooth[tuple(inner)] & smooth[tuple(after)]
-            second[~held] = 0.0
-        d2 += np.nan_to_num(second)
+            held &= smooth[before] & smooth[inner] & smooth[after]
+        d2[inner] += np.where(held, second, 0.0)
     return d2
