@@ -379,8 +379,8 @@ class Predictor:
         each axis), and the lens PSF, a Gaussian of ``lens_sigma_px`` and the defocus disc (diameter D px, a
         variance of D^2 / 16 along each axis), spreads each pixel's light over a variance s^2 px^2 more: L''
         s^2 / (2 b^2). Without either, a lit wall's bins put the light of the amt100's corners 5e-5 below their
-        pixels' mean and its centre 5e-5 above (bins of 4 pixels), which a vignetting's exponent fitted 7e-5
-        low takes up; with the bin's curvature alone 1.7e-5. Taken only where the three bins along an axis
+        pixels' mean and its centre 5e-5 above (bins of 4 pixels), which a vignetting's exponent fitted low by
+        7e-5 of itself took up; with the bin's curvature alone 1.7e-5. Taken only where the three bins along an axis
         hold no edge: across one the second difference is the edge's, not the light's curvature."""
         sigma2 = self.full.lens_sigma_px**2 + blur_diameter_px(self.full_effects, rendered.centre_distance_mm,
                                                                self.full.lens_sigma_px) ** 2 / 16.0
