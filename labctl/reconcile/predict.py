@@ -372,7 +372,7 @@ class Predictor:
         return (rendered_depth * factor + bin_curvature(rendered_depth, self.bin_px, OVERSAMPLE) * factor
                 + self._reported_pixels_curvature * rendered_depth)
 
-    def pixels_light(self, light: np.ndarray, rendered: Any) -> np.ndarray:
+    def pixels_light(self, light: np.ndarray, rendered: Any, smooth: np.ndarray) -> np.ndarray:
         """Per bin, the mean over its pixels of the light the lens blurs onto them, from ``light``, the mean over the
         bin's k x k rays of ``rendered``. A light that curves within a bin differs in the two to second order (as
         ``bin_curvature``'s surface: the pixels' samples spread by (b^2 - 1) / (12 b^2 k^2) of a bin^2 more along
@@ -381,12 +381,11 @@ class Predictor:
         s^2 / (2 b^2). Without either, a lit wall's bins put the light of the amt100's corners 5e-5 below their
         pixels' mean and its centre 5e-5 above (bins of 4 pixels), which a vignetting's exponent fitted low by
         7e-5 of itself took up; with the bin's curvature alone 1.7e-5. Taken only where the three bins along an axis
-        hold no edge: across one the second difference is the edge's, not the light's curvature."""
+        are ``smooth`` (no edge): across one the second difference is the edge's, not the light's curvature."""
         sigma2 = self.full.lens_sigma_px**2 + blur_diameter_px(self.full_effects, rendered.centre_distance_mm,
                                                                self.full.lens_sigma_px) ** 2 / 16.0
         k = rendered.oversample
         spread = (self.bin_px**2 - 1) / (24 * self.bin_px**2 * k**2) + sigma2 / (2 * self.bin_px**2)
-        smooth = ~(rendered.edge | (rendered.hit_fraction < 1.0))
         return light + second_differences(light, smooth) * spread
 
     def _pixel_weighted(self, weighted: np.ndarray, plain: np.ndarray) -> np.ndarray:
@@ -442,7 +441,8 @@ class Predictor:
         exposure = step.exposure_us or self.profile.exposure_us
         drift = self.drift_mm(times_s)
         reach = self.blur_reach_bins(recorded.centre_distance_mm)
-        edge = ndimage.binary_dilation(rendered.edge | (rendered.hit_fraction < 1.0), iterations=reach)
+        sharp = rendered.edge | (rendered.hit_fraction < 1.0)  # the bins an edge runs through
+        edge = ndimage.binary_dilation(sharp, iterations=reach)
         centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
             # a bin's means continue across the camera's range (the mean over all its pixels, as where part of them
@@ -452,7 +452,7 @@ class Predictor:
             range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
             reported = share > 0
             range_mm = range_mm + drift
-            light = self.pixels_light(amplitude / centre, rendered)
+            light = self.pixels_light(amplitude / centre, rendered, ~sharp)
             amplitude = self.shade(light)
             cut = amplitude if reported.all() else self.shade(np.where(reported, light, 0.0))
             dominant = cut * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
