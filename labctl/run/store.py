@@ -711,13 +711,21 @@ class RunReader:
         self.camera = _camera_info(self.file)
         self.camera_attrs = _attrs(self.file["camera"])
         self.devices = {role: _attrs(g) for role, g in self.file.get("devices", {}).items()}
+        self._steps: list[StepRecord] | None = None
+
+    def _complete(self) -> list[StepRecord]:
+        """The complete steps, their attributes read once: the file is open read-only, so they cannot change
+        (an evaluation asks for them once per procedure kind; reading 37 steps' attributes ten times took 0.4 s)."""
+        if self._steps is None:
+            self._steps = list(_complete_steps(self.file))
+        return self._steps
 
     def steps(self, procedure: str | None = None) -> list[StepRecord]:
         """Complete steps in execution order, optionally of one procedure kind."""
-        return [s for s in _complete_steps(self.file) if procedure is None or s.attrs.get("procedure") == procedure]
+        return [s for s in self._complete() if procedure is None or s.attrs.get("procedure") == procedure]
 
     def step(self, step_id: str) -> StepRecord:
-        for rec in _complete_steps(self.file):
+        for rec in self._complete():
             if rec.step_id == step_id:
                 return rec
         raise InputError(f"{self.path} has no complete step {step_id!r}")
