@@ -160,16 +160,48 @@ def _lattice_noise(ratio: np.ndarray, scale: np.ndarray, step_d: float, step_mm:
     return std, spread
 
 
-def tof_statistics(sensor: ToFSensor, amplitude: np.ndarray, ambient: float,
-                   z_per_range: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per bin: the depth's temporal std (mm, NaN where not predicted) and the expected valid fraction."""
+#: how many of its noise's standard deviations a pixel's amplitude lies from the confidence cut or the saturation
+#: for its valid probability to count as 0 or 1 (Phi(-8) = 6e-16): the bins whose pixels all lie further away take
+#: the probability at their mean amplitude, which then equals their pixels' mean to that precision
+CUT_REACH_SIGMA = 8.0
+
+
+def tof_statistics(sensor: ToFSensor, amplitude: np.ndarray, ambient: float, z_per_range: np.ndarray,
+                   slopes: tuple[np.ndarray, np.ndarray] | None = None,
+                   bin_px: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Per bin: the depth's temporal std (mm, NaN where not predicted) and the expected valid fraction.
+
+    A pixel-frame is valid when its amplitude, a + N(0, sigma_a^2) with sigma_a^2 = (2 a + ambient) / 2, lies
+    between the confidence cut and the saturation: Phi((saturation - a) / sigma_a) - Phi((cut - a) / sigma_a).
+    A bin's valid fraction is the mean of that over its ``bin_px`` x ``bin_px`` pixels, whose amplitudes differ
+    where the light slopes across the bin (a tilted plate, a vignetting): ``slopes``, the amplitude's change per
+    pixel down the rows and along the columns, puts the pixels at a + slope . offset. The probability is not
+    linear in a, so near the cut the bin's mean amplitude gives a fraction too sharp: on a tilted plate of the
+    amt100 at its test size (bins of 4 px), bins predicted 74 % valid at their mean amplitude were 69 % valid,
+    those predicted 5 % were 6 %. Without ``slopes``, or where every pixel lies ``CUT_REACH_SIGMA`` from both
+    limits, the fraction at the bin's mean amplitude."""
     p = sensor.profile
     seen = amplitude > 0
     a = np.where(seen, amplitude, 1.0)
     sigma_z = np.where(seen, range_noise_mm(p, a, ambient) * z_per_range, np.nan)
-    sigma_a = np.sqrt((2.0 * a + ambient) / 2.0)
     threshold, saturation = p.confidence_threshold_ratio * sensor.a_ref, p.saturation_ratio * sensor.a_ref
-    valid = _phi((saturation - a) / sigma_a) - _phi((threshold - a) / sigma_a)
+
+    def valid_at(amp: np.ndarray) -> np.ndarray:
+        sigma_a = np.sqrt((2.0 * amp + ambient) / 2.0)
+        return _phi((saturation - amp) / sigma_a) - _phi((threshold - amp) / sigma_a)
+
+    valid = valid_at(a)
+    if slopes is not None and bin_px > 1:
+        gy, gx = slopes
+        half = (np.abs(gx) + np.abs(gy)) * (bin_px - 1) / 2.0  # the bin's pixels lie within a +- half
+        reach = CUT_REACH_SIGMA * np.sqrt((2.0 * (a + half) + ambient) / 2.0)
+        near = seen & (half > 0) & (((a - half - reach) < threshold) & ((a + half + reach) > threshold)
+                                    | ((a - half - reach) < saturation) & ((a + half + reach) > saturation))
+        across = np.nonzero(near)
+        offsets = np.arange(bin_px) - (bin_px - 1) / 2.0  # the pixels' positions about the bin's centre
+        pixels = (a[across][:, None, None] + gy[across][:, None, None] * offsets[:, None]
+                  + gx[across][:, None, None] * offsets[None, :])
+        valid[across] = np.mean(valid_at(np.maximum(pixels, 0.0)), axis=(-2, -1))
     return with_output_step(sigma_z, output_step_mm(sensor.effects)), np.where(seen, valid, 0.0)
 
 

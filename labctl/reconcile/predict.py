@@ -457,7 +457,8 @@ class Predictor:
             cut = amplitude if reported.all() else self.shade(np.where(reported, light, 0.0))
             dominant = cut * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = self._tof_stored(self.tof_depth(rendered, range_mm), amplitude, ambient)
-            noise, valid = tof_statistics(self.sensor, cut, ambient, np.broadcast_to(self.z_per_range, z.shape))
+            noise, valid = tof_statistics(self.sensor, cut, ambient, np.broadcast_to(self.z_per_range, z.shape),
+                                          slopes(cut, self.bin_px, ~sharp), self.bin_px)
             valid = valid * share
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
@@ -548,6 +549,21 @@ def bin_curvature(z: np.ndarray, bin_px: int, oversample: int = 1) -> np.ndarray
     (24 b^2 k^2), z'' the second difference over neighbouring bins, summed over rows and columns (0 where a
     neighbour is missing)."""
     return second_differences(z) * (bin_px**2 - 1) / (24 * bin_px**2 * oversample**2)
+
+
+def slopes(z: np.ndarray, bin_px: int, smooth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per bin, ``z``'s change per pixel down the rows and along the columns: the central difference over the
+    neighbouring bins over 2 ``bin_px``; 0 along an axis where a neighbour is missing (the border, NaN) or one of
+    the three bins is not ``smooth`` (across an edge the difference is the edge's step, not a slope)."""
+    out = []
+    for axis in (0, 1):
+        before, inner, after = ((slice(None),) * axis + (part,) for part in (np.s_[:-2], np.s_[1:-1], np.s_[2:]))
+        difference = (z[after] - z[before]) / (2.0 * bin_px)
+        held = np.isfinite(difference) & smooth[before] & smooth[inner] & smooth[after]
+        slope = np.zeros_like(z)
+        slope[inner] = np.where(held, difference, 0.0)
+        out.append(slope)
+    return out[0], out[1]
 
 
 def second_differences(z: np.ndarray, smooth: np.ndarray | None = None) -> np.ndarray:
