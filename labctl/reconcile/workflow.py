@@ -44,6 +44,7 @@ candidate reached over seeds and cameras; the threshold sits well above it).
 from __future__ import annotations
 
 import math
+import time
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -320,9 +321,15 @@ class _Fitted:
         return jac
 
 
+#: seconds between two progress lines of a fit (a fit of the complete campaign re-simulates it for about 10 s)
+FIT_PROGRESS_S = 2.0
+
+
 def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout,
-                 max_nfev: int) -> _Fitted:
-    """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations."""
+                 max_nfev: int, say: Callable[[str], None] | None = None) -> _Fitted:
+    """Nonlinear least squares of the parameters of ``found`` (added to ``model``) on full re-simulations; ``say``
+    hears, at most every ``FIT_PROGRESS_S``, how many re-simulations the fit has made and the least whitened sum
+    of squares so far."""
     vectors = [c.vector(p) for c, p in found]
     x0 = np.concatenate([v[0] for v in vectors])
     lo = np.concatenate([v[1][0] for v in vectors])
@@ -339,7 +346,19 @@ def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim
     def residual(x: np.ndarray) -> np.ndarray:
         return whitened_residual(sim, lay, build(x))
 
-    result = optimize.least_squares(residual, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev)
+    names = " and ".join(c.name for c, _ in found)
+    made, least, last = 0, math.inf, time.monotonic()
+
+    def reported(x: np.ndarray) -> np.ndarray:
+        nonlocal made, least, last
+        r = residual(x)
+        made, least = made + 1, min(least, float(r @ r))
+        if say is not None and time.monotonic() - last >= FIT_PROGRESS_S:
+            last = time.monotonic()
+            say(f"fitting {names}: {made} re-simulations, whitened sum of squares {least:.6g}")
+        return r
+
+    result = optimize.least_squares(reported, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev)
     return _Fitted(result, build, residual, (lo, hi), [slice(a, b) for a, b in zip(sizes[:-1], sizes[1:])])
 
 
@@ -463,15 +482,16 @@ def capture_hint(name: str, params: Parameters, obs: list[Observation], t0_s: fl
 Refinement = tuple[Parameters, dict[str, float], Determination, float, np.ndarray | None]
 
 
-def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay: Layout) -> Refinement:
+def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay: Layout,
+           say: Callable[[str], None] | None = None) -> Refinement:
     """The candidate's parameters refined on full re-simulations, starting from its linear fit.
 
     Returns the parameters, their standard errors (the larger of the delete-one-step jackknife's and the declared
     errors', docs/reconcile.md *Parameter uncertainty*), how well the run determines them (``determination``),
     the whitened RSS and the residual's slope in each parameter there (``_Fitted.secant_jacobian``; None where it
-    could not be taken).
+    could not be taken). ``say``: the fit's progress (``_fit_effects``).
     """
-    fitted = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25)
+    fitted = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25, say=say)
     result = fitted.result
     params = candidate.from_vector(result.x)
     rss = float(result.fun @ result.fun)
@@ -513,12 +533,13 @@ class Joint:
     determinations: list[tuple[dict[str, float], Determination]] | None
 
 
-def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout) -> Joint:
+def refine_jointly(found: list[tuple[Candidate, Parameters]], model: SimModel, sim: Simulation, lay: Layout,
+                   say: Callable[[str], None] | None = None) -> Joint:
     """All effects named in this reconcile refitted together (an effect fitted while another was still
     missing carries some of the other's residual), each one's errors taken from their joint covariance: an
     effect's interval then holds what trading off with the others leaves uncertain, which its own fit, the
-    others held, does not."""
-    fitted = _fit_effects(found, model, sim, lay, max_nfev=20)
+    others held, does not. ``say``: the fit's progress (``_fit_effects``)."""
+    fitted = _fit_effects(found, model, sim, lay, max_nfev=20, say=say)
     x = fitted.result.x
     try:
         slopes = _slopes(fitted)
@@ -605,11 +626,12 @@ class _State:
         return beside.out_of(r) if beside is not None else r
 
 
-def _resimulated(state: _State, fit: Fit, candidate: Candidate, beside: Beside | None) -> tuple[Fit, Refinement]:
-    """``fit`` with the change of its full re-simulation as its signature: the candidate refined (``refine``) and
-    the whitened residual its model leaves taken from the one it is scored on (the named effects' slopes taken out
-    of both, ``_State.scored_residual``); and the refinement, for naming it."""
-    refinement = refine(candidate, fit, state.model, state.sim, state.lay)
+def _resimulated(state: _State, fit: Fit, candidate: Candidate, beside: Beside | None,
+                 say: Callable[[str], None] | None = None) -> tuple[Fit, Refinement]:
+    """``fit`` with the change of its full re-simulation as its signature: the candidate refined (``refine``, its
+    progress to ``say``) and the whitened residual its model leaves taken from the one it is scored on (the named
+    effects' slopes taken out of both, ``_State.scored_residual``); and the refinement, for naming it."""
+    refinement = refine(candidate, fit, state.model, state.sim, state.lay, say)
     change = state.whitened() - whitened_residual(state.sim, state.lay,
                                                   with_effect(state.model, fit.name, refinement[0]))
     if beside is not None:
@@ -623,7 +645,7 @@ def _resimulating(state: _State, fits: list[tuple[Fit, Candidate]], beside: Besi
     """``_resimulated`` for the screen of a round's ``fits``, keeping each refinement in ``refined``."""
     def resimulated(fit: Fit) -> Fit:
         say(f"re-simulating {fit.name} at its fitted strength")
-        full, refined[fit.name] = _resimulated(state, fit, next(c for f, c in fits if f is fit), beside)
+        full, refined[fit.name] = _resimulated(state, fit, next(c for f, c in fits if f is fit), beside, say)
         return full
     return resimulated
 
@@ -644,7 +666,7 @@ def _add_masked_pair(state: _State, fits: list[tuple[Fit, Candidate]], rule: Fix
     r = state.whitened()
     before, previous, rss_before = state.good, state.model, float(r @ r)
     joint = refine_jointly([*found, (a_candidate, a.params), (b_candidate, b.params)], start_model, state.sim,
-                           state.lay)
+                           state.lay, say)
     state.set(joint.model)
     if not rule.material(before, state.good):
         iteration.decision = (f"{a.name} and {b.name} together not material (gap {before.gap_mm:.3f} -> "
@@ -931,13 +953,13 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             break
         say(f"fitting {best.name}")
         params, stderr, info_det, rss, slopes = refined.get(best.name) or refine(candidate, best, state.model, sim,
-                                                                                  lay)
+                                                                                  lay, say)
         before, previous, previous_slopes = state.good, state.model, state.named_slopes
         state.set(with_effect(state.model, best.name, params))
         joint: Joint | None = None  # the named effects refitted with it
         if found and not rule.material(before, state.good):  # scored with the named effects free: judged so too
             say(f"refitting the named effects with {best.name}")
-            joint = refine_jointly([*found, (candidate, params)], start_model, sim, lay)
+            joint = refine_jointly([*found, (candidate, params)], start_model, sim, lay, say)
             state.set(joint.model)
         if not rule.material(before, state.good):
             iteration.decision = (f"{best.name} not material (gap {before.gap_mm:.3f} -> {state.good.gap_mm:.3f} mm, "
@@ -964,7 +986,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         if len(found) > 1:  # before the next round: what one effect carried of another's residual is not left over
             if joint is None:
                 say("refitting the named effects together")
-                joint = refine_jointly(found, start_model, sim, lay)
+                joint = refine_jointly(found, start_model, sim, lay, say)
                 state.set(joint.model)
             state.named_slopes = joint.slopes
             found = [(c, dict(state.model.effects[c.name])) for c, _ in found]

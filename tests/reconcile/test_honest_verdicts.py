@@ -12,12 +12,14 @@ range correction that closes at least half the gap.
 from __future__ import annotations
 
 import math
+import re
 
 import h5py
 import numpy as np
 import pytest
 
 from labctl.cli import main
+from labctl.reconcile import workflow
 from labctl.reconcile.goodness import Goodness, StepFit
 from labctl.reconcile.workflow import material, reconcile
 from sim.model import parse_model
@@ -65,9 +67,26 @@ def test_a_range_error_outside_the_library_is_unexplained_and_characterized(tmp_
     assert info.value.code == 0
 
 
-def test_no_spurious_small_effect_after_a_two_effect_fit(tmp_path):
+def test_no_spurious_small_effect_after_a_two_effect_fit(tmp_path, monkeypatch):
+    """... and every fit says how far it has got: here after each re-simulation (``FIT_PROGRESS_S`` 0), its
+    count one more each time and the least sum of squares so far never rising."""
+    monkeypatch.setattr(workflow, "FIT_PROGRESS_S", 0.0)
     hidden = {"range_scale": {"scale": 0.01}, "wiggling": {"amplitude_mm": 3.0, "period_mm": 900.0, "phase_rad": 0.5}}
-    result = reconcile(simulated_run(tmp_path, "blaze101", hidden))
+    said: list[str] = []
+    result = reconcile(simulated_run(tmp_path, "blaze101", hidden), progress=said.append)
+    fits: list[list[tuple[str, int, float]]] = []
+    for line in said:
+        found = re.fullmatch(r"fitting (.+): (\d+) re-simulations, whitened sum of squares (\S+)", line)
+        if found is None:
+            continue
+        names, made, least = found[1], int(found[2]), float(found[3])
+        if made == 1:
+            fits.append([])
+        fits[-1].append((names, made, least))
+    assert {"range_scale", "wiggling", "range_scale and wiggling"} <= {fit[0][0] for fit in fits}, said
+    for fit in fits:
+        assert [m for _, m, _ in fit] == list(range(1, len(fit) + 1)) and len({n for n, _, _ in fit}) == 1
+        assert all(b <= a for (_, _, a), (_, _, b) in zip(fit, fit[1:], strict=False))
     assert sorted(e.name for e in result.named) == ["range_scale", "wiggling"], result.named
     assert result.verdict == "effect_found"
     assert result.goodness_after.consistent
