@@ -190,10 +190,17 @@ def group_offsets(bin_px: int) -> np.ndarray:
     return np.arange(points) * group + (group - 1) / 2.0 - (bin_px - 1) / 2.0
 
 
-def tof_statistics(sensor: ToFSensor, amplitude: np.ndarray, ambient: float, z_per_range: np.ndarray,
-                   slopes: tuple[np.ndarray, np.ndarray] | None = None,
-                   bin_px: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Per bin: the depth's temporal std (mm, NaN where not predicted) and the expected valid fraction.
+def tof_noise(sensor: ToFSensor, amplitude: np.ndarray, ambient: float, z_per_range: np.ndarray) -> np.ndarray:
+    """Per bin: the depth's temporal std (mm, NaN where not predicted) at the bin's ``amplitude``."""
+    seen = amplitude > 0
+    a = np.where(seen, amplitude, 1.0)
+    sigma_z = np.where(seen, range_noise_mm(sensor.profile, a, ambient) * z_per_range, np.nan)
+    return with_output_step(sigma_z, output_step_mm(sensor.effects))
+
+
+def tof_valid_fraction(sensor: ToFSensor, amplitude: np.ndarray, ambient: float,
+                       slopes: tuple[np.ndarray, np.ndarray] | None = None, bin_px: int = 1) -> np.ndarray:
+    """Per bin: the expected valid fraction.
 
     A pixel-frame is valid when its amplitude, a + N(0, sigma_a^2) with sigma_a^2 = (2 a + ambient) / 2, lies
     between the confidence cut and the saturation: Phi((saturation - a) / sigma_a) - Phi((cut - a) / sigma_a).
@@ -208,7 +215,6 @@ def tof_statistics(sensor: ToFSensor, amplitude: np.ndarray, ambient: float, z_p
     p = sensor.profile
     seen = amplitude > 0
     a = np.where(seen, amplitude, 1.0)
-    sigma_z = np.where(seen, range_noise_mm(p, a, ambient) * z_per_range, np.nan)
     threshold, saturation = p.confidence_threshold_ratio * sensor.a_ref, p.saturation_ratio * sensor.a_ref
 
     def valid_at(amp: np.ndarray) -> np.ndarray:
@@ -230,7 +236,7 @@ def tof_statistics(sensor: ToFSensor, amplitude: np.ndarray, ambient: float, z_p
             pixels = (a[across][:, None, None] + gy[across][:, None, None] * offsets[:, None]
                       + gx[across][:, None, None] * offsets[None, :])
             valid[across] = np.mean(valid_at(np.maximum(pixels, 0.0)), axis=(-2, -1))
-    return with_output_step(sigma_z, output_step_mm(sensor.effects)), np.where(seen, valid, 0.0)
+    return np.where(seen, valid, 0.0)
 
 
 def in_range_share(z: np.ndarray, low: float, high: float, bin_px: int) -> np.ndarray:

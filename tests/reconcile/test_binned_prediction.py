@@ -595,5 +595,14 @@ def test_a_tof_bins_valid_fraction_is_its_pixels_mean_where_the_light_slopes_acr
         errors.append((predicted.valid_rate - truth)[inner])
     error = np.concatenate(errors)
     assert len(error) > 100
+    # each step keeps its last valid fraction with its light: a model that darkens the corners gets its own
+    shared: dict = {}
+    vignetted = with_effect(base_model(info), "vignetting", {"exponent": 6.0})
+    for model in (base_model(info), vignetted):
+        kept = Predictor(model, info["width"], info["height"], info["bin_px"], shared)
+        fresh = Predictor(model, info["width"], info["height"], info["bin_px"])
+        for o in observations:
+            times = o.times_s - o.times_s[0]
+            assert np.array_equal(kept.predict(o.scene, times).valid_rate, fresh.predict(o.scene, times).valid_rate)
     # 0.0015 on average and at most 0.018 here (408 bins); at the bins' mean amplitude 0.036 and 0.075
     assert np.abs(error).mean() < 0.005 and np.abs(error).max() < 0.03, (np.abs(error).mean(), np.abs(error).max())
