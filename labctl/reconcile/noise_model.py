@@ -217,15 +217,18 @@ def tof_valid_fraction(sensor: ToFSensor, amplitude: np.ndarray, ambient: float,
     a = np.where(seen, amplitude, 1.0)
     threshold, saturation = p.confidence_threshold_ratio * sensor.a_ref, p.saturation_ratio * sensor.a_ref
 
+    def sigma_at(amp: np.ndarray) -> np.ndarray:
+        return np.sqrt((2.0 * amp + ambient) / 2.0)
+
     def valid_at(amp: np.ndarray) -> np.ndarray:
-        sigma_a = np.sqrt((2.0 * amp + ambient) / 2.0)
+        sigma_a = sigma_at(amp)
         return _phi((saturation - amp) / sigma_a) - _phi((threshold - amp) / sigma_a)
 
     valid = valid_at(a)
     if slopes is not None and bin_px > 1:
         gy, gx = slopes
         half = (np.abs(gx) + np.abs(gy)) * (bin_px - 1) / 2.0  # the bin's pixels lie within a +- half
-        reach = CUT_REACH_SIGMA * np.sqrt((2.0 * (a + half) + ambient) / 2.0)
+        reach = CUT_REACH_SIGMA * sigma_at(a + half)
         near = np.nonzero(seen & (half > 0) & ((np.abs(a - threshold) < half + reach)
                                                | (np.abs(a - saturation) < half + reach)))
         if near[0].size:  # most steps have none: a wall far above the cut

@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 from typing import Any
@@ -389,17 +389,17 @@ class Predictor:
         spread = (self.bin_px**2 - 1) / (24 * self.bin_px**2 * k**2) + sigma2 / (2 * self.bin_px**2)
         return light + second_differences(light, smooth) * spread
 
-    def _valid_fraction(self, step_id: str, cut: np.ndarray, ambient: float, sharp: np.ndarray) -> np.ndarray:
+    def _valid_fraction(self, step_id: str, cut: np.ndarray, ambient: float, smooth: np.ndarray) -> np.ndarray:
         """The ToF bins' valid fraction (``tof_valid_fraction``) at the light ``cut``, its slopes taken where no
-        edge runs (``sharp``). Each step keeps its last one with what it was computed from: most models a fit
+        edge runs (``smooth``). Each step keeps its last one with what it was computed from: most models a fit
         tries change the depth and not the light, and the bins near the cut, averaged over their pixels, cost
         about a quarter of a prediction of the complete campaign (0.04 of 0.14 s)."""
         p = self.sensor.profile
-        inputs = (cut.tobytes(), sharp.tobytes(), ambient, p.confidence_threshold_ratio * self.sensor.a_ref,
+        inputs = (cut.tobytes(), smooth.tobytes(), ambient, p.confidence_threshold_ratio * self.sensor.a_ref,
                   p.saturation_ratio * self.sensor.a_ref)
         held = self.cache.get(("valid fraction", step_id))
         if held is None or held[0] != inputs:
-            held = (inputs, tof_valid_fraction(self.sensor, cut, ambient, slopes(cut, self.bin_px, ~sharp),
+            held = (inputs, tof_valid_fraction(self.sensor, cut, ambient, slopes(cut, self.bin_px, smooth),
                                                self.bin_px))
             self.cache[("valid fraction", step_id)] = held
         return held[1]
@@ -458,6 +458,7 @@ class Predictor:
         drift = self.drift_mm(times_s)
         reach = self.blur_reach_bins(recorded.centre_distance_mm)
         sharp = rendered.edge | (rendered.hit_fraction < 1.0)  # the bins an edge runs through
+        smooth = ~sharp
         edge = ndimage.binary_dilation(sharp, iterations=reach)
         centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
@@ -468,13 +469,13 @@ class Predictor:
             range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
             reported = share > 0
             range_mm = range_mm + drift
-            light = self.pixels_light(amplitude / centre, rendered, ~sharp)
+            light = self.pixels_light(amplitude / centre, rendered, smooth)
             amplitude = self.shade(light)
             cut = amplitude if reported.all() else self.shade(np.where(reported, light, 0.0))
             dominant = cut * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
             z = self._tof_stored(self.tof_depth(rendered, range_mm), amplitude, ambient)
             noise = tof_noise(self.sensor, cut, ambient, np.broadcast_to(self.z_per_range, z.shape))
-            valid = self._valid_fraction(step.step_id, cut, ambient, sharp) * share
+            valid = self._valid_fraction(step.step_id, cut, ambient, smooth) * share
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
                               np.zeros_like(z), _independent(noise), reported)
@@ -566,30 +567,33 @@ def bin_curvature(z: np.ndarray, bin_px: int, oversample: int = 1) -> np.ndarray
     return second_differences(z) * (bin_px**2 - 1) / (24 * bin_px**2 * oversample**2)
 
 
-def slopes(z: np.ndarray, bin_px: int, smooth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per bin, ``z``'s change per pixel down the rows and along the columns: the central difference over the
-    neighbouring bins over 2 ``bin_px``; 0 along an axis where a neighbour is missing (the border, NaN) or one of
-    the three bins is not ``smooth`` (across an edge the difference is the edge's step, not a slope)."""
+def _neighbour_differences(z: np.ndarray, smooth: np.ndarray | None,
+                           difference: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]) -> list[np.ndarray]:
+    """Per axis (rows, then columns), ``difference(before, bin, after)`` of every bin and its two neighbours along
+    the axis: 0 where a neighbour is missing (the border, NaN) or one of the three bins is not ``smooth`` (across
+    an edge a difference is the edge's step, not the surface's or the light's shape)."""
     out = []
     for axis in (0, 1):
         before, inner, after = ((slice(None),) * axis + (part,) for part in (np.s_[:-2], np.s_[1:-1], np.s_[2:]))
-        difference = (z[after] - z[before]) / (2.0 * bin_px)
-        held = np.isfinite(difference) & smooth[before] & smooth[inner] & smooth[after]
-        slope = np.zeros_like(z)
-        slope[inner] = np.where(held, difference, 0.0)
-        out.append(slope)
-    return out[0], out[1]
+        value = difference(z[before], z[inner], z[after])
+        held = np.isfinite(value)
+        if smooth is not None:
+            held &= smooth[before] & smooth[inner] & smooth[after]
+        along = np.zeros_like(z)
+        along[inner] = np.where(held, value, 0.0)
+        out.append(along)
+    return out
+
+
+def slopes(z: np.ndarray, bin_px: int, smooth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per bin, ``z``'s change per pixel down the rows and along the columns: the central difference over the
+    neighbouring bins over 2 ``bin_px`` (``_neighbour_differences``)."""
+    down, across = _neighbour_differences(z, smooth, lambda before, _, after: (after - before) / (2.0 * bin_px))
+    return down, across
 
 
 def second_differences(z: np.ndarray, smooth: np.ndarray | None = None) -> np.ndarray:
-    """Per bin, the sum over rows and columns of ``z``'s second difference over the neighbouring bins: 0 along an
-    axis where a neighbour is missing (the border, NaN) or where one of the three bins is not ``smooth``."""
-    d2 = np.zeros_like(z)
-    for axis in (0, 1):
-        before, inner, after = ((slice(None),) * axis + (part,) for part in (np.s_[:-2], np.s_[1:-1], np.s_[2:]))
-        second = z[before] - 2 * z[inner] + z[after]
-        held = np.isfinite(second)
-        if smooth is not None:
-            held &= smooth[before] & smooth[inner] & smooth[after]
-        d2[inner] += np.where(held, second, 0.0)
-    return d2
+    """Per bin, the sum over rows and columns of ``z``'s second difference over the neighbouring bins
+    (``_neighbour_differences``)."""
+    down, across = _neighbour_differences(z, smooth, lambda before, bin_, after: before - 2 * bin_ + after)
+    return down + across
