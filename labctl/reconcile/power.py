@@ -220,8 +220,8 @@ def _family_rows(lay: Layout, column: tuple[np.ndarray, ...]) -> Iterator[tuple[
 
 class _Replicas:
     """The null replicas as arrays: step mean squares (``StepFit.mean_square``) and floors over a common (step,
-    family) list, cell residual sums of squares, and the statistics of ``null.step_statistics`` computed from
-    them."""
+    family) list, cell residual sums of squares, and the statistics of ``null.combined_statistics`` computed
+    from them."""
 
     def __init__(self, null: NullCalibration, name: str, null_dbic: dict[str, np.ndarray], threshold: float) -> None:
         self.alpha, self.threshold = null.alpha, threshold
@@ -244,11 +244,10 @@ class _Replicas:
         self.maps = [[r.maps.get(family, {}).get(step_id) for r in null.replicas] for step_id, family in self.steps]
 
     def statistics(self, square: np.ndarray) -> np.ndarray:
-        """(replicas, statistics): per family the signed root of the mean of the step mean squares, then the largest
-        step ratio (gap = the root of the mean square clipped at 0)."""
+        """(replicas, statistics): per family the mean of the step mean squares, then the largest step ratio (gap =
+        the root of the mean square clipped at 0)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean = [np.nanmean(np.where(self.family_of == f, square, np.nan), axis=1) for f in self.families]
-            columns = [np.sign(m) * np.sqrt(np.abs(m)) for m in mean]
+            columns = [np.nanmean(np.where(self.family_of == f, square, np.nan), axis=1) for f in self.families]
             ratio = np.sqrt(np.maximum(square, 0.0)) / self.floor
             columns.append(np.nanmax(np.where(np.isfinite(ratio), ratio, np.nan), axis=1))
         return np.stack(columns, axis=1)

@@ -23,6 +23,7 @@ from labctl.reconcile.null import (
     DEFAULT_NULL_RUNS,
     NullCalibration,
     Replica,
+    combined_statistics,
     critical_value,
     p_value,
     p_values,
@@ -119,6 +120,27 @@ def test_consistency_and_significance_against_hand_made_null_runs():
     assert rule.significance(best, {"wiggling", "range_scale"}) == (True, pytest.approx(0.05))
     best = type("F", (), {"score": -3.0})()  # ties with every replica's range_scale
     assert rule.significance(best, {"wiggling", "range_scale"})[0] is False
+
+
+def test_the_combined_statistic_standardizes_each_familys_mean_square_not_its_root():
+    """The root's slope near 0 stretches a family whose mean square sits there into an outlier. 19 replicas with
+    depth mean squares evenly over -0.009 ... 0.009 and validity mean squares evenly over -0.036 ... 0: as mean
+    squares no replica stands out in either family; as signed roots the validity's 0 lies 2.5 standard deviations
+    above the others' roots (-0.045 and below). A run with depth 0.015, above every replica, and validity
+    -0.018, their middle, is the most extreme of the 20 runs in one family and in none other, so p = 1 / 20; with
+    the roots combined its standardized depth (2.1) stayed below the replica's validity (2.5), p = 2 / 20."""
+    def steps(depth, validity):
+        return [StepFit("s0", "depth", math.sqrt(max(depth, 0.0)), 1.0, depth),
+                StepFit("s0", "validity", math.sqrt(max(validity, 0.0)), 1.0, validity)]
+
+    rule = NullCalibration([Replica(j, steps(0.001 * (j - 9), -0.036 + 0.002 * j), {}, None, 0.0)
+                            for j in range(19)])
+    measured = type("G", (), {"steps": steps(0.015, -0.018)})()
+    assert combined_statistics(measured.steps) == {"gap:depth": 0.015, "gap:validity": -0.018,
+                                                   "worst_step_ratio": pytest.approx(math.sqrt(0.015))}
+    judged = rule.judge(measured)
+    assert judged.p_value == pytest.approx(1 / 20)
+    assert judged.statistics["gap:depth"] == pytest.approx(math.sqrt(0.015), abs=1e-4)  # reported as its root
 
 
 def test_the_power_model_crosses_the_signature_with_each_replicas_residual():
