@@ -187,6 +187,9 @@ class Candidate:
     from_vector: Callable[[np.ndarray], Parameters]
     applies: Callable[[Context], bool] = field(default=lambda ctx: True)
     bind: Callable[[Context], Candidate] | None = None  # builds the candidate from the run (its signatures)
+    #: a candidate whose signature is the run's depth residual (``fixed_pattern``): the candidate built from other
+    #: stacked depth residual rows instead (the minimum detectable effect builds it from an effect's change)
+    rebind: Callable[[Context, np.ndarray], Candidate] | None = None
     #: the linear coefficients as the fit may take them (``score``): a single coefficient beyond its bound held at
     #: the bound, which for one parameter is the least-squares optimum within the bounds
     clip: Callable[[np.ndarray], np.ndarray] = field(default=lambda c: c)
@@ -514,11 +517,12 @@ def _held_out_sums(values: np.ndarray) -> np.ndarray:
     return out
 
 
-def _pattern_residual(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
-    """(steps, h, w) depth residual in range units with the nuisance removed, and its weights (0 where unused)."""
-    dz = [o.z - p.z for o, p in zip(ctx.observations, ctx.predictions, strict=True)]
-    flat = ctx.lay.profile_z(np.nan_to_num(ctx.lay.stack_z(dz))) / ctx.z_rows("z_per_range")
-    res, weight = np.zeros((len(dz),) + dz[0].shape), np.zeros((len(dz),) + dz[0].shape)
+def _pattern_residual(ctx: Context, dz_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(steps, h, w) depth residual in range units with the nuisance removed, from the stacked depth residual rows
+    ``dz_rows`` (mm), and its weights (0 where unused)."""
+    flat = ctx.lay.profile_z(np.nan_to_num(dz_rows)) / ctx.z_rows("z_per_range")
+    shape = (len(ctx.lay.z_masks),) + ctx.observations[0].z.shape
+    res, weight = np.zeros(shape), np.zeros(shape)
     start = 0
     for s, mask in enumerate(ctx.lay.z_masks):
         n = int(mask.sum())
@@ -533,7 +537,13 @@ def _column_row_profile(effect: Effect) -> Candidate:
 
     def bind(ctx: Context) -> Candidate:
         """The candidate with the profiles of this run's residual."""
-        res, weight = _pattern_residual(ctx)
+        return rebind(ctx, ctx.lay.stack_z([o.z - p.z for o, p in zip(ctx.observations, ctx.predictions,
+                                                                       strict=True)]))
+
+    def rebind(ctx: Context, dz_rows: np.ndarray) -> Candidate:
+        """The candidate with the profiles of the depth residual rows ``dz_rows``: its columns are linear in them
+        (weighted means over the steps and the bins)."""
+        res, weight = _pattern_residual(ctx, dz_rows)
         weighted = weight * res
         col, row = _additive_profiles(weighted.sum(0), weight.sum(0))
         held_out_col, held_out_row = [], []
@@ -557,11 +567,12 @@ def _column_row_profile(effect: Effect) -> Candidate:
             x = np.array([np.dot(p[col_key], col) / norms[0], np.dot(p[row_key], row) / norms[1]])
             return x, (np.full(2, -PATTERN_GAIN_LIMIT), np.full(2, PATTERN_GAIN_LIMIT))
 
-        return Candidate(effect.name, effect.technologies, 2, _none, columns, to_params, vector, from_vector)
+        return Candidate(effect.name, effect.technologies, 2, _none, columns, to_params, vector, from_vector,
+                         rebind=rebind)
 
     return Candidate(  # bound to a run's residual by candidates_for
         effect.name, effect.technologies, 2, _none, lambda ctx, _: [], lambda ctx, c, _: None,
-        lambda p: (np.zeros(0), (np.zeros(0), np.zeros(0))), lambda x: {}, bind=bind,
+        lambda p: (np.zeros(0), (np.zeros(0), np.zeros(0))), lambda x: {}, bind=bind, rebind=rebind,
     )
 
 

@@ -15,39 +15,41 @@ to each null replica (labctl/reconcile/null.py) in thought:
   campaign: 0.025 of its 0.031 mm^2). The replica with the effect must then lie
   outside the other replicas' distribution (``NullCalibration.judge``'s rule,
   p <= alpha), or the round stops as "consistent";
-* the dBIC: in every (step, family) cell c the residual sum of squares falls by
-  the signal it carries, A^2 q_c, q_c = |u_c|^2 (the noncentrality of the fit),
-  so dBIC(A) = dBIC_0 + sum_c ln(1 + A^2 q_c / RSS_c), with dBIC_0 the replica's
-  own null dBIC of the candidate and RSS_c its cell's residual sum of squares;
-  the cross term of signal and noise adds a normal spread of variance
-  sum_c 4 A^2 q_c / (n_c RSS_c) (n_c rows; each logarithm linearized). The
-  effect must pass the critical value of the null replicas' best dBIC;
+* the dBIC: in every (step, family) cell c the fit takes up the signal the
+  cell carries, so dBIC(A) = dBIC_0 + sum_c ln(1 + (A^2 q_c + 2 A x_c) /
+  RSS_c), q_c = |u_c|^2 (the noncentrality of the fit), x_c = u_c . r_c the
+  signature's product with the replica's whitened residual r_c there
+  (``residual_rows``), RSS_c = |r_c|^2 (1 + ... is the cell's |r_c + A u_c|^2 /
+  |r_c|^2), dBIC_0 the replica's own null dBIC of the candidate. The cross term
+  is the replica's own, not a white-noise spread: a step's residual is not
+  white. The effect must pass the critical value of the null replicas' best
+  dBIC;
 * the margin over a competitor: another candidate C fits of the effect's change
   u its projection w on C's signature columns (least squares, score.py), at the
   point of C's grid where that projection is largest. The two compete
   (``score.competing``) where the fitted changes correlate, |w| / |u| >=
   ``COMPETING_CORRELATION``, and then C's dBIC falls short of the effect's by
-  what C cannot fit: dBIC(A) - dBIC_C(A) = dBIC_0 - dBIC_0,C + sum_c ln(1 + A^2
-  |u_c - w_c|^2 / RSS_c), with the spread of variance sum_c 4 A^2 |u_c - w_c|^2
-  / (n_c RSS_c) (the noise's cross with u - w). The effect is named only where
-  that exceeds ``MARGIN`` against every competitor, the workflow's ambiguity rule
-  (labctl/reconcile/workflow.py; the probabilities of passing the threshold and
-  the margin are multiplied, as if independent). A competitor whose signature
-  reproduces the effect's, |w| = |u|, leaves no amplitude at which it is named:
-  the effect is not separable from it in this campaign (``MinimumDetectable.
-  rival``).
+  what C cannot fit: dBIC(A) - dBIC_C(A) = dBIC_0 - dBIC_0,C + sum_c ln(1 +
+  (A^2 |u_c - w_c|^2 + 2 A (u_c - w_c) . r_c) / RSS_c). A competitor built
+  from the run's own residual (``fixed_pattern``: ``Candidate.rebind``) is
+  rebuilt from the residual of a run carrying the effect (``_Rebuilt``). The
+  effect is named only where the margin exceeds ``MARGIN`` against every
+  competitor, the workflow's ambiguity rule (labctl/reconcile/workflow.py). A
+  competitor whose signature reproduces the effect's, |w| = |u|, leaves no
+  amplitude at which it is named: the effect is not separable from it in this
+  campaign (``MinimumDetectable.rival``).
 
-The detection probability at A is the mean over the replicas and over the
+The detection probability at A is the share of the replicas and of the
 effect's directions (both signs; a two-part signature, a wiggling's sine and
 cosine, at ``PHASES`` phases; one sign where the effect's parameter is bounded
-at 0, an albedo or a level) of [outside the null] x P(dBIC(A) > critical
-value) x P(margin over every competitor); the amplitude where it
+at 0, an albedo or a level) in which the replica with the effect lies outside
+the null, its dBIC passes the critical value and its margin over every
+competitor ``MARGIN``; the amplitude where it
 reaches ``POWER`` is found by bisection, at ``GRID_POINTS`` points spread evenly
 over the candidate's grid of nonlinear parameters (a wiggling's period, a drift's
 time constant). The
 headline figure is the median over that grid; the detail gives the grid's
-range and the parameters of the median point. The dBIC's gain counts a
-two-part signature with its parts' mean power. What this does
+range and the parameters of the median point. What this does
 not model: the separating steps' screen (labctl/reconcile/confounds.py), the
 leave-one-step-out check and the materiality rule, which a named effect must
 pass as well; and
@@ -62,10 +64,9 @@ from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
-from scipy.special import ndtr
 
 from labctl.reconcile.candidates import Candidate, Context, candidates_for
-from labctl.reconcile.null import NullCalibration, critical_value, p_values, standardized_max_rows
+from labctl.reconcile.null import NullCalibration, Replica, critical_value, p_values, standardized_max_rows
 from labctl.reconcile.residuals import STATISTICS, Layout
 from labctl.reconcile.results import MinimumDetectable
 from labctl.reconcile.score import COMPETING_CORRELATION, MARGIN
@@ -112,12 +113,14 @@ class _Signal:
     amplitude may take."""
 
     def __init__(self, u: np.ndarray, cells: np.ndarray, maps: dict[tuple[str, str], list[np.ndarray]],
-                 signs: tuple[float, ...]) -> None:
+                 signs: tuple[float, ...], depth: list[np.ndarray] | None = None) -> None:
         self.u, self.cells, self.maps, self.signs = u, cells, maps, signs
+        self.depth = depth or []  # per part its unwhitened stacked depth rows (mm), before the nuisance is profiled
         n_cells = int(cells.max()) + 1 if len(cells) else 0
         self.q = np.mean([np.bincount(cells, w * w, n_cells) for w in u], axis=0)
         self.rows = np.bincount(cells, minlength=n_cells)
         self.parts = len(u)
+        self.gram = self.cell_gram(u)
 
     def cell_gram(self, v: np.ndarray) -> np.ndarray:
         """(cells, parts, parts): the products of the rows ``v`` (parts, rows) per residual cell."""
@@ -145,16 +148,17 @@ def _signal(candidate: Candidate, ctx: Context, lay: Layout, nonlinear: Any) -> 
                 if np.isfinite(m).any():
                     maps.setdefault((o.scene.step_id, family), []).append(m)
     u = np.stack([lay.profiled_rows(*part) for part in parts])
-    return key, _Signal(u, lay.row_cells(), maps, signs)
+    return key, _Signal(u, lay.row_cells(), maps, signs, [part[0] for part in parts])
 
 
 class _Rivalry:
     """What a competitor C leaves of a signature (labctl/reconcile/score.py fits C's columns by least squares):
-    per residual cell the products of the parts of u - w, w the projection of u on C's columns, (cells, P, P);
-    and the parts' products over all rows of u and of w, (P, P)."""
+    its rows per part, u - w (P, rows), w the projection of u on C's columns, and per residual cell their products,
+    (cells, P, P); and the parts' products over all rows of u and of w, (P, P)."""
 
-    def __init__(self, name: str, rest: np.ndarray, u: np.ndarray, w: np.ndarray) -> None:
-        self.name, self.rest, self.u, self.w = name, rest, u, w
+    def __init__(self, name: str, left: np.ndarray, rest: np.ndarray, u: np.ndarray, w: np.ndarray) -> None:
+        self.name, self.left, self.rest, self.u, self.w = name, left, rest, u, w
+        self.crossed: np.ndarray | None = None  # (replicas, P, cells): u - w with each replica's residual
 
     def competes(self, a: np.ndarray) -> bool:
         """Whether C's fit correlates with the effect's in direction ``a`` (``score.competing``: |w| / |u|)."""
@@ -164,6 +168,47 @@ class _Rivalry:
     def share(self) -> float:
         """The fraction of the signature's power C reproduces, over its parts."""
         return float(np.trace(self.w) / np.trace(self.u)) if np.trace(self.u) > 0 else 0.0
+
+
+class _Rebuilt:
+    """A competitor built from the run's own depth residual (``Candidate.rebind``: ``fixed_pattern``). In a run
+    carrying the effect at amplitude A in direction a its columns are those of the residual r + A a.u, and they are
+    linear in the residual, so its whitened, profiled columns are X_r + A sum_k a_k X_k: X_r built from this run's
+    residual, X_k from part k of the signature alone. What it leaves of the effect's change follows with A: little
+    where the run's own residual dominates its profiles, all that is not a column or row pattern where the effect
+    does."""
+
+    def __init__(self, candidate: Candidate, ctx: Context, lay: Layout, signal: _Signal) -> None:
+        assert candidate.rebind is not None
+        self.name = candidate.name
+        self.own = self._columns(candidate, ctx, lay)
+        self.parts = [self._columns(candidate.rebind(ctx, rows), ctx, lay) for rows in signal.depth]
+
+    @staticmethod
+    def _columns(candidate: Candidate, ctx: Context, lay: Layout) -> np.ndarray:
+        return np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, None)])
+
+    def left(self, amplitude: float, signal: _Signal, a: np.ndarray) -> np.ndarray | None:
+        """The rows its least-squares fit leaves of the change ``a``.u, u - w, where the two compete (|w| / |u| >=
+        ``COMPETING_CORRELATION``, ``score.competing``); None where they do not."""
+        x = self.own + amplitude * sum((ak * xk for ak, xk in zip(a, self.parts, strict=True)),
+                                       np.zeros_like(self.own))
+        u = a @ signal.u
+        w = x @ np.linalg.lstsq(x, u, rcond=None)[0]
+        power = float(u @ u)
+        if power == 0 or float(w @ w) < COMPETING_CORRELATION**2 * power:
+            return None
+        return u - w
+
+    def share(self, signal: _Signal) -> float:
+        """The fraction of the signature's power it reproduces where the effect dominates the run's residual (its
+        columns built from the signature alone), over the signature's directions."""
+        shares = []
+        for a in phases(signal.parts, signal.signs):
+            x, u = sum(ak * xk for ak, xk in zip(a, self.parts, strict=True)), a @ signal.u
+            w = x @ np.linalg.lstsq(x, u, rcond=None)[0]
+            shares.append(float(w @ w) / float(u @ u) if float(u @ u) > 0 else 0.0)
+        return float(np.mean(shares))
 
 
 def _bases(candidate: Candidate, ctx: Context, lay: Layout) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -200,7 +245,7 @@ def _rivalries(signal: _Signal, bases: dict[str, list[tuple[np.ndarray, np.ndarr
         rows, q = max(found, key=lambda b: float(np.sum((b[1].T @ on_rows(b[0]).T) ** 2)))
         w = np.zeros_like(signal.u)
         w[:, rows] = (q @ (q.T @ signal.u[:, rows].T)).T
-        out.append(_Rivalry(name, signal.cell_gram(signal.u - w), signal.u @ signal.u.T, w @ w.T))
+        out.append(_Rivalry(name, signal.u - w, signal.cell_gram(signal.u - w), signal.u @ signal.u.T, w @ w.T))
     return out
 
 
@@ -218,13 +263,30 @@ def _family_rows(lay: Layout, column: tuple[np.ndarray, ...]) -> Iterator[tuple[
             start += len(steps)
 
 
+def residual_rows(null: NullCalibration, lay: Layout, step_ids: list[str]) -> np.ndarray:
+    """(replicas, rows): each replica's residual maps (``Replica.maps``: goodness.residual_maps, the nuisance
+    profiled out, in the families' units) on this run's rows of ``Layout.profiled_rows`` (steps ``step_ids``),
+    whitened with this run's weights; 0 at a bin the replica did not compare."""
+    def per_step(replica: Replica, family: str) -> list[np.ndarray]:
+        maps = replica.maps.get(family, {})
+        return [np.nan_to_num(np.asarray(maps[i], float)) if i in maps else np.zeros(m.shape)
+                for i, m in zip(step_ids, lay.family_masks(family), strict=True)]
+
+    return np.stack([lay.whitened(lay.stack_z(per_step(r, "depth")), lay.stack_i(per_step(r, "intensity")) / 100,
+                                  lay.stack_statistics({f: per_step(r, f) for f in STATISTICS
+                                                        if lay.family_masks(f)}) / 100)
+                     for r in null.replicas])
+
+
 class _Replicas:
     """The null replicas as arrays: step mean squares (``StepFit.mean_square``) and floors over a common (step,
-    family) list, cell residual sums of squares, and the statistics of ``null.combined_statistics`` computed
-    from them."""
+    family) list, cell residual sums of squares, their residual rows, and the statistics of
+    ``null.combined_statistics`` computed from them."""
 
-    def __init__(self, null: NullCalibration, name: str, null_dbic: dict[str, np.ndarray], threshold: float) -> None:
+    def __init__(self, null: NullCalibration, name: str, null_dbic: dict[str, np.ndarray], threshold: float,
+                 residual: np.ndarray) -> None:
         self.alpha, self.threshold = null.alpha, threshold
+        self.residual = residual  # (replicas, rows): ``residual_rows``
         self.steps = sorted({(s.step_id, s.family) for r in null.replicas for s in r.steps})
         index = {k: i for i, k in enumerate(self.steps)}
         k, n = len(null.replicas), len(self.steps)
@@ -287,31 +349,59 @@ class _Replicas:
                     cross[j, i] = values[:, both] @ r[both] / both.sum()
         return power, cross
 
-    def probability(self, amplitude: float, signal: _Signal, crossed: tuple[np.ndarray, np.ndarray],
-                    rivals: list[_Rivalry]) -> float:
+    def crosses(self, v: np.ndarray, cells: np.ndarray, n_cells: int) -> np.ndarray:
+        """(replicas, parts, ``n_cells``): the products of the rows ``v`` (parts, rows) with each replica's whitened
+        residual (``residual_rows``), summed per residual cell: a signal's cross term with a replica's residual,
+        which holds the replica's noise and what the model misses in every replica alike. A step's residual is
+        not white (the reference's error moves all its bins, the spatially correlated noise its neighbours), so
+        this cross term spreads far wider than the white noise's sum_c 4 A^2 q_c / (n_c RSS_c) (a temperature
+        drift's dBIC over six seeds: 10.0-19.6)."""
+        out = np.zeros((len(self.base), len(v), n_cells))
+        on = np.flatnonzero(np.any(v != 0, axis=0))
+        for j, r in enumerate(self.residual[:, on]):
+            for k, part in enumerate(v[:, on]):
+                out[j, k] = np.bincount(cells[on], part * r, n_cells)
+        return out
+
+    def probability(self, amplitude: float, signal: _Signal, crossed: tuple[np.ndarray, np.ndarray, np.ndarray],
+                    rivals: list[_Rivalry], rebuilt: list[_Rebuilt]) -> float:
         """The probability that a replica carrying the effect at ``amplitude``, over the directions of ``phases``
         (each equally likely), is judged outside the null, the effect's dBIC passes the threshold and its margin
-        over every competitor ``MARGIN``."""
-        power, cross = crossed
-        named = self.named(amplitude, signal)
+        over every competitor ``MARGIN``. ``crossed``: the statistics' power and cross terms (``crossing``) and the
+        signature's cross terms with the replicas' residual rows (``crosses``)."""
+        power, cross, dbic_cross = crossed
         directions = phases(signal.parts, signal.signs)
         hits = 0.0
         for a in directions:
             added = amplitude**2 * np.einsum("sab,a,b->s", power, a, a) + 2 * amplitude * cross @ a
-            chance = named * self.separated(amplitude, signal, a, rivals)
+            gain = self.gain(amplitude, np.einsum("cab,a,b->c", signal.gram, a, a),
+                             np.einsum("jpc,p->jc", dbic_cross, a))
+            chance = (self.dbic0 - self.threshold + gain > 0) * self.separated(amplitude, signal, a, rivals, rebuilt)
             hits += float(np.sum(chance[self.outside(self.statistics(self.square + added))]))
         return hits / (len(self.base) * len(directions))
 
-    def separated(self, amplitude: float, signal: _Signal, a: np.ndarray, rivals: list[_Rivalry]) -> np.ndarray:
-        """Per replica, the probability that the effect's dBIC in direction ``a`` exceeds every competitor's by
-        ``MARGIN`` (the smallest over the competitors: the closest one is the runner-up the workflow checks)."""
-        out = np.ones(len(self.base))
+    def separated(self, amplitude: float, signal: _Signal, a: np.ndarray, rivals: list[_Rivalry],
+                  rebuilt: list[_Rebuilt]) -> np.ndarray:
+        """Per replica, whether the effect's dBIC in direction ``a`` exceeds every competitor's by ``MARGIN``:
+        by its own null dBIC's excess over the competitor's and the gain of what the competitor cannot fit
+        (those built from the run's residual, ``rebuilt``, at ``amplitude``)."""
+        out = np.ones(len(self.base), bool)
+        n_cells = len(signal.rows)
         for rival in rivals:
             if not rival.competes(a):
                 continue
-            rest = np.einsum("cab,a,b->c", rival.rest, a, a)
-            start = self.dbic0 - self.null_dbic[rival.name] - MARGIN
-            out = np.minimum(out, self.passing(amplitude, rest, signal.rows, start))
+            if rival.crossed is None:
+                rival.crossed = self.crosses(rival.left, signal.cells, n_cells)
+            gain = self.gain(amplitude, np.einsum("cab,a,b->c", rival.rest, a, a),
+                             np.einsum("jpc,p->jc", rival.crossed, a))
+            out &= self.dbic0 - self.null_dbic[rival.name] - MARGIN + gain > 0
+        for other in rebuilt:
+            left = other.left(amplitude, signal, a)
+            if left is None:
+                continue
+            rest = np.bincount(signal.cells, left * left, n_cells)
+            gain = self.gain(amplitude, rest, self.crosses(left[None], signal.cells, n_cells)[:, 0])
+            out &= self.dbic0 - self.null_dbic[other.name] - MARGIN + gain > 0
         return out
 
     def cell_rss(self, cells: int) -> np.ndarray:
@@ -321,23 +411,13 @@ class _Replicas:
             self._cell_rss[cells] = np.stack([np.maximum(np.resize(r, cells), 1e-300) for r in self.rss])
         return self._cell_rss[cells]
 
-    def named(self, amplitude: float, signal: _Signal) -> np.ndarray:
-        """Per replica, the probability that the effect's dBIC at ``amplitude`` passes the threshold (the same in
-        every direction: the gain counts the parts' mean power)."""
-        return self.passing(amplitude, signal.q, signal.rows, self.dbic0 - self.threshold)
-
-    def passing(self, amplitude: float, power: np.ndarray, rows: np.ndarray, start: np.ndarray) -> np.ndarray:
-        """Per replica j, the probability that start_j + sum_c ln(1 + A^2 p_c / RSS_jc) exceeds 0, ``power`` p per
-        cell (of ``rows`` rows each): the fall of the cells' log residual sum of squares when a fit takes up a
-        signal of that power, with the normal spread of its cross term with the noise, variance
-        sum_c 4 A^2 p_c / (n_c RSS_jc) (each logarithm linearized)."""
-        use = power > 0
-        rss = self.cell_rss(len(power))[:, use]
-        gain = np.sum(np.log1p(amplitude**2 * power[use] / rss), axis=1)
-        var = np.sum(4 * amplitude**2 * power[use] / (np.maximum(rows[use], 1) * rss), axis=1)
-        excess = start + gain
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(var > 0, ndtr(excess / np.sqrt(var)), (excess > 0).astype(float))  # the normal cdf
+    def gain(self, amplitude: float, power: np.ndarray, cross: np.ndarray) -> np.ndarray:
+        """Per replica j, sum_c ln(1 + (A^2 p_c + 2 A x_jc) / RSS_jc): the fall of the cells' log residual sum of
+        squares when a fit takes up a signal of power p_c per cell, x_jc its cross term with the replica's
+        residual (``crosses``). 1 + (A^2 p + 2 A x) / RSS is the cell's |r + A u|^2 / |r|^2 (at least 0; kept
+        above 1e-300 where the whitening of this run and the replica's differ)."""
+        rss = self.cell_rss(len(power))
+        return np.sum(np.log(np.maximum(1 + (amplitude**2 * power + 2 * amplitude * cross) / rss, 1e-300)), axis=1)
 
 
 def phases(parts: int, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarray]:
@@ -352,20 +432,20 @@ def phases(parts: int, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarra
     return [sign * row for row in np.eye(parts) for sign in (1.0, -1.0)]
 
 
-def _amplitude(signal: _Signal, replicas: _Replicas, rivals: list[_Rivalry]) -> float:
+def _amplitude(signal: _Signal, replicas: _Replicas, rivals: list[_Rivalry], rebuilt: list[_Rebuilt]) -> float:
     """The amplitude detected with probability ``POWER`` (inf when none within 1e6 times the first guess)."""
     total = float(np.sum(signal.q))
     if not total > 0:
         return math.inf
-    crossed = replicas.crossing(signal)
+    crossed = (*replicas.crossing(signal), replicas.crosses(signal.u, signal.cells, len(signal.rows)))
     lo, hi = 0.0, 1.0 / math.sqrt(total)
-    while replicas.probability(hi, signal, crossed, rivals) < POWER:
+    while replicas.probability(hi, signal, crossed, rivals, rebuilt) < POWER:
         lo, hi = hi, hi * 2
         if hi > 1e6 / math.sqrt(total):
             return math.inf
     for _ in range(12):  # the bracket [hi / 2, hi] to 0.03 % of the amplitude
         mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if replicas.probability(mid, signal, crossed, rivals) >= POWER else (mid, hi)
+        lo, hi = (lo, mid) if replicas.probability(mid, signal, crossed, rivals, rebuilt) >= POWER else (mid, hi)
     return hi
 
 
@@ -375,12 +455,14 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, Mi
     in_play = {n for r in null.replicas for n in r.delta_bic}
     threshold = critical_value(null.null_best(in_play), null.alpha)
     candidates = list(candidates_for(ctx))
+    residual = residual_rows(null, lay, [o.scene.step_id for o in ctx.observations])
     null_dbic = {c.name: np.array([r.delta_bic.get(c.name, -c.n_params * math.log(lay.n_steps))
                                    for r in null.replicas]) for c in candidates}
-    bases = {c.name: _bases(c, ctx, lay) for c in candidates}
+    bases = {c.name: _bases(c, ctx, lay) for c in candidates if c.rebind is None}
+    from_residual = [c for c in candidates if c.rebind is not None]
     out: dict[str, MinimumDetectable] = {}
     for candidate in candidates:
-        replicas = _Replicas(null, candidate.name, null_dbic, threshold)
+        replicas = _Replicas(null, candidate.name, null_dbic, threshold, residual)
         found = []
         grid = candidate.grid(ctx)
         for nonlinear in [grid[int(i)] for i in np.unique(np.linspace(0, len(grid) - 1, GRID_POINTS).round())]:
@@ -389,9 +471,11 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, Mi
                 continue
             key, s = signal
             rivals = _rivalries(s, {n: b for n, b in bases.items() if n != candidate.name})
-            amplitude = _amplitude(s, replicas, rivals)
-            closest = max(rivals, key=_Rivalry.share, default=None)
-            rival = closest.name if closest is not None and closest.share() >= COMPETING_CORRELATION**2 else None
+            rebuilt = [_Rebuilt(c, ctx, lay, s) for c in from_residual if c.name != candidate.name and s.depth]
+            amplitude = _amplitude(s, replicas, rivals, rebuilt)
+            shares = [(r.share(), r.name) for r in rivals] + [(r.share(s), r.name) for r in rebuilt]
+            closest = max(shares, default=(0.0, None))
+            rival = closest[1] if closest[0] >= COMPETING_CORRELATION**2 else None
             found.append((amplitude, key, nonlinear, rival))
         if not found:
             continue

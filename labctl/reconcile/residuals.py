@@ -197,9 +197,14 @@ class Layout:
     def profiled_rows(self, z_rows: np.ndarray, i_rows: np.ndarray, s_rows: np.ndarray | None = None) -> np.ndarray:
         """Stacked depth, intensity and statistics rows (``stack_statistics``; zero when not given) with the
         nuisance profiled out, whitened (sqrt weight)."""
-        _, i_root, s_root = self._whitening
-        s_rows = np.zeros(len(s_root)) if s_rows is None else s_rows
-        return np.concatenate([self.profiled_depth(z_rows), self.profile_i(i_rows) * i_root, s_rows * s_root])
+        s_rows = np.zeros(len(self._whitening[2])) if s_rows is None else s_rows
+        return self.whitened(self.profile_z(z_rows), self.profile_i(i_rows), s_rows)
+
+    def whitened(self, z_rows: np.ndarray, i_rows: np.ndarray, s_rows: np.ndarray) -> np.ndarray:
+        """Stacked depth, intensity and statistics rows with the nuisance already profiled out, whitened as
+        ``profiled_rows`` whitens them (sqrt weight)."""
+        z_root, i_root, s_root = self._whitening
+        return np.concatenate([z_rows * z_root, i_rows * i_root, s_rows * s_root])
 
     def shared_nuisance(self) -> np.ndarray:
         """The whitened design of the nuisance that steps share (the depth offset of each reference group, the wall's

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from labctl.jsondoc import to_json
-from labctl.reconcile.goodness import StepFit
+from labctl.reconcile.candidates import Context, candidates_for
+from labctl.reconcile.goodness import StepFit, residual_maps
 from labctl.reconcile.null import (
     ALPHA,
     DEFAULT_NULL_RUNS,
@@ -33,9 +34,20 @@ from labctl.reconcile.null import (
     standardized_max_rows,
     step_statistics,
 )
-from labctl.reconcile.power import _Replicas, _rivalries, _Signal, _unit, detectable_message, phases
+from labctl.reconcile.observe import observe_run
+from labctl.reconcile.power import (
+    _Rebuilt,
+    _Replicas,
+    _rivalries,
+    _Signal,
+    _unit,
+    detectable_message,
+    phases,
+    residual_rows,
+)
+from labctl.reconcile.residuals import layout, raw_residuals, raw_statistics
 from labctl.reconcile.results import MinimumDetectable
-from labctl.reconcile.workflow import json_document, reconcile
+from labctl.reconcile.workflow import Simulation, base_model, json_document, reconcile
 from tests.conftest import REALTIME_GROUP
 from tests.reconcile.runs import CAMPAIGN, ROBOT, reconcile_cli, simulated_run
 
@@ -152,7 +164,8 @@ def test_the_power_model_crosses_the_signature_with_each_replicas_residual():
                         {"depth": {"s0": residual * (i + 1)}}) for i in range(2)]
     sine, cosine = np.array([[1.0, 0.0, -1.0, 0.0]]), np.array([[0.0, 1.0, 0.0, -1.0]])
     signal = _Signal(np.ones((2, 5)), np.arange(5), {("s0", "depth"): [sine, cosine]}, (1.0, -1.0))
-    power, cross = _Replicas(NullCalibration(replicas), "wiggling", {"wiggling": np.zeros(2)}, 0.0).crossing(signal)
+    power, cross = _Replicas(NullCalibration(replicas), "wiggling", {"wiggling": np.zeros(2)}, 0.0,
+                              np.zeros((2, 5))).crossing(signal)
     assert power[0] == pytest.approx(np.array([[2 / 4, 0.0], [0.0, 2 / 4]]))
     # over the three bins the residual covers: (0.2 * 1 + 0 + 0) / 3 and (0 - 0.1 * 1 - 0.3 * 1) / 3, scaled by i + 1
     assert cross[0, 0] == pytest.approx([0.2 / 3, -0.4 / 3], rel=1e-6)
@@ -200,32 +213,85 @@ def test_the_power_model_reads_the_amplitude_and_the_signs_a_candidate_accepts(s
 def test_the_power_model_names_an_effect_only_by_the_margin_over_a_competitor(angle_deg):
     """An effect whose change u is one unit in rows 0 and 2 (two rows in each of two cells), a competitor whose
     one column is b = (cos t, sin t, cos t, sin t) / sqrt 2. Its least-squares fit of u is w = (u.b) b = cos t
-    (cos t, sin t, cos t, sin t): |w| / |u| = cos t, and per cell |u_c - w_c|^2 = (1 - cos^2 t)^2 + cos^2 t
-    sin^2 t = sin^2 t. At amplitude A the effect's dBIC exceeds the competitor's by dBIC_0 - dBIC_0,C +
-    2 ln(1 + A^2 sin^2 t / RSS) with variance 2 * 4 A^2 sin^2 t / (2 RSS), which must pass MARGIN (10). The two
-    compete only where cos t >= 0.5: at 70 degrees the competitor never stops the effect, at 0 nothing is
-    left to tell them apart."""
+    (cos t, sin t, cos t, sin t): |w| / |u| = cos t, and u - w = sin t (sin t, -cos t, sin t, -cos t). A
+    replica's residual r_c in cell c (|r_c|^2 = RSS = 0.5) crosses it as x_c = (u_c - w_c).r_c; carrying the effect
+    at amplitude A the competitor's fit leaves |r_c + A (u_c - w_c)|^2 = RSS + 2 A x_c + A^2 sin^2 t of the cell,
+    the effect's fit about RSS, so the effect's dBIC exceeds the competitor's by dBIC_0 - dBIC_0,C +
+    sum_c ln(1 + (A^2 sin^2 t + 2 A x_c) / RSS), which must pass MARGIN (10). The two compete only where
+    cos t >= 0.5: at 70 degrees the competitor never stops the effect, at 0 nothing is left to tell them
+    apart."""
     t = math.radians(angle_deg)
+    angles = [0.3, 2.0, 4.0]  # each replica's residual in each cell: sqrt(0.5) (cos, sin) of its angle
+    residual = np.array([[math.cos(g), math.sin(g), math.cos(g + 1), math.sin(g + 1)] for g in angles]) * math.sqrt(0.5)
     replicas = [Replica(i, [StepFit("s0", "depth", 0.1, 1.0)], {"e": 2.0 * i, "c": -1.0 * i}, np.full(2, 0.5),
                         0.0, {}) for i in range(3)]
     model = _Replicas(NullCalibration(replicas), "e", {"e": np.array([0.0, 2.0, 4.0]),
-                                                       "c": np.array([0.0, -1.0, -2.0])}, 0.0)
+                                                       "c": np.array([0.0, -1.0, -2.0])}, 0.0, residual)
     signal = _Signal(np.array([[1.0, 0.0, 1.0, 0.0]]), np.array([0, 0, 1, 1]), {}, (1.0,))
     basis = np.array([[math.cos(t)], [math.sin(t)], [math.cos(t)], [math.sin(t)]]) / math.sqrt(2)
     rivals = _rivalries(signal, {"c": [(np.arange(4), basis)]})
     assert rivals[0].share() == pytest.approx(math.cos(t) ** 2)
     a = np.array([1.0])
     for amplitude in (0.5, 3.0, 10.0):
-        chance = model.separated(amplitude, signal, a, rivals)
+        chance = model.separated(amplitude, signal, a, rivals, [])
         if angle_deg == 70.0:
-            assert list(chance) == [1.0, 1.0, 1.0]
+            assert list(chance) == [True, True, True]
             continue
-        rest = math.sin(t) ** 2
+        left = math.sin(t) * np.array([math.sin(t), -math.cos(t), math.sin(t), -math.cos(t)])
         for j, margin0 in enumerate([0.0, 3.0, 6.0]):
-            margin = margin0 + 2 * math.log1p(amplitude**2 * rest / 0.5) - 10.0
-            sd = math.sqrt(2 * 4 * amplitude**2 * rest / (2 * 0.5))
-            expected = float(margin > 0) if sd == 0 else 0.5 * math.erfc(-margin / sd / math.sqrt(2))
-            assert chance[j] == pytest.approx(expected, abs=1e-12)
+            x = [left[:2] @ residual[j, :2], left[2:] @ residual[j, 2:]]
+            margin = margin0 - 10.0 + sum(math.log(max(1 + (amplitude**2 * math.sin(t) ** 2 + 2 * amplitude * xc)
+                                                       / 0.5, 1e-300)) for xc in x)
+            assert chance[j] == (margin > 0)
+
+
+def test_the_power_model_crosses_a_signature_with_each_replicas_whitened_residual(small_context):
+    """A replica's residual maps (goodness.residual_maps: depth profiled, in mm; intensity profiled, in %; the
+    statistics in % or points) are put back on the run's rows and whitened as the run's own residual is: a
+    replica holding this run's own residual gives this run's whitened residual (``Layout.profiled``), and its
+    cross term with a signature per cell is the sum of their products over the cell's rows."""
+    ctx = small_context
+    lay = ctx.lay
+    dz, di = raw_residuals(ctx.observations, ctx.predictions)
+    stats = raw_statistics(ctx.observations, ctx.predictions)
+    maps = residual_maps(lay, dz, di, stats)
+    ids = [o.scene.step_id for o in ctx.observations]
+    replica = Replica(0, [StepFit(ids[0], "depth", 0.1, 1.0)], {}, np.zeros(1), 0.0,
+                      {f: dict(zip(ids, m, strict=True)) for f, m in maps.items()})
+    rows = residual_rows(NullCalibration([replica]), lay, ids)
+    expected = np.nan_to_num(lay.profiled(dz, di, stats))
+    np.testing.assert_allclose(rows[0], expected, rtol=1e-5, atol=1e-9)  # the maps are float32
+    cells = lay.row_cells()
+    u = np.random.default_rng(4).normal(size=(1, len(cells)))
+    replicas = _Replicas(NullCalibration([replica]), "e", {"e": np.zeros(1)}, 0.0, rows)
+    crossed = replicas.crosses(u, cells, int(cells.max()) + 1)
+    np.testing.assert_allclose(crossed[0, 0], np.bincount(cells, u[0] * expected, int(cells.max()) + 1),
+                               rtol=1e-5, atol=1e-9)
+
+
+def test_a_competitor_built_from_the_runs_residual_is_rebuilt_from_the_effects_change(small_context):
+    """The fixed pattern's columns are the profiles of the run's residual, weighted means and so linear in it: in a
+    run whose residual is r + A u its whitened columns are X_r + A X_u (the power model rebuilds it so). A change
+    that is one column pattern at every step (in range units) is a fixed pattern: built from that change alone,
+    its held-out profiles reproduce nearly all of it (the nuisance takes a little of it from each step)."""
+    ctx = small_context
+    lay = ctx.lay
+    fixed = next(c for c in candidates_for(ctx) if c.name == "fixed_pattern")
+    dz, _ = raw_residuals(ctx.observations, ctx.predictions)
+    r = np.nan_to_num(lay.stack_z(dz))
+    width = ctx.observations[0].z.shape[1]
+    pattern = 0.5 * np.cos(2 * np.pi * np.arange(width) / width * 3)  # mm of range per bin column
+    u = lay.stack_z([np.broadcast_to(pattern, o.z.shape) for o in ctx.observations]) * ctx.z_rows("z_per_range")
+
+    def whitened(candidate):
+        return np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, None)])
+
+    amplitude = 2.5
+    np.testing.assert_allclose(whitened(fixed.rebind(ctx, r + amplitude * u)),
+                               whitened(fixed.rebind(ctx, r)) + amplitude * whitened(fixed.rebind(ctx, u)),
+                               rtol=1e-9, atol=1e-9)
+    signal = _Signal(lay.profiled_rows(u, np.zeros(len(lay.i_step)))[None], lay.row_cells(), {}, (1.0, -1.0), [u])
+    assert _Rebuilt(fixed, ctx, lay, signal).share(signal) > 0.9
 
 
 def test_a_replica_runs_the_measured_campaign_with_another_seed_and_no_faults():
@@ -244,6 +310,19 @@ def test_no_null_runs_says_fixed_thresholds(tmp_path):
     assert doc["null_calibration"]["method"] == "fixed thresholds" and doc["null_calibration"]["null_runs"] == 0
     assert "minimum_detectable" not in doc
     assert "p_value" not in doc["goodness_of_fit"]["before"]
+
+
+@pytest.fixture(scope="module")
+def small_context(tmp_path_factory):
+    """The signatures' context of a plain blaze-101 run: offset calibration at 2 m, a 0.4-4 m sweep in 900 mm
+    steps, robot plates."""
+    run = simulated_run(tmp_path_factory.mktemp("small"), "blaze101", seed=5, sweep_step_mm=900)
+    observations, info, _ = observe_run(run)
+    sim = Simulation(observations, info)
+    model = base_model(info)
+    predictions = sim.predict(model)
+    return Context(observations, predictions, model, sim.predictor, sim.t0_s,
+                   layout(observations, predictions, model.profile().technology))
 
 
 @pytest.fixture(scope="module")
