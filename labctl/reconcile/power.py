@@ -125,7 +125,9 @@ class _Signal:
     def cell_gram(self, v: np.ndarray) -> np.ndarray:
         """(cells, parts, parts): the products of the rows ``v`` (parts, rows) per residual cell."""
         n_cells = len(self.rows)
-        return np.stack([np.stack([np.bincount(self.cells, a * b, n_cells) for b in v], -1) for a in v], -2)
+        on = np.flatnonzero(np.any(v != 0, axis=0))  # most signatures change the depth rows alone
+        cells, v = self.cells[on], v[:, on]
+        return np.stack([np.stack([np.bincount(cells, a * b, n_cells) for b in v], -1) for a in v], -2)
 
 
 def _signal(candidate: Candidate, ctx: Context, lay: Layout, nonlinear: Any) -> tuple[str, _Signal] | None:
@@ -176,38 +178,55 @@ class _Rebuilt:
     linear in the residual, so its whitened, profiled columns are X_r + A sum_k a_k X_k: X_r built from this run's
     residual, X_k from part k of the signature alone. What it leaves of the effect's change follows with A: little
     where the run's own residual dominates its profiles, all that is not a column or row pattern where the effect
-    does."""
+    does. Everything an amplitude and direction need is kept as products of the rows M = [u_1 .. u_P, X_r, X_1 ..
+    X_P]: over all rows, per residual cell, and per cell with each replica's residual; what the fit leaves, u.a -
+    x beta, is M v for a short vector v."""
 
-    def __init__(self, candidate: Candidate, ctx: Context, lay: Layout, signal: _Signal) -> None:
+    def __init__(self, candidate: Candidate, ctx: Context, lay: Layout, signal: _Signal,
+                 replicas: _Replicas) -> None:
         assert candidate.rebind is not None
         self.name = candidate.name
-        self.own = self._columns(candidate, ctx, lay)
-        self.parts = [self._columns(candidate.rebind(ctx, rows), ctx, lay) for rows in signal.depth]
+        columns = [self._columns(candidate, ctx, lay)]
+        columns += [self._columns(candidate.rebind(ctx, rows), ctx, lay) for rows in signal.depth]
+        self.width = columns[0].shape[0]
+        rows = np.vstack([signal.u, *columns])  # M', (P + 2 + 2 P, rows)
+        self.gram = rows @ rows.T
+        self.cell_gram = signal.cell_gram(rows)
+        self.crossed = replicas.crosses(rows, signal.cells, len(signal.rows))
+        self.parts = signal.parts
 
     @staticmethod
     def _columns(candidate: Candidate, ctx: Context, lay: Layout) -> np.ndarray:
-        return np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, None)])
+        return np.vstack([lay.profiled_rows(*column) for column in candidate.columns(ctx, None)])
 
-    def left(self, amplitude: float, signal: _Signal, a: np.ndarray) -> np.ndarray | None:
-        """The rows its least-squares fit leaves of the change ``a``.u, u - w, where the two compete (|w| / |u| >=
+    def _left(self, a: np.ndarray, own: float, scale: float) -> tuple[np.ndarray, float, float]:
+        """v with M v = u.a - x beta, x = own X_r + scale sum_k a_k X_k fitted to u.a by least squares; and |u.a|^2,
+        |x beta|^2."""
+        p, m = self.parts, self.width
+        mix = np.zeros((len(self.gram), m))  # x = M mix
+        for i, weight in enumerate([own, *(scale * a)]):
+            mix[p + i * m:p + (i + 1) * m] = weight * np.eye(m)
+        ua = np.concatenate([a, np.zeros(len(self.gram) - p)])
+        beta = np.linalg.lstsq(mix.T @ self.gram @ mix, mix.T @ self.gram @ ua, rcond=None)[0]
+        fitted = mix @ beta
+        return ua - fitted, float(ua @ self.gram @ ua), float(fitted @ self.gram @ fitted)
+
+    def left(self, amplitude: float, a: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Per residual cell what its least-squares fit leaves of the change ``a``.u, |u_c - w_c|^2, and its product
+        with each replica's residual there, (replicas, cells), where the two compete (|w| / |u| >=
         ``COMPETING_CORRELATION``, ``score.competing``); None where they do not."""
-        x = self.own + amplitude * sum((ak * xk for ak, xk in zip(a, self.parts, strict=True)),
-                                       np.zeros_like(self.own))
-        u = a @ signal.u
-        w = x @ np.linalg.lstsq(x, u, rcond=None)[0]
-        power = float(u @ u)
-        if power == 0 or float(w @ w) < COMPETING_CORRELATION**2 * power:
+        v, power, taken = self._left(a, 1.0, amplitude)
+        if power == 0 or taken < COMPETING_CORRELATION**2 * power:
             return None
-        return u - w
+        return np.einsum("cmn,m,n->c", self.cell_gram, v, v), np.einsum("jmc,m->jc", self.crossed, v)
 
-    def share(self, signal: _Signal) -> float:
+    def share(self) -> float:
         """The fraction of the signature's power it reproduces where the effect dominates the run's residual (its
         columns built from the signature alone), over the signature's directions."""
         shares = []
-        for a in phases(signal.parts, signal.signs):
-            x, u = sum(ak * xk for ak, xk in zip(a, self.parts, strict=True)), a @ signal.u
-            w = x @ np.linalg.lstsq(x, u, rcond=None)[0]
-            shares.append(float(w @ w) / float(u @ u) if float(u @ u) > 0 else 0.0)
+        for a in phases(self.parts, (1.0, -1.0)):
+            _, power, taken = self._left(a, 0.0, 1.0)
+            shares.append(taken / power if power > 0 else 0.0)
         return float(np.mean(shares))
 
 
@@ -396,12 +415,9 @@ class _Replicas:
                              np.einsum("jpc,p->jc", rival.crossed, a))
             out &= self.dbic0 - self.null_dbic[rival.name] - MARGIN + gain > 0
         for other in rebuilt:
-            left = other.left(amplitude, signal, a)
-            if left is None:
-                continue
-            rest = np.bincount(signal.cells, left * left, n_cells)
-            gain = self.gain(amplitude, rest, self.crosses(left[None], signal.cells, n_cells)[:, 0])
-            out &= self.dbic0 - self.null_dbic[other.name] - MARGIN + gain > 0
+            left = other.left(amplitude, a)
+            if left is not None:
+                out &= self.dbic0 - self.null_dbic[other.name] - MARGIN + self.gain(amplitude, *left) > 0
         return out
 
     def cell_rss(self, cells: int) -> np.ndarray:
@@ -471,9 +487,10 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, Mi
                 continue
             key, s = signal
             rivals = _rivalries(s, {n: b for n, b in bases.items() if n != candidate.name})
-            rebuilt = [_Rebuilt(c, ctx, lay, s) for c in from_residual if c.name != candidate.name and s.depth]
+            rebuilt = [_Rebuilt(c, ctx, lay, s, replicas) for c in from_residual
+                       if c.name != candidate.name and s.depth]
             amplitude = _amplitude(s, replicas, rivals, rebuilt)
-            shares = [(r.share(), r.name) for r in rivals] + [(r.share(s), r.name) for r in rebuilt]
+            shares = [(r.share(), r.name) for r in [*rivals, *rebuilt]]
             closest = max(shares, default=(0.0, None))
             rival = closest[1] if closest[0] >= COMPETING_CORRELATION**2 else None
             found.append((amplitude, key, nonlinear, rival))

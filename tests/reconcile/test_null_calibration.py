@@ -290,8 +290,20 @@ def test_a_competitor_built_from_the_runs_residual_is_rebuilt_from_the_effects_c
     np.testing.assert_allclose(whitened(fixed.rebind(ctx, r + amplitude * u)),
                                whitened(fixed.rebind(ctx, r)) + amplitude * whitened(fixed.rebind(ctx, u)),
                                rtol=1e-9, atol=1e-9)
-    signal = _Signal(lay.profiled_rows(u, np.zeros(len(lay.i_step)))[None], lay.row_cells(), {}, (1.0, -1.0), [u])
-    assert _Rebuilt(fixed, ctx, lay, signal).share(signal) > 0.9
+    cells = lay.row_cells()
+    signal = _Signal(lay.profiled_rows(u, np.zeros(len(lay.i_step)))[None], cells, {}, (1.0, -1.0), [u])
+    residual = np.random.default_rng(6).normal(size=(1, len(cells)))
+    replicas = _Replicas(NullCalibration([Replica(0, [StepFit("s0", "depth", 0.1, 1.0)], {}, np.zeros(1), 0.0)]), "e",
+                         {"e": np.zeros(1)}, 0.0, residual)
+    rebuilt = _Rebuilt(fixed, ctx, lay, signal, replicas)
+    assert rebuilt.share() > 0.9
+    # what it leaves of the change at amplitude A, against a least-squares fit of the rebuilt columns done here
+    x = whitened(fixed.rebind(ctx, r + amplitude * u))
+    left = signal.u[0] - x @ np.linalg.lstsq(x, signal.u[0], rcond=None)[0]
+    rest, crossed = rebuilt.left(amplitude, np.array([1.0]))
+    n_cells = int(cells.max()) + 1
+    np.testing.assert_allclose(rest, np.bincount(cells, left * left, n_cells), rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(crossed[0], np.bincount(cells, left * residual[0], n_cells), rtol=1e-6, atol=1e-9)
 
 
 def test_a_replica_runs_the_measured_campaign_with_another_seed_and_no_faults():
