@@ -108,17 +108,15 @@ def _unit(candidate: Candidate, ctx: Context, nonlinear: Any, k: int,
 
 class _Signal:
     """A candidate's signature at one grid point per unit amplitude: its whitened, profiled rows per part ``u``
-    (parts, rows), its power per residual cell (averaged over its parts), per (step id, family) its unwhitened
-    change, a map per part (a wiggling's sine and cosine are two parts, most signatures one), and the signs its
-    amplitude may take."""
+    (parts, rows), their products per residual cell (``gram``, (cells, parts, parts)), per (step id, family) its
+    unwhitened change, a map per part (a wiggling's sine and cosine are two parts, most signatures one), and the
+    signs its amplitude may take."""
 
     def __init__(self, u: np.ndarray, cells: np.ndarray, maps: dict[tuple[str, str], list[np.ndarray]],
                  signs: tuple[float, ...], depth: list[np.ndarray] | None = None) -> None:
         self.u, self.cells, self.maps, self.signs = u, cells, maps, signs
         self.depth = depth or []  # per part its unwhitened stacked depth rows (mm), before the nuisance is profiled
-        n_cells = int(cells.max()) + 1 if len(cells) else 0
-        self.q = np.mean([np.bincount(cells, w * w, n_cells) for w in u], axis=0)
-        self.rows = np.bincount(cells, minlength=n_cells)
+        self.rows = np.bincount(cells, minlength=int(cells.max()) + 1 if len(cells) else 0)
         self.parts = len(u)
         self.gram = self.cell_gram(u)
 
@@ -211,14 +209,12 @@ class _Rebuilt:
         fitted = mix @ beta
         return ua - fitted, float(ua @ self.gram @ ua), float(fitted @ self.gram @ fitted)
 
-    def left(self, amplitude: float, a: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """Per residual cell what its least-squares fit leaves of the change ``a``.u, |u_c - w_c|^2, and its product
-        with each replica's residual there, (replicas, cells), where the two compete (|w| / |u| >=
+    def left(self, amplitude: float, a: np.ndarray) -> np.ndarray | None:
+        """v with M v what its least-squares fit leaves of the change ``a``.u at ``amplitude`` (per cell and per
+        replica through ``cell_gram`` and ``crossed``), where the two compete (|w| / |u| >=
         ``COMPETING_CORRELATION``, ``score.competing``); None where they do not."""
         v, power, taken = self._left(a, 1.0, amplitude)
-        if power == 0 or taken < COMPETING_CORRELATION**2 * power:
-            return None
-        return np.einsum("cmn,m,n->c", self.cell_gram, v, v), np.einsum("jmc,m->jc", self.crossed, v)
+        return None if power == 0 or taken < COMPETING_CORRELATION**2 * power else v
 
     def share(self) -> float:
         """The fraction of the signature's power it reproduces where the effect dominates the run's residual (its
@@ -393,8 +389,7 @@ class _Replicas:
         hits = 0.0
         for a in directions:
             added = amplitude**2 * np.einsum("sab,a,b->s", power, a, a) + 2 * amplitude * cross @ a
-            gain = self.gain(amplitude, np.einsum("cab,a,b->c", signal.gram, a, a),
-                             np.einsum("jpc,p->jc", dbic_cross, a))
+            gain = self.gain(amplitude, signal.gram, dbic_cross, a)
             chance = (self.dbic0 - self.threshold + gain > 0) * self.separated(amplitude, signal, a, rivals, rebuilt)
             hits += float(np.sum(chance[self.outside(self.statistics(self.square + added))]))
         return hits / (len(self.base) * len(directions))
@@ -411,13 +406,13 @@ class _Replicas:
                 continue
             if rival.crossed is None:
                 rival.crossed = self.crosses(rival.left, signal.cells, n_cells)
-            gain = self.gain(amplitude, np.einsum("cab,a,b->c", rival.rest, a, a),
-                             np.einsum("jpc,p->jc", rival.crossed, a))
+            gain = self.gain(amplitude, rival.rest, rival.crossed, a)
             out &= self.dbic0 - self.null_dbic[rival.name] - MARGIN + gain > 0
         for other in rebuilt:
-            left = other.left(amplitude, a)
-            if left is not None:
-                out &= self.dbic0 - self.null_dbic[other.name] - MARGIN + self.gain(amplitude, *left) > 0
+            v = other.left(amplitude, a)
+            if v is not None:
+                gain = self.gain(amplitude, other.cell_gram, other.crossed, v)
+                out &= self.dbic0 - self.null_dbic[other.name] - MARGIN + gain > 0
         return out
 
     def cell_rss(self, cells: int) -> np.ndarray:
@@ -427,11 +422,15 @@ class _Replicas:
             self._cell_rss[cells] = np.stack([np.maximum(np.resize(r, cells), 1e-300) for r in self.rss])
         return self._cell_rss[cells]
 
-    def gain(self, amplitude: float, power: np.ndarray, cross: np.ndarray) -> np.ndarray:
-        """Per replica j, sum_c ln(1 + (A^2 p_c + 2 A x_jc) / RSS_jc): the fall of the cells' log residual sum of
-        squares when a fit takes up a signal of power p_c per cell, x_jc its cross term with the replica's
-        residual (``crosses``). 1 + (A^2 p + 2 A x) / RSS is the cell's |r + A u|^2 / |r|^2 (at least 0; kept
-        above 1e-300 where the whitening of this run and the replica's differ)."""
+    def gain(self, amplitude: float, gram: np.ndarray, crossed: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Per replica j, sum_c ln(1 + (A^2 p_c + 2 A x_jc) / RSS_jc) for the signal a . rows, of rows whose
+        products are ``gram`` per cell (cells, P, P) and ``crossed`` with each replica's residual (``crosses``,
+        (replicas, P, cells)): p_c its power in cell c, x_jc its cross term with the replica's residual there. The
+        fall of the cells' log residual sum of squares when a fit takes up that signal: 1 + (A^2 p + 2 A x) / RSS
+        is the cell's |r + A u|^2 / |r|^2 (at least 0; kept above 1e-300 where the whitening of this run and the
+        replica's differ)."""
+        power = np.einsum("cab,a,b->c", gram, a, a)
+        cross = np.einsum("jpc,p->jc", crossed, a)
         rss = self.cell_rss(len(power))
         return np.sum(np.log(np.maximum(1 + (amplitude**2 * power + 2 * amplitude * cross) / rss, 1e-300)), axis=1)
 
@@ -450,7 +449,7 @@ def phases(parts: int, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarra
 
 def _amplitude(signal: _Signal, replicas: _Replicas, rivals: list[_Rivalry], rebuilt: list[_Rebuilt]) -> float:
     """The amplitude detected with probability ``POWER`` (inf when none within 1e6 times the first guess)."""
-    total = float(np.sum(signal.q))
+    total = float(np.einsum("cpp->", signal.gram)) / signal.parts  # the parts' mean power
     if not total > 0:
         return math.inf
     crossed = (*replicas.crossing(signal), replicas.crosses(signal.u, signal.cells, len(signal.rows)))

@@ -300,7 +300,8 @@ def test_a_competitor_built_from_the_runs_residual_is_rebuilt_from_the_effects_c
     # what it leaves of the change at amplitude A, against a least-squares fit of the rebuilt columns done here
     x = whitened(fixed.rebind(ctx, r + amplitude * u))
     left = signal.u[0] - x @ np.linalg.lstsq(x, signal.u[0], rcond=None)[0]
-    rest, crossed = rebuilt.left(amplitude, np.array([1.0]))
+    v = rebuilt.left(amplitude, np.array([1.0]))
+    rest, crossed = np.einsum("cmn,m,n->c", rebuilt.cell_gram, v, v), np.einsum("jmc,m->jc", rebuilt.crossed, v)
     n_cells = int(cells.max()) + 1
     np.testing.assert_allclose(rest, np.bincount(cells, left * left, n_cells), rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(crossed[0], np.bincount(cells, left * residual[0], n_cells), rtol=1e-6, atol=1e-9)
