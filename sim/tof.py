@@ -29,6 +29,7 @@ perfect (multi-frequency cameras).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,9 +144,13 @@ class ToFSensor:
         assert r.phasor_fine is not None
         return self.geometry.blur(r.phasor_fine, r.centre_distance_mm, r.oversample) * scale * shading
 
-    def expected(self, r: Rendered, exposure_us: float, cut: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+    def expected(self, r: Rendered, exposure_us: float, cut: bool = True,
+                 report: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
         """Noise-free range (mm, NaN where invalid), amplitude (0 where invalid) and ambient light of a render;
-        with ``cut`` False, the camera's range is left to the caller (invalid only where nothing was hit)."""
+        with ``cut`` False, the camera's range is left to the caller (invalid only where nothing was hit).
+        ``report`` maps each pixel's range and returned light to the range it reports (default ``range_of``; a
+        binned camera's prediction averages it over the pixels of a bin)."""
         p = self.profile
         focus_distance_mm = r.centre_distance_mm
         gain = exposure_us / p.exposure_us
@@ -161,7 +166,7 @@ class ToFSensor:
                 phasor = returns
             else:  # the dominant surface alone
                 phasor = amplitude * np.exp(1j * self.wavenumber * np.nan_to_num(r.range_dom))
-        range_mm = self._measured_range(r.range_dom, phasor, light, stage)
+        range_mm = (report or self.range_of)(self._returned_range(r.range_dom, phasor, stage), light)
         in_range = (r.hit_fraction > 0) & ((range_mm >= p.min_range_mm) & (range_mm <= p.max_range_mm) if cut else True)
         valid = in_range & np.isfinite(range_mm)
         ambient = (p.ambient_ratio + background_level(self.effects)) * self.a_ref * gain
@@ -178,21 +183,22 @@ class ToFSensor:
             step_index=step_index,
         )
 
-    def _measured_range(self, range_dom: np.ndarray, phasor: np.ndarray | None, light: np.ndarray,
+    def _returned_range(self, range_dom: np.ndarray, phasor: np.ndarray | None,
                         stage: PhasorStage | None = None) -> np.ndarray:
-        """Range per pixel before temporal noise: dominant or mixed return, then the effects' range hooks.
+        """Range per pixel of its dominant or, where an effect ``mixes_returns``, its mixed return: ``phasor`` is
+        then the pixel's correlation phasor, which the effects' ``phasor`` hooks act on first (with ``stage``:
+        the scene's mean return)."""
+        if phasor is None or stage is None:
+            return range_dom
+        for hook, params in acting(self.effects, "phasor"):
+            phasor = hook(phasor, params, stage)
+        ref = np.nan_to_num(range_dom)
+        residual = np.angle(phasor * np.exp(-1j * self.wavenumber * ref))
+        return np.where(np.isfinite(range_dom), ref + residual / self.wavenumber, np.nan)
 
-        ``phasor`` (when an effect ``mixes_returns``) is the pixel's correlation phasor, which the effects'
-        ``phasor`` hooks act on first (with ``stage``: the scene's mean return); ``light`` the returned light
-        before vignetting.
-        """
-        range_mm = range_dom
-        if phasor is not None and stage is not None:
-            for hook, params in acting(self.effects, "phasor"):
-                phasor = hook(phasor, params, stage)
-            ref = np.nan_to_num(range_dom)
-            residual = np.angle(phasor * np.exp(-1j * self.wavenumber * ref))
-            range_mm = np.where(np.isfinite(range_dom), ref + residual / self.wavenumber, np.nan)
+    def range_of(self, range_mm: np.ndarray, light: np.ndarray) -> np.ndarray:
+        """The range a pixel at ``range_mm`` that returns ``light`` (before vignetting) reports: after the
+        effects' range hooks, before temporal noise."""
         stage = RangeStage(self, light)
         for hook, params in acting(self.effects, "on_range"):
             range_mm = hook(range_mm, params, stage)

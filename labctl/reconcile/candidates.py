@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 
 from labctl.reconcile.observe import Observation
-from labctl.reconcile.predict import Prediction, Predictor
+from labctl.reconcile.predict import Prediction, Predictor, pixels_damping
 from labctl.reconcile.residuals import STATISTICS, Layout, raw_residuals, step_rows
 from labctl.reconcile.results import Parameters
 from sim.effects import EFFECTS, Effect, valid_range
@@ -316,8 +316,9 @@ def _resimulated(effect: Effect) -> Candidate:
     )
 
 
-# periodic_range: dr = a sin(2 pi r / P) + b cos(2 pi r / P); the period searched between 3 sweep steps and the
-# span of the ranges the camera reports
+# periodic_range: dr = a sin(2 pi r / P) + b cos(2 pi r / P), each bin the mean over its pixels (``pixels_damping``
+# of the range's slopes across the bin); the period searched between 3 sweep steps and the span of the ranges the
+# camera reports
 def _range_span(ctx: Context) -> tuple[float, float]:
     ranges = np.concatenate([p.range_mm[np.isfinite(p.range_mm) & p.reported] for p in ctx.predictions])
     return float(ranges.min()), float(ranges.max())
@@ -329,8 +330,11 @@ def _periodic_range_grid(ctx: Context) -> list[float | None]:
 
 
 def _periodic_range_columns(ctx: Context, period: float | None) -> list[Column]:
-    phase = 2 * math.pi / float(period) * ctx.z_rows("range_mm")
-    ratio = ctx.z_rows("z_per_range")
+    k = 2 * math.pi / float(period)
+    phase = k * ctx.z_rows("range_mm")
+    across_pixels = pixels_damping(k, (ctx.z_rows("range_slope_down"), ctx.z_rows("range_slope_across")),
+                                   ctx.observations[0].bin_px)
+    ratio = ctx.z_rows("z_per_range") * across_pixels
     return [_depth(ctx, np.sin(phase) * ratio), _depth(ctx, np.cos(phase) * ratio)]
 
 

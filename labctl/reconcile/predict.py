@@ -14,8 +14,9 @@ by f'' (b^2 - 1) / (24 b^2 k^2) per axis, with f'' the second difference over
 neighbouring bins (``bin_curvature``; 0.05 mm on a plate tilted by 60 deg at
 850 mm in 16-pixel bins, where z'' = 2 z tan^2(tilt) / f^2). A ToF bin's light
 gets the same term and the lens PSF's, which spreads each pixel's light where
-it curves (``Predictor.pixels_light``). A stereo camera's
-range hooks are averaged over the bin's pixels (``Predictor._pixels_reported``).
+it curves (``Predictor.pixels_light``). The range hooks, of a stereo camera
+and of a ToF camera alike, are averaged over the bin's pixels (``pixels_mean``;
+``Predictor._pixels_reported``, ``Predictor._tof_expected``).
 Bins that straddle a depth or reflectance edge are flagged (``edge``) and left
 out of the comparison.
 
@@ -110,6 +111,21 @@ class Prediction:
     correlation: np.ndarray  # expected variance of a bin mean over the per-pixel variance / n (1: independent)
     #: bins holding pixels within the camera's range (ToF; z and intensity continue beyond it, ``predict``)
     reported: np.ndarray | bool = True
+    #: the range's change per pixel across the bin down the rows and along the columns (ToF, ``range_spread``)
+    range_slope_down: np.ndarray | float = 0.0
+    range_slope_across: np.ndarray | float = 0.0
+
+
+@dataclass(frozen=True)
+class _ToFBins:
+    """What a ToF camera's bins hold before their depth and light are taken (``Predictor._tof_expected``)."""
+
+    range_mm: np.ndarray  # noise-free range, NaN where nothing is hit
+    hooked: np.ndarray  # the range effects' mean change over the bin's pixels, part of range_mm (0 where not hit)
+    amplitude: np.ndarray  # 0 where nothing is hit
+    ambient: float
+    share: np.ndarray  # the bin's share of pixels within the camera's range (``in_range_share``)
+    slope: Sequence[np.ndarray]  # the range's change per pixel down and across the bin (``range_spread``)
 
 
 def binned_profile(profile: CameraProfile, width: int, height: int, bin_px: int) -> CameraProfile:
@@ -344,9 +360,10 @@ class Predictor:
         per predictor: ``tof_depth`` needs it for every step a fit predicts."""
         return bin_curvature(self._reported_pixels, self.bin_px)
 
-    def tof_depth(self, rendered: Any, range_mm: np.ndarray) -> np.ndarray:
+    def tof_depth(self, rendered: Any, range_mm: np.ndarray, hooked: np.ndarray | float = 0.0) -> np.ndarray:
         """Per bin, the mean depth of the measured camera's pixels in it, from the bin's range ``range_mm`` (its
-        rendered range after the range effects).
+        rendered range, drift included) and the mean change the range effects make over its pixels (``hooked``,
+        ``_tof_expected``).
 
         The render weights the bin's rays by their light (``range_dom``, ``z_dom``); each measured pixel weights
         its own rays so, over a footprint b times smaller, and the bin is the plain mean of its pixels. Weighting
@@ -360,18 +377,22 @@ class Predictor:
         1 / cos over the bin: on a wall square to the axis (z = D) the rays' mean range exceeds D / cos(theta) by
         D w^2 (1 + 2 tan^2 theta) / 24 at field angle theta (3e-5 of D for the amt100's 4-pixel bins at its test
         size), an error growing with the distance, which a warm-up drift fitted over a sweep takes up. Each part
-        gets its curvature over the bin's pixels (``bin_curvature``)."""
+        gets its curvature over the bin's pixels (``bin_curvature``); the range effects' change, already a mean over
+        the pixels, only the centre rays' factor's."""
         factor = self._reported_pixels
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = rendered.z_plain / (rendered.range_plain - rendered.bias_dom)
             weighting = self._pixel_weighted(rendered.range_dom, rendered.range_plain) - rendered.range_dom
             rendered_depth = (range_mm + weighting) * ratio
-        rendered_depth = np.where(np.isfinite(ratio) & (ratio > 0), rendered_depth, range_mm * self.z_per_range / factor)
+            hooked_depth = hooked * ratio
+        plain = np.isfinite(ratio) & (ratio > 0)
+        rendered_depth = np.where(plain, rendered_depth, range_mm * self.z_per_range / factor)
+        hooked_depth = np.where(plain, hooked_depth, hooked * self.z_per_range / factor)
         # the curvature of each part over the bin's pixels: the render's, its mean over the bin's own k x k rays;
         # the centre rays' factor, its value at the bin's centre (on a distorted camera's wall, 1.2e-5 of the
         # distance otherwise)
-        return (rendered_depth * factor + bin_curvature(rendered_depth, self.bin_px, OVERSAMPLE) * factor
-                + self._reported_pixels_curvature * rendered_depth)
+        return ((rendered_depth + hooked_depth) * (factor + self._reported_pixels_curvature)
+                + bin_curvature(rendered_depth, self.bin_px, OVERSAMPLE) * factor)
 
     def pixels_light(self, light: np.ndarray, rendered: Any, smooth: np.ndarray) -> np.ndarray:
         """Per bin, the mean over its pixels of the light the lens blurs onto them, from ``light``, the mean over the
@@ -420,13 +441,30 @@ class Predictor:
         sigma = np.where(seen, range_noise_mm(self.sensor.profile, np.where(seen, amplitude, 1.0), ambient), np.nan)
         return z + tof_stored_bias(z, sigma * self.z_per_range, step, self.bin_px)
 
-    def _tof_expected(self, rendered, exposure_us: float) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-        """The ToF bins' noise-free range (mm, NaN where nothing is hit), amplitude (0 there) and ambient light,
-        whatever the camera's range, and each bin's share of pixels within that range (``in_range_share``: the
-        camera cuts pixel by pixel, not by the bin's mean)."""
-        range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure_us, cut=False)
-        return range_mm, amplitude, ambient, in_range_share(range_mm, self.profile.min_range_mm,
-                                                            self.profile.max_range_mm, self.bin_px)
+    def _tof_expected(self, rendered, exposure_us: float) -> _ToFBins:
+        """The ToF bins' noise-free range, amplitude and ambient light, whatever the camera's range (``_ToFBins``).
+
+        The range effects act on each of the bin's pixels (``pixels_mean`` of the range hooks, each pixel's range
+        from the bin's with its slopes and curvature where no edge runs, ``range_spread``; the light weighting of
+        its own rays as ``tof_depth`` takes it): a far wall's bin at the image's edge spans up to 100 mm of range,
+        over which a wiggling of a 150 mm period averages to half its value at the bin's mean range."""
+        smooth = ~(rendered.edge | (rendered.hit_fraction < 1.0))
+        weighting = np.nan_to_num(self._pixel_weighted(rendered.range_dom, rendered.range_plain) - rendered.range_dom)
+        returned: list[tuple[np.ndarray, tuple[Sequence[np.ndarray], Sequence[np.ndarray]]]] = []
+
+        def report(range_mm: np.ndarray, light: np.ndarray) -> np.ndarray:
+            pixels = range_mm + weighting
+            returned.append((range_mm, range_spread(pixels, self.bin_px, smooth)))
+            if not acting(self.sensor.effects, "on_range"):
+                return range_mm
+            slope, curvature = returned[0][1]
+            return pixels_mean(lambda r: self.sensor.range_of(r, light), pixels, self.bin_px, slope, curvature) - weighting
+
+        range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure_us, cut=False, report=report)
+        (before, (slope, _)), = returned
+        return _ToFBins(range_mm, np.where(np.isfinite(range_mm), range_mm - before, 0.0), amplitude, ambient,
+                        in_range_share(range_mm, self.profile.min_range_mm, self.profile.max_range_mm, self.bin_px),
+                        slope)
 
     def central_depth(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> float:
         """The mean predicted depth over the central 10 % x 10 % region of the measured camera (metrics.stack
@@ -434,9 +472,11 @@ class Predictor:
         rendered = self._render(step, shift_mm)
         drift = self.drift_mm(times_s)
         if isinstance(self.sensor, ToFSensor):
-            range_mm, amplitude, ambient, share = self._tof_expected(rendered, step.exposure_us or self.profile.exposure_us)
-            range_mm, amplitude = np.where(share > 0, range_mm, np.nan), np.where(share > 0, amplitude, 0.0)
-            z = self._tof_stored(self.tof_depth(rendered, range_mm + drift), amplitude, ambient)
+            exposure = step.exposure_us or self.profile.exposure_us
+            bins = self._tof_expected(rendered, exposure)
+            range_mm = np.where(bins.share > 0, bins.range_mm - bins.hooked + drift, np.nan)
+            amplitude = np.where(bins.share > 0, bins.amplitude, 0.0)
+            z = self._tof_stored(self.tof_depth(rendered, range_mm, bins.hooked), amplitude, bins.ambient)
         else:
             exposure = step.exposure_us or self.profile.exposure_us
             lit = stereo_light(self.sensor, rendered, exposure, step.projector)
@@ -466,19 +506,19 @@ class Predictor:
             # is cut): only its valid fraction and noise know the cut (and, as before, the image's mean phasor the
             # multipath's signature takes), so that a model moving a bin out of range changes its comparison by the
             # pixels it cuts, not by a jump of its depth and intensity rows
-            range_mm, amplitude, ambient, share = self._tof_expected(rendered, exposure)
-            reported = share > 0
-            range_mm = range_mm + drift
-            light = self.pixels_light(amplitude / centre, rendered, smooth)
+            bins = self._tof_expected(rendered, exposure)
+            reported, ambient = bins.share > 0, bins.ambient
+            range_mm = bins.range_mm + drift
+            light = self.pixels_light(bins.amplitude / centre, rendered, smooth)
             amplitude = self.shade(light)
             cut = amplitude if reported.all() else self.shade(np.where(reported, light, 0.0))
             dominant = cut * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
-            z = self._tof_stored(self.tof_depth(rendered, range_mm), amplitude, ambient)
+            z = self._tof_stored(self.tof_depth(rendered, range_mm - bins.hooked, bins.hooked), amplitude, ambient)
             noise = tof_noise(self.sensor, cut, ambient, np.broadcast_to(self.z_per_range, z.shape))
-            valid = self._valid_fraction(step.step_id, cut, ambient, smooth) * share
+            valid = self._valid_fraction(step.step_id, cut, ambient, smooth) * bins.share
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
-                              np.zeros_like(z), _independent(noise), reported)
+                              np.zeros_like(z), _independent(noise), reported, *bins.slope)
         lit = stereo_light(self.sensor, rendered, exposure, step.projector)
         sigma_d = disparity_noise_px(self.sensor, rendered, lit)
         z = self._stereo_depth(rendered, drift, sigma_d)
@@ -499,9 +539,8 @@ class Predictor:
         z = z + bin_curvature(z, self.bin_px, OVERSAMPLE)
         if not acting(self.sensor.effects, "on_range"):
             return z
-        rows, cols = (np.nan_to_num(np.gradient(z, axis=axis)) for axis in (0, 1))
-        offsets = (np.arange(self.bin_px) + 0.5) / self.bin_px - 0.5  # pixel centres, in bins
-        return sum(self.sensor.depth_of(z + rows * dv + cols * du) for dv in offsets for du in offsets) / offsets.size**2
+        slope = [np.nan_to_num(np.gradient(z, axis=axis)) / self.bin_px for axis in (0, 1)]
+        return pixels_mean(self.sensor.depth_of, z, self.bin_px, slope)
 
     def _stereo_depth(self, rendered: Any, drift_mm: float, sigma_d: np.ndarray) -> np.ndarray:
         """A stereo render's binned expected stored z (the noise-free depth plus ``stored_depth_bias`` for the
@@ -590,6 +629,61 @@ def slopes(z: np.ndarray, bin_px: int, smooth: np.ndarray) -> tuple[np.ndarray, 
     neighbouring bins over 2 ``bin_px`` (``_neighbour_differences``)."""
     down, across = _neighbour_differences(z, smooth, lambda before, _, after: (after - before) / (2.0 * bin_px))
     return down, across
+
+
+def pixels_mean(hook: Callable[[np.ndarray], np.ndarray], values: np.ndarray, bin_px: int, slope: Sequence[np.ndarray],
+                curvature: Sequence[np.ndarray] = (0.0, 0.0)) -> np.ndarray:
+    """Per bin, the mean over its ``bin_px`` x ``bin_px`` pixels of ``hook`` of each pixel's value. A pixel at o_v,
+    o_u pixels from the bin's centre (down, across) takes the bin's ``values`` plus s_v o_v + s_u o_u (``slope``,
+    per pixel) plus c_v (o_v^2 - m) / 2 + c_u (o_u^2 - m) / 2 (``curvature``, per pixel^2; m = (b^2 - 1) / 12,
+    the mean of o^2 over the pixel centres), so that the pixels' values average to the bin's. A hook linear in the
+    value gives the bin's value back; a periodic one, sin(k v), is damped: by the Dirichlet kernel
+    D(x) = sin(b x / 2) / (b sin(x / 2)) of the bin's b pixels at x = k s_v and k s_u, where the value is linear
+    across the bin (``pixels_damping``)."""
+    offsets = np.arange(bin_px) - (bin_px - 1) / 2.0
+    bowed = offsets**2 - (bin_px**2 - 1) / 12.0
+    (s_v, s_u), (c_v, c_u) = slope, curvature
+    return sum(hook(values + s_v * dv + s_u * du + (c_v * bv + c_u * bu) / 2.0)
+               for dv, bv in zip(offsets, bowed, strict=True) for du, bu in zip(offsets, bowed, strict=True)) / offsets.size**2
+
+
+def pixels_damping(k: np.ndarray, slope: Sequence[np.ndarray], bin_px: int) -> np.ndarray:
+    """The factor by which the mean over a bin's pixels of sin(k v + phi) or cos(k v + phi) falls below its value at
+    the bin's mean value v, where v changes across the bin by ``slope`` (per pixel, down and across): the product of
+    the Dirichlet kernels sin(b x / 2) / (b sin(x / 2)) at x = k s_v and k s_u, the mean of cos(x o) over the b pixel
+    offsets o (their sines cancel)."""
+    factor = np.ones(np.broadcast_shapes(np.shape(k), *(np.shape(s) for s in slope)))
+    for s in slope:
+        half = 0.5 * np.abs(k * s)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            factor = factor * np.where(half > 1e-9, np.sin(bin_px * half) / (bin_px * np.sin(half)), 1.0)
+    return factor
+
+
+def range_spread(z: np.ndarray, bin_px: int, smooth: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray],
+                                                                          tuple[np.ndarray, np.ndarray]]:
+    """Per bin, ``z``'s slope per pixel and its second difference per pixel^2 down the rows and along the columns
+    (``pixels_mean``'s ``slope`` and ``curvature``), from the neighbouring bins where no edge runs (``smooth``):
+    the central differences, and at the image's border or beside an edge the one-sided difference with the one
+    smooth neighbour (no curvature there); 0 without one."""
+    spread = []
+    for axis in (0, 1):
+        moved = np.moveaxis(z, axis, 0)
+        held = np.moveaxis(smooth & np.isfinite(z), axis, 0)
+        step = np.diff(moved, axis=0) / bin_px
+        pair = held[1:] & held[:-1]
+        ahead = np.zeros_like(moved)
+        behind = np.zeros_like(moved)
+        has_ahead = np.zeros(moved.shape, dtype=bool)
+        has_behind = np.zeros(moved.shape, dtype=bool)
+        ahead[:-1], has_ahead[:-1] = np.where(pair, step, 0.0), pair
+        behind[1:], has_behind[1:] = np.where(pair, step, 0.0), pair
+        both = has_ahead & has_behind
+        slope = np.where(both, (ahead + behind) / 2.0, ahead + behind)
+        curve = np.where(both, (ahead - behind) / bin_px, 0.0)
+        spread.append((np.moveaxis(slope, 0, axis), np.moveaxis(curve, 0, axis)))
+    (s_v, c_v), (s_u, c_u) = spread
+    return (s_v, s_u), (c_v, c_u)
 
 
 def second_differences(z: np.ndarray, smooth: np.ndarray | None = None) -> np.ndarray:
