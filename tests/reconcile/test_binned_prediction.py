@@ -33,6 +33,7 @@ from labctl.reconcile.observe import bin_mean, observe_run
 from labctl.reconcile.predict import (
     RENDERS_PER_STEP,
     Predictor,
+    pixel_nodes,
     pixels_damping,
     pixels_mean,
     range_spread,
@@ -369,15 +370,17 @@ def test_a_far_walls_bins_average_a_short_wiggling_over_their_pixels(tmp_path):
             assert np.nanmax(np.abs(at_centre - pixels)) > 0.1
 
 
-@pytest.mark.parametrize("bin_px", [1, 4, 5, 16])
-def test_the_pixels_mean_of_a_sine_over_a_ramp_is_damped_by_the_dirichlet_kernel(bin_px):
-    """A value rising across each bin by s_v per pixel down and s_u across: the mean over the bin's pixels of
-    sin(k v + phi), summed here pixel by pixel, is sin(k v + phi) D(k s_v) D(k s_u) with the Dirichlet kernel
-    D(x) = sin(b x / 2) / (b sin(x / 2)) (the mean of cos(x o) over the b symmetric pixel offsets o; a bin of one
-    pixel, 1)."""
+@pytest.mark.parametrize(("bin_px", "span_rad"), [(1, 0.0), (4, 20.0), (5, 20.0), (8, 20.0), (16, 3.8)])
+def test_the_pixels_mean_of_a_sine_over_a_ramp_is_damped_by_the_dirichlet_kernel(bin_px, span_rad):
+    """A value rising across each bin by s_v per pixel down and s_u across, the sine's phase changing by up to
+    ``span_rad`` over the bin's side: the mean over the bin's pixels of sin(k v + phi), summed here pixel by pixel,
+    is sin(k v + phi) D(k s_v) D(k s_u) with the Dirichlet kernel D(x) = sin(b x / 2) / (b sin(x / 2)) (the mean
+    of cos(x o) over the b symmetric pixel offsets o; a bin of one pixel, 1). A bin of 16 pixels is taken by
+    quadrature, here over the span of a 150 mm wiggling across a far wall's bin at the image's edge."""
     rng = np.random.default_rng(7)
-    v, s_v, s_u = rng.uniform(0, 5000, (3, 6)), rng.uniform(-30, 30, (3, 6)), rng.uniform(-30, 30, (3, 6))
     k, phi = 2 * math.pi / 150.0, 0.7
+    top = span_rad / (k * bin_px)
+    v, s_v, s_u = rng.uniform(0, 5000, (3, 6)), rng.uniform(-top, top, (3, 6)), rng.uniform(-top, top, (3, 6))
     offsets = np.arange(bin_px) - (bin_px - 1) / 2
     by_pixel = np.mean([np.sin(k * (v + s_v * a + s_u * b) + phi) for a in offsets for b in offsets], axis=0)
     expected = np.sin(k * v + phi)
@@ -387,6 +390,19 @@ def test_the_pixels_mean_of_a_sine_over_a_ramp_is_damped_by_the_dirichlet_kernel
     np.testing.assert_allclose(by_pixel, expected, atol=1e-12)
     np.testing.assert_allclose(pixels_mean(lambda r: np.sin(k * r + phi), v, bin_px, (s_v, s_u)), by_pixel, atol=1e-12)
     np.testing.assert_allclose(np.sin(k * v + phi) * pixels_damping(k, (s_v, s_u), bin_px), by_pixel, atol=1e-12)
+
+
+@pytest.mark.parametrize("bin_px", [3, 8, 9, 16, 40])
+def test_a_large_bins_pixel_quadrature_holds_the_moments_of_its_pixel_centres(bin_px):
+    """The positions and weights ``pixels_mean`` takes a bin's side at: its b pixel centres, each 1 / b, up to
+    8 pixels; beyond, 8 nodes whose weighted powers o^d equal the mean of o^d over the b pixel centres for every
+    degree d up to 15 (a Gauss quadrature of 8 nodes), within the bin."""
+    nodes, weights = pixel_nodes(bin_px)
+    centres = np.arange(bin_px) - (bin_px - 1) / 2
+    assert len(nodes) == min(bin_px, 8) and np.all(np.abs(nodes) <= centres[-1])
+    for degree in range(16):
+        scale = np.mean(np.abs(centres) ** degree)
+        assert np.sum(weights * nodes**degree) == pytest.approx(np.mean(centres**degree), abs=1e-12 * scale)
 
 
 def test_a_ranges_spread_is_taken_one_sided_at_the_border_and_beside_an_edge():
