@@ -12,9 +12,9 @@ others, its K successors in the pool taken cyclically, as reconcile judges a
 measured run against its K null replicas: the two decisions a null run can get
 wrong are
 
-* **residual outside the null distribution** (``NullCalibration.judge``: the
-  largest standardized residual statistic, p <= alpha); without it reconcile
-  stops with ``none``;
+* **outside the null distribution** (``NullCalibration.judge``: the largest
+  standardized statistic, the residual's and the first round's best dBIC,
+  p <= alpha; the row ``residual``); without it reconcile stops with ``none``;
 * **best candidate significant** (``NullCalibration.significance``: the best
   dBIC against the replicas' best, p <= alpha), counted whether or not the
   residual decision let reconcile get that far.
@@ -73,7 +73,8 @@ def successors(pool: list[Replica], i: int, k: int) -> list[Replica]:
 def decisions(member: Replica, others: list[Replica]) -> dict[str, float]:
     """Member's p-values against ``others``: the combined residual, each statistic, the best candidate's dBIC."""
     rule = NullCalibration(others)
-    judged = rule.judge(Goodness(math.nan, math.nan, math.nan, math.nan, member.steps))
+    judged = rule.judge(Goodness(math.nan, math.nan, math.nan, math.nan, member.steps,
+                                 candidate_scores=dict(member.delta_bic)))
     in_play = set(member.delta_bic)
     best = max(member.delta_bic.values(), default=-math.inf)
     return {"residual": judged.p_value, "candidate": p_value(best, rule.null_best(in_play)),

@@ -120,6 +120,9 @@ class Goodness:
     intensity_gap_floor_pct: float
     steps: list[StepFit]
     statistics: tuple[FamilyGap, ...] = ()  # the noise, validity and correlation families
+    #: the first round's candidates' dBIC, which the null calibration judges beside the residual statistics
+    #: (labctl/reconcile/null.py); None in a later round, whose candidates the null replicas do not score
+    candidate_scores: dict[str, float] | None = None
 
     @property
     def worst_step(self) -> StepFit | None:

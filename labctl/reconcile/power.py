@@ -14,7 +14,8 @@ to each null replica (labctl/reconcile/null.py) in thought:
   it adds less than its power (a wiggling at a 275 mm period on the test
   campaign: 0.025 of its 0.031 mm^2). The replica with the effect must then lie
   outside the other replicas' distribution (``NullCalibration.judge``'s rule,
-  p <= alpha), or the round stops as "consistent";
+  p <= alpha, with its best dBIC, below, beside the statistics), or the round
+  stops as "consistent";
 * the dBIC: in every (step, family) cell c the fit takes up the signal the
   cell carries, so dBIC(A) = dBIC_0 + sum_c ln(1 + (A^2 q_c + 2 A x_c) /
   RSS_c), q_c = |u_c|^2 (the noncentrality of the fit), x_c = u_c . r_c the
@@ -298,9 +299,10 @@ class _Replicas:
     family) list, cell residual sums of squares, their residual rows, and the statistics of
     ``null.combined_statistics`` computed from them."""
 
-    def __init__(self, null: NullCalibration, name: str, null_dbic: dict[str, np.ndarray], threshold: float,
+    def __init__(self, null: NullCalibration, name: str, null_dbic: dict[str, np.ndarray], null_best: np.ndarray,
                  residual: np.ndarray) -> None:
-        self.alpha, self.threshold = null.alpha, threshold
+        self.alpha, self.threshold = null.alpha, critical_value(list(null_best), null.alpha)
+        self.null_best = null_best  # each replica's best dBIC among the candidates in play
         self.residual = residual  # (replicas, rows): ``residual_rows``
         self.steps = sorted({(s.step_id, s.family) for r in null.replicas for s in r.steps})
         index = {k: i for i, k in enumerate(self.steps)}
@@ -317,7 +319,7 @@ class _Replicas:
         self._cell_rss: dict[int, np.ndarray] = {}
         self.null_dbic = null_dbic
         self.dbic0 = null_dbic[name]
-        self.base = self.statistics(self.square)
+        self.base = np.column_stack([self.statistics(self.square), null_best])
         self.maps = [[r.maps.get(family, {}).get(step_id) for r in null.replicas] for step_id, family in self.steps]
 
     def statistics(self, square: np.ndarray) -> np.ndarray:
@@ -330,9 +332,9 @@ class _Replicas:
         return np.stack(columns, axis=1)
 
     def outside(self, moved: np.ndarray) -> np.ndarray:
-        """Per replica j: is its statistics row with the effect, ``moved[j]``, outside the distribution of the K
-        replicas (``standardized_max`` and ``p_value`` of labctl/reconcile/null.py, as the measured run is judged;
-        replica j's own noise-only row stays among the K)?"""
+        """Per replica j: is its row with the effect, ``moved[j]`` (the statistics, then the best dBIC), outside
+        the distribution of the K replicas (``standardized_max`` and ``p_value`` of labctl/reconcile/null.py, as
+        the measured run is judged; replica j's own noise-only row stays among the K)?"""
         k = len(self.base)
         pools = np.concatenate([moved[:, None, :], np.broadcast_to(self.base, (k, *self.base.shape))], axis=1)
         t = standardized_max_rows(pools)
@@ -391,7 +393,8 @@ class _Replicas:
             added = amplitude**2 * np.einsum("sab,a,b->s", power, a, a) + 2 * amplitude * cross @ a
             gain = self.gain(amplitude, signal.gram, dbic_cross, a)
             chance = (self.dbic0 - self.threshold + gain > 0) * self.separated(amplitude, signal, a, rivals, rebuilt)
-            hits += float(np.sum(chance[self.outside(self.statistics(self.square + added))]))
+            best = np.maximum(self.null_best, self.dbic0 + gain)
+            hits += float(np.sum(chance[self.outside(np.column_stack([self.statistics(self.square + added), best]))]))
         return hits / (len(self.base) * len(directions))
 
     def separated(self, amplitude: float, signal: _Signal, a: np.ndarray, rivals: list[_Rivalry],
@@ -468,7 +471,7 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, Mi
     """Per candidate effect of the first round: the amplitude parameter, the amplitude named with probability
     ``POWER`` (median over the candidate's grid), the grid's range of it and the parameters at the median point."""
     in_play = {n for r in null.replicas for n in r.delta_bic}
-    threshold = critical_value(null.null_best(in_play), null.alpha)
+    null_best = np.array(null.null_best(in_play))
     candidates = list(candidates_for(ctx))
     residual = residual_rows(null, lay, [o.scene.step_id for o in ctx.observations])
     null_dbic = {c.name: np.array([r.delta_bic.get(c.name, -c.n_params * math.log(lay.n_steps))
@@ -477,7 +480,7 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, Mi
     from_residual = [c for c in candidates if c.rebind is not None]
     out: dict[str, MinimumDetectable] = {}
     for candidate in candidates:
-        replicas = _Replicas(null, candidate.name, null_dbic, threshold, residual)
+        replicas = _Replicas(null, candidate.name, null_dbic, null_best, residual)
         found = []
         grid = candidate.grid(ctx)
         for nonlinear in [grid[int(i)] for i in np.unique(np.linspace(0, len(grid) - 1, GRID_POINTS).round())]:

@@ -907,6 +907,9 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             fits = []
         else:
             fits = _scored(state, say, None if consistent else state.beside())
+        if not iterations:  # the first round's candidates are judged with the residual (``NullCalibration.judge``)
+            state.good = good_before = replace(state.good, candidate_scores={f.name: f.score for f, _ in fits})
+            consistent = rule.consistent(state.good)
         retry = None
         if isinstance(rule, NullCalibration) and not iterations:
             say("minimum detectable amplitudes")

@@ -11,6 +11,7 @@ fixed thresholds, is named; so are 1.5 times the minimum detectable wiggling and
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,7 +19,7 @@ import pytest
 
 from labctl.jsondoc import to_json
 from labctl.reconcile.candidates import Context, candidates_for
-from labctl.reconcile.goodness import StepFit, residual_maps
+from labctl.reconcile.goodness import Goodness, StepFit, residual_maps
 from labctl.reconcile.null import (
     ALPHA,
     DEFAULT_NULL_RUNS,
@@ -122,16 +123,58 @@ def test_consistency_and_significance_against_hand_made_null_runs():
     rule = NullCalibration(replicas)
     inside = step_statistics([StepFit("s0", "depth", 0.15, 1.0), StepFit("s1", "depth", 0.2, 1.0)])
     assert inside["gap:depth"] < max(step_statistics(r.steps)["gap:depth"] for r in replicas)
-    quiet_fit = type("G", (), {"steps": [StepFit("s0", "depth", 0.15, 1.0), StepFit("s1", "depth", 0.2, 1.0)]})()
+    quiet_fit = type("G", (), {"steps": [StepFit("s0", "depth", 0.15, 1.0), StepFit("s1", "depth", 0.2, 1.0)],
+                               "candidate_scores": None})()
     quiet = rule.judge(quiet_fit)
     assert rule.consistent(quiet_fit) and quiet.p_value > ALPHA and quiet.null_runs == 19
-    loud_fit = type("G", (), {"steps": [StepFit("s0", "depth", 0.9, 1.0), StepFit("s1", "depth", 0.9, 1.0)]})()
+    loud_fit = type("G", (), {"steps": [StepFit("s0", "depth", 0.9, 1.0), StepFit("s1", "depth", 0.9, 1.0)],
+                              "candidate_scores": None})()
     loud = rule.judge(loud_fit)
     assert not rule.consistent(loud_fit) and loud.p_value == pytest.approx(1 / 20)
     best = type("F", (), {"score": -2.0})()  # above every null best (the null best is max(-5 + 0.1 i, -3) <= -3.0)
     assert rule.significance(best, {"wiggling", "range_scale"}) == (True, pytest.approx(0.05))
     best = type("F", (), {"score": -3.0})()  # ties with every replica's range_scale
     assert rule.significance(best, {"wiggling", "range_scale"})[0] is False
+
+
+def test_the_first_rounds_best_candidate_is_judged_beside_the_residual_statistics():
+    """19 replicas with depth mean squares evenly over -0.009 ... 0.009 and best dBIC -5 + 0.1 j (-5 ... -3.2). A run
+    whose depth mean square lies in their middle (0.001) is inside the null on its residual alone; with its first
+    round's best dBIC (+4, above every replica's best) beside it, it is the most extreme of the 20 runs, p = 1 / 20,
+    and the reported statistics carry that dBIC with its own p-value. A later round (no candidate scores) is judged
+    on its residual alone."""
+    def steps(depth):
+        return [StepFit("s0", "depth", math.sqrt(max(depth, 0.0)), 1.0, depth)]
+
+    rule = NullCalibration([Replica(j, steps(0.001 * (j - 9)), {"wiggling": -5.0 + 0.1 * j, "range_scale": -6.0},
+                                    None, 0.0) for j in range(19)])
+    alone = Goodness(0.0, 1.0, 0.0, 1.0, steps(0.001))
+    assert rule.consistent(alone) and rule.judge(alone).p_value > ALPHA
+    scored = dataclasses.replace(alone, candidate_scores={"wiggling": 4.0, "range_scale": -7.0})
+    judged = rule.judge(scored)
+    assert not rule.consistent(scored) and judged.p_value == pytest.approx(1 / 20)
+    assert judged.statistics["best_delta_bic"] == 4.0 and judged.statistic_p_values["best_delta_bic"] == 0.05
+    # a best dBIC inside the replicas' (-4, below six of them) leaves the run inside the null
+    assert rule.consistent(dataclasses.replace(alone, candidate_scores={"wiggling": -4.0}))
+
+
+def test_the_power_model_counts_a_replica_outside_the_null_by_its_best_dbic_alone():
+    """19 replicas as above, one candidate ``e`` (null dBIC -5 + 0.1 j, each replica's best), a signature that
+    changes none of the residual statistics (no maps) and moves 5 whitened rows of one cell by one unit each:
+    carrying it at amplitude A a replica's dBIC rises by ln(1 + 5 A^2 / RSS) (RSS = 1, its residual there 0).
+    At A = 10 (+6.2) every replica's dBIC stands above all the others' and passes the critical value: named in
+    every replica, though its residual statistics do not move; at A = 0.1 (+0.05) only in the one replica that
+    already tops the others in both (j = 18: a null run's 1 in 20)."""
+    replicas = [Replica(j, [StepFit("s0", "depth", 0.1, 1.0, 0.001 * (j - 9))], {"e": -5.0 + 0.1 * j}, np.ones(1),
+                        0.0) for j in range(19)]
+    null_dbic = {"e": np.array([-5.0 + 0.1 * j for j in range(19)])}
+    model = _Replicas(NullCalibration(replicas), "e", null_dbic, null_dbic["e"], np.zeros((19, 5)))
+    assert model.base[:, -1] == pytest.approx(null_dbic["e"])
+    signal = _Signal(np.ones((1, 5)), np.zeros(5, int), {}, (1.0,))
+    crossed = (*model.crossing(signal), model.crosses(signal.u, signal.cells, 1))
+    assert model.gain(10.0, signal.gram, crossed[2], np.array([1.0])) == pytest.approx(np.full(19, math.log(501.0)))
+    assert model.probability(10.0, signal, crossed, [], []) == 1.0
+    assert model.probability(0.1, signal, crossed, [], []) == pytest.approx(1 / 19)
 
 
 def test_the_combined_statistic_standardizes_each_familys_mean_square_not_its_root():
@@ -147,7 +190,7 @@ def test_the_combined_statistic_standardizes_each_familys_mean_square_not_its_ro
 
     rule = NullCalibration([Replica(j, steps(0.001 * (j - 9), -0.036 + 0.002 * j), {}, None, 0.0)
                             for j in range(19)])
-    measured = type("G", (), {"steps": steps(0.015, -0.018)})()
+    measured = type("G", (), {"steps": steps(0.015, -0.018), "candidate_scores": None})()
     assert combined_statistics(measured.steps) == {"gap:depth": 0.015, "gap:validity": -0.018,
                                                    "worst_step_ratio": pytest.approx(math.sqrt(0.015))}
     judged = rule.judge(measured)
@@ -164,7 +207,7 @@ def test_the_power_model_crosses_the_signature_with_each_replicas_residual():
                         {"depth": {"s0": residual * (i + 1)}}) for i in range(2)]
     sine, cosine = np.array([[1.0, 0.0, -1.0, 0.0]]), np.array([[0.0, 1.0, 0.0, -1.0]])
     signal = _Signal(np.ones((2, 5)), np.arange(5), {("s0", "depth"): [sine, cosine]}, (1.0, -1.0))
-    power, cross = _Replicas(NullCalibration(replicas), "wiggling", {"wiggling": np.zeros(2)}, 0.0,
+    power, cross = _Replicas(NullCalibration(replicas), "wiggling", {"wiggling": np.zeros(2)}, np.zeros(2),
                               np.zeros((2, 5))).crossing(signal)
     assert power[0] == pytest.approx(np.array([[2 / 4, 0.0], [0.0, 2 / 4]]))
     # over the three bins the residual covers: (0.2 * 1 + 0 + 0) / 3 and (0 - 0.1 * 1 - 0.3 * 1) / 3, scaled by i + 1
@@ -226,7 +269,7 @@ def test_the_power_model_names_an_effect_only_by_the_margin_over_a_competitor(an
     replicas = [Replica(i, [StepFit("s0", "depth", 0.1, 1.0)], {"e": 2.0 * i, "c": -1.0 * i}, np.full(2, 0.5),
                         0.0, {}) for i in range(3)]
     model = _Replicas(NullCalibration(replicas), "e", {"e": np.array([0.0, 2.0, 4.0]),
-                                                       "c": np.array([0.0, -1.0, -2.0])}, 0.0, residual)
+                                                       "c": np.array([0.0, -1.0, -2.0])}, np.zeros(3), residual)
     signal = _Signal(np.array([[1.0, 0.0, 1.0, 0.0]]), np.array([0, 0, 1, 1]), {}, (1.0,))
     basis = np.array([[math.cos(t)], [math.sin(t)], [math.cos(t)], [math.sin(t)]]) / math.sqrt(2)
     rivals = _rivalries(signal, {"c": [(np.arange(4), basis)]})
@@ -263,7 +306,7 @@ def test_the_power_model_crosses_a_signature_with_each_replicas_whitened_residua
     np.testing.assert_allclose(rows[0], expected, rtol=1e-5, atol=1e-9)  # the maps are float32
     cells = lay.row_cells()
     u = np.random.default_rng(4).normal(size=(1, len(cells)))
-    replicas = _Replicas(NullCalibration([replica]), "e", {"e": np.zeros(1)}, 0.0, rows)
+    replicas = _Replicas(NullCalibration([replica]), "e", {"e": np.zeros(1)}, np.zeros(1), rows)
     crossed = replicas.crosses(u, cells, int(cells.max()) + 1)
     np.testing.assert_allclose(crossed[0, 0], np.bincount(cells, u[0] * expected, int(cells.max()) + 1),
                                rtol=1e-5, atol=1e-9)
@@ -294,7 +337,7 @@ def test_a_competitor_built_from_the_runs_residual_is_rebuilt_from_the_effects_c
     signal = _Signal(lay.profiled_rows(u, np.zeros(len(lay.i_step)))[None], cells, {}, (1.0, -1.0), [u])
     residual = np.random.default_rng(6).normal(size=(1, len(cells)))
     replicas = _Replicas(NullCalibration([Replica(0, [StepFit("s0", "depth", 0.1, 1.0)], {}, np.zeros(1), 0.0)]), "e",
-                         {"e": np.zeros(1)}, 0.0, residual)
+                         {"e": np.zeros(1)}, np.zeros(1), residual)
     rebuilt = _Rebuilt(fixed, ctx, lay, signal, replicas)
     assert rebuilt.share() > 0.9
     # what it leaves of the change at amplitude A, against a least-squares fit of the rebuilt columns done here

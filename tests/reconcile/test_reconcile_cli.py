@@ -55,7 +55,7 @@ def _close(rel: float):
 
 CASES = {
     "wiggling-blaze101": ("blaze101", "wiggling", lambda r: {
-        "amplitude_mm": float(r.uniform(2, 6)), "period_mm": float(r.uniform(600, 3000)),
+        "amplitude_mm": float(r.uniform(2, 6)), "period_mm": float(r.uniform(150, 3000)),  # 375 mm: c / (8 f_mod)
         "phase_rad": float(r.uniform(-3, 3))}),
     "temperature_drift-amt100": ("amt100", "temperature_drift", lambda r: {
         "delta_mm": _sign(r) * float(r.uniform(4, 10)), "tau_s": float(r.uniform(100, 600))}),
