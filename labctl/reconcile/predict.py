@@ -667,10 +667,15 @@ def pixel_nodes(bin_px: int) -> tuple[np.ndarray, np.ndarray]:
     recurrence by the Stieltjes procedure), the weights the squared first components of its eigenvectors
     (Golub & Welsch 1969)."""
     centres = np.arange(bin_px) - (bin_px - 1) / 2.0
-    if bin_px <= PIXEL_NODES:
-        return centres, np.full(bin_px, 1.0 / bin_px)
+    nodes, weights = (centres, np.full(bin_px, 1.0 / bin_px)) if bin_px <= PIXEL_NODES else _gauss_nodes(centres)
+    nodes.flags.writeable = weights.flags.writeable = False  # shared by every caller (cached)
+    return nodes, weights
+
+
+def _gauss_nodes(centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``PIXEL_NODES``-point Gauss quadrature of equal weights on ``centres`` (``pixel_nodes``)."""
     alpha, beta = np.zeros(PIXEL_NODES), np.zeros(PIXEL_NODES)
-    before, current = np.zeros(bin_px), np.ones(bin_px)
+    before, current = np.zeros(len(centres)), np.ones(len(centres))
     for k in range(PIXEL_NODES):
         beta[k] = np.mean(current**2)
         alpha[k] = np.mean(centres * current**2) / beta[k]
