@@ -158,23 +158,31 @@ def test_the_first_rounds_best_candidate_is_judged_beside_the_residual_statistic
     assert rule.consistent(dataclasses.replace(alone, candidate_scores={"wiggling": -4.0}))
 
 
-def test_the_power_model_counts_a_replica_outside_the_null_by_its_best_dbic_alone():
-    """19 replicas as above, one candidate ``e`` (null dBIC -5 + 0.1 j, each replica's best), a signature that
-    changes none of the residual statistics (no maps) and moves 5 whitened rows of one cell by one unit each:
-    carrying it at amplitude A a replica's dBIC rises by ln(1 + 5 A^2 / RSS) (RSS = 1, its residual there 0).
-    At A = 10 (+6.2) every replica's dBIC stands above all the others' and passes the critical value: named in
-    every replica, though its residual statistics do not move; at A = 0.1 (+0.05) only in the one replica that
-    already tops the others in both (j = 18: a null run's 1 in 20)."""
+def test_the_power_model_names_an_effect_outside_the_null_by_its_dbic_where_fitting_it_is_material():
+    """19 replicas, replica j with depth mean square m_j = 0.001 (j - 9) (floor 1) and null dBIC -5 + 0.1 j of the
+    one candidate ``e`` (each replica's best), and a signature that adds A^2 to the step's mean square (its map 1
+    on every bin) and moves 5 whitened rows of one cell by 100 each: carrying it at A^2 = 0.002 a replica's dBIC
+    rises by ln(1 + 5e4 A^2 / RSS) = ln 101 (RSS = 1, its residual there 0), above every other replica's best, so
+    the replica is outside the null by its dBIC (by its statistics alone, 0.002 above its own mean square, only
+    the two at the top are) and passes the critical value. It is named where fitting it is material: its depth
+    statistic's signed root, r = sroot(m_j + A^2), exceeds the replicas' median root (0) and falls back to
+    sroot(m_j) by at least 20 % of that excess (as does the largest step ratio, here the same root): m_j + A^2 > 0
+    (j >= 8) and sroot(m_j) <= 0.8 r, m_j <= 0.64 A^2 / 0.36 = 0.00356 (j <= 12): 5 of 19."""
     replicas = [Replica(j, [StepFit("s0", "depth", 0.1, 1.0, 0.001 * (j - 9))], {"e": -5.0 + 0.1 * j}, np.ones(1),
                         0.0) for j in range(19)]
     null_dbic = {"e": np.array([-5.0 + 0.1 * j for j in range(19)])}
     model = _Replicas(NullCalibration(replicas), "e", null_dbic, null_dbic["e"], np.zeros((19, 5)))
     assert model.base[:, -1] == pytest.approx(null_dbic["e"])
-    signal = _Signal(np.ones((1, 5)), np.zeros(5, int), {}, (1.0,))
+    signal = _Signal(100 * np.ones((1, 5)), np.zeros(5, int), {("s0", "depth"): [np.ones((1, 4))]}, (1.0,))
     crossed = (*model.crossing(signal), model.crosses(signal.u, signal.cells, 1))
-    assert model.gain(10.0, signal.gram, crossed[2], np.array([1.0])) == pytest.approx(np.full(19, math.log(501.0)))
-    assert model.probability(10.0, signal, crossed, [], []) == 1.0
-    assert model.probability(0.1, signal, crossed, [], []) == pytest.approx(1 / 19)
+    amplitude = math.sqrt(0.002)
+    assert model.gain(amplitude, signal.gram, crossed[2], np.array([1.0])) == pytest.approx(np.full(19, math.log(101)))
+    moved = model.statistics(model.square + amplitude**2)
+    # by its statistics alone only the replicas already at the top are outside (j = 17, 18: their largest step ratio)
+    assert list(model.outside(np.column_stack([moved, model.null_best]))) == [j >= 17 for j in range(19)]
+    assert model.outside(np.column_stack([moved, model.null_best + math.log(101)])).all()
+    assert list(model.material(moved)) == [8 <= j <= 12 for j in range(19)]
+    assert model.probability(amplitude, signal, crossed, [], []) == pytest.approx(5 / 19)
 
 
 def test_the_combined_statistic_standardizes_each_familys_mean_square_not_its_root():
