@@ -463,21 +463,25 @@ class Predictor:
     def _tof_expected(self, rendered, exposure_us: float) -> _ToFBins:
         """The ToF bins' noise-free range, amplitude and ambient light, whatever the camera's range (``_ToFBins``).
 
-        The range effects act on each of the bin's pixels (``pixels_mean`` of the range hooks, each pixel's range
-        from the bin's with its slopes and curvature where no edge runs, ``range_spread``; the light weighting of
-        its own rays as ``tof_depth`` takes it): a far wall's bin at the image's edge spans up to 100 mm of range,
-        over which a wiggling of a 150 mm period averages to half its value at the bin's mean range."""
+        Where an effect's range hook is periodic (``Effect.periodic_range``) the range effects act on each of the
+        bin's pixels (``pixels_mean`` of the range hooks, each pixel's range from the bin's with its slopes and
+        curvature where no edge runs, ``range_spread``; the light weighting of its own rays as ``tof_depth`` takes
+        it): a far wall's bin at the image's edge spans up to 100 mm of range, over which a wiggling of a 150 mm
+        period averages to half its value at the bin's mean range. The smooth hooks (an offset, a scale, a bounce,
+        an amplitude-related error) act at the bin's range."""
         smooth = ~(rendered.edge | (rendered.hit_fraction < 1.0))
         weighting = np.nan_to_num(self._pixel_weighted(rendered.range_dom, rendered.range_plain) - rendered.range_dom)
         returned: list[np.ndarray] = []
 
         def report(range_mm: np.ndarray, light: np.ndarray) -> np.ndarray:
             returned.append(range_mm)
-            if not acting(self.sensor.effects, "on_range"):
-                return range_mm
+            hooked = [EFFECTS[name] for name in self.sensor.effects if EFFECTS[name].on_range is not None]
+            if not any(effect.periodic_range for effect in hooked):
+                return self.sensor.range_of(range_mm, light)  # smooth over a bin: its value at the bin's range
             pixels = range_mm + weighting
             slope, curvature = range_spread(pixels, self.bin_px, smooth)
-            return pixels_mean(lambda r: self.sensor.range_of(r, light), pixels, self.bin_px, slope, curvature) - weighting
+            return pixels_mean(lambda r: self.sensor.range_of(r, light), pixels, self.bin_px, slope, curvature,
+                               TOF_PIXEL_NODES, stacked=all(effect.periodic_range for effect in hooked)) - weighting
 
         range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure_us, cut=False, report=report)
         before, = returned
@@ -650,33 +654,37 @@ def slopes(z: np.ndarray, bin_px: int, smooth: np.ndarray) -> tuple[np.ndarray, 
     return down, across
 
 
-#: the most positions along a bin's side at which ``pixels_mean`` takes a hook: bins of up to 8 pixels a side take
-#: every pixel; larger ones the Gauss quadrature of their pixels' positions with 8 nodes (``pixel_nodes``), which
-#: errs by 6e-5 of a sine's amplitude where its phase changes by 16 rad across the bin (a pixel locking of period
-#: 1.57 px on the d455's plates at 60 deg in 16-pixel bins), by 1e-14 at 3.8 rad (a wiggling of period 150 mm on
-#: a far wall's edge), at a quarter of the cost of all 16 x 16 pixels
+#: the most positions along a bin's side at which ``pixels_mean`` takes a hook by default: bins of up to 8 pixels a
+#: side take every pixel; larger ones the Gauss quadrature of their pixels' positions with 8 nodes (``pixel_nodes``),
+#: which errs by 6e-5 of a sine's amplitude where its phase changes by 16 rad across the bin (a pixel locking of
+#: period 1.57 px on the d455's plates at 60 deg in 16-pixel bins), at a quarter of the cost of all 16 x 16 pixels
 PIXEL_NODES = 8
+#: the same for a ToF camera's range hooks: a wiggling's phase changes by at most 3.8 rad across a bin (a 150 mm
+#: period, the shortest the candidate searches, on a far wall's edge bins, 100 mm of range), where 4 nodes err by
+#: 2e-5 of its amplitude, at a quarter of the cost of 8 (a complete campaign's fit of a wiggling predicts it some
+#: 40 times)
+TOF_PIXEL_NODES = 4
 
 
 @lru_cache(maxsize=8)
-def pixel_nodes(bin_px: int) -> tuple[np.ndarray, np.ndarray]:
+def pixel_nodes(bin_px: int, most: int = PIXEL_NODES) -> tuple[np.ndarray, np.ndarray]:
     """The positions (pixels from the bin's centre, along one side) and weights at which ``pixels_mean`` takes a
-    hook: each pixel centre with weight 1 / b up to ``PIXEL_NODES`` pixels, else the ``PIXEL_NODES``-point Gauss
-    quadrature of the b pixel centres, exact for a polynomial of degree below 2 ``PIXEL_NODES`` in the position:
+    hook: each pixel centre with weight 1 / b up to ``most`` pixels, else the ``most``-point Gauss
+    quadrature of the b pixel centres, exact for a polynomial of degree below 2 ``most`` in the position:
     the eigenvalues of the Jacobi matrix of the polynomials orthogonal on the pixel centres (three-term
     recurrence by the Stieltjes procedure), the weights the squared first components of its eigenvectors
     (Golub & Welsch 1969)."""
     centres = np.arange(bin_px) - (bin_px - 1) / 2.0
-    nodes, weights = (centres, np.full(bin_px, 1.0 / bin_px)) if bin_px <= PIXEL_NODES else _gauss_nodes(centres)
+    nodes, weights = (centres, np.full(bin_px, 1.0 / bin_px)) if bin_px <= most else _gauss_nodes(centres, most)
     nodes.flags.writeable = weights.flags.writeable = False  # shared by every caller (cached)
     return nodes, weights
 
 
-def _gauss_nodes(centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``PIXEL_NODES``-point Gauss quadrature of equal weights on ``centres`` (``pixel_nodes``)."""
-    alpha, beta = np.zeros(PIXEL_NODES), np.zeros(PIXEL_NODES)
+def _gauss_nodes(centres: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n``-point Gauss quadrature of equal weights on ``centres`` (``pixel_nodes``)."""
+    alpha, beta = np.zeros(n), np.zeros(n)
     before, current = np.zeros(len(centres)), np.ones(len(centres))
-    for k in range(PIXEL_NODES):
+    for k in range(n):
         beta[k] = np.mean(current**2)
         alpha[k] = np.mean(centres * current**2) / beta[k]
         ratio = beta[k] / beta[k - 1] if k else 0.0
@@ -687,21 +695,26 @@ def _gauss_nodes(centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def pixels_mean(hook: Callable[[np.ndarray], np.ndarray], values: np.ndarray, bin_px: int, slope: Sequence[np.ndarray],
-                curvature: Sequence[np.ndarray] = (0.0, 0.0)) -> np.ndarray:
+                curvature: Sequence[np.ndarray] = (0.0, 0.0), most: int = PIXEL_NODES, stacked: bool = False) -> np.ndarray:
     """Per bin, the mean over its ``bin_px`` x ``bin_px`` pixels of ``hook`` of each pixel's value. A pixel at o_v,
     o_u pixels from the bin's centre (down, across) takes the bin's ``values`` plus s_v o_v + s_u o_u (``slope``,
     per pixel) plus c_v (o_v^2 - m) / 2 + c_u (o_u^2 - m) / 2 (``curvature``, per pixel^2; m = (b^2 - 1) / 12,
     the mean of o^2 over the pixel centres), so that the pixels' values average to the bin's; the mean is taken
-    over every pixel, or for large bins by quadrature (``pixel_nodes``). A hook linear in the value gives the
-    bin's value back; a periodic one, sin(k v), is damped: by the Dirichlet kernel D(x) = sin(b x / 2) /
-    (b sin(x / 2)) of the bin's b pixels at x = k s_v and k s_u, where the value is linear across the bin
-    (``pixels_damping``)."""
-    offsets, weights = pixel_nodes(bin_px)
+    over every pixel, or for bins of more than ``most`` pixels a side by quadrature (``pixel_nodes``). A hook
+    linear in the value gives the bin's value back; a periodic one, sin(k v), is damped: by the Dirichlet kernel
+    D(x) = sin(b x / 2) / (b sin(x / 2)) of the bin's b pixels at x = k s_v and k s_u, where the value is linear
+    across the bin (``pixels_damping``). ``stacked``: ``hook`` takes every position at once (an array with the
+    positions first), as a function of the value alone does (``Effect.periodic_range``)."""
+    offsets, weights = pixel_nodes(bin_px, most)
     bowed = offsets**2 - (bin_px**2 - 1) / 12.0
     (s_v, s_u), (c_v, c_u) = slope, curvature
-    return sum(w_v * w_u * hook(values + s_v * o_v + s_u * o_u + (c_v * b_v + c_u * b_u) / 2.0)
-               for o_v, w_v, b_v in zip(offsets, weights, bowed, strict=True)
-               for o_u, w_u, b_u in zip(offsets, weights, bowed, strict=True))
+    down = [values + s_v * o + c_v * b / 2.0 for o, b in zip(offsets, bowed, strict=True)]
+    across = [s_u * o + c_u * b / 2.0 for o, b in zip(offsets, bowed, strict=True)]
+    weight = np.outer(weights, weights).ravel()
+    if stacked:
+        at = np.stack([v + u for v in down for u in across])
+        return np.tensordot(weight, hook(at), axes=1)
+    return sum(w * hook(v + u) for w, (v, u) in zip(weight, ((v, u) for v in down for u in across), strict=True))
 
 
 def pixels_damping(k: np.ndarray, slope: Sequence[np.ndarray], bin_px: int) -> np.ndarray:

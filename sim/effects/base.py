@@ -166,6 +166,9 @@ class Effect:
     * ``shading(cos_alpha, p)``: factor on the light after the blur (amplitude, IR image);
     * ``phasor(phasor, p, stage)``: the ToF pixel's phasor before its phase gives the range (``PhasorStage``);
     * ``on_range(values, p, stage)``: the noise-free ToF range or stereo depth map, in increasing ``order``;
+      ``periodic_range``: that hook is a periodic function of the value it acts on alone (a wiggling, a pixel
+      locking; any array shape), so that its mean over pixels spread in range differs from its value at their
+      mean range;
     * ``background(p)``: background light the pixels collect besides the camera's own signal (ambient light),
       in units of the reference signal (ToF: A_ref, the amplitude of the 90 % wall at 2 m; stereo: the
       projector's dot light on that wall); it adds shot noise and lowers the contrast the stereo matcher sees;
@@ -187,6 +190,7 @@ class Effect:
     shading: Callable[[np.ndarray, Any], np.ndarray] | None = None
     phasor: Callable[[np.ndarray, Any, PhasorStage], np.ndarray] | None = None
     on_range: Callable[[np.ndarray, Any, RangeStage], np.ndarray] | None = None
+    periodic_range: bool = False
     background: Callable[[Any], float] | None = None
     frame_offset_mm: Callable[[float, Any], float] | None = None
     warm_up_s: Callable[[Any], float] | None = None

@@ -52,4 +52,5 @@ EFFECT = Effect(
                       solver_bounds={"phase_rad": (-4 * math.pi, 4 * math.pi)}),
     order=15,
     on_range=lambda values, p, at: apply(values, at.sensor.matching_focal_baseline, p),
+    periodic_range=True,
 )

@@ -59,4 +59,5 @@ EFFECT = Effect(
                       capture=capture),
     order=20,
     on_range=lambda values, p, _: apply(values, p),
+    periodic_range=True,
 )
