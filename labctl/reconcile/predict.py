@@ -374,6 +374,13 @@ class Predictor:
                                                       camera_optics(self.full, self.full_effects), self.bin_px)
 
     @cached_property
+    def _periodic_hooks(self) -> tuple[bool, bool]:
+        """Whether any of the sensor's range hooks is periodic (``Effect.periodic_range``), and whether all are: once
+        per predictor, for every step a fit predicts (``_tof_expected``)."""
+        hooked = [EFFECTS[name] for name in self.sensor.effects if EFFECTS[name].on_range is not None]
+        return any(e.periodic_range for e in hooked), all(e.periodic_range for e in hooked)
+
+    @cached_property
     def _reported_pixels_curvature(self) -> np.ndarray:
         """``_reported_pixels``' curvature over each bin's pixels about its centre value (``bin_curvature``), once
         per predictor: ``tof_depth`` needs it for every step a fit predicts."""
@@ -469,19 +476,18 @@ class Predictor:
         it): a far wall's bin at the image's edge spans up to 100 mm of range, over which a wiggling of a 150 mm
         period averages to half its value at the bin's mean range. The smooth hooks (an offset, a scale, a bounce,
         an amplitude-related error) act at the bin's range."""
-        smooth = ~(rendered.edge | (rendered.hit_fraction < 1.0))
         weighting = np.nan_to_num(self._pixel_weighted(rendered.range_dom, rendered.range_plain) - rendered.range_dom)
         returned: list[np.ndarray] = []
+        periodic, only_periodic = self._periodic_hooks
 
         def report(range_mm: np.ndarray, light: np.ndarray) -> np.ndarray:
             returned.append(range_mm)
-            hooked = [EFFECTS[name] for name in self.sensor.effects if EFFECTS[name].on_range is not None]
-            if not any(effect.periodic_range for effect in hooked):
+            if not periodic:
                 return self.sensor.range_of(range_mm, light)  # smooth over a bin: its value at the bin's range
             pixels = range_mm + weighting
-            slope, curvature = range_spread(pixels, self.bin_px, smooth)
+            slope, curvature = range_spread(pixels, self.bin_px, ~sharp_bins(rendered))
             return pixels_mean(lambda r: self.sensor.range_of(r, light), pixels, self.bin_px, slope, curvature,
-                               TOF_PIXEL_NODES, stacked=all(effect.periodic_range for effect in hooked)) - weighting
+                               TOF_PIXEL_NODES, stacked=only_periodic) - weighting
 
         range_mm, amplitude, ambient = self.sensor.expected(rendered, exposure_us, cut=False, report=report)
         before, = returned
@@ -520,7 +526,7 @@ class Predictor:
         exposure = step.exposure_us or self.profile.exposure_us
         drift = self.drift_mm(times_s)
         reach = self.blur_reach_bins(recorded.centre_distance_mm)
-        sharp = rendered.edge | (rendered.hit_fraction < 1.0)  # the bins an edge runs through
+        sharp = sharp_bins(rendered)
         smooth = ~sharp
         edge = ndimage.binary_dilation(sharp, iterations=reach)
         centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
@@ -573,6 +579,11 @@ class Predictor:
         p = self.profile
         return z + drift_mm + stored_depth_bias(z, sigma_d, p.disparity_step_px, self.sensor.matching_focal_baseline,
                                                 output_step_mm(self.effects), drift_mm, self.bin_px)
+
+
+def sharp_bins(rendered: Any) -> np.ndarray:
+    """The bins of a render an edge runs through: a depth or reflectance edge, or the border of what is hit."""
+    return rendered.edge | (rendered.hit_fraction < 1.0)
 
 
 def _overlap(region: slice, bins: int, bin_px: int) -> np.ndarray:
