@@ -33,6 +33,7 @@ lens blur to act before the pixel integrates.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -75,6 +76,32 @@ class Rendered:
         centre = self.range_dom[h // 2 - 2 : h // 2 + 3, w // 2 - 2 : w // 2 + 3]
         finite = centre[np.isfinite(centre)]
         return float(np.median(finite)) if finite.size else 1e9
+
+
+@dataclass(frozen=True)
+class RenderMove:
+    """Renders of one scene along a small move of its surfaces, taken linearly between a render at the move's start
+    and one further along it: ``at(t)`` is the render a fraction ``t`` of the way (``t`` outside [0, 1]: beyond
+    them). Each light and geometric map changes linearly where both renders hold a finite value and is the
+    start's elsewhere; what is discrete (the dominant surface, the edges, the sub-pixel count) is the start's.
+    For a plane moved along its normal by micrometres the ranges change linearly with the move, the light (1 /
+    r^2) and the phase (exp(j k r)) to second order in the move over the range."""
+
+    start: Rendered
+    change: dict[str, np.ndarray]
+
+    @classmethod
+    def between(cls, start: Rendered, further: Rendered) -> RenderMove:
+        change = {}
+        for field in dataclasses.fields(start):
+            x, y = getattr(start, field.name), getattr(further, field.name)
+            if isinstance(x, np.ndarray) and x.dtype.kind in "fc":
+                with np.errstate(invalid="ignore"):
+                    change[field.name] = np.where(np.isfinite(x) & np.isfinite(y), y - x, 0.0)
+        return cls(start, change)
+
+    def at(self, t: float) -> Rendered:
+        return dataclasses.replace(self.start, **{k: getattr(self.start, k) + t * d for k, d in self.change.items()})
 
 
 @dataclass(frozen=True)

@@ -71,7 +71,7 @@ from sim.geometry import Pose
 from sim.model import SimModel
 from sim.optics import CameraOptics
 from sim.profiles import CameraProfile
-from sim.render import OVERSAMPLE, render, sub_pixel_directions
+from sim.render import OVERSAMPLE, RenderMove, render, sub_pixel_directions
 from sim.scenes.targets import PLATE_MATERIALS, build_scene, plate_scene
 from sim.sensor import SensorOptics, blur_diameter_px, camera_optics
 from sim.stereo import StereoSensor, dot_pattern
@@ -89,6 +89,13 @@ FOLD_LIGHT = 0.5
 #: new one at every step it takes, and a complete campaign's 205 steps hold about 1 MB each at the bin grid (a
 #: fit of 50 tries kept them all: 10 GB). The plain model's and a fit's current and previous settings.
 RENDERS_PER_STEP = 3
+#: a wall moved by a shift within this of one it was drawn at is taken between that render and one drawn this much
+#: further (``Predictor._render``, ``RenderMove``): a fit's steps move the shift by tenths of a millimetre, its
+#: Jacobian's columns and the parameters' secant slopes by nanometres to a tenth of a micrometre, so that each step
+#: draws two renders instead of one per column. The complete blaze-101 campaign's 119 laser-referenced steps (walls,
+#: charts, stars, the slanted edge, the ball bar, the face) a full reach from the render, at 1.47 mm: depth within
+#: 1.1e-7 mm and light within 1e-8 of itself of the walls drawn there (the ball bar's sphere the furthest off)
+SHIFT_REACH_MM = 1e-3
 
 
 @dataclass(frozen=True)
@@ -219,25 +226,35 @@ class Predictor:
     def geometry_key(self, step: StepScene) -> str:
         """The effect settings that change what this step's render sees (of an effect for which the render only
         keeps the phasors, that it is on)."""
-        plates = step.target in PLATE_MATERIALS
-        return json.dumps({k: v.model_dump(mode="json") if EFFECTS[k].render_follows_parameters else True
-                           for k, v in self.effects.items()
-                           if (EFFECTS[k].changes_render if plates else EFFECTS[k].changes_stage_render)},
-                          sort_keys=True)
+        return self._geometry_keys[step.target in PLATE_MATERIALS]
+
+    @cached_property
+    def _geometry_keys(self) -> tuple[str, str]:
+        """``geometry_key`` of the steps on the stage and of the plates on the robot."""
+        return tuple(json.dumps({k: v.model_dump(mode="json") if EFFECTS[k].render_follows_parameters else True
+                                 for k, v in self.effects.items()
+                                 if (EFFECTS[k].changes_render if plates else EFFECTS[k].changes_stage_render)},
+                                sort_keys=True) for plates in (False, True))
 
     def _render(self, step: StepScene, shift_mm: float = 0.0):
         """The step's render, its wall ``shift_mm`` nearer than recorded (``wall_shifts``). Each step keeps one
-        moved render besides the recorded one: the shift changes with every model a fit tries, and a wall's
-        render costs milliseconds at the bin grid. Of the renders for other settings of the effects
+        moved render besides the recorded one, and a second drawn ``SHIFT_REACH_MM`` further when a shift within
+        that reach of the first is asked for, which is then taken between the two (``RenderMove``): the shift changes
+        with every model a fit tries, by nanometres between its Jacobian's columns, and a wall's render costs
+        milliseconds at the bin grid. Of the renders for other settings of the effects
         (``geometry_key``) each step keeps the ``RENDERS_PER_STEP`` last used."""
         key = (step.step_id, self.geometry_key(step))
         if shift_mm:
             moved = self.cache.get((*key, "moved"))
-            if moved is None or moved[0] != shift_mm:
-                assert step.wall_distance_mm is not None  # only walls are shifted
-                moved = (shift_mm, self._draw(dataclasses.replace(step, wall_distance_mm=step.wall_distance_mm - shift_mm)))
+            if moved is None or abs(shift_mm - moved.shift_mm) > SHIFT_REACH_MM:
+                moved = _MovedWall(shift_mm, self._draw(_nearer(step, shift_mm)))
                 self.cache[(*key, "moved")] = moved
-            return moved[1]
+            if shift_mm == moved.shift_mm:
+                return moved.rendered
+            if moved.along is None:
+                moved.along = RenderMove.between(moved.rendered,
+                                                 self._draw(_nearer(step, moved.shift_mm + SHIFT_REACH_MM)))
+            return moved.along.at((shift_mm - moved.shift_mm) / SHIFT_REACH_MM)
         rendered = self.cache.pop(key, None)
         if rendered is None:
             held = [k for k in self.cache if len(k) == 2 and k[0] == step.step_id]
@@ -436,6 +453,18 @@ class Predictor:
         spread = (self.bin_px**2 - 1) / (24 * self.bin_px**2 * k**2) + sigma2 / (2 * self.bin_px**2)
         return light + second_differences(light, smooth) * spread
 
+    def _edge_bins(self, step_id: str, sharp: np.ndarray, reach: int) -> np.ndarray:
+        """The bins within ``reach`` bins of a ``sharp`` one (read-only). Each step keeps its last, with what it was
+        found from: most models a fit tries move no edge."""
+        inputs = (sharp.tobytes(), reach)
+        held = self.cache.get(("edge bins", step_id))
+        if held is None or held[0] != inputs:
+            edge = ndimage.binary_dilation(sharp, iterations=reach)
+            edge.setflags(write=False)
+            held = (inputs, edge)
+            self.cache[("edge bins", step_id)] = held
+        return held[1]
+
     def _valid_fraction(self, step_id: str, cut: np.ndarray, ambient: float, smooth: np.ndarray) -> np.ndarray:
         """The ToF bins' valid fraction (``tof_valid_fraction``) at the light ``cut``, its slopes taken where no
         edge runs (``smooth``). Each step keeps its last one with what it was computed from: most models a fit
@@ -528,7 +557,7 @@ class Predictor:
         reach = self.blur_reach_bins(recorded.centre_distance_mm)
         sharp = sharp_bins(rendered)
         smooth = ~sharp
-        edge = ndimage.binary_dilation(sharp, iterations=reach)
+        edge = self._edge_bins(step.step_id, sharp, reach)
         centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
             # a bin's means continue across the camera's range (the mean over all its pixels, as where part of them
@@ -579,6 +608,22 @@ class Predictor:
         p = self.profile
         return z + drift_mm + stored_depth_bias(z, sigma_d, p.disparity_step_px, self.sensor.matching_focal_baseline,
                                                 output_step_mm(self.effects), drift_mm, self.bin_px)
+
+
+@dataclass
+class _MovedWall:
+    """A wall's render drawn ``shift_mm`` nearer than recorded and, once a shift within ``SHIFT_REACH_MM`` is asked
+    for, the renders along the move to one drawn that much further."""
+
+    shift_mm: float
+    rendered: Any
+    along: RenderMove | None = None
+
+
+def _nearer(step: StepScene, shift_mm: float) -> StepScene:
+    """The step with its wall ``shift_mm`` nearer than recorded."""
+    assert step.wall_distance_mm is not None  # only walls are shifted
+    return dataclasses.replace(step, wall_distance_mm=step.wall_distance_mm - shift_mm)
 
 
 def sharp_bins(rendered: Any) -> np.ndarray:

@@ -32,6 +32,7 @@ from labctl.reconcile.noise_model import in_range_share, stored_depth_bias, tof_
 from labctl.reconcile.observe import bin_mean, observe_run
 from labctl.reconcile.predict import (
     RENDERS_PER_STEP,
+    SHIFT_REACH_MM,
     Predictor,
     pixel_nodes,
     pixels_damping,
@@ -90,6 +91,46 @@ def test_a_step_without_the_calibrations_offset_is_not_moved(d455_run):
         sweep.scene, step_id="other", applied_offset_mm=sweep.scene.applied_offset_mm + 1.0))
     shifts = sim.predictor(model).wall_shifts([*observations, other], sim.t0_s)
     assert sweep.scene.step_id in shifts and "other" not in shifts
+
+
+@pytest.fixture(scope="module")
+def blaze101_run(tmp_path_factory):
+    """A plain blaze-101 run: offset calibration at 2 m and a 0.4-4 m sweep in 900 mm steps, robot plates."""
+    run = simulated_run(tmp_path_factory.mktemp("blaze101"), "blaze101", seed=43, sweep_step_mm=900)
+    observations, info, _ = observe_run(run)
+    return observations, info
+
+
+@pytest.mark.parametrize("camera", ["blaze101", "d455"])
+def test_a_wall_moved_within_the_reach_of_its_render_is_predicted_as_if_drawn_there(request, camera):
+    """A laser-referenced wall moved by a shift within ``SHIFT_REACH_MM`` of one it was drawn at is taken between
+    that render and one drawn further (``RenderMove``): a plane's ranges change linearly with the move, its light
+    and phase to second order in the move over the range (1e-6 mm over 0.4 m). Its prediction is the one of the
+    wall drawn at the shift itself; beyond the reach the wall is drawn anew. Without the move the depth would be
+    off by up to the reach (1e-3 mm)."""
+    observations, info = request.getfixturevalue(f"{camera}_run")
+    sim = Simulation(observations, info)
+    model = with_effect(base_model(info), *(("wiggling", {"amplitude_mm": 3.0, "period_mm": 900.0})
+                                            if camera == "blaze101" else
+                                            ("stereo_calibration_drift", {"disparity_offset_px": 0.1})))
+    walls = [o for o in observations if o.scene.reference == "laser"]
+    assert len(walls) >= 5
+    start = 1.47
+    for o in walls:
+        times = o.times_s - sim.t0_s
+        along = sim.predictor(model)
+        at_start = along.predict(o.scene, times, start)
+        for share in (1e-5, 0.3, -1.0, 1.5):
+            shift = start + share * SHIFT_REACH_MM
+            moved = along.predict(o.scene, times, shift)
+            drawn = Predictor(model, info["width"], info["height"], info["bin_px"]).predict(o.scene, times, shift)
+            assert np.array_equal(np.isfinite(moved.z), np.isfinite(drawn.z))
+            assert np.nanmax(np.abs(moved.z - drawn.z)) < 1e-6, (o.scene.step_id, share)
+            assert np.nanmax(np.abs(moved.intensity / drawn.intensity - 1.0)) < 1e-6, (o.scene.step_id, share)
+            if share == 1.5:  # beyond the reach: drawn at the shift itself
+                assert np.array_equal(moved.z, drawn.z, equal_nan=True)
+            if abs(share) >= 0.3:  # the move itself is seen
+                assert np.nanmax(np.abs(moved.z - at_start.z)) > 0.25 * abs(share) * SHIFT_REACH_MM
 
 
 def _pinhole_cosines(width: int, height: int, fov_h_deg: float, fov_v_deg: float) -> np.ndarray:
