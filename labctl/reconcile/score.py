@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from labctl.reconcile.candidates import Candidate, Context
+from labctl.reconcile.candidates import Candidate, Column, Context
 from labctl.reconcile.residuals import FAMILIES, Layout
 from labctl.reconcile.results import Parameters
 
@@ -121,6 +121,14 @@ class Beside:
         return rows - self.slopes @ (self.gram_inverse @ (self.slopes.T @ rows))
 
 
+def _profiled_columns(signature: list[Column], lay: Layout) -> np.ndarray:
+    """A candidate's signature columns with the nuisance profiled out and whitened (``Layout.profiled_rows``): of a
+    signature that changes the depth alone only its depth rows, the first of every row (the others are zero)."""
+    if all(len(column) == 2 and not np.any(column[1]) for column in signature):
+        return np.column_stack([lay.profiled_depth(column[0]) for column in signature])
+    return np.column_stack([lay.profiled_rows(*column) for column in signature])
+
+
 def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside: Beside | None = None) -> Fit | None:
     """The candidate at its best grid point (None when no physically valid fit exists), its linear coefficients as
     the candidate may take them (``Candidate.clip``); with ``beside``, the named effects refitted beside it (``r``
@@ -134,10 +142,11 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside
         # a grid point whose signature sends a compared bin dark holds rows of +-max float (``finite_difference``:
         # an infinite log ratio); its products overflow, and the point is passed over below
         with np.errstate(over="ignore", invalid="ignore"):
-            columns = np.column_stack([lay.profiled_rows(*column) for column in candidate.columns(ctx, nonlinear)])
-            a, b = columns.T @ columns, columns.T @ r  # C'r = (C less its fit by S)'r: r is orthogonal to S
+            columns = _profiled_columns(candidate.columns(ctx, nonlinear), lay)
+            rows = slice(0, len(columns))  # a depth signature's columns: the depth rows, every other row zero
+            a, b = columns.T @ columns, columns.T @ r[rows]  # C'r = (C less its fit by S)'r: r is orthogonal to S
             if beside is not None:
-                cs = columns.T @ beside.slopes
+                cs = columns.T @ beside.slopes[rows]
                 a = a - cs @ beside.gram_inverse @ cs.T
         if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
             continue
@@ -145,7 +154,8 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside
         params = candidate.to_params(ctx, coef, nonlinear)
         if params is None:
             continue
-        fitted = columns @ coef
+        fitted = np.full(len(r), 0.0 if np.all(np.isfinite(coef)) else np.nan)  # (0 times an infinite one: NaN)
+        fitted[rows] = columns @ coef
         if beside is not None:
             fitted = fitted - beside.slopes @ (beside.gram_inverse @ (cs.T @ coef))
         if np.all(np.isfinite(coef)):
@@ -158,6 +168,8 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside
     if best is None:
         return None
     value, coef, columns, params = best
+    if len(columns) < len(r):
+        columns = np.concatenate([columns, np.zeros((len(r) - len(columns), columns.shape[1]))])
     if beside is not None:
         columns = beside.out_of(columns)
     rest = r - columns @ coef
