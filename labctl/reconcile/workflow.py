@@ -365,8 +365,60 @@ def _fit_effects(found: list[tuple[Candidate, Parameters]], model: SimModel, sim
             say(f"fitting {names}: {made} re-simulations, whitened sum of squares {least:.6g}")
         return r
 
-    result = optimize.least_squares(reported, x0, bounds=(lo, hi), x_scale="jac", ftol=FIT_FTOL, max_nfev=max_nfev)
+    jacobian = _ForwardJacobian(reported, (lo, hi))
+    result = optimize.least_squares(jacobian.residual, x0, jac=jacobian, bounds=(lo, hi), x_scale="jac", ftol=FIT_FTOL,
+                                    max_nfev=max_nfev)
     return _Fitted(result, build, residual, (lo, hi), [slice(a, b) for a, b in zip(sizes[:-1], sizes[1:])])
+
+
+class _ForwardJacobian:
+    """A fit's residual and its Jacobian by forward differences, as ``least_squares`` takes it by default
+    ('2-point'), except at the point where the solver stops for ``FIT_FTOL`` (the step there lowered the cost by
+    less than that share of it): the solver takes a Jacobian at every point it moves to before it checks whether
+    it stops, a re-simulation per parameter that only the fitted parameters' slopes' steps (``_slopes``) would
+    use, and the previous point's gives them as well. Should the solver go on from there after all (the step's
+    predicted reduction was more than 4 times what it achieved), its next point gets its own."""
+
+    def __init__(self, fun: Callable[[np.ndarray], np.ndarray], bounds: tuple[np.ndarray, np.ndarray]) -> None:
+        self.fun = fun
+        self.bounds = bounds
+        self.last: tuple[np.ndarray, np.ndarray] | None = None  # the last point the solver evaluated, its residual
+        self.taken: tuple[float, np.ndarray] | None = None  # the cost where the last Jacobian was taken, and it
+        self.held = False  # the last Jacobian was handed on at a point the solver was expected to stop at
+
+    def residual(self, x: np.ndarray) -> np.ndarray:
+        f = self.fun(x)
+        self.last = (x.copy(), f)
+        return f
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        f = self.last[1] if self.last is not None and np.array_equal(self.last[0], x) else self.fun(x)
+        cost = 0.5 * float(f @ f)
+        if self.taken is not None and not self.held and self.taken[0] - cost < FIT_FTOL * self.taken[0]:
+            self.held = True
+            return self.taken[1]
+        self.held = False
+        self.taken = (cost, forward_differences(self.fun, x, f, self.bounds))
+        return self.taken[1]
+
+
+def forward_differences(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f: np.ndarray,
+                        bounds: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The Jacobian of ``fun`` at ``x`` (``f``: its value there) by forward differences (Nocedal & Wright 2006, 8.1)
+    with the steps ``least_squares`` takes by default: sqrt(eps) max(1, |x_i|) towards x_i's sign (up at 0), the
+    other way where that leaves the bounds, and where neither side has room, the whole way to the further bound."""
+    lo, hi = bounds
+    step = np.sqrt(np.finfo(float).eps) * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
+    below, above = x - lo, hi - x
+    room = np.abs(step) <= np.maximum(below, above)
+    step = np.where(room & ((x + step < lo) | (x + step > hi)), -step, step)
+    step = np.where(room, step, np.where(above >= below, above, -below))
+    columns = np.empty((len(x), len(f)))  # one parameter's column a row: the Jacobian is their transpose, as scipy's
+    for i in range(len(x)):
+        moved = x.copy()
+        moved[i] = x[i] + step[i]
+        columns[i] = (fun(moved) - f) / ((x[i] + step[i]) - x[i])
+    return columns.T
 
 
 def whitened_residual(sim: Simulation, lay: Layout, model: SimModel) -> np.ndarray:
