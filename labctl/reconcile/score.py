@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from scipy import optimize
 
 from labctl.reconcile.candidates import Candidate, Column, Context
 from labctl.reconcile.residuals import FAMILIES, Layout
@@ -48,6 +50,7 @@ class Fit:
     loso_gain: float  # 1 - held-out RSS with the effect / held-out RSS without it
     stderr: list[float]  # standard errors of the linear coefficients
     signature: np.ndarray  # fitted change of the whitened residual vector (S theta)
+    nonlinear: Any = None  # the grid point the fit is at (``Candidate.grid``)
 
 
 def competing(a: Fit, b: Fit) -> bool:
@@ -137,7 +140,7 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside
     steps = lay.row_steps()
     cells = lay.row_cells()  # (step, family): each family's residuals of a step have their own scale
     rss0 = np.bincount(cells, r * r, lay.n_cells)
-    best: tuple[float, np.ndarray, np.ndarray, Parameters] | None = None
+    best: tuple[float, np.ndarray, np.ndarray, Parameters, Any] | None = None
     for nonlinear in candidate.grid(ctx):
         # a grid point whose signature sends a compared bin dark holds rows of +-max float (``finite_difference``:
         # an infinite log ratio); its products overflow, and the point is passed over below
@@ -164,10 +167,10 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside
             rss1 = np.bincount(cells, (r - fitted) ** 2, lay.n_cells)
         value = delta_bic(rss0, rss1, candidate.n_params, n)
         if best is None or value > best[0]:
-            best = (value, coef, columns, params)
+            best = (value, coef, columns, params, nonlinear)
     if best is None:
         return None
-    value, coef, columns, params = best
+    value, coef, columns, params, nonlinear = best
     if len(columns) < len(r):
         columns = np.concatenate([columns, np.zeros((len(r) - len(columns), columns.shape[1]))])
     if beside is not None:
@@ -177,4 +180,43 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside
     dof = max(len(r) - columns.shape[1], 1)
     cov = np.linalg.inv(columns.T @ columns) * rss1 / dof
     return Fit(candidate.name, params, value, float(rss0.sum()), rss1, loso_gain(columns, r, steps, n),
-               [float(v) for v in np.sqrt(np.diag(cov))], columns @ coef)
+               [float(v) for v in np.sqrt(np.diag(cov))], columns @ coef, nonlinear)
+
+
+#: the polished grid point's tolerance, as a share of the span between the best point's neighbours
+POLISH_TOLERANCE = 1e-3
+
+
+def polished(candidate: Candidate, fit: Fit, ctx: Context, lay: Layout, r: np.ndarray,
+             beside: Beside | None = None) -> Parameters:
+    """The candidate's parameters with its nonlinear parameter, where that is one number, searched between the grid
+    points beside ``fit``'s (Brent's bounded search, Brent 1973, ch. 5, of the linear fit's whitened residual sum
+    of squares, with ``beside`` as ``score`` takes it): the start of its fit on full re-simulations
+    (``workflow.refine``), nearer the optimum than a grid point (the wiggling's period grid steps 3.6 %). ``fit``'s
+    own parameters where the search finds nothing better or the candidate does not take its coefficients there."""
+    grid = candidate.grid(ctx)
+    if not all(isinstance(v, (int, float)) for v in grid) or fit.nonlinear not in grid or len(grid) < 2:
+        return fit.params
+    i = grid.index(fit.nonlinear)
+    left, right = sorted((grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]))
+
+    def linear_fit(nonlinear: float) -> tuple[float, np.ndarray]:
+        with np.errstate(over="ignore", invalid="ignore"):
+            columns = _profiled_columns(candidate.columns(ctx, nonlinear), lay)
+            rows = slice(0, len(columns))
+            a, b = columns.T @ columns, columns.T @ r[rows]
+            if beside is not None:
+                cs = columns.T @ beside.slopes[rows]
+                a = a - cs @ beside.gram_inverse @ cs.T
+            if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
+                return math.inf, np.zeros(a.shape[0])
+            coef = candidate.clip(np.linalg.solve(a, b))
+            rss = float(r @ r - 2 * coef @ b + coef @ a @ coef)
+        return (rss, coef) if math.isfinite(rss) else (math.inf, coef)
+
+    found = optimize.minimize_scalar(lambda v: linear_fit(v)[0], bounds=(left, right), method="bounded",
+                                     options={"xatol": POLISH_TOLERANCE * (right - left)})
+    rss, coef = linear_fit(float(found.x))
+    if not rss < linear_fit(fit.nonlinear)[0]:
+        return fit.params
+    return candidate.to_params(ctx, coef, float(found.x)) or fit.params

@@ -128,7 +128,7 @@ from labctl.reconcile.results import (
     SignificanceRule,
     Unexplained,
 )
-from labctl.reconcile.score import MARGIN, Beside, Fit, competing, score
+from labctl.reconcile.score import MARGIN, Beside, Fit, competing, polished, score
 from sim.effects import EFFECTS, default_effects
 from sim.model import SimModel, parse_model
 from sim.profiles import PROFILES, get_profile
@@ -542,15 +542,16 @@ Refinement = tuple[Parameters, dict[str, float], Determination, float, np.ndarra
 
 
 def refine(candidate: Candidate, fit: Fit, model: SimModel, sim: Simulation, lay: Layout,
-           say: Callable[[str], None] | None = None) -> Refinement:
-    """The candidate's parameters refined on full re-simulations, starting from its linear fit.
+           say: Callable[[str], None] | None = None, start: Parameters | None = None) -> Refinement:
+    """The candidate's parameters refined on full re-simulations, starting from its linear fit (or ``start``:
+    ``_State.start``).
 
     Returns the parameters, their standard errors (the larger of the delete-one-step jackknife's and the declared
     errors', docs/reconcile.md *Parameter uncertainty*), how well the run determines them (``determination``),
     the whitened RSS and the residual's slope in each parameter there (``_Fitted.secant_jacobian``; None where it
     could not be taken). ``say``: the fit's progress (``_fit_effects``).
     """
-    fitted = _fit_effects([(candidate, fit.params)], model, sim, lay, max_nfev=25, say=say)
+    fitted = _fit_effects([(candidate, start or fit.params)], model, sim, lay, max_nfev=25, say=say)
     result = fitted.result
     params = candidate.from_vector(result.x)
     rss = float(result.fun @ result.fun)
@@ -684,13 +685,18 @@ class _State:
         r = self.whitened()
         return beside.out_of(r) if beside is not None else r
 
+    def start(self, candidate: Candidate, fit: Fit, beside: Beside | None) -> Parameters:
+        """Where the fit of a candidate scored as ``fit`` (``beside`` the named effects) on full re-simulations
+        starts: its linear fit at the best point of its grid, that point polished (``score.polished``)."""
+        return polished(candidate, fit, self.context(), self.lay, self.scored_residual(beside), beside)
+
 
 def _resimulated(state: _State, fit: Fit, candidate: Candidate, beside: Beside | None,
                  say: Callable[[str], None] | None = None) -> tuple[Fit, Refinement]:
     """``fit`` with the change of its full re-simulation as its signature: the candidate refined (``refine``, its
     progress to ``say``) and the whitened residual its model leaves taken from the one it is scored on (the named
     effects' slopes taken out of both, ``_State.scored_residual``); and the refinement, for naming it."""
-    refinement = refine(candidate, fit, state.model, state.sim, state.lay, say)
+    refinement = refine(candidate, fit, state.model, state.sim, state.lay, say, state.start(candidate, fit, beside))
     change = state.whitened() - whitened_residual(state.sim, state.lay,
                                                   with_effect(state.model, fit.name, refinement[0]))
     if beside is not None:
@@ -1014,8 +1020,8 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             iteration.decision = "ambiguous"
             break
         say(f"fitting {best.name}")
-        params, stderr, info_det, rss, slopes = refined.get(best.name) or refine(candidate, best, state.model, sim,
-                                                                                  lay, say)
+        params, stderr, info_det, rss, slopes = refined.get(best.name) or refine(
+            candidate, best, state.model, sim, lay, say, state.start(candidate, best, beside))
         before, previous, previous_slopes = state.good, state.model, state.named_slopes
         state.set(with_effect(state.model, best.name, params))
         joint: Joint | None = None  # the named effects refitted with it

@@ -1,5 +1,6 @@
-"""The fit's solver: scipy's least squares with its default forward differences, less the Jacobian it takes at
-the point where it stops (labctl/reconcile/workflow.py ``_ForwardJacobian``)."""
+"""A candidate's fit on full re-simulations: where it starts (``score.polished``), and its solver, scipy's least
+squares with its default forward differences less the Jacobian it takes at the point where it stops
+(labctl/reconcile/workflow.py ``_ForwardJacobian``)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,12 @@ import numpy as np
 import pytest
 from scipy import optimize
 
-from labctl.reconcile.workflow import FIT_FTOL, _ForwardJacobian
+from labctl.reconcile.candidates import candidates_for
+from labctl.reconcile.observe import observe_run
+from labctl.reconcile.residuals import layout
+from labctl.reconcile.score import polished, score
+from labctl.reconcile.workflow import FIT_FTOL, Simulation, _ForwardJacobian, _State, base_model
+from tests.reconcile.runs import simulated_run
 
 
 @pytest.mark.parametrize("room", [None, 1e-12])
@@ -39,3 +45,26 @@ def test_a_fit_takes_the_default_solvers_steps_and_one_jacobian_fewer(room):
     assert np.array_equal(a.x, b.x) and np.array_equal(a.fun, b.fun)
     if room is not None:  # the amplitude's step went down, away from the bound
         assert own[1][0] < x0[0] < hi[0] and default[1][0] == own[1][0]
+
+
+def test_a_fit_starts_from_its_grid_point_polished_towards_the_hidden_value(tmp_path):
+    """A blaze-101 test campaign with a hidden 2 mm wiggling of a 1500 mm period, between two points of the
+    candidate's period grid: the fit on full re-simulations starts from the best grid point's period searched
+    between its neighbours on the linear fit (``score.polished``), nearer the hidden period than the grid's
+    point."""
+    hidden = {"amplitude_mm": 2.0, "period_mm": 1500.0, "phase_rad": 0.4}
+    run = simulated_run(tmp_path, "blaze101", hidden={"wiggling": hidden}, seed=11)
+    observations, info, _ = observe_run(run)
+    model = base_model(info)
+    sim = Simulation(observations, info)
+    state = _State(sim, layout(observations, sim.predict(model), "tof"), model)
+    ctx, r = state.context(), state.scored_residual(None)
+    candidate = next(c for c in candidates_for(ctx) if c.name == "wiggling")
+    fit = score(candidate, ctx, state.lay, r)
+    assert fit is not None and fit.nonlinear == fit.params["period_mm"]
+    grid = np.asarray(candidate.grid(ctx))
+    step = float(np.diff(grid)[np.argmin(np.abs(grid[:-1] - 1500.0))])
+    start = polished(candidate, fit, ctx, state.lay, r)
+    # the grid's point 22 mm off (a 74 mm step here), the polished one 7 mm, about the run's noise on the period
+    assert abs(fit.params["period_mm"] - 1500.0) > 0.2 * step
+    assert abs(start["period_mm"] - 1500.0) < 0.15 * step, (start, fit.params, step)
