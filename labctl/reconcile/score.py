@@ -132,6 +132,22 @@ def _profiled_columns(signature: list[Column], lay: Layout) -> np.ndarray:
     return np.column_stack([lay.profiled_rows(*column) for column in signature])
 
 
+def _normal_equations(signature: list[Column], lay: Layout, r: np.ndarray, beside: Beside | None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The least-squares fit of ``r`` by a candidate's signature columns: the columns (``_profiled_columns``: a
+    depth signature's over the depth rows alone, every other row zero), C'C and C'r; with ``beside``, C'C of the
+    columns less their fit by the named effects' slopes S, and C'S. C'r needs no such change: r is orthogonal to
+    S."""
+    columns = _profiled_columns(signature, lay)
+    rows = slice(0, len(columns))
+    a, b = columns.T @ columns, columns.T @ r[rows]
+    cs = None
+    if beside is not None:
+        cs = columns.T @ beside.slopes[rows]
+        a = a - cs @ beside.gram_inverse @ cs.T
+    return columns, a, b, cs
+
+
 def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside: Beside | None = None) -> Fit | None:
     """The candidate at its best grid point (None when no physically valid fit exists), its linear coefficients as
     the candidate may take them (``Candidate.clip``); with ``beside``, the named effects refitted beside it (``r``
@@ -145,12 +161,8 @@ def score(candidate: Candidate, ctx: Context, lay: Layout, r: np.ndarray, beside
         # a grid point whose signature sends a compared bin dark holds rows of +-max float (``finite_difference``:
         # an infinite log ratio); its products overflow, and the point is passed over below
         with np.errstate(over="ignore", invalid="ignore"):
-            columns = _profiled_columns(candidate.columns(ctx, nonlinear), lay)
-            rows = slice(0, len(columns))  # a depth signature's columns: the depth rows, every other row zero
-            a, b = columns.T @ columns, columns.T @ r[rows]  # C'r = (C less its fit by S)'r: r is orthogonal to S
-            if beside is not None:
-                cs = columns.T @ beside.slopes[rows]
-                a = a - cs @ beside.gram_inverse @ cs.T
+            columns, a, b, cs = _normal_equations(candidate.columns(ctx, nonlinear), lay, r, beside)
+        rows = slice(0, len(columns))
         if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
             continue
         coef = candidate.clip(np.linalg.solve(a, b))
@@ -202,12 +214,7 @@ def polished(candidate: Candidate, fit: Fit, ctx: Context, lay: Layout, r: np.nd
 
     def linear_fit(nonlinear: float) -> tuple[float, np.ndarray]:
         with np.errstate(over="ignore", invalid="ignore"):
-            columns = _profiled_columns(candidate.columns(ctx, nonlinear), lay)
-            rows = slice(0, len(columns))
-            a, b = columns.T @ columns, columns.T @ r[rows]
-            if beside is not None:
-                cs = columns.T @ beside.slopes[rows]
-                a = a - cs @ beside.gram_inverse @ cs.T
+            _, a, b, _ = _normal_equations(candidate.columns(ctx, nonlinear), lay, r, beside)
             if not np.all(np.isfinite(a)) or np.linalg.matrix_rank(a) < a.shape[0]:
                 return math.inf, np.zeros(a.shape[0])
             coef = candidate.clip(np.linalg.solve(a, b))
