@@ -287,7 +287,9 @@ def _family_rows(lay: Layout, column: tuple[np.ndarray, ...]) -> Iterator[tuple[
 def residual_rows(null: NullCalibration, lay: Layout, step_ids: list[str]) -> np.ndarray:
     """(replicas, rows): each replica's residual maps (``Replica.maps``: goodness.residual_maps, the nuisance
     profiled out, in the families' units) on this run's rows of ``Layout.profiled_rows`` (steps ``step_ids``),
-    whitened with this run's weights; 0 at a bin the replica did not compare."""
+    whitened with this run's weights; 0 at a bin the replica did not compare. Laid out row by row (its transpose
+    is contiguous): ``_Replicas.crosses`` takes every replica's value of a row at once, and each effect's
+    ``_Replicas`` then shares this array instead of copying it."""
     def per_step(replica: Replica, family: str) -> list[np.ndarray]:
         maps = replica.maps.get(family, {})
         return [np.nan_to_num(np.asarray(maps[i], float)) if i in maps else np.zeros(m.shape)
@@ -296,7 +298,7 @@ def residual_rows(null: NullCalibration, lay: Layout, step_ids: list[str]) -> np
     return np.stack([lay.whitened(lay.stack_z(per_step(r, "depth")), lay.stack_i(per_step(r, "intensity")) / 100,
                                   lay.stack_statistics({f: per_step(r, f) for f in STATISTICS
                                                         if lay.family_masks(f)}) / 100)
-                     for r in null.replicas])
+                     for r in null.replicas], axis=1).T
 
 
 class _Replicas:
@@ -308,7 +310,8 @@ class _Replicas:
                  residual: np.ndarray) -> None:
         self.alpha, self.threshold = null.alpha, critical_value(list(null_best), null.alpha)
         self.null_best = null_best  # each replica's best dBIC among the candidates in play
-        self.residual_by_row = np.ascontiguousarray(residual.T)  # (rows, replicas): ``residual_rows``, transposed
+        # (rows, replicas): ``residual_rows`` transposed (a view of the array it returns, a copy of any other)
+        self.residual_by_row = np.ascontiguousarray(residual.T)
         self.steps = sorted({(s.step_id, s.family) for r in null.replicas for s in r.steps})
         index = {k: i for i, k in enumerate(self.steps)}
         k, n = len(null.replicas), len(self.steps)
