@@ -68,7 +68,7 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from labctl.reconcile.goodness import STEP_FACTOR, StepFit, rounded, steps_above_floor
-from labctl.reconcile.observe import MAX_FRAMES, StepScene, step_scene
+from labctl.reconcile.observe import MAX_FRAMES, StepScene, opened_run, step_scene
 from labctl.reconcile.results import CornerFamilyGoodness, CornerGoodnessSummary, Parameters
 from labctl.run.store import RunReader, StepRecord
 from metrics.distortion import Corners, detect_corners, refine_corners, sample_cloud
@@ -149,11 +149,12 @@ def observe_corners(step: StepRecord, scene: StepScene, fov_deg: tuple[float, fl
                              slope[:, ok].mean(0), slope[:, ok].var(0, ddof=1) / n, tile, offset, plane)
 
 
-def observe_corner_run(path: str | Path, fov_deg: tuple[float, float],
+def observe_corner_run(path: str | Path | RunReader, fov_deg: tuple[float, float],
                        max_frames: int = MAX_FRAMES) -> tuple[list[CornerObservation], list[str]]:
-    """The corner observations of every checkerboard step of the run, and notes on boards not found."""
+    """The corner observations of every checkerboard step of the run at ``path`` (or open in it: ``opened_run``),
+    and notes on boards not found."""
     out, notes = [], []
-    with RunReader(path) as run:
+    with opened_run(path) as run:
         for step in run.steps():
             if step.attrs.get("target") != "checkerboard" or not {"x", "y", "z", "intensity"} <= set(step.group):
                 continue

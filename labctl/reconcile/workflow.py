@@ -129,6 +129,7 @@ from labctl.reconcile.results import (
     Unexplained,
 )
 from labctl.reconcile.score import MARGIN, Beside, Fit, competing, polished, score
+from labctl.run.store import RunReader
 from sim.effects import EFFECTS, default_effects
 from sim.model import SimModel, parse_model
 from sim.profiles import PROFILES, get_profile
@@ -918,15 +919,16 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     simulated before (of the same campaign and model, e.g. for several runs of one campaign) instead."""
     say = progress or (lambda _: None)
     say("reading the measured run")
-    observations, info, notes = observe_run(path)
+    with RunReader(path) as run:  # its steps' attributes read once for both observations
+        observations, info, notes = observe_run(run)
+        fov = (float(info["fov_deg"][0]), float(info["fov_deg"][1]))
+        corner_obs, corner_notes = observe_corner_run(run, fov)
     mismatch = camera_mismatch(info, model) if model is not None else None
     if mismatch is not None:
         notes.append(f"camera mismatch: {mismatch}")
         if warn is not None:
             warn(mismatch)
     model = model or base_model(info)
-    fov = (float(info["fov_deg"][0]), float(info["fov_deg"][1]))
-    corner_obs, corner_notes = observe_corner_run(path, fov)
     notes += corner_notes
     corners = None
     if corner_obs:

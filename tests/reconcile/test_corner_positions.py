@@ -14,9 +14,13 @@ library effect has.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+from labctl.reconcile.corners import observe_corner_run
+from labctl.reconcile.observe import observe_run
 from labctl.reconcile.workflow import reconcile
+from labctl.run import store
 from tests.reconcile.forward import brown_source, decentering_source, focal_source, warp_run
 from tests.reconcile.runs import CAMPAIGN, reconcile_cli, simulated_run
 
@@ -36,6 +40,23 @@ def _board_run(directory, seed=3, frames=5, second=True):
 @pytest.fixture(scope="module")
 def plain(tmp_path_factory):
     return _board_run(tmp_path_factory.mktemp("board"))
+
+
+def test_one_open_run_lists_its_steps_once_for_both_observations(plain, monkeypatch):
+    listed = []
+    listing = store._complete_steps
+    monkeypatch.setattr(store, "_complete_steps", lambda f: listed.append(f) or listing(f))
+    with store.RunReader(plain) as run:
+        observations, _, _ = observe_run(run)
+        corners, _ = observe_corner_run(run, FOV)
+        assert run.file.id.valid  # left open: the caller's to close
+    assert len(listed) == 1
+    assert len(corners) == 2
+    by_path, _, _ = observe_run(plain)  # opened and closed by the observation itself
+    assert len(listed) == 2
+    assert [o.scene for o in by_path] == [o.scene for o in observations]
+    for a, b in zip(by_path, observations, strict=True):
+        np.testing.assert_array_equal(a.z, b.z)
 
 
 @pytest.mark.parametrize("corrected", [False, True])
