@@ -68,6 +68,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage, special
 
+from labctl.reconcile.finite import finite
 from sim.effects import output_step_mm
 from sim.sensor import SensorOptics
 from sim.stereo import AMBIENT_LEVEL, DOT_DENSITY, MATCHING_WINDOW_PX, PROJECTOR_LEVEL, StereoSensor, dot_pattern
@@ -107,7 +108,7 @@ def stored_disparity_noise(z: np.ndarray, sigma_d: np.ndarray, step_d: float, fo
     spread (std) of ln std over those positions. NaN where the noise is below half the output step. Where
     sigma_d exceeds ``LATTICE_RATIO`` disparity steps, the grids no longer alias and Sheppard's correction
     holds for both roundings."""
-    scale = np.nan_to_num(z) ** 2 / focal_baseline
+    scale = finite(z) ** 2 / focal_baseline
     sheppard = with_output_step(scale * np.sqrt(sigma_d**2 + step_d**2 / 12.0), step_mm)
     ratio = np.nan_to_num(sigma_d / step_d, nan=1.0)
     lattice = ratio <= LATTICE_RATIO
@@ -259,7 +260,7 @@ def in_range_share(z: np.ndarray, low: float, high: float, bin_px: int) -> np.nd
     if low_z - span >= low and high_z + span <= high:
         return np.isfinite(z).astype(float)
     if min(z.shape) > 1:
-        gy, gx = (np.nan_to_num(g) for g in np.gradient(z, bin_px))
+        gy, gx = (finite(g) for g in np.gradient(z, bin_px))
     else:
         gy = gx = np.zeros_like(z)
     half = (np.abs(gx) + np.abs(gy)) * (bin_px - 1) / 2.0  # the bin's pixels lie within z +- half
@@ -325,7 +326,7 @@ def stereo_statistics(sensor: StereoSensor, z: np.ndarray, true_z: np.ndarray, s
     if shading_slope is not None:
         shaded = (shading_slope**2 * (MATCHING_WINDOW_PX**2 - 1) / 12.0)[..., None]
         contrast = np.sqrt(contrast**2 + (1.0 + contrast**2) * shaded)
-    relative = np.nan_to_num(contrast) / p.texture_threshold
+    relative = finite(contrast) / p.texture_threshold
     textured = np.mean(relative >= 1.0, axis=-1)
     marginal = np.mean(np.abs(relative - 1.0) < CONTRAST_TOLERANCE, axis=-1)
     # the right camera sees column u of the full sensor while u - f b / z >= 0
@@ -388,7 +389,7 @@ class _BinPoints:
 
     @classmethod
     def of(cls, z: np.ndarray, bin_px: int) -> _BinPoints:
-        gy, gx = (np.nan_to_num(g) for g in np.gradient(z, bin_px)) if min(z.shape) > 1 else (np.zeros_like(z),) * 2
+        gy, gx = (finite(g) for g in np.gradient(z, bin_px)) if min(z.shape) > 1 else (np.zeros_like(z),) * 2
         return cls(np.where(np.isfinite(z), z, 0.0), gy, gx, bin_px)
 
     @property

@@ -45,6 +45,7 @@ import numpy as np
 from scipy import ndimage
 
 from labctl.kernel_threads import serial_kernels
+from labctl.reconcile.finite import finite
 from labctl.reconcile.noise_model import (
     disparity_noise_px,
     dot_window_stats,
@@ -505,7 +506,7 @@ class Predictor:
         it): a far wall's bin at the image's edge spans up to 100 mm of range, over which a wiggling of a 150 mm
         period averages to half its value at the bin's mean range. The smooth hooks (an offset, a scale, a bounce,
         an amplitude-related error) act at the bin's range."""
-        weighting = np.nan_to_num(self._pixel_weighted(rendered.range_dom, rendered.range_plain) - rendered.range_dom)
+        weighting = finite(self._pixel_weighted(rendered.range_dom, rendered.range_plain) - rendered.range_dom)
         returned: list[np.ndarray] = []
         periodic, only_periodic = self._periodic_hooks
 
@@ -543,7 +544,7 @@ class Predictor:
         weight = np.outer(_overlap(rows, z.shape[0], self.bin_px), _overlap(cols, z.shape[1], self.bin_px))
         weight = np.where(np.isfinite(z), weight, 0.0)
         total = weight.sum()
-        return float((weight * np.nan_to_num(z)).sum() / total) if total > 0 else math.nan
+        return float((weight * finite(z)).sum() / total) if total > 0 else math.nan
 
     def predict(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> Prediction:
         """The step's binned noise-free z, intensity and the maps the candidate signatures need, its wall
@@ -570,7 +571,7 @@ class Predictor:
             light = self.pixels_light(bins.amplitude / centre, rendered, smooth)
             amplitude = self.shade(light)
             cut = amplitude if reported.all() else self.shade(np.where(reported, light, 0.0))
-            dominant = cut * np.exp(1j * self.sensor.wavenumber * np.nan_to_num(rendered.range_dom))
+            dominant = cut * np.exp(1j * self.sensor.wavenumber * finite(rendered.range_dom))
             z = self._tof_stored(self.tof_depth(rendered, range_mm - bins.hooked, bins.hooked), amplitude, ambient)
             noise = tof_noise(self.sensor, cut, ambient, np.broadcast_to(self.z_per_range, z.shape))
             valid = self._valid_fraction(step.step_id, cut, ambient, smooth) * bins.share
@@ -597,7 +598,7 @@ class Predictor:
         z = z + bin_curvature(z, self.bin_px, OVERSAMPLE)
         if not acting(self.sensor.effects, "on_range"):
             return z
-        slope = [np.nan_to_num(np.gradient(z, axis=axis)) / self.bin_px for axis in (0, 1)]
+        slope = [finite(np.gradient(z, axis=axis)) / self.bin_px for axis in (0, 1)]
         return pixels_mean(self.sensor.depth_of, z, self.bin_px, slope)
 
     def _stereo_depth(self, rendered: Any, drift_mm: float, sigma_d: np.ndarray) -> np.ndarray:
@@ -685,14 +686,17 @@ def bin_curvature(z: np.ndarray, bin_px: int, oversample: int = 1) -> np.ndarray
     return second_differences(z) * (bin_px**2 - 1) / (24 * bin_px**2 * oversample**2)
 
 
+#: per axis (rows, columns), the bins before, the bins with a neighbour on both sides, and the bins after
+_TRIPLES = ((np.s_[:-2], np.s_[1:-1], np.s_[2:]), (np.s_[:, :-2], np.s_[:, 1:-1], np.s_[:, 2:]))
+
+
 def _neighbour_differences(z: np.ndarray, smooth: np.ndarray | None,
                            difference: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]) -> list[np.ndarray]:
     """Per axis (rows, then columns), ``difference(before, bin, after)`` of every bin and its two neighbours along
     the axis: 0 where a neighbour is missing (the border, NaN) or one of the three bins is not ``smooth`` (across
     an edge a difference is the edge's step, not the surface's or the light's shape)."""
     out = []
-    for axis in (0, 1):
-        before, inner, after = ((slice(None),) * axis + (part,) for part in (np.s_[:-2], np.s_[1:-1], np.s_[2:]))
+    for before, inner, after in _TRIPLES:
         value = difference(z[before], z[inner], z[after])
         held = np.isfinite(value)
         if smooth is not None:
@@ -764,11 +768,12 @@ def pixels_mean(hook: Callable[[np.ndarray], np.ndarray], values: np.ndarray, bi
     offsets, weights = pixel_nodes(bin_px, most)
     bowed = offsets**2 - (bin_px**2 - 1) / 12.0
     (s_v, s_u), (c_v, c_u) = slope, curvature
-    down = [values + s_v * o + c_v * b / 2.0 for o, b in zip(offsets, bowed, strict=True)]
-    across = [s_u * o + c_u * b / 2.0 for o, b in zip(offsets, bowed, strict=True)]
+    o, b = offsets[:, None, None], bowed[:, None, None]  # a position along the side per layer
+    down = values + s_v * o + c_v * b / 2.0
+    across = s_u * o + c_u * b / 2.0
     weight = np.outer(weights, weights).ravel()
-    if stacked:
-        at = np.stack([v + u for v in down for u in across])
+    if stacked:  # every position down with every one across, in the order of ``weight``
+        at = (down[:, None] + across[None, :]).reshape(-1, *down.shape[1:])
         return np.tensordot(weight, hook(at), axes=1)
     return sum(w * hook(v + u) for w, (v, u) in zip(weight, ((v, u) for v in down for u in across), strict=True))
 
@@ -786,6 +791,10 @@ def pixels_damping(k: np.ndarray, slope: Sequence[np.ndarray], bin_px: int) -> n
     return factor
 
 
+#: per axis (rows, columns), the bins that have a next one along it, and those that have one before
+_NEIGHBOURS = ((np.s_[:-1], np.s_[1:]), (np.s_[:, :-1], np.s_[:, 1:]))
+
+
 def range_spread(z: np.ndarray, bin_px: int, smooth: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray],
                                                                           tuple[np.ndarray, np.ndarray]]:
     """Per bin, ``z``'s slope per pixel and its second difference per pixel^2 down the rows and along the columns
@@ -794,13 +803,13 @@ def range_spread(z: np.ndarray, bin_px: int, smooth: np.ndarray) -> tuple[tuple[
     smooth neighbour (no curvature there); 0 without one."""
     held = np.where(smooth, z, np.nan)
     slope, curvature = [], []
-    for axis in (0, 1):
+    for axis, (first, last) in enumerate(_NEIGHBOURS):
         step = np.diff(held, axis=axis) / bin_px
-        pad = np.full_like(np.take(held, [0], axis=axis), np.nan)
-        ahead, behind = np.concatenate((step, pad), axis=axis), np.concatenate((pad, step), axis=axis)
+        ahead, behind = np.full(held.shape, np.nan), np.full(held.shape, np.nan)
+        ahead[first], behind[last] = step, step  # the difference to the next bin, to the one before
         central = (ahead + behind) / 2.0
-        slope.append(np.nan_to_num(np.where(np.isnan(central), np.where(np.isnan(ahead), behind, ahead), central)))
-        curvature.append(np.nan_to_num((ahead - behind) / bin_px))
+        slope.append(finite(np.where(np.isnan(central), np.where(np.isnan(ahead), behind, ahead), central)))
+        curvature.append(finite((ahead - behind) / bin_px))
     return (slope[0], slope[1]), (curvature[0], curvature[1])
 
 
