@@ -46,7 +46,16 @@ def small_fs(kind: str, root: Path, size_mb: int) -> Iterator[Path]:
     try:
         yield mnt
     finally:
-        subprocess.run(["umount", str(mnt)], check=True)
+        unmount(mnt)
+
+
+def unmount(mnt: Path) -> None:
+    """Unmount ``mnt``. Where a process still holds a file there, the mount is detached all the same (lazily: the
+    kernel frees it when the file is closed), so that no test leaves it behind, and the test fails naming it."""
+    busy = subprocess.run(["umount", str(mnt)], capture_output=True, text=True)
+    if busy.returncode != 0:
+        subprocess.run(["umount", "-l", str(mnt)], check=True)
+        raise AssertionError(f"{mnt} could not be unmounted ({busy.stderr.strip()}); detached lazily")
 
 
 def fill(mnt: Path, leave: int) -> Path:
@@ -93,10 +102,17 @@ class FailingDisk:
         subprocess.run(["mount", "-o", "loop", str(self.image), str(self.mnt)], check=True)
 
     def close(self) -> None:
-        """Unmount what is mounted: the file system, then its store."""
+        """Unmount what is mounted: the file system, then its store (``unmount``: both, even where the first was
+        busy)."""
+        busy = []
         for mounted in (self.mnt, self.backing):
             if os.path.ismount(mounted):
-                subprocess.run(["umount", str(mounted)], check=True)
+                try:
+                    unmount(mounted)
+                except AssertionError as exc:
+                    busy.append(str(exc))
+        if busy:
+            raise AssertionError("; ".join(busy))
 
 
 @contextmanager

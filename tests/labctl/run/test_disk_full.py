@@ -73,20 +73,27 @@ def run_filling_the_disk_during(step_id: str, campaign, model, out, mnt) -> tupl
     )
     lines = []
     previous = f"{int(step_id[:5]) - 1:05d}_"
-    for line in proc.stderr:
-        lines.append(line)
-        if line.startswith(previous) and line.rstrip().endswith("complete"):
-            size = out.stat().st_size
-            deadline = time.monotonic() + 60
-            while out.stat().st_size == size and proc.poll() is None:  # begin_step's flush: the step has started
-                assert time.monotonic() < deadline, "the run file did not grow after the step started"
-                time.sleep(0.001)
-            proc.send_signal(signal.SIGSTOP)
-            fill(mnt, LEFT_FREE)
+    try:
+        for line in proc.stderr:
+            lines.append(line)
+            if line.startswith(previous) and line.rstrip().endswith("complete"):
+                size = out.stat().st_size
+                deadline = time.monotonic() + 60
+                while out.stat().st_size == size and proc.poll() is None:  # begin_step's flush: the step has started
+                    assert time.monotonic() < deadline, "the run file did not grow after the step started"
+                    time.sleep(0.001)
+                proc.send_signal(signal.SIGSTOP)
+                fill(mnt, LEFT_FREE)
+                proc.send_signal(signal.SIGCONT)
+                break
+        lines.append(proc.stderr.read())
+        return proc.wait(timeout=120), "".join(lines)
+    finally:  # a failure on the way leaves no run holding its file on the small file system, which must unmount
+        if proc.poll() is None:
             proc.send_signal(signal.SIGCONT)
-            break
-    lines.append(proc.stderr.read())
-    return proc.wait(timeout=120), "".join(lines)
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
 
 
 @pytest.mark.slow
