@@ -18,6 +18,7 @@ from labctl.cli import main
 from labctl.jsondoc import dumps, to_json
 from sim.emulators import DimetixEmulator
 from tests.conftest import REALTIME_GROUP, campaign_text
+from tests.labctl.run.small_fs import unmount
 
 SMALL = 'camera = "blaze101"\n[camera_overrides]\nwidth = 48\nheight = 36\n'
 
@@ -477,7 +478,7 @@ def test_a_run_file_not_named_h5_is_written_with_a_warning(capsys, tmp_path: Pat
 
 @pytest.fixture
 def read_only_disk(tmp_path: Path):
-    """A small tmpfs mounted read-only (root only), unmounted again whatever the test does."""
+    """A small tmpfs mounted read-only (root only), unmounted again whatever the test does (``unmount``)."""
     import subprocess
 
     if os.geteuid() != 0:
@@ -486,7 +487,7 @@ def read_only_disk(tmp_path: Path):
     mount.mkdir()
     subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(mount)], check=True)
     yield mount
-    subprocess.run(["umount", str(mount)], check=True)
+    unmount(mount)
 
 
 def test_outputs_on_a_read_only_disk_say_so(capsys, tmp_path: Path, read_only_disk: Path, blank_mask_run: Path) -> None:
