@@ -316,17 +316,54 @@ def _resimulated(effect: Effect) -> Candidate:
     )
 
 
+# A periodic candidate's period is searched at even steps of its frequency 1/P, a quarter cycle over the span S of
+# the value it acts on in the compared rows apart: a grid point then slips at most an eighth of a cycle against the
+# true period from one end of the span to the other, and its linear fit keeps at least sinc(1/8) = 0.97 of the
+# change. A grid even in log P slips most at the short periods, whose peak in P is narrowest (about P / S wide).
+#: grid steps per cycle of slip over the span (a quarter cycle apart: 4)
+STEPS_PER_CYCLE = 4
+#: a grid's end within this share of the searched range's end is taken as reaching it (rounding of the steps)
+END_TOLERANCE = 1e-9
+
+
+def even_frequency_periods(shortest: float, longest: float, span: float, anchor: float) -> list[float]:
+    """The periods from ``shortest`` to ``longest`` at even steps of 1/P, 1 / (``STEPS_PER_CYCLE`` ``span``) apart,
+    ``anchor`` among them (where it lies between), ascending; ``shortest`` and ``longest`` themselves where the
+    steps miss them, so that no period between lies more than half a step from the grid."""
+    step = 1.0 / (STEPS_PER_CYCLE * span)
+    lo, hi, at = 1.0 / longest, 1.0 / shortest, 1.0 / anchor
+    frequencies = at + step * np.arange(math.ceil((lo - at) / step), math.floor((hi - at) / step) + 1)
+    if not frequencies.size or frequencies[0] > lo * (1 + END_TOLERANCE):
+        frequencies = np.concatenate([[lo], frequencies])
+    if frequencies[-1] < hi * (1 - END_TOLERANCE):
+        frequencies = np.concatenate([frequencies, [hi]])
+    return [float(1.0 / f) for f in frequencies[::-1]]
+
+
 # periodic_range: dr = a sin(2 pi r / P) + b cos(2 pi r / P), each bin the mean over its pixels (``pixels_damping``
-# of the range's slopes across the bin); the period searched between 3 sweep steps and the span of the ranges the
-# camera reports
-def _range_span(ctx: Context) -> tuple[float, float]:
-    ranges = np.concatenate([p.range_mm[np.isfinite(p.range_mm) & p.reported] for p in ctx.predictions])
-    return float(ranges.min()), float(ranges.max())
+# of the range's slopes across the bin); the period searched from SHORTEST_RANGE_PERIOD_MM to the span of the
+# compared rows' ranges (at least LONGEST_RANGE_PERIOD_MM), even steps of 1/P. The seed 44417 of ``python -m
+# bench.reconcile_sbc 40 --pairs 40 --seed 2`` (3.04 mm at 312 mm on the test campaign) scored dBIC 27 at the
+# nearest point of the earlier grid (90 periods even in log P over every reported bin's ranges, 0.4-10.5 m where
+# the compared rows span 0.4-4.9 m: 2.2 % off) and 138 at its own period.
+#: the shortest period searched, mm (set by hand: under the c / (8 f_mod) = 375 mm the blaze-101 aliases its
+#: modulation's harmonics to, and the shortest the library's calibration draws, bench/reconcile_sbc.py)
+SHORTEST_RANGE_PERIOD_MM = 150.0
+#: the longest period searched however short the span, mm (set by hand: twice the shortest)
+LONGEST_RANGE_PERIOD_MM = 300.0
 
 
-def _periodic_range_grid(ctx: Context) -> list[float | None]:
-    lo, hi = _range_span(ctx)
-    return list(np.geomspace(150.0, max(hi - lo, 300.0), 90))
+def _range_span(ctx: Context) -> float:
+    """The span of the compared rows' predicted ranges, mm (0 without any)."""
+    ranges = ctx.z_rows("range_mm")
+    ranges = ranges[np.isfinite(ranges)]
+    return float(ranges.max() - ranges.min()) if ranges.size else 0.0
+
+
+def _periodic_range_grid(ctx: Context) -> list[float]:
+    span = _range_span(ctx)
+    longest = max(span, LONGEST_RANGE_PERIOD_MM)
+    return even_frequency_periods(SHORTEST_RANGE_PERIOD_MM, longest, max(span, 1.0), longest)
 
 
 def _periodic_range_columns(ctx: Context, period: float | None) -> list[Column]:
@@ -675,13 +712,10 @@ def _plane_phasor(effect: Effect) -> Candidate:
 
 # periodic_disparity: dz = -z^2 / (f b) * (a sin(2 pi d / P) + b cos(2 pi d / P)), d = f b / z in the matcher's
 # pixels; the period P searched between DISPARITY_PERIOD_RANGE_PX (the bounds set by hand around the 1 px of
-# sub-pixel interpolation) at even steps of its frequency 1/P, a quarter cycle over the run's disparity span D
-# apart: a grid point then slips at most an eighth of a cycle against the true period from one end of the span to
-# the other. An octave grid (19 % steps) slipped up to 0.6 cycle over the 14 px of the test campaign's compared
-# bins on the D455 and scored a 0.045 px bias at 1.57 px 7.5 instead of 53.
+# sub-pixel interpolation) at even steps of its frequency 1/P over the compared rows' disparity span
+# (``even_frequency_periods``). An octave grid (19 % steps) slipped up to 0.6 cycle over the 14 px of the test
+# campaign's compared bins on the D455 and scored a 0.045 px bias at 1.57 px 7.5 instead of 53.
 DISPARITY_PERIOD_RANGE_PX = (0.5, 4.0)
-#: grid steps per cycle of slip over the disparity span (a quarter cycle apart: 4)
-DISPARITY_STEPS_PER_CYCLE = 4
 
 
 def _disparity_rows(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
@@ -692,15 +726,12 @@ def _disparity_rows(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _disparity_period_grid(ctx: Context) -> list[float]:
-    """The periods searched: even steps of 1/P, 1 / (``DISPARITY_STEPS_PER_CYCLE`` D) apart, D the span of the
-    compared rows' disparity, 1 px among them."""
+    """The periods searched: even steps of 1/P (``even_frequency_periods``) over the span of the compared rows'
+    disparity, 1 px among them."""
     z = ctx.z_rows("z")
     d = _disparity_rows(ctx)[0][np.isfinite(z) & (z > 0)]
     span = float(d.max() - d.min()) if d.size else 1.0
-    step = 1.0 / (DISPARITY_STEPS_PER_CYCLE * max(span, 1.0))
-    lo, hi = 1.0 / DISPARITY_PERIOD_RANGE_PX[1], 1.0 / DISPARITY_PERIOD_RANGE_PX[0]
-    frequencies = 1.0 + step * np.arange(math.ceil((lo - 1.0) / step), math.floor((hi - 1.0) / step) + 1)
-    return [float(1.0 / f) for f in frequencies[::-1]]
+    return even_frequency_periods(*DISPARITY_PERIOD_RANGE_PX, max(span, 1.0), 1.0)
 
 
 def _periodic_disparity_columns(ctx: Context, period: Any) -> list[Column]:

@@ -81,8 +81,8 @@ from labctl.reconcile.score import COMPETING_CORRELATION, MARGIN
 POWER = 0.9
 #: the coefficient used to read an amplitude off a candidate's parameters (small: inside every solver bound)
 PROBE = 1e-6
-#: grid points evaluated per candidate, evenly spread over its grid (set by hand: a wiggling's grid has 90 periods,
-#: 15 of them keep the cost to seconds)
+#: grid points evaluated per candidate, evenly spread over its grid (set by hand: a wiggling's grid has about 120
+#: periods on the blaze-101's campaigns, 15 of them keep the cost to seconds)
 GRID_POINTS = 15
 #: the phases a two-part signature (a wiggling) is evaluated at, evenly over the circle (set by hand: 8 resolve the
 #: variation of a sampled sine's power with its phase at a few times the cost of one)

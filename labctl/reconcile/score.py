@@ -204,8 +204,9 @@ def polished(candidate: Candidate, fit: Fit, ctx: Context, lay: Layout, r: np.nd
     """The candidate's parameters with its nonlinear parameter, where that is one number, searched between the grid
     points beside ``fit``'s (Brent's bounded search, Brent 1973, ch. 5, of the linear fit's whitened residual sum
     of squares, with ``beside`` as ``score`` takes it): the start of its fit on full re-simulations
-    (``workflow.refine``), nearer the optimum than a grid point (the wiggling's period grid steps 3.6 %). ``fit``'s
-    own parameters where the search finds nothing better or the candidate does not take its coefficients there."""
+    (``workflow.refine``), nearer the optimum than a grid point (the wiggling's period grid steps a quarter cycle
+    over the compared ranges' span). ``fit``'s own parameters where the search finds nothing better or the
+    candidate does not take its coefficients there."""
     grid = candidate.grid(ctx)
     if not all(isinstance(v, (int, float)) for v in grid) or fit.nonlinear not in grid or len(grid) < 2:
         return fit.params

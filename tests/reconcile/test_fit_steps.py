@@ -48,11 +48,12 @@ def test_a_fit_takes_the_default_solvers_steps_and_one_jacobian_fewer(room):
 
 
 def test_a_fit_starts_from_its_grid_point_polished_towards_the_hidden_value(tmp_path):
-    """A blaze-101 test campaign with a hidden 2 mm wiggling of a 1500 mm period, between two points of the
-    candidate's period grid: the fit on full re-simulations starts from the best grid point's period searched
-    between its neighbours on the linear fit (``score.polished``), nearer the hidden period than the grid's
-    point."""
-    hidden = {"amplitude_mm": 2.0, "period_mm": 1500.0, "phase_rad": 0.4}
+    """A blaze-101 test campaign with a hidden 2 mm wiggling of a 1560 mm period, half-way between two points of the
+    candidate's period grid (the test campaign's compared ranges span 4490 mm: its points at 4 x 4490 mm / (4 + k),
+    1633 and 1497 mm): the fit on full re-simulations starts from the best grid point's period searched between its
+    neighbours on the linear fit (``score.polished``), nearer the hidden period than the grid's point."""
+    period = 1560.0
+    hidden = {"amplitude_mm": 2.0, "period_mm": period, "phase_rad": 0.4}
     run = simulated_run(tmp_path, "blaze101", hidden={"wiggling": hidden}, seed=11)
     observations, info, _ = observe_run(run)
     model = base_model(info)
@@ -63,8 +64,8 @@ def test_a_fit_starts_from_its_grid_point_polished_towards_the_hidden_value(tmp_
     fit = score(candidate, ctx, state.lay, r)
     assert fit is not None and fit.nonlinear == fit.params["period_mm"]
     grid = np.asarray(candidate.grid(ctx))
-    step = float(np.diff(grid)[np.argmin(np.abs(grid[:-1] - 1500.0))])
+    step = float(np.diff(grid)[np.argmin(np.abs(grid[:-1] - period))])
     start = polished(candidate, fit, ctx, state.lay, r)
-    # the grid's point 22 mm off (a 74 mm step here), the polished one 7 mm, about the run's noise on the period
-    assert abs(fit.params["period_mm"] - 1500.0) > 0.2 * step
-    assert abs(start["period_mm"] - 1500.0) < 0.15 * step, (start, fit.params, step)
+    # the grid's point 73 mm off (a 136 mm step here), the polished one 7 mm, about the run's noise on the period
+    assert abs(fit.params["period_mm"] - period) > 0.2 * step, (fit.params, step)
+    assert abs(start["period_mm"] - period) < 0.15 * step, (start, fit.params, step)
