@@ -318,8 +318,9 @@ def _resimulated(effect: Effect) -> Candidate:
 
 # A periodic candidate's period is searched at even steps of its frequency 1/P, a quarter cycle over the span S of
 # the value it acts on in the compared rows apart: a grid point then slips at most an eighth of a cycle against the
-# true period from one end of the span to the other, and its linear fit keeps at least sinc(1/8) = 0.97 of the
-# change. A grid even in log P slips most at the short periods, whose peak in P is narrowest (about P / S wide).
+# true period from one end of the span to the other, and its linear fit keeps sinc(1/8) = 0.97 of the change's
+# amplitude where the values spread evenly over the span. A grid even in log P slips most at the short periods,
+# whose peak is narrowest (its width about P / S of P).
 #: grid steps per cycle of slip over the span (a quarter cycle apart: 4)
 STEPS_PER_CYCLE = 4
 #: a grid's end within this share of the searched range's end is taken as reaching it (rounding of the steps)
