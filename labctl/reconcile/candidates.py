@@ -354,15 +354,14 @@ SHORTEST_RANGE_PERIOD_MM = 150.0
 LONGEST_RANGE_PERIOD_MM = 300.0
 
 
-def _range_span(ctx: Context) -> float:
-    """The span of the compared rows' predicted ranges, mm (0 without any)."""
-    ranges = ctx.z_rows("range_mm")
-    ranges = ranges[np.isfinite(ranges)]
-    return float(ranges.max() - ranges.min()) if ranges.size else 0.0
+def _span(values: np.ndarray) -> float:
+    """The span of the finite ``values`` (the compared rows' value a periodic candidate acts on), 0 without any."""
+    values = values[np.isfinite(values)]
+    return float(values.max() - values.min()) if values.size else 0.0
 
 
 def _periodic_range_grid(ctx: Context) -> list[float]:
-    span = _range_span(ctx)
+    span = _span(ctx.z_rows("range_mm"))
     longest = max(span, LONGEST_RANGE_PERIOD_MM)
     return even_frequency_periods(SHORTEST_RANGE_PERIOD_MM, longest, max(span, 1.0), longest)
 
@@ -730,8 +729,7 @@ def _disparity_period_grid(ctx: Context) -> list[float]:
     """The periods searched: even steps of 1/P (``even_frequency_periods``) over the span of the compared rows'
     disparity, 1 px among them."""
     z = ctx.z_rows("z")
-    d = _disparity_rows(ctx)[0][np.isfinite(z) & (z > 0)]
-    span = float(d.max() - d.min()) if d.size else 1.0
+    span = _span(_disparity_rows(ctx)[0][np.isfinite(z) & (z > 0)])
     return even_frequency_periods(*DISPARITY_PERIOD_RANGE_PX, max(span, 1.0), 1.0)
 
 
