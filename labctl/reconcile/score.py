@@ -124,6 +124,19 @@ class Beside:
         return rows - self.slopes @ (self.gram_inverse @ (self.slopes.T @ rows))
 
 
+def dropped_dbic(without: np.ndarray, joint: np.ndarray, beside: Beside | None, lay: Layout, n_params: int) -> float:
+    """A named effect's evidence once the others are named: the dBIC (over steps, as ``score`` counts it) of the
+    joint model's whitened residual ``joint`` against ``without``, the one the model without the effect leaves,
+    with the other named effects' slopes (``beside``) taken out of both, as a candidate is credited beside them.
+    The backward step of stepwise selection (Miller 2002, chapter 3): an effect named while another was missing
+    may carry that one's residual, and once the other is named explain nothing of its own."""
+    if beside is not None:
+        without, joint = beside.out_of(without), beside.out_of(joint)
+    cells = lay.row_cells()
+    return delta_bic(np.bincount(cells, without * without, lay.n_cells), np.bincount(cells, joint * joint, lay.n_cells),
+                     n_params, lay.n_steps)
+
+
 def _profiled_columns(signature: list[Column], lay: Layout) -> np.ndarray:
     """A candidate's signature columns with the nuisance profiled out and whitened (``Layout.profiled_rows``): of a
     signature that changes the depth alone only its depth rows, the first of every row (the others are zero)."""

@@ -15,7 +15,9 @@
    candidate tried on the same residual, at most ``MAX_EFFECTS`` times; where
    no candidate passes alone, two that each pass beside the other are named
    together, labctl/reconcile/pairs.py), the named effects refitted together once there are two
-   (``refine_jointly``), and the run re-simulated; repeat until nothing passes,
+   (``refine_jointly``), any named before that is no longer significant
+   beside the others taken out (``_drop_redundant``, the backward step), and
+   the run re-simulated; repeat until nothing passes,
    the residual is consistent with the noise (labctl/reconcile/goodness.py)
    or ``MAX_EFFECTS`` are named.
    A runner-up within ``MARGIN`` of the winner stops the search: "ambiguous
@@ -128,7 +130,7 @@ from labctl.reconcile.results import (
     SignificanceRule,
     Unexplained,
 )
-from labctl.reconcile.score import MARGIN, Beside, Fit, competing, polished, score
+from labctl.reconcile.score import MARGIN, Beside, Fit, competing, dropped_dbic, polished, score
 from labctl.run.store import RunReader
 from sim.effects import EFFECTS, default_effects
 from sim.model import SimModel, parse_model
@@ -171,7 +173,8 @@ class Iteration:
     model_effects: list[str]
     gap_mm: float
     fits: list[Fit]
-    decision: str  # "added NAME", "none significant", "ambiguous", "consistent with noise", "NAME not material"
+    decision: str  # "added NAME" (then "; took out NAME": ``_drop_redundant``), "none significant", "ambiguous",
+    #                "consistent with noise", "NAME not material"
     residual_z: list[np.ndarray]  # per-step depth residual maps (nuisance removed, NaN outside the comparison)
     goodness: Goodness | None = None
     significance_p: float | None = None  # the best candidate's p-value against the null runs (with null runs)
@@ -273,6 +276,13 @@ def with_effect(model: SimModel, name: str, params: Parameters) -> SimModel:
     data = model.model_dump(mode="json")
     data["effects"] = {**data["effects"], name: params}
     return parse_model(tomli_w.dumps(data), f"model with {name}")
+
+
+def without_effect(model: SimModel, name: str) -> SimModel:
+    """A copy of ``model`` with effect ``name`` off."""
+    data = model.model_dump(mode="json")
+    data["effects"] = {k: v for k, v in data["effects"].items() if k != name}
+    return parse_model(tomli_w.dumps(data), f"model without {name}")
 
 
 class Simulation:
@@ -757,6 +767,61 @@ def _add_masked_pair(state: _State, fits: list[tuple[Fit, Candidate]], rule: Fix
     return joint
 
 
+def redundant(state: _State, found: list[tuple[Candidate, Parameters]], keep: set[str],
+              rule: FixedThresholds | NullCalibration) -> tuple[str, float, float] | None:
+    """The weakest of the named effects ``found`` (all in ``state.model``, fitted together; ``keep`` not tested)
+    that is no longer significant beside the others (``score.dropped_dbic`` under the dBIC the rule asks of the
+    best of those tested, ``threshold``): its name, dBIC and that threshold; None when each still is."""
+    tested = [(i, c) for i, (c, _) in enumerate(found) if c.name not in keep]
+    if not tested:
+        return None
+    threshold = rule.threshold({c.name for _, c in tested})
+    sizes = np.cumsum([0] + [len(c.vector(p)[0]) for c, p in found])
+    slopes = state.named_slopes
+    if slopes is not None and (slopes.shape[1] != sizes[-1] or not np.all(np.isfinite(slopes))):
+        slopes = None
+    weakest = None
+    for i, candidate in tested:
+        others = np.delete(slopes, np.s_[sizes[i]:sizes[i + 1]], axis=1) if slopes is not None else None
+        beside = Beside.of(others) if others is not None and others.size else None
+        without = whitened_residual(state.sim, state.lay, without_effect(state.model, candidate.name))
+        value = dropped_dbic(without, state.whitened(), beside, state.lay, candidate.n_params)
+        if value < threshold and (weakest is None or value < weakest[1]):
+            weakest = (candidate.name, value, threshold)
+    return weakest
+
+
+def _drop_redundant(state: _State, found: list[tuple[Candidate, Parameters]], named: list[NamedEffect],
+                    keep: set[str], rule: FixedThresholds | NullCalibration, start_model: SimModel,
+                    iteration: Iteration, taken_out: set[str], notes: list[str],
+                    say: Callable[[str], None]) -> Joint | None:
+    """The backward step after a joint refit: each named effect the others have made redundant (``redundant``),
+    the weakest first, taken out of ``found``, ``named`` and the model (into ``taken_out``, and said in the
+    ``iteration``'s decision and the ``notes``) and the rest refitted together, until each left is significant
+    beside the others. The last refit (None: nothing taken out)."""
+    dropped: list[str] = []
+    joint = None
+    while len(found) > 1:
+        weakest = redundant(state, found, keep, rule)
+        if weakest is None:
+            break
+        name, value, threshold = weakest
+        say(f"taking out {name}: redundant beside the other named effects")
+        notes.append(f"{name} taken out: named before, it is not significant beside "
+                     f"{' and '.join(c.name for c, _ in found if c.name != name)} (dBIC {value:.1f} < {threshold:.1f})")
+        dropped.append(name)
+        named[:] = [e for e in named if e.name != name]
+        found[:] = [(c, p) for c, p in found if c.name != name]
+        joint = refine_jointly(found, start_model, state.sim, state.lay, say)
+        state.set(joint.model)
+        state.named_slopes = joint.slopes
+        found[:] = [(c, dict(state.model.effects[c.name])) for c, _ in found]
+    if dropped:
+        iteration.decision += f"; took out {' and '.join(dropped)}"
+        taken_out.update(dropped)
+    return joint
+
+
 def _add_empirical(state: _State, carrying: str | None, rule: FixedThresholds | NullCalibration,
                    say: Callable[[str], None]) -> list[EmpiricalCorrection]:
     """Empirical corrections added to ``state`` while each is material (the carrying axis's form first)."""
@@ -963,6 +1028,7 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
     retry: list[tuple[Fit, Candidate]] | None = None  # a round's other candidates, after its winner was not material
     joint_errors: list[tuple[dict[str, float], Determination]] | None = None  # the named effects' from their joint fit
     immaterial = 0
+    taken_out: set[str] = set()  # named, then redundant beside later ones (``_drop_redundant``): not named again
     while len(found) < MAX_EFFECTS:
         # beside the named effects where a candidate may be named. A later round already consistent with the noise
         # names nothing and is not scored; the first round always is: its scores are the run's candidates (and a
@@ -973,7 +1039,8 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
         elif consistent and iterations:
             fits = []
         else:
-            fits = _scored(state, say, None if consistent else state.beside())
+            fits = [fc for fc in _scored(state, say, None if consistent else state.beside())
+                    if fc[0].name not in taken_out]
         if not iterations:  # the first round's candidates are judged with the residual (``NullCalibration.judge``)
             state.good = good_before = replace(state.good, candidate_scores={f.name: f.score for f, _ in fits})
             consistent = rule.consistent(state.good)
@@ -1006,6 +1073,9 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             if together is None:
                 break
             joint_errors = together.determinations
+            refit = _drop_redundant(state, found, named, {c.name for c, _ in found[-2:]}, rule, start_model,
+                                    iteration, taken_out, notes, say)
+            joint_errors = refit.determinations if refit is not None else joint_errors
             continue
         best, candidate = fits[0]
         runner = fits[1][0] if len(fits) > 1 else None
@@ -1061,6 +1131,9 @@ def reconcile(path: str | Path, model: SimModel | None = None, progress: Callabl
             state.named_slopes = joint.slopes
             found = [(c, dict(state.model.effects[c.name])) for c, _ in found]
             joint_errors = joint.determinations
+            refit = _drop_redundant(state, found, named, {best.name}, rule, start_model, iteration, taken_out,
+                                    notes, say)
+            joint_errors = refit.determinations if refit is not None else joint_errors
     for i, effect in enumerate(named):
         effect.parameters = dict(state.model.effects[effect.name])
         if joint_errors is not None and effect.evidence is not None:
