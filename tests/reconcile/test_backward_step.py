@@ -12,8 +12,7 @@ from labctl.reconcile.null import FixedThresholds
 from labctl.reconcile.observe import observe_run
 from labctl.reconcile.residuals import layout
 from labctl.reconcile.results import NamedEffect
-from labctl.reconcile.workflow import (Iteration, Simulation, _drop_redundant, _State, base_model, redundant,
-                                       refine_jointly)
+from labctl.reconcile.workflow import Iteration, Simulation, _drop_redundant, _State, base_model, redundant, refine_jointly
 from labctl.run.store import RunReader
 from tests.reconcile.runs import simulated_run
 
