@@ -294,8 +294,8 @@ def dot_window_stats(optics: SensorOptics, distance_mm: float, bin_px: int) -> t
 
 def stereo_statistics(sensor: StereoSensor, z: np.ndarray, true_z: np.ndarray, sigma_d: np.ndarray,
                       light: StereoLight, dot_stats: tuple[np.ndarray, np.ndarray], bin_px: int,
-                      shading_slope: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                        np.ndarray]:
+                      shading_slope: np.ndarray | None = None,
+                      true_slope: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per bin of a binned stereo sensor with its light ``light`` (``stereo_light``) and disparity noise
     ``sigma_d`` (``disparity_noise_px``): the depth's temporal std (mm, NaN where not predicted), the spread of
     its logarithm over where the depth sits on the grids (``stored_disparity_noise``), the expected valid
@@ -303,6 +303,13 @@ def stereo_statistics(sensor: StereoSensor, z: np.ndarray, true_z: np.ndarray, s
     contrast lies within ``CONTRAST_TOLERANCE`` of the threshold). ``z`` is the depth the camera reports (its
     range cut, its noise), ``true_z`` the surface's true depth: where the right camera sees the point follows
     the scene's geometry, not the camera's range error.
+
+    ``true_slope``: per bin, ``true_z``'s slope per pixel along the rows (``predict.range_spread``): where the right
+    camera's view ends (the left band of the depth map, f b / z pixels wide) each of the bin's pixel columns is
+    taken at its own depth, the bin's plus the slope times its offset from the bin's centre. On the d455's plate at
+    -60 deg at the image's left edge (2.2 m, its depth falling 16 mm a pixel of 160 towards the edge, the band's
+    edge f b / z = 4.5-4.7 px) the band taken at the bin's mean depth missed one of its four pixel columns (25
+    points of its valid fraction).
 
     ``shading_slope``: per bin, the relative slope per pixel, |grad S| / S, of a shading S (vignetting) that
     multiplies the IR image the matcher sees. Across the matching window S = S_0 (1 + s . x), x the pixel's offset
@@ -331,8 +338,10 @@ def stereo_statistics(sensor: StereoSensor, z: np.ndarray, true_z: np.ndarray, s
     marginal = np.mean(np.abs(relative - 1.0) < CONTRAST_TOLERANCE, axis=-1)
     # the right camera sees column u of the full sensor while u - f b / z >= 0
     u = (np.arange(w)[:, None] * bin_px + np.arange(bin_px)[None, :]).astype(float)  # (w, bin_px)
+    offset = np.arange(bin_px) - (bin_px - 1) / 2.0  # each pixel column's from the bin's centre
+    pixel_z = true_z[..., None] + (0.0 if true_slope is None else true_slope[..., None] * offset)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inside = np.mean(u[None, :, :] - (focal_baseline / true_z)[..., None] >= -0.5, axis=-1)  # u_right rounded
+        inside = np.mean(u[None, :, :] - focal_baseline / pixel_z >= -0.5, axis=-1)  # u_right rounded
     share = in_range_share(z, p.min_range_mm, p.max_range_mm, bin_px)
     in_range = share > 0
     valid = share * textured * inside

@@ -584,7 +584,7 @@ class Predictor:
         ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
             self.sensor, z, rendered.z_plain, sigma_d, lit, self._dot_stats(recorded.centre_distance_mm), self.bin_px,
-            self._shading_slope())
+            self._shading_slope(), range_spread(rendered.z_plain, self.bin_px, smooth)[0][1])
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
 

@@ -753,3 +753,24 @@ def test_a_tof_bins_valid_fraction_is_its_pixels_mean_where_the_light_slopes_acr
         for o in observations:
             times = o.times_s - o.times_s[0]
             assert np.array_equal(kept.predict(o.scene, times).valid_rate, fresh.predict(o.scene, times).valid_rate)
+
+
+def test_the_band_the_right_camera_misses_is_taken_at_each_pixel_columns_depth(tmp_path):
+    """The d455's robot plates with a 36.5 mm camera axis offset (the robot turns the plates about an axis that
+    far from the camera's), which brings the plates at -60 deg to the image's left edge at 2.2 m. There the plate's
+    depth falls by 16 mm a pixel of 160 towards the edge, the right camera sees a pixel column u while
+    u - f b / z >= 0 at that column's own depth, and f b / z is 4.5-4.7 px, at the rounding's edge: the leftmost
+    bins' valid fraction, as the simulated camera's frames give it, is predicted within 2 points (one of a bin's
+    four pixel columns, 25 points, off with the band taken at the bin's mean depth)."""
+    hidden = {"camera_axis_offset": {"offset_mm": 36.5}}
+    run = simulated_run(tmp_path, "d455", hidden=hidden, seed=20988)
+    observations, info, _ = observe_run(run)
+    sim = Simulation(observations, info)
+    predictions = sim.predict(with_effect(base_model(info), "camera_axis_offset", hidden["camera_axis_offset"]))
+    steep = [(o, p) for o, p in zip(observations, predictions, strict=True) if o.scene.robot_angle_deg == -60]
+    assert len(steep) == 2
+    for o, p in steep:
+        left = ~p.edge[:, :3] & (p.valid_rate[:, :3] > 0)  # the plate's bins beside the band, not at its edges
+        measured, predicted = o.valid_rate[:, :3][left], p.valid_rate[:, :3][left]
+        assert left.sum() >= 20 and measured.min() < 0.9, (o.scene.step_id, left.sum(), measured.min())
+        np.testing.assert_allclose(predicted, measured, atol=0.02, err_msg=o.scene.step_id)
