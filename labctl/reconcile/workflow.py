@@ -273,16 +273,21 @@ def base_model(info: dict[str, Any]) -> SimModel:
 
 def with_effect(model: SimModel, name: str, params: Parameters) -> SimModel:
     """A copy of ``model`` with effect ``name`` on (validated like a model file)."""
-    data = model.model_dump(mode="json")
-    data["effects"] = {**data["effects"], name: params}
-    return parse_model(tomli_w.dumps(data), f"model with {name}")
+    return _with_effects(model, lambda effects: {**effects, name: params}, f"model with {name}")
 
 
 def without_effect(model: SimModel, name: str) -> SimModel:
     """A copy of ``model`` with effect ``name`` off."""
+    return _with_effects(model, lambda effects: {k: v for k, v in effects.items() if k != name},
+                         f"model without {name}")
+
+
+def _with_effects(model: SimModel, change: Callable[[dict[str, Any]], dict[str, Any]], what: str) -> SimModel:
+    """A copy of ``model`` with its effects as ``change`` makes them, validated like a model file (``what`` names
+    the copy in an error)."""
     data = model.model_dump(mode="json")
-    data["effects"] = {k: v for k, v in data["effects"].items() if k != name}
-    return parse_model(tomli_w.dumps(data), f"model without {name}")
+    data["effects"] = change(data["effects"])
+    return parse_model(tomli_w.dumps(data), what)
 
 
 class Simulation:
@@ -682,14 +687,17 @@ class _State:
             self._whitened.flags.writeable = False
         return self._whitened
 
-    def beside(self) -> Beside | None:
+    def beside(self, leaving_out: slice | None = None) -> Beside | None:
         """The named effects as the candidates are scored beside them (``score.Beside``; None before any is named):
         an effect fitted while another was missing carries some of that other's residual, and the other would
-        otherwise be judged on what is left of it."""
+        otherwise be judged on what is left of it. ``leaving_out``: one named effect's columns of the slopes, to
+        judge it beside the others (``redundant``)."""
         slopes = self.named_slopes
         if slopes is None or not slopes.size or not np.all(np.isfinite(slopes)):
             return None
-        return Beside.of(slopes)
+        if leaving_out is not None:
+            slopes = np.delete(slopes, leaving_out, axis=1)
+        return Beside.of(slopes) if slopes.size else None
 
     def scored_residual(self, beside: Beside | None) -> np.ndarray:
         """The whitened residual the candidates are scored on: with the named effects' slopes taken out."""
@@ -777,13 +785,11 @@ def redundant(state: _State, found: list[tuple[Candidate, Parameters]], keep: se
         return None
     threshold = rule.threshold({c.name for _, c in tested})
     sizes = np.cumsum([0] + [len(c.vector(p)[0]) for c, p in found])
-    slopes = state.named_slopes
-    if slopes is not None and (slopes.shape[1] != sizes[-1] or not np.all(np.isfinite(slopes))):
-        slopes = None
+    # a named effect whose slopes could not be taken leaves the others' columns unknown: judged without them
+    matched = state.named_slopes is not None and state.named_slopes.shape[1] == sizes[-1]
     weakest = None
     for i, candidate in tested:
-        others = np.delete(slopes, np.s_[sizes[i]:sizes[i + 1]], axis=1) if slopes is not None else None
-        beside = Beside.of(others) if others is not None and others.size else None
+        beside = state.beside(np.s_[sizes[i]:sizes[i + 1]]) if matched else None
         without = whitened_residual(state.sim, state.lay, without_effect(state.model, candidate.name))
         value = dropped_dbic(without, state.whitened(), beside, state.lay, candidate.n_params)
         if value < threshold and (weakest is None or value < weakest[1]):
