@@ -129,35 +129,79 @@ def _lattice_noise(ratio: np.ndarray, scale: np.ndarray, step_d: float, step_mm:
     output grid, 1 without an output step) of the variance of the depth over the disparity levels -``levels`` ...
     ``levels`` (those within ``tail`` sigma_d of the true disparity: the others hold no probability a double
     resolves), and the std of half its logarithm (``stored_disparity_noise``; compiled: reconcile predicts every
-    bin of every step at each evaluation of its fits)."""
-    n_pos = positions * offsets
+    bin of every step at each evaluation of its fits).
+
+    Two identities cut the work. (1) The disparity's positions are symmetric about a level (delta and -delta),
+    and the depth at -delta is the mirror image of the depth at delta (level j's probability and deviation those
+    of level -j, negated); rounding the mirrored depth at the output grid's offset u gives the mirror of rounding
+    the original at the offset 1 - u, one of the same offsets: each of the positions -delta repeats the
+    variances of its mirror, so the positions delta > 0 alone, each counted twice, give the same mean and the
+    same spread. (2) Over the output grid's offsets ((o + 1/2) / offsets of a step, rising by less than a step in
+    all), a level's rounded depth steps up once at most, at the offset where its fraction of a step reaches the
+    rounding's edge: each level's moments are added where it starts, and its step's where the step comes, and
+    running sums give every offset's moments (``offsets`` plus the levels' count of additions, not their
+    product)."""
+    half = (positions + 1) // 2  # delta > 0 (and delta = 0 of an odd count, once)
+    n_half = half * offsets
     std, spread = np.empty(ratio.size), np.empty(ratio.size)
-    probs, values, half_log = np.empty(2 * levels + 1), np.empty(2 * levels + 1), np.empty(n_pos)
+    probs, values = np.empty(2 * levels + 1), np.empty(2 * levels + 1)
+    variance, half_log, weight = np.empty(n_half), np.empty(n_half), np.empty(n_half)
     cdf = np.empty(2 * levels + 2)
+    m1, m2 = np.empty(offsets), np.empty(offsets)
     root2 = math.sqrt(2.0)
+    start = 0.5 / offsets + 0.5  # the first offset, and the rounding's half step: floor(x + start) rounds x + u_0
     for i in range(ratio.size):
-        r, total = ratio[i], 0.0
+        r = ratio[i]
         reach = min(levels, int(math.ceil(tail * r + 1.0)))  # |j - delta| <= tail r, |delta| <= 1/2
         first, count = levels - reach, 2 * reach + 1
-        for d in range(positions):
+        for h in range(half):
+            d = positions - half + h
+            w = 1.0 if 2 * d + 1 == positions else 2.0
             delta = (d + 0.5) / positions - 0.5
             for k in range(first, first + count + 1):  # the cumulative probability at each level's lower edge
                 cdf[k] = 0.5 * math.erfc(-(k - levels - 0.5 - delta) / r / root2)
             for k in range(first, first + count):
                 probs[k] = cdf[k + 1] - cdf[k]
                 values[k] = -scale[i] * (k - levels - delta) * step_d
-            for o in range(offsets):
-                u = (o + 0.5) / offsets * step_mm
-                m1, m2 = 0.0, 0.0
+            if step_mm > 0:
+                m1[:] = 0.0
+                m2[:] = 0.0
                 for k in range(first, first + count):
-                    v = np.rint((values[k] + u) / step_mm) * step_mm if step_mm > 0 else values[k]
-                    m1 += probs[k] * v
-                    m2 += probs[k] * v * v
-                var = max(m2 - m1 * m1, 0.0)
-                total += var
-                half_log[d * offsets + o] = 0.5 * np.log(var)
-        std[i] = math.sqrt(total / n_pos)
-        spread[i] = np.std(half_log)
+                    x = values[k] / step_mm + start
+                    n = math.floor(x)  # the level's rounded depth (in steps) at the first offset
+                    p = probs[k]
+                    m1[0] += p * n
+                    m2[0] += p * n * n
+                    up = int(math.ceil((1.0 - (x - n)) * offsets))  # the offset where it rounds one step up
+                    if up < offsets:
+                        m1[up] += p
+                        m2[up] += p * (2 * n + 1)
+                for o in range(offsets):
+                    if o:
+                        m1[o] += m1[o - 1]
+                        m2[o] += m2[o - 1]
+                    variance[h * offsets + o] = max(m2[o] - m1[o] * m1[o], 0.0) * step_mm * step_mm
+                    weight[h * offsets + o] = w
+            else:
+                s1, s2 = 0.0, 0.0
+                for k in range(first, first + count):
+                    s1 += probs[k] * values[k]
+                    s2 += probs[k] * values[k] * values[k]
+                for o in range(offsets):
+                    variance[h * offsets + o] = max(s2 - s1 * s1, 0.0)
+                    weight[h * offsets + o] = w
+        total_w, total, mean_log = 0.0, 0.0, 0.0
+        for j in range(n_half):
+            half_log[j] = 0.5 * np.log(variance[j])
+            total_w += weight[j]
+            total += weight[j] * variance[j]
+            mean_log += weight[j] * half_log[j]
+        mean_log /= total_w
+        dev = 0.0
+        for j in range(n_half):
+            dev += weight[j] * (half_log[j] - mean_log) ** 2
+        std[i] = math.sqrt(total / total_w)
+        spread[i] = math.sqrt(dev / total_w)
     return std, spread
 
 
