@@ -1,6 +1,8 @@
-"""The stereo depth's predicted temporal noise against its definition, enumerated directly: the variance of the
-depth over the disparity levels, rounded to the output steps, averaged over where the true disparity and depth sit
-on both grids (labctl/reconcile/noise_model.py, ``stored_disparity_noise``)."""
+"""The statistics of the cameras' roundings against their definitions, enumerated directly
+(labctl/reconcile/noise_model.py): the stereo depth's temporal noise, the variance of the depth over the disparity
+levels, rounded to the output steps, averaged over where the true disparity and depth sit on both grids
+(``stored_disparity_noise``); and a ToF depth's stored mean, E[round(v + sigma n)] over the output steps
+(``tof_stored_bias``)."""
 
 import numpy as np
 import pytest
@@ -12,7 +14,9 @@ from labctl.reconcile.noise_model import (
     OUTPUT_OFFSETS,
     TAIL_SIGMAS,
     _lattice_noise,
+    _rounded_mean,
     stored_disparity_noise,
+    tof_stored_bias,
 )
 
 FB, STEP_D = 9904.5, 1 / 32  # the d455 at the test size: f b (px mm), disparity step (px)
@@ -60,3 +64,34 @@ def test_an_odd_count_of_disparity_positions_counts_the_centre_once():
     expected = _by_enumeration(z, sigma_d, 1.0, 7, OUTPUT_OFFSETS)
     assert std[0] == pytest.approx(expected[0], rel=1e-12)
     assert spread[0] == pytest.approx(expected[1], rel=1e-9)
+
+
+def _stored_mean_by_enumeration(v: float, sigma: float, step: float) -> float:
+    """E[round_step(v + sigma n)] - v over every step within 15 sigma of v (the normal mass beyond, 4e-51, is
+    below a double's resolution)."""
+    k = np.arange(np.floor((v - 15 * sigma) / step), np.ceil((v + 15 * sigma) / step) + 1)
+    mass = stats.norm.cdf(((k + 0.5) * step - v) / sigma) - stats.norm.cdf(((k - 0.5) * step - v) / sigma)
+    return float(mass @ (k * step) / mass.sum() - v)
+
+
+@pytest.mark.parametrize("ratio", [0.05, 0.2, 0.2499, 0.25, 0.4, 0.9, 2.0, 3.9])
+def test_a_tof_depths_stored_mean_is_its_expectation_over_the_output_steps(ratio):
+    """sigma / step on both sides of where the levels' sum gives way to the rounding's Fourier series
+    (noise_model.FOURIER_RATIO), at values all over a step: the bias against the enumeration to 1e-12 of a step
+    (the sum over the levels within 6 sigma leaves out a normal mass of 2e-9)."""
+    step = 1.0
+    values = 806.0 + np.linspace(0.0, 1.0, 13)[:, None]  # one point per bin
+    got = _rounded_mean(values, np.full(len(values), ratio * step), step)
+    expected = [_stored_mean_by_enumeration(v, ratio * step, step) for v in values[:, 0]]
+    tolerance = 1e-12 if ratio >= 0.25 else 1e-8
+    np.testing.assert_allclose(got, expected, rtol=0, atol=tolerance * step)
+
+
+def test_a_flat_tof_bin_is_biased_by_where_its_depth_sits_on_the_steps():
+    """A frontal wall's bins, the noise a third of a step: one depth, one bias, set by where the depth sits between
+    two steps (on a step none, a quarter step above one -0.036 of a step)."""
+    for depth in (806.0, 806.25):
+        z = np.full((3, 3), depth)
+        bias = tof_stored_bias(z, np.full_like(z, 1 / 3), 1.0, 4)
+        np.testing.assert_allclose(bias, _stored_mean_by_enumeration(depth, 1 / 3, 1.0), rtol=0, atol=1e-12)
+    assert bias[1, 1] == pytest.approx(-0.0355, abs=1e-4)
