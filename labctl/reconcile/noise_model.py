@@ -521,11 +521,11 @@ FOURIER_TAIL = 1e-17
 def _rounded_mean(sub: np.ndarray, sigma: np.ndarray, step: float) -> np.ndarray:  # pragma: no cover (compiled)
     """Per bin: the mean over its sample values ``sub`` of E[round_step(v + sigma n)] - v. Below ``FOURIER_RATIO``
     sigma / step, the sum over the steps within 6 sigma of v of their normal mass times the step; above, the same
-    expectation as the Fourier series of the rounding error (x - round x = sum_m (-1)^(m+1) sin(2 pi m x) / (pi m),
-    and E sin(2 pi m (v + sigma n) / step) = exp(-2 pi^2 m^2 sigma^2 / step^2) sin(2 pi m v / step) for normal n;
-    Sheppard 1898, Kendall 1938): step / pi sum_m (-1)^m exp(-2 pi^2 m^2 sigma^2 / step^2) sin(2 pi m v / step) / m,
-    its terms summed while they exceed ``FOURIER_TAIL`` of a step, the sines by the recurrence sin((m + 1) t) =
-    2 cos t sin(m t) - sin((m - 1) t)."""
+    expectation as the Fourier series of the rounding error, x - round x = sum_m (-1)^(m+1) sin(2 pi m x) / (pi m),
+    whose terms a normal noise damps, E sin(2 pi m (v + sigma n) / step) = exp(-2 pi^2 m^2 sigma^2 / step^2)
+    sin(2 pi m v / step) (Sheppard 1898; Widrow & Kollar 2008, ch. 4-5): step / pi sum_m (-1)^m exp(-2 pi^2 m^2
+    sigma^2 / step^2) sin(2 pi m v / step) / m, its terms summed while they exceed ``FOURIER_TAIL`` of a step, the
+    sines by the recurrence sin((m + 1) t) = 2 cos t sin(m t) - sin((m - 1) t)."""
     root2 = math.sqrt(2.0)
     out = np.empty(sub.shape[0])
     for i in range(sub.shape[0]):
