@@ -538,7 +538,8 @@ def _rounded_mean(sub: np.ndarray, sigma: np.ndarray, step: float) -> np.ndarray
             while damping ** ((terms + 1) ** 2) > FOURIER_TAIL:
                 terms += 1
             for m in range(sub.shape[1]):
-                t = 2.0 * math.pi * sub[i, m] / step
+                steps = sub[i, m] / step
+                t = 2.0 * math.pi * (steps - math.floor(steps))  # the phase within a step, as accurate as v
                 sine, before, twice_cos = math.sin(t), 0.0, 2.0 * math.cos(t)
                 series, sign = 0.0, -1.0
                 for order in range(1, terms + 1):
