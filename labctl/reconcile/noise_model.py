@@ -145,7 +145,8 @@ def _lattice_noise(ratio: np.ndarray, scale: np.ndarray, step_d: float, step_mm:
     n_half = half * offsets
     std, spread = np.empty(ratio.size), np.empty(ratio.size)
     probs, values = np.empty(2 * levels + 1), np.empty(2 * levels + 1)
-    variance, half_log, weight = np.empty(n_half), np.empty(n_half), np.empty(n_half)
+    variance, half_log = np.empty(n_half), np.empty(n_half)
+    weight = np.empty(half)  # each computed position's count: its mirror's too
     cdf = np.empty(2 * levels + 2)
     m1, m2 = np.empty(offsets), np.empty(offsets)
     root2 = math.sqrt(2.0)
@@ -156,7 +157,7 @@ def _lattice_noise(ratio: np.ndarray, scale: np.ndarray, step_d: float, step_mm:
         first, count = levels - reach, 2 * reach + 1
         for h in range(half):
             d = positions - half + h
-            w = 1.0 if 2 * d + 1 == positions else 2.0
+            weight[h] = 1.0 if 2 * d + 1 == positions else 2.0
             delta = (d + 0.5) / positions - 0.5
             for k in range(first, first + count + 1):  # the cumulative probability at each level's lower edge
                 cdf[k] = 0.5 * math.erfc(-(k - levels - 0.5 - delta) / r / root2)
@@ -181,7 +182,6 @@ def _lattice_noise(ratio: np.ndarray, scale: np.ndarray, step_d: float, step_mm:
                         m1[o] += m1[o - 1]
                         m2[o] += m2[o - 1]
                     variance[h * offsets + o] = max(m2[o] - m1[o] * m1[o], 0.0) * step_mm * step_mm
-                    weight[h * offsets + o] = w
             else:
                 s1, s2 = 0.0, 0.0
                 for k in range(first, first + count):
@@ -189,17 +189,16 @@ def _lattice_noise(ratio: np.ndarray, scale: np.ndarray, step_d: float, step_mm:
                     s2 += probs[k] * values[k] * values[k]
                 for o in range(offsets):
                     variance[h * offsets + o] = max(s2 - s1 * s1, 0.0)
-                    weight[h * offsets + o] = w
         total_w, total, mean_log = 0.0, 0.0, 0.0
         for j in range(n_half):
             half_log[j] = 0.5 * np.log(variance[j])
-            total_w += weight[j]
-            total += weight[j] * variance[j]
-            mean_log += weight[j] * half_log[j]
+            total_w += weight[j // offsets]
+            total += weight[j // offsets] * variance[j]
+            mean_log += weight[j // offsets] * half_log[j]
         mean_log /= total_w
         dev = 0.0
         for j in range(n_half):
-            dev += weight[j] * (half_log[j] - mean_log) ** 2
+            dev += weight[j // offsets] * (half_log[j] - mean_log) ** 2
         std[i] = math.sqrt(total / total_w)
         spread[i] = math.sqrt(dev / total_w)
     return std, spread
