@@ -1,19 +1,19 @@
 """kill -9 at 50 instants of a small simulated run: every file opens with `labctl info`, and `resume` completes
 it with the key figures of the uninterrupted run.
 
-Half the instants are random times after the run file exists; the other half land on a random write of the
-run (strace injects SIGKILL at the N-th pwrite64, N drawn over all of a run's writes), so many fall in the
-middle of a flush: some of a flush's metadata on disk, the rest not (without strace on the machine, every
-instant is a random time). A file that `resume` finds damaged
-(a flush cut short) is continued with `resume --into NEW.h5`, as its message says; where the cut flush was
-adding a step to the list of steps, that list cannot be read and the committed steps are carried over through the
-step index. The runs are
-children forked from a fork server with labctl imported (no interpreter start-up per instant), two at a time; info and resume
-then run in this process, and each resumed file is compared with the uninterrupted run step by step, bit for
-bit, and by its key figures for the first five and every file continued with --into. No committed step is
-lost: every step the run reported complete on stderr before the kill is among the steps that `resume` (in place
-or --into) carries over. With strace, the run is also killed at each of its last writes (the last step's commit
-and the status change to complete). ``CRASH_POINTS_SEED`` draws another set of instants (default 21).
+Half the instants are random times after the run file exists, drawn over the time the uninterrupted run takes from
+then; the other half land on a random write of the run (strace injects SIGKILL at the N-th pwrite64, N drawn over
+all of a run's writes, which strace counts on a run of its own), so many fall in the middle of a flush: some of a
+flush's metadata on disk, the rest not (without strace on the machine, every instant is a random time). A file that
+`resume` finds damaged (a flush cut short) is continued with `resume --into NEW.h5`, as its message says; where the
+cut flush was adding a step to the list of steps, that list cannot be read and the committed steps are carried over
+through the step index. The runs are children forked from a fork server with labctl imported (no interpreter
+start-up per instant), two at a time; info and resume then run in this process, and each resumed file is compared
+with the uninterrupted run step by step, bit for bit, and by its key figures for the first five and every file
+continued with --into. No committed step is lost: every step the run reported complete on stderr before the kill is
+among the steps that `resume` (in place or --into) carries over. With strace, the run is also killed at each of its
+last writes (the last step's commit and the status change to complete). ``CRASH_POINTS_SEED`` draws another set of
+instants (default 21).
 """
 
 from __future__ import annotations
@@ -40,7 +40,6 @@ from labctl.evaluation.evaluate import evaluate_runs
 from labctl.evaluation.keyfigures import clean
 
 INSTANTS = 50
-PWRITES = 373  # pwrite64 calls of one run of the default test campaign (strace -c); targets are drawn up to it
 LAST_WRITES = 9  # with strace, a kill at each of the last 9 of them too (the last commit and status flushes)
 
 
@@ -88,12 +87,18 @@ def reported_complete(out: Path) -> set[str]:
     return set(re.findall(r"^(\d{5}_\w+) complete", log(out).read_text(), re.MULTILINE))
 
 
-def kill_after(child: multiprocessing.Process, out: Path, delay_s: float) -> str:
-    """SIGKILL the run ``delay_s`` after its file appears under its name."""
+def appeared(child: multiprocessing.Process, out: Path) -> float:
+    """The moment the run's file appears under its name (polled every millisecond)."""
     deadline = time.monotonic() + 120
     while not out.exists() and child.is_alive():
         assert time.monotonic() < deadline, "the run file did not appear"
         time.sleep(0.001)
+    return time.monotonic()
+
+
+def kill_after(child: multiprocessing.Process, out: Path, delay_s: float) -> str:
+    """SIGKILL the run ``delay_s`` after its file appears under its name."""
+    appeared(child, out)
     time.sleep(delay_s)  # the instant itself is what is drawn at random; nothing waits on it
     child.kill()
     child.join(timeout=120)
@@ -111,6 +116,19 @@ def kill_at_write(child: multiprocessing.Process, n: int) -> str:
     child.join(timeout=300)
     strace.communicate(timeout=60)
     return f"kill -9 at pwrite64 #{n}"
+
+
+def count_writes(child: multiprocessing.Process) -> int:
+    """The pwrite64 calls of the stopped run until it ends, counted by ``strace -c`` as ``kill_at_write`` counts."""
+    while open(f"/proc/{child.pid}/stat").read().split(")")[1].split()[0] != "T":
+        time.sleep(0.001)
+    strace = subprocess.Popen(["strace", "-p", str(child.pid), "-c", "-e", "trace=pwrite64"], stderr=subprocess.PIPE,
+                              text=True)
+    assert "attached" in strace.stderr.readline()
+    os.kill(child.pid, signal.SIGCONT)
+    child.join(timeout=300)
+    summary = strace.communicate(timeout=60)[1]
+    return int(next(line.split()[3] for line in summary.splitlines() if line.endswith("pwrite64")))
 
 
 def assert_same_steps(run: Path, reference: Path, instant: str) -> None:
@@ -135,23 +153,25 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
 ):
     campaign, model = write_campaign(), small_model()
     reference = tmp_path / "reference.h5"
-    started = time.monotonic()
     child = start_run(campaign, model, reference)
+    started = appeared(child, reference)
     child.join(timeout=300)
     assert child.exitcode == 0
-    run_s = time.monotonic() - started
+    run_s = time.monotonic() - started  # the instants are drawn over the run's life after its file appears
 
     rng = random.Random(int(os.environ.get("CRASH_POINTS_SEED", "21")))
     targeted = shutil.which("strace") is not None
+    # the run's writes, targets are drawn up to them
+    writes = count_writes(start_run(campaign, model, tmp_path / "counted.h5", stop_first=True)) if targeted else 0
     instants = []
     for i in range(INSTANTS):
         out = tmp_path / f"killed{i:02d}.h5"
         if targeted and i % 2:
-            instants.append((out, rng.randint(1, PWRITES), None))
+            instants.append((out, rng.randint(1, writes), None))
         else:
             instants.append((out, None, rng.uniform(0, run_s)))
     if targeted:  # and each write of the last flushes: the last step's commit, the status change to complete
-        instants += [(tmp_path / f"last{n}.h5", n, None) for n in range(PWRITES - LAST_WRITES + 1, PWRITES + 1)]
+        instants += [(tmp_path / f"last{n}.h5", n, None) for n in range(writes - LAST_WRITES + 1, writes + 1)]
 
     def kill(instant: tuple[Path, int | None, float | None]) -> tuple[Path, str, datetime]:
         out, write, delay = instant
@@ -167,13 +187,14 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
     expected = figures(reference)
     assert expected["z_precision_q90_mm"] is not None
 
-    into, index_lost, checked_figures, lost = 0, 0, 0, {}
+    into, index_lost, checked_figures, cut, lost = 0, 0, 0, 0, {}
     for out, instant, killed in plans:
         if not out.exists():  # killed while it was created under a temporary name: the path holds nothing
             continue
         code, stdout, err = invoke(capsys, "info", out)
         assert code == 0 and "Traceback" not in err, f"{instant}: labctl info {out}: {err}"
         index_lost += "its list of steps cannot be read" in stdout
+        cut += "status complete" not in stdout.partition("\n")[0]  # killed before the run ended
         code, _, err = invoke(capsys, "resume", out, "--quiet")
         target = out
         if code == 2 and "--into NEW.h5" in err:  # damaged by a flush cut short: continue in a new file
@@ -190,7 +211,7 @@ def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
             checked_figures += 1
             assert figures(target) == expected, instant
     files = sum(1 for out, _, _ in plans if out.exists())
-    print(f"{len(instants)} instants, {files} files, {into} continued --into ({index_lost} with the list of steps lost), "
-          f"{len(lost)} losing committed steps")
+    print(f"{len(instants)} instants, {files} files, {cut} cut short, {into} continued --into ({index_lost} with the "
+          f"list of steps lost), {len(lost)} losing committed steps")
     assert not lost, f"committed steps lost: {lost}"
 
