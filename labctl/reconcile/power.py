@@ -160,11 +160,21 @@ def _signal(candidate: Candidate, ctx: Context, lay: Layout, nonlinear: Any) -> 
 class _Rivalry:
     """What a competitor C leaves of a signature (labctl/reconcile/score.py fits C's columns by least squares):
     its rows per part, u - w (P, rows), w the projection of u on C's columns, and per residual cell their products,
-    (cells, P, P); and the parts' products over all rows of u and of w, (P, P)."""
+    (cells, P, P), made when first asked for (only a competitor that competes in some direction needs them); and
+    the parts' products over all rows of u and of w, (P, P)."""
 
-    def __init__(self, name: str, left: np.ndarray, rest: np.ndarray, u: np.ndarray, w: np.ndarray) -> None:
-        self.name, self.left, self.rest, self.u, self.w = name, left, rest, u, w
+    def __init__(self, name: str, left: np.ndarray, signal: _Signal, u: np.ndarray, w: np.ndarray) -> None:
+        self.name, self.left, self.u, self.w = name, left, u, w
+        self._signal = signal
+        self._rest: np.ndarray | None = None
         self.crossed: np.ndarray | None = None  # (replicas, P, cells): u - w with each replica's residual
+
+    @property
+    def rest(self) -> np.ndarray:
+        """(cells, P, P): the products of u - w per residual cell."""
+        if self._rest is None:
+            self._rest = self._signal.cell_gram(self.left)
+        return self._rest
 
     def competes(self, a: np.ndarray) -> bool:
         """Whether C's fit correlates with the effect's in direction ``a`` (``score.competing``: |w| / |u|)."""
@@ -254,6 +264,7 @@ def _rivalries(signal: _Signal, bases: dict[str, list[tuple[np.ndarray, np.ndarr
     """Per other candidate, what it leaves of ``signal`` at the point of its grid that reproduces most of it."""
     out = []
     gathered: dict[int, np.ndarray] = {}  # the signature on a basis's rows, once per rows array (``_bases``)
+    power = signal.u @ signal.u.T
 
     def on_rows(rows: np.ndarray) -> np.ndarray:
         if id(rows) not in gathered:
@@ -266,7 +277,7 @@ def _rivalries(signal: _Signal, bases: dict[str, list[tuple[np.ndarray, np.ndarr
         rows, q = max(found, key=lambda b: float(np.sum((b[1].T @ on_rows(b[0]).T) ** 2)))
         w = np.zeros_like(signal.u)
         w[:, rows] = (q @ (q.T @ signal.u[:, rows].T)).T
-        out.append(_Rivalry(name, signal.u - w, signal.cell_gram(signal.u - w), signal.u @ signal.u.T, w @ w.T))
+        out.append(_Rivalry(name, signal.u - w, signal, power, w @ w.T))
     return out
 
 
@@ -486,8 +497,8 @@ def phases(parts: int, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarra
 def _amplitude(signal: _Signal, replicas: _Replicas, rivals: list[_Rivalry], rebuilt: list[_Rebuilt]) -> float:
     """The amplitude detected with probability ``POWER`` (inf when none within 1e6 times the first guess)."""
     total = float(np.einsum("cpp->", signal.gram)) / signal.parts  # the parts' mean power
-    if not total > 0:
-        return math.inf
+    if not total > 0 or not math.isfinite(replicas.threshold):
+        return math.inf  # no signature, or too few replicas for any dBIC to pass (K + 1 < 1 / alpha): never named
     crossed = (*replicas.crossing(signal), replicas.crosses(signal.u, signal.cells, len(signal.rows)))
     lo, hi = 0.0, 1.0 / math.sqrt(total)
     while replicas.probability(hi, signal, crossed, rivals, rebuilt) < POWER:

@@ -37,6 +37,7 @@ from labctl.reconcile.null import (
 )
 from labctl.reconcile.observe import observe_run
 from labctl.reconcile.power import (
+    _amplitude,
     _Rebuilt,
     _Replicas,
     _rivalries,
@@ -204,6 +205,23 @@ def test_the_combined_statistic_standardizes_each_familys_mean_square_not_its_ro
     judged = rule.judge(measured)
     assert judged.p_value == pytest.approx(1 / 20)
     assert judged.statistics["gap:depth"] == pytest.approx(math.sqrt(0.015), abs=1e-4)  # reported as its root
+
+
+def test_too_few_replicas_state_no_amplitude_without_searching_for_one(monkeypatch):
+    """With K = 18 replicas the smallest p-value is 1 / 19 > 0.05: no dBIC passes the critical value (infinite), so
+    no amplitude, however large, is named, and none is searched for (``probability`` is never asked)."""
+    replicas = [Replica(j, [StepFit("s0", "depth", 0.1, 1.0, 0.0)], {"e": float(j)}, np.ones(1), 0.0)
+                for j in range(18)]
+    null_dbic = {"e": np.arange(18.0)}
+    model = _Replicas(NullCalibration(replicas), "e", null_dbic, null_dbic["e"], np.zeros((18, 5)))
+    assert math.isinf(model.threshold)
+    signal = _Signal(100 * np.ones((1, 5)), np.zeros(5, int), {("s0", "depth"): [np.ones((1, 4))]}, (1.0,))
+
+    def asked(*_args):  # type: ignore[no-untyped-def]
+        raise AssertionError("a probability was computed")
+
+    monkeypatch.setattr(_Replicas, "probability", asked)
+    assert math.isinf(_amplitude(signal, model, [], []))
 
 
 def test_the_power_model_crosses_the_signature_with_each_replicas_residual():
