@@ -66,6 +66,7 @@ from sim.tof import reference_amplitude
 #: change of the stacked depth rows and log-intensity rows (Layout order), and optionally of the statistics rows
 #: (``Layout.stack_statistics``: ln noise, valid fraction, ln correlation)
 Column = tuple[np.ndarray, ...]
+_T = typing.TypeVar("_T")
 
 
 def unique_columns(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -90,7 +91,7 @@ class Context:
     make_predictor: Callable[[SimModel], Predictor]
     t0_s: float
     lay: Layout
-    _stacks: dict[str, np.ndarray] = field(default_factory=dict)
+    _stacks: dict[str, Any] = field(default_factory=dict)
 
     @property
     def technology(self) -> str:
@@ -132,7 +133,7 @@ class Context:
             self._stacks[f"{key} rows"], self._stacks[f"{key} images"] = np.split(inverse, 2)
         return self._stacks[key], self._stacks[f"{key} rows"], self._stacks[f"{key} images"]
 
-    def cached(self, key: str, compute: Callable[[], np.ndarray]) -> np.ndarray:
+    def cached(self, key: str, compute: Callable[[], _T]) -> _T:
         """``compute()``, once per context and ``key``."""
         if key not in self._stacks:
             self._stacks[key] = compute()
@@ -311,7 +312,8 @@ def _resimulated(effect: Effect) -> Candidate:
     seen = effect.observed
     (shows, _), probe = STEPS[seen.steps], {seen.fitted[0]: seen.probe, **seen.fixed}
     return _linear(
-        effect, lambda ctx, _: [ctx.finite_difference(effect.name, probe, shows, seen.probe, seen.families)],
+        effect, lambda ctx, _: [ctx.cached(f"finite difference {effect.name}", lambda: ctx.finite_difference(
+            effect.name, probe, shows, seen.probe, seen.families))],
         applies=lambda ctx: _steps_shown(effect, ctx) >= seen.min_steps,
     )
 

@@ -167,6 +167,7 @@ class _Rivalry:
         self.name, self.left, self.u, self.w = name, left, u, w
         self._signal = signal
         self._rest: np.ndarray | None = None
+        self._competing: dict[bytes, np.ndarray] = {}
         self.crossed: np.ndarray | None = None  # (replicas, P, cells): u - w with each replica's residual
 
     @property
@@ -180,6 +181,13 @@ class _Rivalry:
         """Whether C's fit correlates with the effect's in direction ``a`` (``score.competing``: |w| / |u|)."""
         total = float(a @ self.u @ a)
         return total > 0 and float(a @ self.w @ a) >= COMPETING_CORRELATION**2 * total
+
+    def competing(self, directions: np.ndarray) -> np.ndarray:
+        """``competes`` for each row of ``directions``, kept for the next call with the same directions."""
+        key = directions.tobytes()
+        if key not in self._competing:
+            self._competing[key] = np.array([self.competes(a) for a in directions])
+        return self._competing[key]
 
     def share(self) -> float:
         """The fraction of the signature's power C reproduces, over its parts."""
@@ -242,11 +250,31 @@ class _Rebuilt:
         return float(np.mean(shares))
 
 
-def _bases(candidate: Candidate, ctx: Context, lay: Layout) -> list[tuple[np.ndarray, np.ndarray]]:
+class _Bases:
+    """A candidate's orthonormal bases at consecutive points of its grid whose columns change the same rows: those
+    rows' indices, the bases side by side over them (rows, all the points' columns) and where each point's
+    columns start."""
+
+    def __init__(self, rows: np.ndarray, bases: list[np.ndarray]) -> None:
+        self.rows = rows
+        self.stacked = np.hstack(bases)
+        self.bounds = np.cumsum([0, *(b.shape[1] for b in bases)])
+
+    def basis(self, k: int) -> np.ndarray:
+        """Point ``k``'s basis, (rows, its columns)."""
+        return self.stacked[:, self.bounds[k]:self.bounds[k + 1]]
+
+    def projected(self, u: np.ndarray) -> np.ndarray:
+        """Per point, the squared norm of the projection on its basis of the parts ``u`` (P, rows), summed over
+        the parts: one product for all the points."""
+        return np.add.reduceat(np.sum((self.stacked.T @ u.T) ** 2, axis=1), self.bounds[:-1])
+
+
+def _bases(candidate: Candidate, ctx: Context, lay: Layout) -> list[_Bases]:
     """Orthonormal bases of the candidate's whitened, profiled columns at every point of its grid where score.py
-    can fit them (finite, of full rank), each on the rows the columns change (most change only the depth rows):
-    (those rows' indices, the basis over them)."""
-    out: list[tuple[np.ndarray, np.ndarray]] = []
+    can fit them (finite, of full rank), each on the rows the columns change (most change only the depth rows),
+    consecutive points on the same rows together."""
+    found: list[tuple[np.ndarray, np.ndarray]] = []
     for nonlinear in candidate.grid(ctx):
         columns = candidate.columns(ctx, nonlinear)
         if not columns:
@@ -254,27 +282,32 @@ def _bases(candidate: Candidate, ctx: Context, lay: Layout) -> list[tuple[np.nda
         x = np.column_stack([lay.profiled_rows(*column) for column in columns])
         if np.all(np.isfinite(x)) and np.linalg.matrix_rank(x) == x.shape[1]:
             rows = np.flatnonzero(np.any(x != 0, axis=1))
-            # the same rows as the point before: its array (``_rivalries`` gathers a signature's rows once per array)
-            rows = out[-1][0] if out and np.array_equal(out[-1][0], rows) else rows
-            out.append((rows, np.linalg.qr(x[rows])[0]))
+            found.append((rows, np.linalg.qr(x[rows])[0]))
+    out: list[_Bases] = []
+    start = 0
+    for end in range(1, len(found) + 1):
+        if end == len(found) or not np.array_equal(found[end][0], found[start][0]):
+            out.append(_Bases(found[start][0], [q for _, q in found[start:end]]))
+            start = end
     return out
 
 
-def _rivalries(signal: _Signal, bases: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> list[_Rivalry]:
-    """Per other candidate, what it leaves of ``signal`` at the point of its grid that reproduces most of it."""
+def _rivalries(signal: _Signal, bases: dict[str, list[_Bases]]) -> list[_Rivalry]:
+    """Per other candidate, what it leaves of ``signal`` at the point of its grid that reproduces most of it (the
+    first such point)."""
     out = []
-    gathered: dict[int, np.ndarray] = {}  # the signature on a basis's rows, once per rows array (``_bases``)
     power = signal.u @ signal.u.T
-
-    def on_rows(rows: np.ndarray) -> np.ndarray:
-        if id(rows) not in gathered:
-            gathered[id(rows)] = signal.u[:, rows]
-        return gathered[id(rows)]
-
-    for name, found in bases.items():
-        if not found:
+    for name, groups in bases.items():
+        best: tuple[float, _Bases, int] | None = None
+        for group in groups:
+            scores = group.projected(signal.u[:, group.rows])
+            k = int(np.argmax(scores))
+            if best is None or scores[k] > best[0]:
+                best = (float(scores[k]), group, k)
+        if best is None:
             continue
-        rows, q = max(found, key=lambda b: float(np.sum((b[1].T @ on_rows(b[0]).T) ** 2)))
+        _, group, k = best
+        q, rows = group.basis(k), group.rows
         w = np.zeros_like(signal.u)
         w[:, rows] = (q @ (q.T @ signal.u[:, rows].T)).T
         out.append(_Rivalry(name, signal.u - w, signal, power, w @ w.T))
@@ -318,7 +351,7 @@ class _Replicas:
     ``null.combined_statistics`` computed from them."""
 
     def __init__(self, null: NullCalibration, name: str, null_dbic: dict[str, np.ndarray], null_best: np.ndarray,
-                 residual: np.ndarray) -> None:
+                 residual: np.ndarray, maps: list[tuple[np.ndarray, np.ndarray] | None] | None = None) -> None:
         self.alpha, self.threshold = null.alpha, critical_value(list(null_best), null.alpha)
         self.null_best = null_best  # each replica's best dBIC among the candidates in play
         # (rows, replicas): ``residual_rows`` transposed (a view of the array it returns, a copy of any other)
@@ -333,7 +366,8 @@ class _Replicas:
                     self.square[j, index[(s.step_id, s.family)]] = s.mean_square
                 self.floor[j, index[(s.step_id, s.family)]] = s.floor
         self.families = sorted({f for _, f in self.steps})
-        self.family_of = np.array([f for _, f in self.steps])
+        family_of = np.array([f for _, f in self.steps])
+        self.family_columns = [np.flatnonzero(family_of == f) for f in self.families]
         self.rss = [np.asarray(r.cell_rss, float) for r in null.replicas]
         self._cell_rss: dict[int, np.ndarray] = {}
         self.null_dbic = null_dbic
@@ -341,25 +375,28 @@ class _Replicas:
         self.own = self.statistics(self.square)
         self.base = np.column_stack([self.own, null_best])
         self.median = np.nanmedian(_reported(self.own), axis=0)
-        self.maps = [[r.maps.get(family, {}).get(step_id) for r in null.replicas] for step_id, family in self.steps]
+        # per (step, family): the replicas' residual maps stacked (``maps``: those of another effect's arrays)
+        self.residual_maps = maps if maps is not None else [
+            _replica_maps([r.maps.get(family, {}).get(step_id) for r in null.replicas]) for step_id, family in self.steps]
 
     def statistics(self, square: np.ndarray) -> np.ndarray:
-        """(replicas, statistics): per family the mean of the step mean squares, then the largest step ratio (gap =
-        the root of the mean square clipped at 0)."""
+        """(..., replicas, statistics) of step mean squares (..., replicas, steps): per family the mean of the step
+        mean squares, then the largest step ratio (gap = the root of the mean square clipped at 0)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            columns = [np.nanmean(np.where(self.family_of == f, square, np.nan), axis=1) for f in self.families]
+            columns = [np.nanmean(square[..., columns], axis=-1) for columns in self.family_columns]
             ratio = np.sqrt(np.maximum(square, 0.0)) / self.floor
-            columns.append(np.nanmax(np.where(np.isfinite(ratio), ratio, np.nan), axis=1))
-        return np.stack(columns, axis=1)
+            columns.append(np.nanmax(np.where(np.isfinite(ratio), ratio, np.nan), axis=-1))
+        return np.stack(columns, axis=-1)
 
     def outside(self, moved: np.ndarray) -> np.ndarray:
-        """Per replica j: is its row with the effect, ``moved[j]`` (the statistics, then the best dBIC), outside
-        the distribution of the K replicas (``standardized_max`` and ``p_value`` of labctl/reconcile/null.py, as
-        the measured run is judged; replica j's own noise-only row stays among the K)?"""
-        k = len(self.base)
-        pools = np.concatenate([moved[:, None, :], np.broadcast_to(self.base, (k, *self.base.shape))], axis=1)
+        """Per replica j (and per leading index of ``moved``): is its row with the effect, ``moved[..., j, :]``
+        (the statistics, then the best dBIC), outside the distribution of the K replicas (``standardized_max`` and
+        ``p_value`` of labctl/reconcile/null.py, as the measured run is judged; replica j's own noise-only row
+        stays among the K)?"""
+        rows = moved.reshape(-1, moved.shape[-1])
+        pools = np.concatenate([rows[:, None, :], np.broadcast_to(self.base, (len(rows), *self.base.shape))], axis=1)
         t = standardized_max_rows(pools)
-        return p_values(t) <= self.alpha
+        return (p_values(t) <= self.alpha).reshape(moved.shape[:-1])
 
     def material(self, moved: np.ndarray) -> np.ndarray:
         """Per replica j: would fitting the effect away be material (``NullCalibration.material``): its statistics
@@ -371,7 +408,7 @@ class _Replicas:
         before, after = _reported(moved), _reported(self.own)
         excess = before - self.median
         with np.errstate(invalid="ignore"):
-            return np.any((excess > 0) & (before - after >= MATERIAL_FRACTION * excess), axis=1)
+            return np.any((excess > 0) & (before - after >= MATERIAL_FRACTION * excess), axis=-1)
 
     def crossing(self, signal: _Signal) -> tuple[np.ndarray, np.ndarray]:
         """Per (step, family) of ``steps``: the signature parts' mean products over the step's bins, (steps, P, P),
@@ -390,13 +427,17 @@ class _Replicas:
             seen = np.isfinite(maps[0])
             values = np.stack([m[seen] for m in maps])  # (P, bins)
             power[i] = values @ values.T / seen.sum()
-            for j, residual in enumerate(self.maps[i]):
-                if residual is None:
-                    continue
-                r = residual[seen].astype(float)
-                both = np.isfinite(r)
-                if both.any():
-                    cross[j, i] = values[:, both] @ r[both] / both.sum()
+            stacked = self.residual_maps[i]
+            if stacked is None:
+                continue
+            replicas, residual = stacked
+            r = residual[:, seen]  # (replicas with a map, bins), NaN where the replica did not compare
+            both = np.isfinite(r)
+            counts = both.sum(axis=1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                crossed = np.where(both, r, 0.0) @ values.T / counts[:, None]
+            compared = counts > 0
+            cross[replicas[compared], i] = crossed[compared]
         return power, cross
 
     def crosses(self, v: np.ndarray, cells: np.ndarray, n_cells: int) -> np.ndarray:
@@ -423,37 +464,40 @@ class _Replicas:
         power and cross terms (``crossing``) and the signature's cross terms with the replicas' residual rows
         (``crosses``)."""
         power, cross, dbic_cross = crossed
-        directions = phases(signal.parts, signal.signs)
-        hits = 0.0
-        for a in directions:
-            added = amplitude**2 * np.einsum("sab,a,b->s", power, a, a) + 2 * amplitude * cross @ a
-            gain = self.gain(amplitude, signal.gram, dbic_cross, a)
-            chance = (self.dbic0 - self.threshold + gain > 0) * self.separated(amplitude, signal, a, rivals, rebuilt)
-            moved = self.statistics(self.square + added)
-            best = np.maximum(self.null_best, self.dbic0 + gain)
-            hits += float(np.sum(chance[self.outside(np.column_stack([moved, best])) & self.material(moved)]))
-        return hits / (len(self.base) * len(directions))
+        a = np.array(phases(signal.parts, signal.signs))  # (directions, P)
+        added = (amplitude**2 * np.einsum("sab,da,db->ds", power, a, a)[:, None, :]
+                 + 2 * amplitude * np.einsum("jsp,dp->djs", cross, a))  # (directions, replicas, steps)
+        gain = self.gain(amplitude, signal.gram, dbic_cross, a)  # (directions, replicas)
+        chance = (self.dbic0 - self.threshold + gain > 0) & self.separated(amplitude, signal, a, rivals, rebuilt)
+        moved = self.statistics(self.square + added)
+        best = np.maximum(self.null_best, self.dbic0 + gain)
+        hits = np.sum(chance & self.outside(np.concatenate([moved, best[..., None]], axis=-1)) & self.material(moved))
+        return float(hits) / chance.size
 
     def separated(self, amplitude: float, signal: _Signal, a: np.ndarray, rivals: list[_Rivalry],
                   rebuilt: list[_Rebuilt]) -> np.ndarray:
-        """Per replica, whether the effect's dBIC in direction ``a`` exceeds every competitor's by ``MARGIN``:
-        by its own null dBIC's excess over the competitor's and the gain of what the competitor cannot fit
-        (those built from the run's residual, ``rebuilt``, at ``amplitude``)."""
-        out = np.ones(len(self.base), bool)
+        """Per replica (and per direction, where ``a`` holds one per row), whether the effect's dBIC in direction
+        ``a`` exceeds every competitor's by ``MARGIN``: by its own null dBIC's excess over the competitor's and the
+        gain of what the competitor cannot fit (those built from the run's residual, ``rebuilt``, at
+        ``amplitude``)."""
+        directions = np.atleast_2d(a)
+        out = np.ones((len(directions), len(self.base)), bool)
         n_cells = len(signal.rows)
         for rival in rivals:
-            if not rival.competes(a):
+            competing = rival.competing(directions)
+            if not competing.any():
                 continue
             if rival.crossed is None:
                 rival.crossed = self.crosses(rival.left, signal.cells, n_cells)
-            gain = self.gain(amplitude, rival.rest, rival.crossed, a)
-            out &= self.dbic0 - self.null_dbic[rival.name] - MARGIN + gain > 0
+            gain = self.gain(amplitude, rival.rest, rival.crossed, directions[competing])
+            out[competing] &= self.dbic0 - self.null_dbic[rival.name] - MARGIN + gain > 0
         for other in rebuilt:
-            v = other.left(amplitude, a)
-            if v is not None:
-                gain = self.gain(amplitude, other.cell_gram, other.crossed, v)
-                out &= self.dbic0 - self.null_dbic[other.name] - MARGIN + gain > 0
-        return out
+            for d, direction in enumerate(directions):
+                v = other.left(amplitude, direction)
+                if v is not None:
+                    gain = self.gain(amplitude, other.cell_gram, other.crossed, v)
+                    out[d] &= self.dbic0 - self.null_dbic[other.name] - MARGIN + gain > 0
+        return out if a.ndim > 1 else out[0]
 
     def cell_rss(self, cells: int) -> np.ndarray:
         """(replicas, ``cells``): each replica's residual sum of squares per cell, repeated to ``cells``, at least
@@ -468,11 +512,20 @@ class _Replicas:
         (replicas, P, cells)): p_c its power in cell c, x_jc its cross term with the replica's residual there. The
         fall of the cells' log residual sum of squares when a fit takes up that signal: 1 + (A^2 p + 2 A x) / RSS
         is the cell's |r + A u|^2 / |r|^2 (at least 0; kept above 1e-300 where the whitening of this run and the
-        replica's differ)."""
-        power = np.einsum("cab,a,b->c", gram, a, a)
-        cross = np.einsum("jpc,p->jc", crossed, a)
-        rss = self.cell_rss(len(power))
-        return np.sum(np.log(np.maximum(1 + (amplitude**2 * power + 2 * amplitude * cross) / rss, 1e-300)), axis=1)
+        replica's differ). ``a`` may hold one direction per row: then per direction and replica."""
+        power = np.einsum("cab,...a,...b->...c", gram, a, a)[..., None, :]
+        cross = np.einsum("jpc,...p->...jc", crossed, a)
+        rss = self.cell_rss(gram.shape[0])
+        return np.sum(np.log(np.maximum(1 + (amplitude**2 * power + 2 * amplitude * cross) / rss, 1e-300)), axis=-1)
+
+
+def _replica_maps(maps: list[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The replicas that hold a residual map of one (step, family), by index, and their maps stacked as float64,
+    (replicas, bins); None where none does."""
+    present = [j for j, m in enumerate(maps) if m is not None]
+    if not present:
+        return None
+    return np.array(present), np.stack([np.asarray(maps[j], float) for j in present])
 
 
 def _reported(statistics: np.ndarray) -> np.ndarray:
@@ -523,8 +576,10 @@ def detectable(ctx: Context, lay: Layout, null: NullCalibration) -> dict[str, Mi
     bases = {c.name: _bases(c, ctx, lay) for c in candidates if c.rebind is None}
     from_residual = [c for c in candidates if c.rebind is not None]
     out: dict[str, MinimumDetectable] = {}
+    maps = None
     for candidate in candidates:
-        replicas = _Replicas(null, candidate.name, null_dbic, null_best, residual)
+        replicas = _Replicas(null, candidate.name, null_dbic, null_best, residual, maps)
+        maps = replicas.residual_maps
         found = []
         grid = candidate.grid(ctx)
         for nonlinear in [grid[int(i)] for i in np.unique(np.linspace(0, len(grid) - 1, GRID_POINTS).round())]:

@@ -38,6 +38,7 @@ from labctl.reconcile.null import (
 from labctl.reconcile.observe import observe_run
 from labctl.reconcile.power import (
     _amplitude,
+    _Bases,
     _Rebuilt,
     _Replicas,
     _rivalries,
@@ -298,7 +299,7 @@ def test_the_power_model_names_an_effect_only_by_the_margin_over_a_competitor(an
                                                        "c": np.array([0.0, -1.0, -2.0])}, np.zeros(3), residual)
     signal = _Signal(np.array([[1.0, 0.0, 1.0, 0.0]]), np.array([0, 0, 1, 1]), {}, (1.0,))
     basis = np.array([[math.cos(t)], [math.sin(t)], [math.cos(t)], [math.sin(t)]]) / math.sqrt(2)
-    rivals = _rivalries(signal, {"c": [(np.arange(4), basis)]})
+    rivals = _rivalries(signal, {"c": [_Bases(np.arange(4), [basis])]})
     assert rivals[0].share() == pytest.approx(math.cos(t) ** 2)
     a = np.array([1.0])
     for amplitude in (0.5, 3.0, 10.0):
