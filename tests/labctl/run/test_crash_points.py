@@ -29,6 +29,7 @@ import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
+from multiprocessing import forkserver
 from pathlib import Path
 
 import h5py
@@ -68,7 +69,15 @@ def _run_in_child(args: list[str], stop_first: bool, log: Path) -> None:
 #: earlier tests may have started numba's OpenMP threads (a fork is then refused: "fork() called from a process
 #: already using GNU OpenMP", and the child exits 1)
 RUNS = multiprocessing.get_context("forkserver")
-RUNS.set_forkserver_preload(["labctl.cli", __name__])
+
+
+@pytest.fixture(scope="module")
+def labctl_fork_server() -> None:
+    """The fork server with labctl imported. A process has one fork server, which keeps the modules of whoever
+    started it: one started by an earlier test of this process (the UR emulator's, sim/emulators/ur/process.py)
+    is stopped first, or every run would import labctl itself (3 s of CPU time each)."""
+    forkserver._forkserver._stop()  # the module's own stop, for its tests; nothing where none runs
+    RUNS.set_forkserver_preload(["labctl.cli", __name__])
 
 
 def start_run(campaign: Path, model: Path, out: Path, stop_first: bool = False) -> multiprocessing.Process:
@@ -149,7 +158,7 @@ def assert_same_steps(run: Path, reference: Path, instant: str) -> None:
 
 @pytest.mark.slow
 def test_kill_9_at_50_instants_every_file_opens_and_resumes_to_the_same_figures(
-    tmp_path, write_campaign, small_model, capsys
+    tmp_path, write_campaign, small_model, capsys, labctl_fork_server
 ):
     campaign, model = write_campaign(), small_model()
     reference = tmp_path / "reference.h5"
