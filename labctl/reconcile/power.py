@@ -383,7 +383,7 @@ class _Replicas:
         """(..., replicas, statistics) of step mean squares (..., replicas, steps): per family the mean of the step
         mean squares, then the largest step ratio (gap = the root of the mean square clipped at 0)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            columns = [np.nanmean(square[..., columns], axis=-1) for columns in self.family_columns]
+            columns = [np.nanmean(square[..., family], axis=-1) for family in self.family_columns]
             ratio = np.sqrt(np.maximum(square, 0.0)) / self.floor
             columns.append(np.nanmax(np.where(np.isfinite(ratio), ratio, np.nan), axis=-1))
         return np.stack(columns, axis=-1)
