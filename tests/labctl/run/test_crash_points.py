@@ -114,29 +114,28 @@ def kill_after(child: multiprocessing.Process, out: Path, delay_s: float) -> str
     return f"kill -9 {delay_s:.3f} s after the file appeared"
 
 
-def kill_at_write(child: multiprocessing.Process, n: int) -> str:
-    """strace attaches to the stopped run and delivers SIGKILL at the entry of its n-th pwrite64."""
+def traced(child: multiprocessing.Process, *options: str) -> str:
+    """Attach strace (tracing pwrite64, with ``options``) to the stopped run, let it go on until it ends; strace's
+    output on stderr."""
     while open(f"/proc/{child.pid}/stat").read().split(")")[1].split()[0] != "T":
         time.sleep(0.001)
-    strace = subprocess.Popen(["strace", "-p", str(child.pid), "-o", "/dev/null", "-e", "trace=pwrite64",
-                               "-e", f"inject=pwrite64:signal=SIGKILL:when={n}"], stderr=subprocess.PIPE, text=True)
+    strace = subprocess.Popen(["strace", "-p", str(child.pid), "-e", "trace=pwrite64", *options],
+                              stderr=subprocess.PIPE, text=True)
     assert "attached" in strace.stderr.readline()
     os.kill(child.pid, signal.SIGCONT)
     child.join(timeout=300)
-    strace.communicate(timeout=60)
+    return strace.communicate(timeout=60)[1]
+
+
+def kill_at_write(child: multiprocessing.Process, n: int) -> str:
+    """strace delivers SIGKILL to the stopped run at the entry of its n-th pwrite64."""
+    traced(child, "-o", "/dev/null", "-e", f"inject=pwrite64:signal=SIGKILL:when={n}")
     return f"kill -9 at pwrite64 #{n}"
 
 
 def count_writes(child: multiprocessing.Process) -> int:
     """The pwrite64 calls of the stopped run until it ends, counted by ``strace -c`` as ``kill_at_write`` counts."""
-    while open(f"/proc/{child.pid}/stat").read().split(")")[1].split()[0] != "T":
-        time.sleep(0.001)
-    strace = subprocess.Popen(["strace", "-p", str(child.pid), "-c", "-e", "trace=pwrite64"], stderr=subprocess.PIPE,
-                              text=True)
-    assert "attached" in strace.stderr.readline()
-    os.kill(child.pid, signal.SIGCONT)
-    child.join(timeout=300)
-    summary = strace.communicate(timeout=60)[1]
+    summary = traced(child, "-c")
     return int(next(line.split()[3] for line in summary.splitlines() if line.endswith("pwrite64")))
 
 
