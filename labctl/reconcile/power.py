@@ -167,7 +167,6 @@ class _Rivalry:
         self.name, self.left, self.u, self.w = name, left, u, w
         self._signal = signal
         self._rest: np.ndarray | None = None
-        self._competing: dict[bytes, np.ndarray] = {}
         self.crossed: np.ndarray | None = None  # (replicas, P, cells): u - w with each replica's residual
 
     @property
@@ -177,17 +176,12 @@ class _Rivalry:
             self._rest = self._signal.cell_gram(self.left)
         return self._rest
 
-    def competes(self, a: np.ndarray) -> bool:
-        """Whether C's fit correlates with the effect's in direction ``a`` (``score.competing``: |w| / |u|)."""
-        total = float(a @ self.u @ a)
-        return total > 0 and float(a @ self.w @ a) >= COMPETING_CORRELATION**2 * total
-
     def competing(self, directions: np.ndarray) -> np.ndarray:
-        """``competes`` for each row of ``directions``, kept for the next call with the same directions."""
-        key = directions.tobytes()
-        if key not in self._competing:
-            self._competing[key] = np.array([self.competes(a) for a in directions])
-        return self._competing[key]
+        """Per row a of ``directions``: does C's fit correlate with the effect's in direction a (``score.competing``:
+        |w| / |u|)?"""
+        total = np.einsum("dp,pq,dq->d", directions, self.u, directions)
+        return (total > 0) & (np.einsum("dp,pq,dq->d", directions, self.w, directions)
+                              >= COMPETING_CORRELATION**2 * total)
 
     def share(self) -> float:
         """The fraction of the signature's power C reproduces, over its parts."""
