@@ -36,7 +36,8 @@ from labctl.batch.cluster import machine_workers
 from labctl.blas import one_blas_thread
 from labctl.cli import main as labctl_main
 from labctl.kernel_threads import serial_kernels
-from labctl.reconcile.null import DEFAULT_NULL_RUNS, null_replica, replica_model, seeds_for
+from labctl.reconcile.false_positives import DEFAULT_NULL_RUNS
+from labctl.reconcile.null import null_replica, replica_model, seeds_for
 from labctl.reconcile.observe import MAX_FRAMES, observe_run
 from labctl.reconcile.workflow import base_model, first_round, reconcile
 from sim.effects import default_effects

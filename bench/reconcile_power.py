@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from labctl.reconcile.null import DEFAULT_NULL_RUNS
+from labctl.reconcile.false_positives import DEFAULT_NULL_RUNS
 from labctl.reconcile.workflow import reconcile
 from sim.effects import EFFECTS, valid_range
 from tests.reconcile.runs import simulated_run

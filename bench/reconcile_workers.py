@@ -20,7 +20,7 @@ from pathlib import Path
 
 from bench.common import scratch_dir
 from bench.reconcile import _make_run
-from labctl.reconcile.null import DEFAULT_NULL_RUNS
+from labctl.reconcile.false_positives import DEFAULT_NULL_RUNS
 from labctl.reconcile.workflow import reconcile
 
 

@@ -25,6 +25,7 @@ from pydantic import ConfigDict, Field, ValidationError, field_serializer, field
 
 from procedures.steps import StrictModel
 from sim.effects import EffectParams, default_effects, parse_effects
+from sim.errors import ModelError
 from sim.lab import LabGeometry
 from sim.materials import WAVELENGTH_RANGE_NM
 from sim.profiles import MAX_SENSOR_PX, PROFILES, CameraProfile, get_profile
@@ -34,10 +35,6 @@ from sim.profiles import MAX_SENSOR_PX, PROFILES, CameraProfile, get_profile
 MIN_TOF_NOISE_MM = 0.001
 MIN_MODULATION_MHZ = 1.0
 MIN_BASELINE_MM = 1.0
-
-
-class ModelError(ValueError):
-    """A simulation model (file or text) is invalid; the message names the file and the field."""
 
 
 class CameraOverrides(StrictModel):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from labctl.batch.tasks import Summary
 from labctl.jsondoc import JSONValue, inline, optional, write_json
-from labctl.run.store import labctl_version, now_iso
+from labctl.provenance import labctl_version, now_iso
 
 RECONCILE_COLUMNS = ["verdict", "named", "empirical", "gap_before", "gap_after", "gap_floor", "consistent_with_noise",
                      "best_candidate", "best_candidate_dbic", "worst_step_ratio"]

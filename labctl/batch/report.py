@@ -15,9 +15,9 @@ from matplotlib.figure import Figure
 from labctl.batch.index import ErrorRates, NullCalibration, counts, figure_names
 from labctl.batch.tasks import Summary
 from labctl.evaluation.keyfigures import FIGURE_BY_NAME
+from labctl.provenance import labctl_version, now_iso
 from labctl.report.html import CSS
 from labctl.report.plots.png import save_png
-from labctl.run.store import labctl_version, now_iso
 
 MAX_PLOTTED = 12  # figures plotted across runs (all are tabled)
 

@@ -45,7 +45,8 @@ from labctl.run.filekind import describe, is_hdf5
 from labctl.run.lab import simulated_lab
 from labctl.run.progress import Reporter
 from sim.effects import default_effects
-from sim.model import ModelError, load_model, parse_model
+from sim.errors import ModelError
+from sim.model import load_model, parse_model
 from sim.profiles import get_profile
 
 #: figures tabled and plotted when the sweep file names none

@@ -12,6 +12,7 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -26,18 +27,12 @@ from labctl.cli.console import console_options, run_console
 from labctl.cli.inputs import distinct, warn, warn_run_suffix
 from labctl.cli.outputs import OutputDirectory, OutputFile, output_directory_for, output_file
 from labctl.errors import InputError, LabctlError
-from labctl.jsondoc import dumps
-from labctl.reconcile.confounds import campaign_confounds
-from labctl.run.campaign import resume_run, run_campaign
+from labctl.provenance import labctl_version
 from labctl.run.compression import COMPRESSIONS
-from labctl.run.config import Campaign, load_campaign, model_camera_mismatch
-from labctl.run.diskspace import format_bytes
-from labctl.run.lab import build_real_lab, simulated_lab
-from labctl.run.overrides import parse_overrides
-from labctl.run.planning import expected_run_bytes, format_duration, schedule
-from labctl.run.progress import EvaluationProgress, Reporter
-from labctl.run.store import labctl_version, refuse_existing_output
-from sim.model import ModelError, load_model
+from sim.errors import ModelError
+
+if TYPE_CHECKING:
+    from labctl.run.config import Campaign
 
 
 def _echo_err(message: str) -> None:
@@ -65,6 +60,12 @@ def cli() -> None:
 @click.option("--compression", type=click.Choice(COMPRESSIONS), help="size estimate for this storage (default: [runner])")
 def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
     """Validate CAMPAIGN and list every step with its estimated lab time and the run file's size (no hardware)."""
+    from labctl.jsondoc import dumps
+    from labctl.reconcile.confounds import campaign_confounds
+    from labctl.run.config import load_campaign
+    from labctl.run.diskspace import format_bytes
+    from labctl.run.planning import expected_run_bytes, format_duration, schedule
+
     config, _ = load_campaign(campaign)
     planned = schedule(config)
     total = sum(p.duration_s for p in planned)
@@ -128,6 +129,8 @@ def plan(campaign: Path, as_json: bool, compression: str | None) -> None:
 def _same_camera(campaign: Campaign, model_camera: str, campaign_path: Path, model_path: Path) -> None:
     """Refuse a model of another camera than the campaign's: the run file would record one camera's campaign
     holding another camera's data, and reconcile and the reports would compare the wrong camera."""
+    from labctl.run.config import model_camera_mismatch
+
     why = model_camera_mismatch(campaign.devices.camera.backend, model_camera)
     if why is not None:
         profile = campaign.devices.camera.sim_profile
@@ -155,6 +158,13 @@ def run(
     compression: str | None, quiet: bool, with_console: bool, console_port: int, console_host: str | None,
 ) -> None:
     """Run CAMPAIGN into the run file OUTPUT."""
+    from labctl.run.campaign import run_campaign
+    from labctl.run.config import load_campaign
+    from labctl.run.lab import build_real_lab, simulated_lab
+    from labctl.run.progress import Reporter
+    from labctl.run.store import refuse_existing_output
+    from sim.model import load_model
+
     config, text = load_campaign(campaign)
     refuse_existing_output(output)
     output_file(output, "-o")
@@ -197,6 +207,10 @@ def resume(
     RUN_FILE and kept by later resumes. A damaged RUN_FILE (cut short, a
     flush that failed) is continued in a new file with --into NEW.h5.
     """
+    from labctl.run.campaign import resume_run
+    from labctl.run.overrides import parse_overrides
+    from labctl.run.progress import Reporter
+
     new = [(role, "port", value) for role, value in parse_overrides("port", ports).items()]
     new += [(role, "host", value) for role, value in parse_overrides("host", hosts).items()]
     if into is not None:
@@ -218,6 +232,7 @@ def evaluate(runs: Sequence[Path], output: Path, quiet: bool, pdf: bool) -> None
     from labctl.evaluation.evaluate import count_complete_steps, evaluate_runs
     from labctl.report.html import write_outputs
     from labctl.report.pdf import print_pdf
+    from labctl.run.progress import EvaluationProgress, Reporter
 
     runs = distinct(runs, "run file")
     steps = count_complete_steps(runs)

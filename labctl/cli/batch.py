@@ -10,10 +10,10 @@ import click
 
 from labctl.cli.outputs import OutputDirectory, output_directory
 from labctl.errors import InputError, RunAborted
-from labctl.run.progress import Reporter
 
 if TYPE_CHECKING:
     from labctl.batch.orchestrate import Outcome
+    from labctl.run.progress import Reporter
 
 SCHEDULER_HELP = "address of an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: a local cluster)"
 WORKERS_HELP = "worker processes of the local cluster (default: one per core)"
@@ -50,6 +50,7 @@ def runs_command(runs: Sequence[str], output: Path, evaluate: bool, reconcile: b
     from labctl.batch.cluster import Cluster
     from labctl.batch.inputs import expand_runs
     from labctl.batch.orchestrate import batch_runs
+    from labctl.run.progress import Reporter
     from sim.model import load_model
 
     if not evaluate and not reconcile:
@@ -78,6 +79,7 @@ def sweep_command(sweep_file: Path, output: Path, scheduler: str | None, workers
     from labctl.batch.cluster import Cluster
     from labctl.batch.orchestrate import batch_sweep
     from labctl.batch.sweep import load_sweep
+    from labctl.run.progress import Reporter
 
     sweep = load_sweep(sweep_file)
     cluster = Cluster(scheduler, workers)

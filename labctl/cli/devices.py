@@ -12,20 +12,18 @@ import tomllib
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-import numpy as np
 
 from drivers.errors import DeviceError, LimitViolation
-from drivers.protocols import DepthCamera
 from labctl.cli.inputs import POSITIVE, Number, warn_run_suffix
 from labctl.cli.outputs import OutputFile, output_file
 from labctl.errors import InputError, RunAborted
 from labctl.jsondoc import dumps
-from labctl.run.operator import Operator, unlock_confirmation
-from labctl.run.store import RunWriter
-from procedures.steps import Step
+
+if TYPE_CHECKING:
+    from drivers.protocols import DepthCamera
 
 
 @contextmanager
@@ -90,6 +88,7 @@ def stage(
 ) -> None:
     """Optionally home and move the linear stage, then print its position."""
     from drivers.stage import move_stage
+    from labctl.run.operator import Operator, unlock_confirmation
 
     options: dict[str, Any] = {} if baud is None else {"baud": baud}
     if protocol == "zaber":
@@ -129,6 +128,11 @@ def _capture_file(
     description: str,
 ) -> dict[str, Any]:
     """Grab one stack into a new run file holding one ``capture`` step (docs/runfile.md)."""
+    import numpy as np
+
+    from labctl.run.store import RunWriter
+    from procedures.steps import Step
+
     camera.configure(exposure_us, settings)
     step = Step(index=0, procedure="capture", target="scene", frames=frames, exposure_us=exposure_us)
     writer = RunWriter.create(

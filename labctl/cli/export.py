@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
-import numpy as np
 
 from labctl.cli.inputs import warn
 from labctl.cli.outputs import OutputFile, output_file
 from labctl.errors import InputError
-from labctl.report.pointcloud_io import write_pcd, write_ply
-from labctl.run.store import RunReader, StepRecord
-from metrics.stack import stack_stats
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from labctl.run.store import RunReader, StepRecord
 
 
 def step_cloud(record: StepRecord, frame: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -20,6 +22,10 @@ def step_cloud(record: StepRecord, frame: int | None = None) -> tuple[np.ndarray
 
     A point is invalid (NaN in x, y and z) where any coordinate is.
     """
+    import numpy as np
+
+    from metrics.stack import stack_stats
+
     if frame is None:
         xyz = np.stack([stack_stats(record.read(c)).mean for c in "xyz"], axis=-1)
         intensity = stack_stats(record.read("intensity")).mean
@@ -68,6 +74,11 @@ def export(run_file: Path, step_id: str, fmt: str, output: Path, frame: int | No
     valid points only. The cloud is the mean of the step's frames unless
     --frame K. An existing OUTPUT is only replaced with --force.
     """
+    import numpy as np
+
+    from labctl.report.pointcloud_io import write_pcd, write_ply
+    from labctl.run.store import RunReader
+
     if output.exists() and output.resolve() == run_file.resolve():
         raise InputError(f"-o {output} is the run file itself")
     _matching_suffix(output, fmt)

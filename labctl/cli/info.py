@@ -7,8 +7,6 @@ from pathlib import Path
 import click
 
 from labctl.jsondoc import dumps
-from labctl.run.diskspace import format_bytes
-from labctl.run.runinfo import run_info
 
 
 def _position(step: dict) -> str:
@@ -25,6 +23,9 @@ def _position(step: dict) -> str:
 @click.option("--json", "as_json", is_flag=True, help="print one JSON document")
 def info(run_file: Path, as_json: bool) -> None:
     """Show RUN_FILE's header (campaign, status, size, compression) and every step with its status."""
+    from labctl.run.diskspace import format_bytes
+    from labctl.run.runinfo import run_info
+
     doc = run_info(run_file)
     if as_json:
         click.echo(dumps(doc))

@@ -9,8 +9,7 @@ import click
 
 from labctl.cli.outputs import OutputDirectory, output_directory_for
 from labctl.jsondoc import dumps
-from labctl.reconcile.null import DEFAULT_NULL_RUNS
-from labctl.run.progress import Reporter
+from labctl.reconcile.false_positives import DEFAULT_NULL_RUNS
 
 
 @click.command()
@@ -29,6 +28,7 @@ def reconcile(measured: Path, model_path: Path | None, output: Path, as_json: bo
     against --null-runs simulated replicas of the measured campaign with nothing missing."""
     from labctl.reconcile.report import write_reconcile
     from labctl.reconcile.workflow import reconcile as run_reconcile
+    from labctl.run.progress import Reporter
     from sim.model import load_model
 
     model = load_model(model_path)[0] if model_path is not None else None

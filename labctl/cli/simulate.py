@@ -12,7 +12,6 @@ from click.core import ParameterSource
 from labctl.cli.outputs import OutputFile, png_file
 from labctl.errors import InputError
 from labctl.jsondoc import dumps
-from sim.model import default_model_text, load_model, parse_model
 from sim.profiles import PROFILES, SOURCES
 from sim.scenes.targets import PLATE_MATERIALS, TARGETS, scene_parameters
 
@@ -23,6 +22,8 @@ def sim_group() -> None:
 
 
 def _model(camera: str | None, model_path: Path | None):
+    from sim.model import default_model_text, load_model, parse_model
+
     if model_path is not None:
         model = load_model(model_path)[0]
         if camera is not None and camera != model.camera:

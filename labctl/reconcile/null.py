@@ -59,6 +59,7 @@ import numpy as np
 import tomli_w
 
 from labctl.reconcile import replica_cache
+from labctl.reconcile.false_positives import ALPHA
 from labctl.reconcile.goodness import FLOOR_FRACTION, MATERIAL_FRACTION, Goodness, StepFit, material
 from labctl.reconcile.observe import MAX_FRAMES
 from labctl.reconcile.results import CalibrationSection, NullJudgement, ValueRange
@@ -67,11 +68,6 @@ from sim.model import SimModel
 from sim.shared_renders import forget as forget_renders
 from sim.shared_renders import shared_renders
 
-#: the false-positive rate each decision is held to (a conventional 5 %); with K null runs the smallest
-#: attainable p-value is 1 / (K + 1), so K must be at least 19 for a decision to reach it
-ALPHA = 0.05
-#: the smallest K for which p <= ALPHA is attainable (1 / (K + 1) = 0.05)
-DEFAULT_NULL_RUNS = 19
 #: replica seeds: NULL_SEED_BASE, NULL_SEED_BASE + 1, ... (the measured campaign's own seed skipped); a prime far
 #: above the seeds the project's campaigns and tests use, so that no replica repeats a simulated measurement
 NULL_SEED_BASE = 1_000_003

@@ -10,12 +10,12 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from labctl.jsondoc import write_json
+from labctl.provenance import labctl_version, now_iso
 from labctl.reconcile.goodness import UNITS
 from labctl.reconcile.results import Determination, NotComparable, Parameters, ReconcileDocument
 from labctl.reconcile.workflow import ReconcileResult, json_document
 from labctl.report.html import CSS as REPORT_CSS
 from labctl.report.plots.png import save_png
-from labctl.run.store import labctl_version, now_iso
 
 CSS = REPORT_CSS + ".verdict{font-size:1.3em;font-weight:600}\n"
 

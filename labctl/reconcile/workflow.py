@@ -79,6 +79,7 @@ from labctl.reconcile.corners import (
     observe_corner_run,
 )
 from labctl.reconcile.empirical import FIRST_FORM, FORMS
+from labctl.reconcile.false_positives import ALPHA, DEFAULT_NULL_RUNS
 from labctl.reconcile.goodness import (
     FLOOR_FRACTION,
     MATERIAL_FRACTION,
@@ -90,7 +91,7 @@ from labctl.reconcile.goodness import (
     residual_maps,
     rounded,
 )
-from labctl.reconcile.null import ALPHA, DEFAULT_NULL_RUNS, FixedThresholds, NullCalibration, simulate_null_runs
+from labctl.reconcile.null import FixedThresholds, NullCalibration, simulate_null_runs
 from labctl.reconcile.observe import Observation, observe_run
 from labctl.reconcile.pairs import masked_pair
 from labctl.reconcile.power import detectable, detectable_message

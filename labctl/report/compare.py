@@ -32,9 +32,9 @@ from labctl.evaluation.keyfigures import (
 )
 from labctl.evaluation.suitability import IED_MIN_PX
 from labctl.jsondoc import write_json
+from labctl.provenance import labctl_version, now_iso
 from labctl.report.html import CSS, better_text, references_html, verdict_cell, wrap_table, wrappable
 from labctl.report.plots.png import save_png
-from labctl.run.store import labctl_version, now_iso
 from metrics.uncertainty import distinguishable
 
 #: figures left out of the chart (different scale or "higher is better")

@@ -22,7 +22,7 @@ import h5py
 import numpy as np
 
 from labctl.evaluation.evaluate import Evaluation
-from labctl.run.store import labctl_version
+from labctl.provenance import labctl_version
 
 #: depth-error columns of the ``depth_error`` group: (DepthErrors attribute, long name)
 DEPTH_COLUMNS = (

@@ -36,6 +36,7 @@ from labctl.evaluation.sharpness import resolution_table
 from labctl.evaluation.suitability import Suitability
 from labctl.evaluation.vdi2634 import acceptance_table, rim_rule_deviation, verdicts
 from labctl.jsondoc import write_json
+from labctl.provenance import labctl_version, now_iso
 from labctl.report.curves import write_curves
 from labctl.report.plots.acceptance import plot_acceptance
 from labctl.report.plots.boehler import plot_boehler
@@ -52,7 +53,6 @@ from labctl.report.plots.figures import (
 )
 from labctl.report.plots.remission import plot_misalignment_fit, plot_remission
 from labctl.report.pointcloud_io import write_pcd
-from labctl.run.store import labctl_version, now_iso
 
 #: page style shared by the report and the comparison: tables sit in a container that scrolls sideways
 #: on screen, headers wrap at underscores, and in print everything wraps to the page width

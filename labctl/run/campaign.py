@@ -16,6 +16,7 @@ from pathlib import Path
 
 from drivers.protocols import CameraInfo
 from labctl.errors import InputError
+from labctl.provenance import now_iso
 from labctl.run.config import Campaign, parse_campaign
 from labctl.run.digest import digest_path, write_digest
 from labctl.run.diskspace import ensure_free, format_bytes
@@ -32,7 +33,6 @@ from labctl.run.store import (
     DamagedRunFile,
     FrameSink,
     RunWriter,
-    now_iso,
     refuse_existing_output,
     refuse_what_is_not_hdf5,
 )

@@ -69,7 +69,6 @@ import os
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +77,7 @@ import numpy as np
 
 from drivers.protocols import CameraInfo, DeviceIdentity, Frame
 from labctl.errors import InputError
+from labctl.provenance import labctl_version, now_iso
 from labctl.run import compression as codecs
 from labctl.run.chunk_read import read_stack
 from labctl.run.chunks import ChunkWriter, CompressionFailed
@@ -115,20 +115,6 @@ _NOT_DAMAGE = (errno.EACCES, errno.EPERM, errno.EAGAIN, errno.ENOENT, errno.EISD
 class RunFileError(OSError):
     """A write to the run file failed (an I/O error, or no space where nothing could be reserved). The open
     handle is then detached from the file, so nothing more reaches it: the file keeps its last flushed state."""
-
-
-def labctl_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("labctl")
-    except PackageNotFoundError:
-        return "0+unknown"
-
-
-def now_iso() -> str:
-    """Current UTC time, ISO 8601 with milliseconds."""
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
 def finite_or_none(value: Any) -> float | None:

@@ -16,9 +16,10 @@ from sim.effects import EFFECTS
 from sim.effects.base import valid_range
 from sim.effects.diffuse_floor_multipath import bounce_phasor
 from sim.effects.fixed_pattern import Params, cell_average, offset_map_mm
+from sim.errors import ModelError
 from sim.geometry import Pose
 from sim.materials import get_material
-from sim.model import ModelError, default_model_text, parse_model
+from sim.model import default_model_text, parse_model
 from sim.scenes.targets import build_scene, plate_scene
 from sim.sensor import default_coc_px
 from sim.sensor import edge_sfr as analytic_sfr

@@ -26,7 +26,8 @@ from labctl.cli import main
 from labctl.errors import InputError
 from labctl.run.config import parse_campaign
 from labctl.run.planning import expected_run_bytes, schedule
-from sim.model import ModelError, parse_model
+from sim.errors import ModelError
+from sim.model import parse_model
 from sim.preview import simulate_frame
 
 ROOT = Path(__file__).resolve().parents[3]
