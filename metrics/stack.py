@@ -159,8 +159,12 @@ def _leave_group_out(stack: np.ndarray, bounds: np.ndarray) -> np.ndarray:  # pr
                     if v == v:
                         s[g, j] += v
                         c[g, j] += 1.0
-        total_s = s.sum(axis=0)
-        total_c = c.sum(axis=0)
+        total_s = np.zeros(w)  # the groups added in order, as sum(axis=0) adds them (written out: numba takes
+        total_c = np.zeros(w)  # seconds to compile an axis sum)
+        for g in range(groups):
+            for j in range(w):
+                total_s[j] += s[g, j]
+                total_c[j] += c[g, j]
         for g in range(groups):
             kept = n - (bounds[g + 1] - bounds[g])
             for j in range(w):

@@ -70,6 +70,26 @@ def test_quantile_abs_ignores_nan():
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_selection_leaves_the_kth_smallest_at_k_with_none_smaller_after_and_none_larger_before(dtype):
+    """metrics.depth._select against a full sort: any size, heavy ties (few distinct values), sorted and reversed
+    input, every k of the small arrays."""
+    from metrics.depth import _select
+
+    rng = np.random.default_rng(5)
+    cases = [rng.normal(size=int(rng.integers(1, 300))) for _ in range(60)]
+    cases += [rng.integers(0, 3, size=int(rng.integers(1, 300))).astype(float) for _ in range(60)]
+    cases += [np.arange(50.0), np.arange(50.0)[::-1], np.zeros(17)]
+    for values in cases:
+        values = values.astype(dtype)
+        ordered = np.sort(values)
+        for k in (range(values.size) if values.size <= 50 else rng.integers(0, values.size, 10)):
+            a = values.copy()
+            assert _select(a, int(k)) == ordered[k]
+            assert a[k] == ordered[k] and (a[:k] <= a[k]).all() and (a[k + 1:] >= a[k]).all()
+            np.testing.assert_array_equal(np.sort(a), ordered)  # reordered, nothing lost
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_the_compiled_quantile_is_numpys_bit_for_bit_wherever_the_bracket_lies(dtype):
     """The jackknife's quantiles (metrics.depth._linear_quantile) equal np.quantile's exactly, whether the sought
     ranks fall among the bracketed values or the quantile falls back to all of them; ties included."""
