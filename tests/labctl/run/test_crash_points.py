@@ -65,6 +65,12 @@ def _run_in_child(args: list[str], stop_first: bool, log: Path) -> None:
     main(args)
 
 
+#: what ``labctl run --sim --model`` imports when it starts (labctl/cli/app.py, ``run``): the command line loads a
+#: command's work only when the command runs
+RUN_COMMAND_MODULES = ["labctl.run.campaign", "labctl.run.config", "labctl.run.lab", "labctl.run.progress",
+                       "labctl.run.store", "sim.model"]
+
+
 #: the runs are forked from a fork server, a fresh process with labctl imported: never from this process, whose
 #: earlier tests may have started numba's OpenMP threads (a fork is then refused: "fork() called from a process
 #: already using GNU OpenMP", and the child exits 1)
@@ -77,7 +83,7 @@ def labctl_fork_server() -> None:
     started it: one started by an earlier test of this process (the UR emulator's, sim/emulators/ur/process.py)
     is stopped first, or every run would import labctl itself (3 s of CPU time each)."""
     forkserver._forkserver._stop()  # the module's own stop, for its tests; nothing where none runs
-    RUNS.set_forkserver_preload(["labctl.cli", __name__])
+    RUNS.set_forkserver_preload(["labctl.cli", *RUN_COMMAND_MODULES, __name__])
 
 
 def start_run(campaign: Path, model: Path, out: Path, stop_first: bool = False) -> multiprocessing.Process:
