@@ -45,10 +45,9 @@ from pathlib import Path
 from scipy import stats
 
 from labctl.batch.cluster import Cluster, open_client
+from labctl.reconcile.false_positives import ALPHA, DEFAULT_NULL_RUNS
 from labctl.reconcile.goodness import Goodness
 from labctl.reconcile.null import (
-    ALPHA,
-    DEFAULT_NULL_RUNS,
     NullCalibration,
     Replica,
     null_replica,

@@ -19,10 +19,9 @@ import pytest
 
 from labctl.jsondoc import to_json
 from labctl.reconcile.candidates import Context, candidates_for
+from labctl.reconcile.false_positives import ALPHA, DEFAULT_NULL_RUNS
 from labctl.reconcile.goodness import Goodness, StepFit, residual_maps
 from labctl.reconcile.null import (
-    ALPHA,
-    DEFAULT_NULL_RUNS,
     NullCalibration,
     Replica,
     combined_statistics,
