@@ -353,8 +353,10 @@ def _left_out_shares(stack: np.ndarray, pixels: np.ndarray, mean: np.ndarray, co
                 var = (squares[p] - d2 - s * shift) / (c - 1)
                 _count_at_or_below(abs(mean[p] + shift - reference), thresholds[0], tolerance[0], here, 0)
                 _count_at_or_below(abs(np.sqrt(0.0 if var < 0.0 else var)), thresholds[1], tolerance[1], here, 1)
-    summed = np.zeros((n, 4))  # the blocks added in order, as sum(axis=0) adds them (written out: numba takes
-    for b in range(blocks):  # seconds to compile an axis sum)
+    # the blocks added in order, as counts.sum(axis=0) adds them (written out: numba takes seconds to compile an
+    # axis sum)
+    summed = np.zeros((n, 4))
+    for b in range(blocks):
         for i in range(n):
             for f in range(4):
                 summed[i, f] += counts[b, i, f]

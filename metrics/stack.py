@@ -159,8 +159,10 @@ def _leave_group_out(stack: np.ndarray, bounds: np.ndarray) -> np.ndarray:  # pr
                     if v == v:
                         s[g, j] += v
                         c[g, j] += 1.0
-        total_s = np.zeros(w)  # the groups added in order, as sum(axis=0) adds them (written out: numba takes
-        total_c = np.zeros(w)  # seconds to compile an axis sum)
+        # the groups added in order, as sum(axis=0) adds them (written out: numba takes seconds to compile an axis
+        # sum)
+        total_s = np.zeros(w)
+        total_c = np.zeros(w)
         for g in range(groups):
             for j in range(w):
                 total_s[j] += s[g, j]
