@@ -27,8 +27,15 @@ def test_starting_the_command_line_imports_no_command_s_work():
 
 
 def test_help_of_every_command_imports_no_command_s_work():
-    code = ("import contextlib, io\nfrom labctl.cli import cli\n"
-            "for args in ([], ['sim'], ['batch'], ['device'], ['analyze'], ['reconcile'], ['run'], ['export']):\n"
+    """``--help`` of labctl, of every command and of every command of a group, the commands read from the CLI."""
+    code = ("import contextlib, io\nimport click\nfrom labctl.cli import cli\n"
+            "paths = [[]]\n"
+            "for name, command in cli.commands.items():\n"
+            "    paths.append([name])\n"
+            "    if isinstance(command, click.Group):\n"
+            "        paths += [[name, sub] for sub in command.commands]\n"
+            "assert len(paths) > 20, paths\n"
+            "for args in paths:\n"
             "    with contextlib.redirect_stdout(io.StringIO()):\n"
             "        cli.main(args=[*args, '--help'], standalone_mode=False)")
     assert heavy(loaded_after(code)) == []
