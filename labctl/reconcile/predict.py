@@ -526,20 +526,11 @@ class Predictor:
                         before + weighting)
 
     def central_depth(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> float:
-        """The mean predicted depth over the central 10 % x 10 % region of the measured camera (metrics.stack
-        central_roi), each bin weighted by the region's pixels in it; NaN when none is reported there."""
-        rendered = self._render(step, shift_mm)
-        drift = self.drift_mm(times_s)
-        if isinstance(self.sensor, ToFSensor):
-            exposure = step.exposure_us or self.profile.exposure_us
-            bins = self._tof_expected(rendered, exposure)
-            range_mm = np.where(bins.share > 0, bins.range_mm - bins.hooked + drift, np.nan)
-            amplitude = np.where(bins.share > 0, bins.amplitude, 0.0)
-            z = self._tof_stored(self.tof_depth(rendered, range_mm, bins.hooked), amplitude, bins.ambient)
-        else:
-            exposure = step.exposure_us or self.profile.exposure_us
-            lit = stereo_light(self.sensor, rendered, exposure, step.projector)
-            z = self._stereo_depth(rendered, drift, disparity_noise_px(self.sensor, rendered, lit))
+        """The mean predicted depth (``predict``'s z) over the central 10 % x 10 % region of the measured camera
+        (metrics.stack central_roi), each reported bin weighted by the region's pixels in it; NaN when none is
+        reported there."""
+        predicted = self.predict(step, times_s, shift_mm)
+        z = np.where(predicted.reported, predicted.z, np.nan)
         rows, cols = central_roi(self.full.height, self.full.width)
         weight = np.outer(_overlap(rows, z.shape[0], self.bin_px), _overlap(cols, z.shape[1], self.bin_px))
         weight = np.where(np.isfinite(z), weight, 0.0)
