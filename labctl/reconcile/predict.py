@@ -34,6 +34,7 @@ re-simulate a whole run in milliseconds per step.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from collections.abc import Callable, Sequence
@@ -97,6 +98,12 @@ RENDERS_PER_STEP = 3
 #: charts, stars, the slanted edge, the ball bar, the face) a full reach from the render, at 1.47 mm: depth within
 #: 1.1e-7 mm and light within 1e-8 of itself of the walls drawn there (the ball bar's sphere the furthest off)
 SHIFT_REACH_MM = 1e-3
+#: a calibration wall's shift is solved until its central depth is within this of the recorded distance
+#: (``calibration_shift``): far below the comparison's depth floor (labctl/reconcile/residuals.py Z_FLOOR_MM, 0.02 mm)
+SHIFT_TOLERANCE_MM = 1e-4
+#: the most secant steps it takes; a D455 with a disparity bias of 0.058 px at a 1.68 px period needs 3 (the error's
+#: slope 0.2 of the distance), a camera whose error is flat over the shift none
+SHIFT_ITERATIONS = 12
 
 
 @dataclass(frozen=True)
@@ -356,19 +363,16 @@ class Predictor:
         depth error at the calibration, and every recorded wall is the true one plus that error. The model's
         camera makes its own error there: the walls it saw are each recorded distance minus the shift s at
         which its central depth of the calibration wall, placed at the recorded distance minus s, equals the
-        recorded distance (two fixed-point steps from s = 0; the error changes by far less than the shift over
-        the shift). Without it an error that varies with distance (a disparity error growing as z^2) would be
-        evaluated at walls off by the error itself. Steps are tied to the calibration whose offset they carry.
+        recorded distance (``calibration_shift``). Without it an error that varies with distance (a disparity
+        error growing as z^2) would be evaluated at walls off by the error itself. Steps are tied to the
+        calibration whose offset they carry.
         """
         shifts: dict[str, float] = {}
         for calibration in observations:
             scene = calibration.scene
             if not scene.sets_offset or scene.applied_offset_mm is None or scene.wall_distance_mm is None:
                 continue
-            times = calibration.times_s - t0_s
-            shift = 0.0
-            for _ in range(2):
-                shift += self.central_depth(scene, times, shift) - scene.wall_distance_mm
+            shift = calibration_shift(functools.partial(self._calibration_miss, scene, calibration.times_s - t0_s))
             if not math.isfinite(shift):
                 continue
             for o in observations:
@@ -376,6 +380,12 @@ class Predictor:
                 if offset is not None and abs(offset - scene.applied_offset_mm) <= OFFSET_MATCH_MM:
                     shifts.setdefault(o.scene.step_id, shift)
         return shifts
+
+    def _calibration_miss(self, scene: StepScene, times_s: np.ndarray, shift_mm: float) -> float:
+        """The model's central depth of the calibration wall ``scene`` placed ``shift_mm`` nearer than recorded,
+        minus the recorded distance (``calibration_shift``)."""
+        assert scene.wall_distance_mm is not None  # only walls calibrate
+        return self.central_depth(scene, times_s, shift_mm) - scene.wall_distance_mm
 
     def predict_run(self, observations: Sequence[Observation], t0_s: float) -> list[Prediction]:
         """The prediction of every step, the laser-referenced walls where this model's camera saw them
@@ -616,6 +626,28 @@ def _nearer(step: StepScene, shift_mm: float) -> StepScene:
     """The step with its wall ``shift_mm`` nearer than recorded."""
     assert step.wall_distance_mm is not None  # only walls are shifted
     return dataclasses.replace(step, wall_distance_mm=step.wall_distance_mm - shift_mm)
+
+
+def calibration_shift(miss: Callable[[float], float]) -> float:
+    """The shift s (mm) at which ``miss``(s), the model's central depth of the calibration wall placed s nearer
+    than recorded minus the recorded distance, is 0 to within ``SHIFT_TOLERANCE_MM`` (``Predictor.wall_shifts``);
+    NaN where the model sees nothing there. The first step is the fixed-point one, s = miss(0): exact where the
+    camera's error does not change with distance. Then the secant method (superlinear): where the error changes
+    with distance by a share c of the distance, fixed-point steps only shrink what is left by c each, and a
+    periodic error's c is large (a disparity bias of a px and period P px: up to 2 pi a / P, 0.22 at 0.058 px and
+    1.68 px, which two such steps left at 0.35 mm on a wall at 2 m)."""
+    before, missed_before = 0.0, miss(0.0)
+    if not math.isfinite(missed_before):
+        return math.nan
+    shift = missed_before
+    for _ in range(SHIFT_ITERATIONS):
+        missed = miss(shift)
+        if not math.isfinite(missed) or abs(missed) <= SHIFT_TOLERANCE_MM:
+            return shift if math.isfinite(missed) else math.nan
+        change = missed - missed_before
+        before, missed_before, shift = shift, missed, \
+            shift - missed * (shift - before) / change if change else shift + missed
+    return shift
 
 
 def sharp_bins(rendered: Any) -> np.ndarray:
