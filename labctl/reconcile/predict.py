@@ -101,8 +101,8 @@ SHIFT_REACH_MM = 1e-3
 #: a calibration wall's shift is solved until its central depth is within this of the recorded distance
 #: (``calibration_shift``): far below the comparison's depth floor (labctl/reconcile/residuals.py Z_FLOOR_MM, 0.02 mm)
 SHIFT_TOLERANCE_MM = 1e-4
-#: the most secant steps it takes; a D455 with a disparity bias of 0.058 px at a 1.68 px period needs 3 (the error's
-#: slope 0.2 of the distance), a camera whose error is flat over the shift none
+#: the most central depths it takes after the one at s = 0: a D455 with a disparity bias of 0.058 px at a 1.68 px
+#: period (the error's slope 0.2 of the distance) takes 3, its plain model 2 (two in all before the root was solved)
 SHIFT_ITERATIONS = 12
 
 
