@@ -536,11 +536,17 @@ class Predictor:
                         before + weighting)
 
     def central_depth(self, step: StepScene, times_s: np.ndarray, shift_mm: float = 0.0) -> float:
-        """The mean predicted depth (``predict``'s z) over the central 10 % x 10 % region of the measured camera
-        (metrics.stack central_roi), each reported bin weighted by the region's pixels in it; NaN when none is
-        reported there."""
-        predicted = self.predict(step, times_s, shift_mm)
-        z = np.where(predicted.reported, predicted.z, np.nan)
+        """The mean predicted depth (``predict``'s z, taken by the same ``_tof_parts`` or ``_stereo_parts`` without
+        the rest of a prediction) over the central 10 % x 10 % region of the measured camera (metrics.stack
+        central_roi), each reported bin weighted by the region's pixels in it; NaN when none is reported there."""
+        rendered = self._render(step, shift_mm)
+        exposure = step.exposure_us or self.profile.exposure_us
+        drift = self.drift_mm(times_s)
+        if isinstance(self.sensor, ToFSensor):
+            bins, _, _, _, z = self._tof_parts(rendered, exposure, drift, ~sharp_bins(rendered))
+            z = np.where(bins.share > 0, z, np.nan)
+        else:
+            z = self._stereo_parts(step, rendered, exposure, drift)[2]
         rows, cols = central_roi(self.full.height, self.full.width)
         weight = np.outer(_overlap(rows, z.shape[0], self.bin_px), _overlap(cols, z.shape[1], self.bin_px))
         weight = np.where(np.isfinite(z), weight, 0.0)
@@ -560,34 +566,47 @@ class Predictor:
         sharp = sharp_bins(rendered)
         smooth = ~sharp
         edge = self._edge_bins(step.step_id, sharp, reach)
-        centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         if isinstance(self.sensor, ToFSensor):
             # a bin's means continue across the camera's range (the mean over all its pixels, as where part of them
             # is cut): only its valid fraction and noise know the cut (and, as before, the image's mean phasor the
             # multipath's signature takes), so that a model moving a bin out of range changes its comparison by the
             # pixels it cuts, not by a jump of its depth and intensity rows
-            bins = self._tof_expected(rendered, exposure)
+            bins, range_mm, light, amplitude, z = self._tof_parts(rendered, exposure, drift, smooth)
             reported, ambient = bins.share > 0, bins.ambient
-            range_mm = bins.range_mm + drift
-            light = self.pixels_light(bins.amplitude / centre, rendered, smooth)
-            amplitude = self.shade(light)
             cut = amplitude if reported.all() else self.shade(np.where(reported, light, 0.0))
             dominant = cut * np.exp(1j * self.sensor.wavenumber * finite(rendered.range_dom))
-            z = self._tof_stored(self.tof_depth(rendered, range_mm - bins.hooked, bins.hooked), amplitude, ambient)
             noise = tof_noise(self.sensor, cut, ambient, np.broadcast_to(self.z_per_range, z.shape))
             valid = self._valid_fraction(step.step_id, cut, ambient, smooth) * bins.share
             return Prediction(z, amplitude, range_mm, rendered.range_dom, self.z_per_range, light,
                               complex(dominant.mean()), self.cos_alpha, edge, noise, np.zeros_like(z), valid,
                               np.zeros_like(z), _independent(noise), reported, bins.pixel_range, smooth, self.bin_px)
-        lit = stereo_light(self.sensor, rendered, exposure, step.projector)
-        sigma_d = disparity_noise_px(self.sensor, rendered, lit)
-        z = self._stereo_depth(rendered, drift, sigma_d)
+        lit, sigma_d, z = self._stereo_parts(step, rendered, exposure, drift)
+        centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
         ir = self.shade(self.sensor.ir_image(rendered, exposure, step.projector) / centre)
         noise, spread, valid, valid_spread = stereo_statistics(
             self.sensor, z, rendered.z_plain, sigma_d, lit, self._dot_stats(recorded.centre_distance_mm), self.bin_px,
             self._shading_slope(), range_spread(rendered.z_plain, self.bin_px, smooth)[0][1])
         return Prediction(z, ir, z, rendered.range_dom, self.z_per_range, ir, 0j, self.cos_alpha, edge,
                           noise, spread, valid, valid_spread, _independent(noise))
+
+    def _tof_parts(self, rendered: Any, exposure_us: float, drift_mm: float,
+                   smooth: np.ndarray) -> tuple[_ToFBins, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """A ToF render's bins (``_tof_expected``), their range (drift included), light before the shading (each
+        bin's pixels' mean, ``pixels_light``, taken where ``smooth``), amplitude and expected stored z."""
+        bins = self._tof_expected(rendered, exposure_us)
+        range_mm = bins.range_mm + drift_mm
+        centre = shading_factor(self.effects, self.sensor.geometry.cos_alpha)  # the shading at the bin centres
+        light = self.pixels_light(bins.amplitude / centre, rendered, smooth)
+        amplitude = self.shade(light)
+        z = self._tof_stored(self.tof_depth(rendered, range_mm - bins.hooked, bins.hooked), amplitude, bins.ambient)
+        return bins, range_mm, light, amplitude, z
+
+    def _stereo_parts(self, step: StepScene, rendered: Any, exposure_us: float,
+                      drift_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A stereo render's light for the matcher (``stereo_light``), disparity noise (px) and expected stored z."""
+        lit = stereo_light(self.sensor, rendered, exposure_us, step.projector)
+        sigma_d = disparity_noise_px(self.sensor, rendered, lit)
+        return lit, sigma_d, self._stereo_depth(rendered, drift_mm, sigma_d)
 
     def _pixels_reported(self, z: np.ndarray) -> np.ndarray:
         """The mean over each bin's pixels of the depth the stereo camera reports (its range hooks), from the
